@@ -1,0 +1,160 @@
+"""``tankviz convert``: CAN logs to one decoded, self-contained MCAP drive archive.
+
+The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
+(``/can/<bus>/<Message>``), a ``tankviz`` metadata record (version, inputs, databases with their
+SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs) and every
+database file as an attachment, so a drive can be decoded again from the MCAP alone.
+
+A conversion that fails leaves no output file: it writes ``.<name>.partial`` beside the output and
+renames it only when the MCAP is complete.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import IO, Any
+
+from bridge import __version__
+from bridge.decode import DatabaseFile, Decoder, load_database, parse_dbc_option
+from bridge.errors import OutputError
+from bridge.recorder import Recorder
+from bridge.source import LogSource, SourceIssue, merge
+
+#: How many source issues are kept in the metadata (all are counted).
+MAX_ISSUES_RECORDED = 1000
+
+Progress = Callable[[int, float | None], None]
+"""Called now and then with (frames so far, fraction of the input read or None)."""
+
+
+@dataclass
+class ConvertReport:
+    """What a conversion did: counts, decode statistics and what was skipped."""
+
+    output: Path | None
+    frames: int
+    messages: int
+    seconds: float
+    statistics: dict[str, Any]
+    issues: list[SourceIssue] = field(default_factory=list)
+    start_ns: int | None = None
+    end_ns: int | None = None
+
+
+def build_decoder(dbc_options: Sequence[str]) -> Decoder:
+    """A decoder from ``[BUS=]PATH`` options; each file is loaded once even if named twice."""
+    loaded: dict[Path, DatabaseFile] = {}
+    by_bus: dict[str | None, list[DatabaseFile]] = {}
+    for option in dbc_options:
+        bus, path = parse_dbc_option(option)
+        key = path.resolve()
+        if key not in loaded:
+            loaded[key] = load_database(path)
+        by_bus.setdefault(bus, []).append(loaded[key])
+    return Decoder(by_bus)
+
+
+def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
+    """Attachment name per database sha256: the file name, made unique where two collide."""
+    names: dict[str, str] = {}
+    for f in files:
+        name = f.path.name
+        if name in names.values():
+            name = f"{f.sha256[:8]}-{name}"
+        names.setdefault(f.sha256, name)
+    return names
+
+
+def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
+                 progress: Progress | None = None, every: int = 16384) -> ConvertReport:
+    """Convert ``sources`` into an MCAP written to the open binary ``output``."""
+    started = time.perf_counter()
+    recorder = Recorder(output)
+    write_frame, write_decoded, decode = recorder.write_frame, recorder.write_decoded, decoder.decode
+    total_bytes = sum(s.progress()[1] for s in sources)
+    frames = 0
+    start_ns: int | None = None
+    end_ns: int | None = None
+    for frame in merge(sources):
+        write_frame(frame)
+        decoded = decode(frame)
+        if decoded is not None:
+            write_decoded(frame.timestamp_ns, decoded)
+        frames += 1
+        t = frame.timestamp_ns
+        if start_ns is None or t < start_ns:
+            start_ns = t
+        if end_ns is None or t > end_ns:
+            end_ns = t
+        if progress is not None and frames % every == 0:
+            done = sum(s.progress()[0] for s in sources)
+            progress(frames, done / total_bytes if total_bytes else None)
+    if progress is not None:
+        progress(frames, 1.0)
+
+    names = attachment_names(decoder.files)
+    for f in decoder.files:
+        recorder.add_attachment(names[f.sha256], f.content)
+    issues = [i for s in sources for i in s.issues]
+    statistics = decoder.stats.to_dict(decoder.codecs())
+    buses: dict[str, list[str]] = {}
+    for f in decoder.files:
+        for bus in decoder.buses_for(f):
+            buses.setdefault(bus, []).append(names[f.sha256])
+    recorder.add_metadata({
+        "tankviz_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
+                    "backwards_jumps": s.backwards} for s in sources],
+        "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
+                       "path": str(f.path), "buses": decoder.buses_for(f)}
+                      for f in decoder.files],
+        "bus_databases": buses,
+        "statistics": statistics,
+        "input_issues": {"count": len(issues),
+                         "first": [str(i) for i in issues[:MAX_ISSUES_RECORDED]]},
+    })
+    recorder.finish()
+    return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
+                         statistics, issues, start_ns, end_ns)
+
+
+def check_output(path: Path, *, force: bool) -> None:
+    """Refuse an output that exists (unless ``force``) or that cannot be written."""
+    if path.is_dir():
+        raise OutputError(path, "is a directory")
+    if path.exists() and not force:
+        raise OutputError(path, "exists already; use --force to overwrite it")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(path, f"cannot write: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(path, f"cannot write: folder {parent} is not writable")
+
+
+def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
+            force: bool = False, strict: bool = False,
+            progress: Progress | None = None) -> ConvertReport:
+    """Convert log files into ``output``; everything is checked before the output is touched."""
+    output = Path(output)
+    check_output(output, force=force)
+    decoder = build_decoder(dbc_options)
+    sources = [LogSource(Path(p), strict=strict) for p in inputs]
+    partial = output.with_name(f".{output.name}.partial")
+    try:
+        with partial.open("wb") as stream:
+            report = record_drive(sources, decoder, stream, progress=progress)
+        os.replace(partial, output)
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    report.output = output
+    return report

@@ -1,0 +1,271 @@
+"""Decode: CAN frames to signals with cantools, by (bus, id), each bus with its own databases.
+
+A frame whose id no database of its bus defines, one that does not decode, and error frames are
+counted per (bus, id) in :class:`DecodeStats`, never raised: the recorder keeps every raw frame,
+so nothing is lost. Frames shorter than their DBC length decode what fits and are counted too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import cantools
+from cantools.database.can.database import Database
+from cantools.database.can.message import Message as DbcMessage
+from google.protobuf import descriptor_pool
+
+from bridge.errors import DatabaseError, UsageError
+from bridge.frame import Frame
+from bridge.schema import MessageSchema, identifier
+from bridge.topics import message_topic
+
+#: Key bit that tells a 29-bit id from an 11-bit one with the same number.
+_EXTENDED = 1 << 31
+#: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
+_CACHE_SIZE = 1024
+
+_BUS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
+
+
+@dataclass(frozen=True)
+class DatabaseFile:
+    """A loaded signal database and what identifies it in a drive archive."""
+
+    path: Path
+    name: str
+    sha256: str
+    content: bytes
+    db: Database = field(repr=False, compare=False)
+
+
+def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
+    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file."""
+    path = Path(path)
+    try:
+        content = path.read_bytes()
+    except FileNotFoundError:
+        raise DatabaseError(path, "no such file") from None
+    except OSError as exc:
+        raise DatabaseError(path, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        db = cantools.database.load_file(str(path), strict=False)
+    except Exception as exc:  # cantools raises many types; its text is the useful part
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise DatabaseError(path, f"cantools cannot load it: {reason}") from None
+    if not isinstance(db, Database):
+        raise DatabaseError(path, "not a CAN database (cantools loaded a diagnostics database)")
+    return DatabaseFile(path, name or path.stem, hashlib.sha256(content).hexdigest(), content, db)
+
+
+def parse_dbc_option(text: str) -> tuple[str | None, Path]:
+    """``[BUS=]PATH`` from the command line: the bus (None for every bus) and the path."""
+    bus, sep, rest = text.partition("=")
+    if sep and bus and _BUS_NAME.match(bus) and not Path(text).exists():
+        if not rest:
+            raise UsageError(f"--dbc {text}: no path after '{bus}='")
+        return bus, Path(rest)
+    return None, Path(text)
+
+
+class Decoded(NamedTuple):
+    """One decoded frame: its message, the signal values and their protobuf encoding."""
+
+    codec: MessageCodec
+    signals: Mapping[str, Any]
+    payload: bytes
+
+
+class MessageCodec:
+    """One DBC message as seen on one bus: cantools decoding, the protobuf type, the topic."""
+
+    def __init__(self, message: DbcMessage, database: DatabaseFile, schema: MessageSchema,
+                 bus: str) -> None:
+        self.message = message
+        self.database = database
+        self.schema = schema
+        self.bus = bus
+        self.topic = message_topic(bus, message.name)
+        self.decoded = 0
+        self.truncated = 0
+        self._cache: dict[bytes, Decoded] = {}
+
+    def decode(self, data: bytes) -> Decoded:
+        """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
+        hit = self._cache.get(data)
+        if hit is not None:
+            self.decoded += 1
+            return hit
+        signals = self.message.decode(data, decode_choices=False, allow_truncated=True)
+        if len(data) < self.message.length:
+            self.truncated += 1
+        result = Decoded(self, signals, self.schema.serialize(signals))
+        if len(self._cache) >= _CACHE_SIZE:
+            self._cache.clear()
+        self._cache[data] = result
+        self.decoded += 1
+        return result
+
+
+def _layout(message: DbcMessage) -> tuple[Any, ...]:
+    """Everything that decides how a message decodes, to tell real conflicts from duplicates."""
+    return (
+        message.name,
+        message.length,
+        tuple(
+            (s.name, s.start, s.length, s.byte_order, s.is_signed, s.is_float, s.scale, s.offset,
+             s.is_multiplexer, tuple(s.multiplexer_ids or ()), s.multiplexer_signal)
+            for s in message.signals
+        ),
+    )
+
+
+def _key(frame_id: int, extended: bool) -> int:
+    return frame_id | _EXTENDED if extended else frame_id
+
+
+@dataclass
+class DecodeStats:
+    """What happened to every frame, per bus and per (bus, id)."""
+
+    frames: Counter[str] = field(default_factory=Counter)
+    error_frames: Counter[str] = field(default_factory=Counter)
+    remote_frames: Counter[str] = field(default_factory=Counter)
+    unknown: Counter[tuple[str, int]] = field(default_factory=Counter)
+    errors: Counter[tuple[str, int]] = field(default_factory=Counter)
+    last_error: dict[tuple[str, int], str] = field(default_factory=dict)
+
+    def to_dict(self, codecs: Iterable[MessageCodec]) -> dict[str, Any]:
+        """A JSON-ready summary (stored in the MCAP metadata, printed by ``inspect``)."""
+
+        def ids(counter: Counter[tuple[str, int]]) -> dict[str, int]:
+            return {f"{bus}/0x{i:X}": n for (bus, i), n in sorted(counter.items())}
+
+        codecs = list(codecs)
+        return {
+            "frames": dict(sorted(self.frames.items())),
+            "decoded": {c.topic: c.decoded for c in sorted(codecs, key=lambda c: c.topic)
+                        if c.decoded},
+            "truncated": {c.topic: c.truncated for c in codecs if c.truncated},
+            "unknown_ids": ids(self.unknown),
+            "decode_errors": ids(self.errors),
+            "last_decode_error": {f"{bus}/0x{i:X}": text
+                                  for (bus, i), text in sorted(self.last_error.items())},
+            "error_frames": dict(sorted(self.error_frames.items())),
+            "remote_frames": dict(sorted(self.remote_frames.items())),
+        }
+
+
+class Decoder:
+    """Decodes frames by (bus, id). ``databases`` maps a bus name (None: every bus) to files."""
+
+    def __init__(self, databases: Mapping[str | None, Iterable[DatabaseFile]]) -> None:
+        self._databases = {bus: list(files) for bus, files in databases.items()}
+        self._pool = descriptor_pool.DescriptorPool()
+        self._schemas: dict[tuple[str, str], MessageSchema] = {}
+        self._tables: dict[str, dict[int, MessageCodec]] = {}
+        self._database_names: dict[str, str] = {}
+        self.stats = DecodeStats()
+        # Check every combination now, so a conflict is reported before any work is done.
+        for bus in self._databases:
+            self._check(self._files_for(bus))
+
+    @property
+    def files(self) -> list[DatabaseFile]:
+        """Every database in use, each once."""
+        seen: dict[str, DatabaseFile] = {}
+        for files in self._databases.values():
+            for f in files:
+                seen.setdefault(str(f.path), f)
+        return list(seen.values())
+
+    def buses_for(self, database: DatabaseFile) -> list[str]:
+        """The buses a database applies to (``*`` for every bus)."""
+        return [bus or "*" for bus, files in self._databases.items() if database in files]
+
+    def codecs(self) -> list[MessageCodec]:
+        return [c for table in self._tables.values() for c in table.values()]
+
+    def _files_for(self, bus: str | None) -> list[DatabaseFile]:
+        files = list(self._databases.get(None, []))
+        if bus is not None:
+            files += [f for f in self._databases.get(bus, []) if f not in files]
+        return files
+
+    def _check(self, files: list[DatabaseFile]) -> None:
+        owner: dict[int, tuple[DatabaseFile, DbcMessage]] = {}
+        names: dict[str, tuple[DatabaseFile, DbcMessage]] = {}
+        for f in files:
+            for message in f.db.messages:
+                key = _key(message.frame_id, message.is_extended_frame)
+                if key in owner and _layout(owner[key][1]) != _layout(message):
+                    other_file, other = owner[key]
+                    raise DatabaseError(
+                        f.path,
+                        f"id 0x{message.frame_id:X} is {message.name} here but "
+                        f"{other.name} (defined differently) in {other_file.path}; "
+                        "give each file its own bus with --dbc BUS=PATH",
+                    )
+                owner.setdefault(key, (f, message))
+                if message.name in names and names[message.name][1].frame_id != message.frame_id:
+                    other_file, other = names[message.name]
+                    raise DatabaseError(
+                        f.path,
+                        f"message {message.name} (id 0x{message.frame_id:X}) has the same name "
+                        f"as id 0x{other.frame_id:X} in {other_file.path}",
+                    )
+                names.setdefault(message.name, (f, message))
+
+    def _schema(self, database: DatabaseFile, message: DbcMessage) -> MessageSchema:
+        name = self._database_names.get(database.sha256)
+        if name is None:
+            name = identifier(database.name)
+            if name in self._database_names.values():
+                name = f"{name}_{database.sha256[:8]}"
+            self._database_names[database.sha256] = name
+        key = (name, message.name)
+        schema = self._schemas.get(key)
+        if schema is None:
+            schema = self._schemas[key] = MessageSchema(message, name, self._pool)
+        return schema
+
+    def _table(self, bus: str) -> dict[int, MessageCodec]:
+        table: dict[int, MessageCodec] = {}
+        for f in self._files_for(bus if bus in self._databases else None):
+            for message in f.db.messages:
+                key = _key(message.frame_id, message.is_extended_frame)
+                if key not in table:
+                    table[key] = MessageCodec(message, f, self._schema(f, message), bus)
+        self._tables[bus] = table
+        return table
+
+    def decode(self, frame: Frame) -> Decoded | None:
+        """Decode one frame, or count why it cannot be decoded and return None."""
+        bus = frame.bus
+        self.stats.frames[bus] += 1
+        table = self._tables.get(bus)
+        if table is None:
+            table = self._table(bus)
+        if frame.is_error:
+            self.stats.error_frames[bus] += 1
+            return None
+        if frame.is_remote:
+            self.stats.remote_frames[bus] += 1
+            return None
+        codec = table.get(frame.arbitration_id | _EXTENDED if frame.is_extended
+                          else frame.arbitration_id)
+        if codec is None:
+            self.stats.unknown[(bus, frame.arbitration_id)] += 1
+            return None
+        try:
+            return codec.decode(frame.data)
+        except Exception as exc:  # cantools: DecodeError, ValueError, KeyError for a bad mux
+            key = (bus, frame.arbitration_id)
+            self.stats.errors[key] += 1
+            self.stats.last_error[key] = f"{codec.message.name}: {type(exc).__name__}: {exc}"
+            return None

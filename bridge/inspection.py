@@ -1,0 +1,148 @@
+"""``tankviz inspect``: what a drive archive holds, readable in a terminal."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from bridge.errors import InputError
+from bridge.recorder import METADATA_NAME
+
+
+@dataclass
+class Topic:
+    topic: str
+    schema: str
+    encoding: str
+    messages: int
+
+
+@dataclass
+class DriveSummary:
+    """Times, topics, metadata and attachments of one MCAP file."""
+
+    start_ns: int
+    end_ns: int
+    messages: int
+    topics: list[Topic]
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: list[tuple[str, str, int]] = field(default_factory=list)
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / 1e9 if self.messages else 0.0
+
+
+def summarize(stream: IO[bytes]) -> DriveSummary:
+    """Read the summary section (or, for a file without one, every message) of an MCAP."""
+    reader = make_reader(stream)
+    summary = reader.get_summary()
+    if summary is not None and summary.statistics is not None:
+        stats = summary.statistics
+        counts = dict(stats.channel_message_counts)
+        channels, schemas = summary.channels, summary.schemas
+        start, end, total = stats.message_start_time, stats.message_end_time, stats.message_count
+    else:
+        counter: Counter[int] = Counter()
+        start, end, total = 0, 0, 0
+        channels, schemas = {}, {}
+        for schema, channel, message in reader.iter_messages():
+            counter[channel.id] += 1
+            channels[channel.id] = channel
+            if schema is not None:
+                schemas[schema.id] = schema
+            start = message.log_time if total == 0 else min(start, message.log_time)
+            end = max(end, message.log_time)
+            total += 1
+        counts = dict(counter)
+    topics = [
+        Topic(ch.topic, schemas[ch.schema_id].name if ch.schema_id in schemas else "",
+              ch.message_encoding, counts.get(ch.id, 0))
+        for ch in channels.values()
+    ]
+    topics.sort(key=lambda t: t.topic)
+    metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    attachments = [(a.name, a.media_type, len(a.data)) for a in reader.iter_attachments()]
+    return DriveSummary(start, end, total, topics, metadata, attachments)
+
+
+def summarize_file(path: Path | str) -> DriveSummary:
+    path = Path(path)
+    try:
+        with path.open("rb") as stream:
+            return summarize(stream)
+    except FileNotFoundError:
+        raise InputError(path, "no such file") from None
+    except (McapError, ValueError, EOFError) as exc:  # mcap raises these for damaged files
+        raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
+
+
+def _time(ns: int) -> str:
+    if ns >= 10**17:  # after 1973: an absolute time
+        return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return f"{ns / 1e9:.3f} s (relative)"
+
+
+def _json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def format_summary(path: str, s: DriveSummary) -> str:
+    """The report ``tankviz inspect`` prints."""
+    lines = [
+        f"file:      {path}",
+        f"duration:  {s.duration_s:.3f} s",
+        f"start:     {_time(s.start_ns)}",
+        f"end:       {_time(s.end_ns)}",
+        f"messages:  {s.messages:,}",
+        "",
+        f"topics ({len(s.topics)}):",
+    ]
+    width = max((len(t.topic) for t in s.topics), default=10)
+    for t in s.topics:
+        lines.append(f"  {t.topic:<{width}}  {t.messages:>10,}  {t.schema} ({t.encoding})")
+    meta = dict(s.metadata)
+    ours = meta.pop(METADATA_NAME, None)
+    if ours is not None:
+        lines += ["", "recorded by:"]
+        lines.append(f"  tankviz {ours.get('tankviz_version', '?')}, {ours.get('created', '?')}")
+        for entry in _json(ours.get("inputs", "[]")):
+            lines.append(f"  input {entry['path']}: {entry['frames']:,} frames, "
+                         f"{entry['skipped']} skipped, {entry.get('backwards_jumps', 0)} "
+                         "backwards time jumps")
+        for db in _json(ours.get("databases", "[]")):
+            lines.append(f"  database {db['name']} (attachment {db['attachment']}) on buses "
+                         f"{', '.join(db['buses'])}: sha256 {db['sha256']}")
+        stats = _json(ours.get("statistics", "{}"))
+        lines += ["", "decode statistics:"]
+        for bus, n in stats.get("frames", {}).items():
+            lines.append(f"  {bus}: {n:,} frames, {stats.get('error_frames', {}).get(bus, 0)} "
+                         f"error frames, {stats.get('remote_frames', {}).get(bus, 0)} remote")
+        for title, key in (("unknown ids", "unknown_ids"), ("decode errors", "decode_errors"),
+                           ("short frames (decoded what fits)", "truncated")):
+            entries = stats.get(key, {})
+            total = sum(entries.values())
+            lines.append(f"  {title}: {total:,}" + ("" if not entries else " — " + ", ".join(
+                f"{k} ×{v}" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
+        for k, text in list(stats.get("last_decode_error", {}).items())[:12]:
+            lines.append(f"    {k}: {text}")
+        issues = _json(ours.get("input_issues", "{}"))
+        if issues.get("count"):
+            lines += ["", f"skipped in the inputs ({issues['count']}):"]
+            lines += [f"  {text}" for text in issues.get("first", [])[:20]]
+    for name, values in sorted(meta.items()):
+        lines += ["", f"metadata {name}:"]
+        lines += [f"  {k}: {v}" for k, v in sorted(values.items())]
+    lines += ["", f"attachments ({len(s.attachments)}):"]
+    lines += [f"  {name}  {media}  {size:,} bytes" for name, media, size in s.attachments]
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""Generated protobuf code for schemas/*.proto: do not edit, run tools/gen_proto.py."""

@@ -1,0 +1,47 @@
+"""A one-line progress bar for a terminal: frames, rate, percentage and ETA."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+
+class ProgressBar:
+    """Redraws one line on ``stream`` at most ``hz`` times a second; silent off a terminal."""
+
+    def __init__(self, stream: TextIO = sys.stderr, *, width: int = 30, hz: float = 5.0) -> None:
+        self.stream = stream
+        self.width = width
+        self._interval = 1.0 / hz
+        self._start = time.monotonic()
+        self._last = 0.0
+        self.enabled = stream.isatty()
+
+    @staticmethod
+    def render(frames: int, fraction: float | None, elapsed: float, width: int = 30) -> str:
+        """The text of the bar (pure, for tests)."""
+        rate = frames / elapsed if elapsed > 0 else 0.0
+        text = f"{frames:>12,} frames  {rate:>10,.0f} frames/s"
+        if fraction is not None:
+            fraction = min(max(fraction, 0.0), 1.0)
+            filled = round(fraction * width)
+            eta = elapsed * (1 - fraction) / fraction if fraction > 0 else float("inf")
+            eta_text = "--:--" if eta == float("inf") else f"{int(eta) // 60:02d}:{int(eta) % 60:02d}"
+            text = f"[{'#' * filled}{'.' * (width - filled)}] {fraction:4.0%} {text}  ETA {eta_text}"
+        return text
+
+    def __call__(self, frames: int, fraction: float | None) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now - self._last < self._interval and fraction != 1.0:
+            return
+        self._last = now
+        self.stream.write("\r" + self.render(frames, fraction, now - self._start, self.width))
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
