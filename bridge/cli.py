@@ -20,7 +20,7 @@ EXIT_INTERRUPTED = 130
 
 
 def _dbc_option(text: str) -> str:
-    """``--dbc`` accepts ``[BUS=]PATH``; a bare name of a bundled database (``ecocar``) works too."""
+    """``--dbc [BUS=]PATH``, where PATH may also name a bundled database (``ecocar``)."""
     from bridge.decode import parse_dbc_option
     from bridge.resources import bundled_database
 
@@ -36,7 +36,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     from bridge.resources import data_dir
 
     inputs: list[Path] = list(args.inputs)
-    dbcs: list[str] = list(args.dbc or [])
+    dbcs = [_dbc_option(text) for text in args.dbc or []]
     if args.sample:
         inputs.append(data_dir() / "ecocar_sample.blf")
         dbcs = dbcs or [_dbc_option("ecocar")]
@@ -64,7 +64,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors")):
             top = sorted(stats[key].items(), key=lambda kv: -kv[1])[:8]
             if top:
-                print(f"  {title}: " + ", ".join(f"{k} ×{n}" for k, n in top))
+                print(f"  {title}: " + ", ".join(f"{k} ({n})" for k, n in top))
         if report.issues:
             print(f"  skipped in the inputs: {len(report.issues)}")
             for issue in report.issues[:10]:
@@ -100,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("inputs", nargs="*", type=Path, metavar="INPUT",
                          help="log files; several are merged in time order")
     convert.add_argument("-o", "--output", type=Path, required=True, help="the MCAP to write")
-    convert.add_argument("--dbc", action="append", type=_dbc_option, metavar="[BUS=]PATH",
+    convert.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
                          help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
                          "without BUS=; repeatable; a bundled name such as 'ecocar' works too")
     convert.add_argument("--sample", action="store_true",

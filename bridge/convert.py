@@ -75,7 +75,8 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     """Convert ``sources`` into an MCAP written to the open binary ``output``."""
     started = time.perf_counter()
     recorder = Recorder(output)
-    write_frame, write_decoded, decode = recorder.write_frame, recorder.write_decoded, decoder.decode
+    write_frame, write_decoded = recorder.write_frame, recorder.write_decoded
+    decode = decoder.decode
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
     start_ns: int | None = None

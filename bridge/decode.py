@@ -101,7 +101,8 @@ class MessageCodec:
         if hit is not None:
             self.decoded += 1
             return hit
-        signals = self.message.decode(data, decode_choices=False, allow_truncated=True)
+        signals: dict[str, Any] = self.message.decode(  # type: ignore[assignment]
+            data, decode_choices=False, allow_truncated=True)
         if len(data) < self.message.length:
             self.truncated += 1
         result = Decoded(self, signals, self.schema.serialize(signals))

@@ -133,7 +133,7 @@ def format_summary(path: str, s: DriveSummary) -> str:
             entries = stats.get(key, {})
             total = sum(entries.values())
             lines.append(f"  {title}: {total:,}" + ("" if not entries else " — " + ", ".join(
-                f"{k} ×{v}" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
+                f"{k} ({v})" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
         for k, text in list(stats.get("last_decode_error", {}).items())[:12]:
             lines.append(f"    {k}: {text}")
         issues = _json(ours.get("input_issues", "{}"))

@@ -26,9 +26,12 @@ class ProgressBar:
         if fraction is not None:
             fraction = min(max(fraction, 0.0), 1.0)
             filled = round(fraction * width)
-            eta = elapsed * (1 - fraction) / fraction if fraction > 0 else float("inf")
-            eta_text = "--:--" if eta == float("inf") else f"{int(eta) // 60:02d}:{int(eta) % 60:02d}"
-            text = f"[{'#' * filled}{'.' * (width - filled)}] {fraction:4.0%} {text}  ETA {eta_text}"
+            eta_text = "--:--"
+            if fraction > 0:
+                eta = int(elapsed * (1 - fraction) / fraction)
+                eta_text = f"{eta // 60:02d}:{eta % 60:02d}"
+            bar = "#" * filled + "." * (width - filled)
+            text = f"[{bar}] {fraction:4.0%} {text}  ETA {eta_text}"
         return text
 
     def __call__(self, frames: int, fraction: float | None) -> None:

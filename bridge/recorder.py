@@ -120,4 +120,4 @@ class Recorder:
         """Write the summary and footer; the file is complete after this."""
         if not self._finished:
             self._finished = True
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]

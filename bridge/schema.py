@@ -31,7 +31,7 @@ _INT32 = (-(2**31), 2**31 - 1)
 
 
 def identifier(name: str) -> str:
-    """A protobuf-safe identifier for a DBC name (letters, digits, underscores; no leading digit)."""
+    """A protobuf-safe identifier for a DBC name: letters, digits, underscores, no leading digit."""
     cleaned = _NOT_IDENTIFIER.sub("_", name.strip()) or "_"
     if cleaned[0].isdigit():
         cleaned = f"_{cleaned}"
@@ -63,14 +63,14 @@ def _integer_range(signal: Signal) -> tuple[int, int] | None:
     return min(ends), max(ends)
 
 
-def _integer_type(lo: int, hi: int) -> int | None:
+def _integer_type(lo: int, hi: int) -> Any:
     if lo >= 0 and hi < 2**32:
         return FieldType.TYPE_UINT32
     if _INT32[0] <= lo and hi <= _INT32[1]:
         return FieldType.TYPE_SINT32
     if lo >= 0 and hi < 2**64:
         return FieldType.TYPE_UINT64
-    if -(2**63) <= lo and hi < 2**63:
+    if lo >= -(2**63) and hi < 2**63:
         return FieldType.TYPE_SINT64
     return None
 
@@ -109,7 +109,7 @@ def describe_message(
         field.oneof_index = len(out.oneof_decl)
         out.oneof_decl.add(name=f"_{name}")
         int_range = _integer_range(signal)
-        choices = signal.choices or {}
+        choices: dict[int, Any] = dict(signal.choices or {})
         if (
             choices
             and int_range is not None
@@ -128,7 +128,7 @@ def describe_message(
             continue
         int_type = _integer_type(*int_range) if int_range is not None else None
         if int_type is not None:
-            field.type = int_type  # type: ignore[assignment]
+            field.type = int_type
             fields.append(SignalField(signal.name, name, "int"))
         else:
             field.type = FieldType.TYPE_DOUBLE

@@ -239,7 +239,7 @@ class LogSource:
         self._where = where
 
         while True:
-            reader = reader_type(file=lines, **kwargs)  # type: ignore[call-arg]
+            reader = reader_type(file=lines, **kwargs)  # type: ignore[arg-type]
             try:
                 for message in reader:
                     if lines.header is not None:
@@ -269,7 +269,7 @@ class LogSource:
         self._where = where
 
         try:
-            reader = reader_type(file=stream)  # type: ignore[call-arg]
+            reader = reader_type(file=stream)  # type: ignore[arg-type]
         except Exception as exc:
             raise InputError(self.path, f"not a readable {self.path.suffix} log: {exc}") from exc
         last_failure: int | None = None
@@ -298,7 +298,7 @@ class LogSource:
         self._where = where
 
         try:
-            reader = reader_type(file=str(self.path))  # type: ignore[call-arg]
+            reader = reader_type(file=str(self.path))
         except ImportError as exc:
             raise InputError(self.path, f"reading {self.path.suffix} needs an optional package "
                              f"({exc}); install tankviz[mf4]") from exc

@@ -55,7 +55,8 @@ def generate(out_dir: Path) -> list[Path]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=OUTPUT, help="output folder (default bridge/pb)")
+    parser.add_argument("--out", type=Path, default=OUTPUT,
+                        help="output folder (default bridge/pb)")
     args = parser.parse_args()
     if args.out == OUTPUT:
         # Write into a fresh folder first so a failed run leaves the committed code alone.

@@ -1,0 +1,57 @@
+"""Shared fixtures: bundled and public databases, and logs written with python-can's writers."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+
+from bridge.resources import data_dir
+
+SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
+ECOCAR_DBC = data_dir() / "ecocar.dbc"
+T0 = 1_700_000_000.0  # an absolute start time, in python-can's float seconds
+
+
+@pytest.fixture(scope="session")
+def ecocar() -> cantools.database.can.Database:
+    return cantools.database.load_file(ECOCAR_DBC)
+
+
+@pytest.fixture
+def shared_dbc() -> Path:
+    """The public DBCs beside the project (../shared); skipped where they are absent."""
+    if not SHARED_DBC.is_dir():
+        pytest.skip(f"public DBCs not found at {SHARED_DBC} (../shared is absent)")
+    return SHARED_DBC
+
+
+def message(db: cantools.database.can.Database, name: str, t: float, channel: object = 0,
+            **values: float) -> can.Message:
+    """A python-can message carrying ``values`` (others at 0) encoded with the DBC."""
+    m = db.get_message_by_name(name)
+    signals = {s.name: 0 for s in m.signals}
+    signals.update(values)
+    data = m.encode(signals, strict=False)
+    return can.Message(timestamp=t, arbitration_id=m.frame_id, data=data, channel=channel,
+                       is_extended_id=m.is_extended_frame, is_fd=m.is_fd, dlc=len(data))
+
+
+WriteLog = Callable[[str, Iterable[can.Message]], Path]
+
+
+@pytest.fixture
+def write_log(tmp_path: Path) -> WriteLog:
+    """Write messages with python-can's writer for the file's suffix; returns the path."""
+
+    def write(name: str, messages: Iterable[can.Message]) -> Path:
+        path = tmp_path / name
+        with can.Logger(path) as logger:
+            for m in messages:
+                logger.on_message_received(m)
+        return path
+
+    return write

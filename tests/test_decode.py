@@ -1,0 +1,190 @@
+"""Decoding by (bus, id) with cantools, and the protobuf types generated from DBC messages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cantools
+import pytest
+from conftest import ECOCAR_DBC
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+from bridge.decode import Decoder, load_database, parse_dbc_option
+from bridge.errors import DatabaseError, UsageError
+from bridge.frame import Frame
+from bridge.schema import MessageSchema
+
+ECOCAR = load_database(ECOCAR_DBC)
+
+
+def frame(db: cantools.database.can.Database, name: str, bus: str = "can0",
+          **values: float) -> Frame:
+    m = db.get_message_by_name(name)
+    signals = {s.name: 0 for s in m.signals}
+    signals.update(values)
+    data = m.encode(signals, strict=False)
+    return Frame(1, bus, m.frame_id, data, m.is_extended_frame, m.is_fd, dlc=len(data))
+
+
+def decoder() -> Decoder:
+    return Decoder({None: [ECOCAR]})
+
+
+def test_decoded_signals_are_what_cantools_decodes(ecocar: cantools.database.can.Database) -> None:
+    f = frame(ecocar, "EgoMotion", VehicleSpeed=88.5, YawRate=-3.2, Counter=7)
+    decoded = decoder().decode(f)
+    assert decoded is not None
+    assert decoded.codec.topic == "/can/can0/EgoMotion"
+    expected = ecocar.get_message_by_name("EgoMotion").decode(f.data, decode_choices=False)
+    assert dict(decoded.signals) == expected
+    assert decoded.codec.schema.parse(decoded.payload) == expected
+
+
+def test_every_decoded_field_is_present_even_when_zero(
+        ecocar: cantools.database.can.Database) -> None:
+    f = frame(ecocar, "EgoMotion")
+    decoded = decoder().decode(f)
+    assert decoded is not None
+    parsed = decoded.codec.schema.parse(decoded.payload)
+    assert set(parsed) == {s.name for s in ecocar.get_message_by_name("EgoMotion").signals}
+
+
+def test_value_tables_become_open_enums(ecocar: cantools.database.can.Database) -> None:
+    schema = MessageSchema(ecocar.get_message_by_name("RadarObj3_B"), "ecocar",
+                           descriptor_pool.DescriptorPool())
+    cls = schema.message_class
+    field = cls.DESCRIPTOR.fields_by_name["Class"]
+    assert field.enum_type is not None
+    assert field.enum_type.values_by_number[3].name == "Class_pedestrian"
+    msg = cls(Class=6)  # a raw value the DBC names 'reserved_6'
+    assert cls.FromString(msg.SerializeToString()).Class == 6
+    msg = cls(Class=42)  # and one it does not name at all stays representable
+    assert cls.FromString(msg.SerializeToString()).Class == 42
+
+
+def test_integer_signals_get_integer_fields_and_scaled_ones_double(
+        ecocar: cantools.database.can.Database) -> None:
+    schema = MessageSchema(ecocar.get_message_by_name("EgoMotion"), "ecocar",
+                           descriptor_pool.DescriptorPool())
+    fields = schema.message_class.DESCRIPTOR.fields_by_name
+    t = descriptor_pb2.FieldDescriptorProto
+    assert fields["Counter"].type == t.TYPE_UINT32
+    assert fields["Checksum"].type == t.TYPE_UINT32
+    assert fields["VehicleSpeed"].type == t.TYPE_DOUBLE
+    assert fields["YawRate"].type == t.TYPE_DOUBLE
+
+
+def test_multiplexed_signals_are_present_only_on_their_page(
+        ecocar: cantools.database.can.Database) -> None:
+    d = decoder()
+    page1 = d.decode(frame(ecocar, "SensorDiag", DiagPage=1, TempCore=55))
+    page2 = d.decode(frame(ecocar, "SensorDiag", DiagPage=2, SupplyVoltage=13.5))
+    assert page1 is not None and page2 is not None
+    fields1 = page1.codec.schema.parse(page1.payload)
+    fields2 = page2.codec.schema.parse(page2.payload)
+    assert "TempCore" in fields1 and "SupplyVoltage" not in fields1
+    assert "SupplyVoltage" in fields2 and "TempCore" not in fields2
+    assert fields2["SupplyVoltage"] == pytest.approx(13.5, abs=0.1)
+
+
+def test_big_endian_signed_and_float_signals(ecocar: cantools.database.can.Database) -> None:
+    d = decoder()
+    steering = d.decode(frame(ecocar, "Steering", SteeringWheelAngle=-123.4))
+    position = d.decode(frame(ecocar, "EgoPosition", Latitude=52.5, Longitude=-13.25))
+    assert steering is not None and position is not None
+    assert steering.signals["SteeringWheelAngle"] == pytest.approx(-123.4)
+    assert position.codec.schema.parse(position.payload)["Longitude"] == -13.25
+
+
+def test_fd_frames_decode(ecocar: cantools.database.can.Database) -> None:
+    f = frame(ecocar, "RadarHeader", ObjectCount=17)
+    assert f.is_fd and len(f.data) == 64
+    decoded = decoder().decode(f)
+    assert decoded is not None and decoded.signals["ObjectCount"] == 17
+
+
+def test_short_frames_decode_what_fits_and_are_counted(
+        ecocar: cantools.database.can.Database) -> None:
+    whole = frame(ecocar, "EgoMotion", VehicleSpeed=50, Checksum=0x5A)
+    d = decoder()
+    decoded = d.decode(whole._replace(data=whole.data[:3]))
+    assert decoded is not None
+    assert decoded.signals["VehicleSpeed"] == pytest.approx(50)
+    assert "Checksum" not in decoded.signals
+    assert decoded.codec.truncated == 1
+    assert d.stats.to_dict(d.codecs())["truncated"] == {"/can/can0/EgoMotion": 1}
+
+
+def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
+        ecocar: cantools.database.can.Database) -> None:
+    d = decoder()
+    assert d.decode(Frame(1, "can0", 0x7FF, b"\x00" * 8)) is None
+    assert d.decode(Frame(1, "can0", 0x100, b"", is_extended=True)) is None  # 29-bit 0x100
+    assert d.decode(Frame(2, "can1", 0, b"", is_error=True)) is None
+    bad_mux = frame(ecocar, "SensorDiag")._replace(data=bytes([9]) + bytes(7))
+    assert d.decode(bad_mux) is None
+    stats = d.stats.to_dict(d.codecs())
+    assert stats["unknown_ids"] == {"can0/0x100": 1, "can0/0x7FF": 1}
+    assert stats["error_frames"] == {"can1": 1}
+    assert stats["decode_errors"] == {"can0/0x700": 1}
+    assert "SensorDiag" in stats["last_decode_error"]["can0/0x700"]
+    assert stats["frames"] == {"can0": 3, "can1": 1}
+
+
+def test_each_bus_decodes_with_its_own_databases(
+        ecocar: cantools.database.can.Database, shared_dbc: Path) -> None:
+    tesla = load_database(shared_dbc / "tesla_radar_bosch.dbc")
+    d = Decoder({"radar": [tesla], "body": [ECOCAR]})
+    radar_point = Frame(1, "radar", 0x310, bytes(8))
+    assert d.decode(radar_point) is not None  # RadarPoint0_A on the radar bus ...
+    assert d.decode(radar_point._replace(bus="body")).codec.message.name == "RadarObj0_A"
+    assert d.decode(radar_point._replace(bus="other")) is None  # no database for this bus
+
+
+def test_two_databases_defining_one_id_differently_on_one_bus_is_an_error(
+        tmp_path: Path) -> None:
+    a = tmp_path / "a.dbc"
+    b = tmp_path / "b.dbc"
+    a.write_text('VERSION ""\nBS_:\nBU_: X\nBO_ 256 Speed: 8 X\n'
+                 ' SG_ V : 0|16@1+ (0.01,0) [0|655] "m/s" X\n')
+    b.write_text('VERSION ""\nBS_:\nBU_: X\nBO_ 256 Brake: 8 X\n'
+                 ' SG_ P : 0|8@1+ (1,0) [0|255] "bar" X\n')
+    with pytest.raises(DatabaseError, match=r"b\.dbc: id 0x100 is Brake here but Speed \(defined "
+                       r"differently\) in .*a\.dbc; give each file its own bus"):
+        Decoder({None: [load_database(a), load_database(b)]})
+    Decoder({"can0": [load_database(a)], "can1": [load_database(b)]})  # fine on separate buses
+    Decoder({None: [load_database(a), load_database(a)]})  # and the same file twice is fine
+
+
+def test_a_database_cantools_cannot_load_names_the_file_and_the_reason(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.dbc"
+    broken.write_text('VERSION ""\nBO_ 256 Speed: 8 X\n SG_ V : 0|16@1+ (0.01,0) [0|655] "m/s"\n'
+                      "BO_ this is not a message\n")
+    with pytest.raises(DatabaseError, match=r"broken\.dbc: cantools cannot load it: .+"):
+        load_database(broken)
+    with pytest.raises(DatabaseError, match=r"nope\.dbc: no such file"):
+        load_database(tmp_path / "nope.dbc")
+
+
+def test_dbc_options_name_a_bus_or_every_bus(tmp_path: Path) -> None:
+    assert parse_dbc_option("radar=/x/r.dbc") == ("radar", Path("/x/r.dbc"))
+    assert parse_dbc_option("/x/r.dbc") == (None, Path("/x/r.dbc"))
+    odd = tmp_path / "a=b.dbc"
+    odd.write_text("")
+    assert parse_dbc_option(str(odd)) == (None, odd)  # an existing path wins
+    with pytest.raises(UsageError, match="no path after 'radar='"):
+        parse_dbc_option("radar=")
+
+
+def test_generated_schemas_are_self_contained_file_descriptor_sets(
+        ecocar: cantools.database.can.Database) -> None:
+    schema = MessageSchema(ecocar.get_message_by_name("CamLaneLeft"), "ecocar",
+                           descriptor_pool.DescriptorPool())
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.file_descriptor_set())
+    assert [f.name for f in fds.file] == ["tankviz/dbc/ecocar/CamLaneLeft.proto"]
+    pool = descriptor_pool.DescriptorPool()
+    for f in fds.file:
+        pool.Add(f)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.full_name))
+    assert schema.full_name == "tankviz.dbc.ecocar.CamLaneLeft"
+    assert "C2_Curvature" in cls.DESCRIPTOR.fields_by_name
