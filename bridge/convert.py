@@ -42,8 +42,6 @@ class ConvertReport:
     seconds: float
     statistics: dict[str, Any]
     issues: list[SourceIssue] = field(default_factory=list)
-    start_ns: int | None = None
-    end_ns: int | None = None
 
 
 def build_decoder(dbc_options: Sequence[str]) -> Decoder:
@@ -79,19 +77,12 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     decode = decoder.decode
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
-    start_ns: int | None = None
-    end_ns: int | None = None
     for frame in merge(sources):
         write_frame(frame)
         decoded = decode(frame)
         if decoded is not None:
             write_decoded(frame.timestamp_ns, decoded)
         frames += 1
-        t = frame.timestamp_ns
-        if start_ns is None or t < start_ns:
-            start_ns = t
-        if end_ns is None or t > end_ns:
-            end_ns = t
         if progress is not None and frames % every == 0:
             done = sum(s.progress()[0] for s in sources)
             progress(frames, done / total_bytes if total_bytes else None)
@@ -122,7 +113,7 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     })
     recorder.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
-                         statistics, issues, start_ns, end_ns)
+                         statistics, issues)
 
 
 def check_output(path: Path, *, force: bool) -> None:

@@ -248,25 +248,24 @@ class Decoder:
     def decode(self, frame: Frame) -> Decoded | None:
         """Decode one frame, or count why it cannot be decoded and return None."""
         bus = frame.bus
-        self.stats.frames[bus] += 1
         table = self._tables.get(bus)
         if table is None:
             table = self._table(bus)
-        if frame.is_error:
-            self.stats.error_frames[bus] += 1
-            return None
-        if frame.is_remote:
-            self.stats.remote_frames[bus] += 1
-            return None
+        self.stats.frames[bus] += 1
         codec = table.get(frame.arbitration_id | _EXTENDED if frame.is_extended
                           else frame.arbitration_id)
-        if codec is None:
+        if codec is not None and not (frame.is_error or frame.is_remote):
+            try:
+                return codec.decode(frame.data)
+            except Exception as exc:  # cantools: DecodeError, ValueError, KeyError for a bad mux
+                key = (bus, frame.arbitration_id)
+                self.stats.errors[key] += 1
+                self.stats.last_error[key] = f"{codec.message.name}: {type(exc).__name__}: {exc}"
+                return None
+        if frame.is_error:
+            self.stats.error_frames[bus] += 1
+        elif frame.is_remote:
+            self.stats.remote_frames[bus] += 1
+        else:
             self.stats.unknown[(bus, frame.arbitration_id)] += 1
-            return None
-        try:
-            return codec.decode(frame.data)
-        except Exception as exc:  # cantools: DecodeError, ValueError, KeyError for a bad mux
-            key = (bus, frame.arbitration_id)
-            self.stats.errors[key] += 1
-            self.stats.last_error[key] = f"{codec.message.name}: {type(exc).__name__}: {exc}"
-            return None
+        return None

@@ -175,22 +175,29 @@ class LogSource:
         warnings = _Warnings(lambda: self._where())
         can_logger = logging.getLogger("can")
         can_logger.addHandler(warnings)
+        buses: dict[Any, str] = {}
+        frames = 0
         try:
-            for message, where in self._messages(reader_type, suffix, gzipped):
+            for message in self._messages(reader_type, suffix, gzipped):
                 if warnings.texts:
                     for place, text in warnings.texts:
                         self._problem(place, f"skipped: python-can says {text!r}")
                     warnings.texts.clear()
-                ns = to_ns(message.timestamp)
+                ns = round(message.timestamp * 1_000_000) * 1000  # to_ns(), inlined
                 if last_ns is not None and ns < last_ns:
                     self.backwards += 1
-                    self._problem(where(), f"time jumps backwards by {(last_ns - ns) / 1e9:.6f} s "
-                                  "(frame kept at its own time)")
+                    self._problem(self._where(), f"time jumps backwards by "
+                                  f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own time)")
                 last_ns = ns
-                self.frames += 1
+                frames += 1
+                self.frames = frames
+                channel = message.channel
+                bus = buses.get(channel)
+                if bus is None:
+                    bus = buses[channel] = bus_name(channel)
                 yield Frame(
                     ns,
-                    bus_name(message.channel),
+                    bus,
                     message.arbitration_id,
                     bytes(message.data),
                     message.is_extended_id,
@@ -207,8 +214,8 @@ class LogSource:
             can_logger.removeHandler(warnings)
 
     def _messages(self, reader_type: type[MessageReader], suffix: str,
-                  gzipped: bool) -> Iterator[tuple[can.Message, Any]]:
-        """(message, where) pairs; ``where()`` names the place of the message just read."""
+                  gzipped: bool) -> Iterator[can.Message]:
+        """The messages; ``self._where()`` names the place of the message just read."""
         if suffix in {".db", ".mf4"}:
             yield from self._whole_file(reader_type)
             return
@@ -228,7 +235,7 @@ class LogSource:
                 self._problem("", f"cannot read the file any further: {exc}")
 
     def _text(self, reader_type: type[MessageReader],
-              text: Iterator[str]) -> Iterator[tuple[can.Message, Any]]:
+              text: Iterator[str]) -> Iterator[can.Message]:
         lines = _Lines(text)
         header: list[str] = []
         kwargs = {"relative_timestamp": False} if reader_type is can.ASCReader else {}
@@ -245,7 +252,7 @@ class LogSource:
                     if lines.header is not None:
                         header = lines.header[:-1]
                         lines.header = None
-                    yield message, where
+                    yield message
                 return
             except Exception as exc:  # python-can raises anything from ValueError to IndexError
                 bad_line = lines.line
@@ -259,7 +266,7 @@ class LogSource:
                 lines.header = None
 
     def _binary(self, reader_type: type[MessageReader],
-                binary: IO[bytes]) -> Iterator[tuple[can.Message, Any]]:
+                binary: IO[bytes]) -> Iterator[can.Message]:
         stream = _Bytes(binary)
         count = 0
 
@@ -277,7 +284,7 @@ class LogSource:
             try:
                 for message in reader:
                     count += 1
-                    yield message, where
+                    yield message
                 break
             except Exception as exc:
                 if last_failure == stream.offset:
@@ -289,7 +296,7 @@ class LogSource:
             self._problem(f"byte {stream.cut_at}", "the file ends in the middle of an object; "
                           "frames in it are lost")
 
-    def _whole_file(self, reader_type: type[MessageReader]) -> Iterator[tuple[can.Message, Any]]:
+    def _whole_file(self, reader_type: type[MessageReader]) -> Iterator[can.Message]:
         count = 0
 
         def where() -> str:
@@ -307,7 +314,7 @@ class LogSource:
         try:
             for message in reader:
                 count += 1
-                yield message, where
+                yield message
         except Exception as exc:
             self._problem(f"record {count + 1}", f"stopped at a record python-can cannot read "
                           f"({type(exc).__name__}: {exc})")

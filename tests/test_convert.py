@@ -5,7 +5,9 @@ from __future__ import annotations
 import hashlib
 import io
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import can
 import cantools
@@ -41,18 +43,29 @@ def drive(db: cantools.database.can.Database) -> list[can.Message]:
     return sorted(out, key=lambda m: m.timestamp)
 
 
-def read_back(stream: io.BytesIO | Path) -> tuple[dict[str, list[object]], list[object]]:
-    """Every decoded message by topic, and the raw frames in file order."""
-    by_topic: dict[str, list[object]] = {}
-    raw: list[object] = []
+@dataclass
+class RawFrame:
+    """A recorded CanFrame and its log time."""
+
+    log_time: int
+    frame: Any
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.frame, name)
+
+
+def read_back(stream: io.BytesIO | Path) -> tuple[dict[str, list[Any]], list[Any]]:
+    """Every decoded message by topic, and the raw frames in file order (with ``log_time``)."""
+    by_topic: dict[str, list[Any]] = {}
+    raw: list[Any] = []
     handle = stream.open("rb") if isinstance(stream, Path) else stream
     with handle:
         handle.seek(0)
         reader = make_reader(handle, decoder_factories=[DecoderFactory()])
-        for _, channel, _, decoded in reader.iter_decoded_messages(log_time_order=False):
+        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             by_topic.setdefault(channel.topic, []).append(decoded)
             if channel.topic.endswith("/frames"):
-                raw.append(decoded)
+                raw.append(RawFrame(message.log_time, decoded))
     return by_topic, raw
 
 
@@ -66,7 +79,7 @@ def test_every_frame_is_recorded_raw_and_every_known_one_decoded(
     by_topic, raw = read_back(out)
 
     assert report.frames == len(messages) == len(raw)
-    assert [(f.id, f.data, f.timestamp_ns, f.fd, f.error) for f in raw] == [
+    assert [(f.id, f.data, f.log_time, f.fd, f.error) for f in raw] == [
         (m.arbitration_id, bytes(m.data), round(m.timestamp * 1e6) * 1000, m.is_fd,
          m.is_error_frame) for m in messages]
     assert {f.bus for f in raw} == {"can0", "can1"}
@@ -136,7 +149,7 @@ def test_several_inputs_of_different_formats_merge_into_one_drive(
     report = record_drive([LogSource(a), LogSource(b)], build_decoder([str(ECOCAR_DBC)]), out)
     _, raw = read_back(out)
     assert report.frames == len(messages)
-    times = [f.timestamp_ns for f in raw]
+    times = [f.log_time for f in raw]
     assert times == sorted(times)
 
 

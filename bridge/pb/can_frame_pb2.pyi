@@ -5,8 +5,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class CanFrame(_message.Message):
-    __slots__ = ("timestamp_ns", "bus", "id", "extended", "fd", "bitrate_switch", "error_state_indicator", "error", "remote", "dlc", "data")
-    TIMESTAMP_NS_FIELD_NUMBER: _ClassVar[int]
+    __slots__ = ("bus", "id", "extended", "fd", "bitrate_switch", "error_state_indicator", "error", "remote", "dlc", "data")
     BUS_FIELD_NUMBER: _ClassVar[int]
     ID_FIELD_NUMBER: _ClassVar[int]
     EXTENDED_FIELD_NUMBER: _ClassVar[int]
@@ -17,7 +16,6 @@ class CanFrame(_message.Message):
     REMOTE_FIELD_NUMBER: _ClassVar[int]
     DLC_FIELD_NUMBER: _ClassVar[int]
     DATA_FIELD_NUMBER: _ClassVar[int]
-    timestamp_ns: int
     bus: str
     id: int
     extended: bool
@@ -28,4 +26,4 @@ class CanFrame(_message.Message):
     remote: bool
     dlc: int
     data: bytes
-    def __init__(self, timestamp_ns: _Optional[int] = ..., bus: _Optional[str] = ..., id: _Optional[int] = ..., extended: bool = ..., fd: bool = ..., bitrate_switch: bool = ..., error_state_indicator: bool = ..., error: bool = ..., remote: bool = ..., dlc: _Optional[int] = ..., data: _Optional[bytes] = ...) -> None: ...
+    def __init__(self, bus: _Optional[str] = ..., id: _Optional[int] = ..., extended: bool = ..., fd: bool = ..., bitrate_switch: bool = ..., error_state_indicator: bool = ..., error: bool = ..., remote: bool = ..., dlc: _Optional[int] = ..., data: _Optional[bytes] = ...) -> None: ...

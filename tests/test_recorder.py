@@ -1,0 +1,59 @@
+"""The recorder's fast paths give exactly the bytes mcap and protobuf would have written."""
+
+from __future__ import annotations
+
+import io
+import itertools
+import random
+
+from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
+
+from bridge.frame import Frame
+from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.recorder import Recorder, _Writer
+
+
+def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
+    rng = random.Random(7)
+    out = io.BytesIO()
+    writer = cls(out, chunk_size=4096)
+    if not fast:
+        writer._fast = False
+    writer.start(profile="", library="test")
+    schema = writer.register_schema("s", "protobuf", b"schema")
+    channels = [writer.register_channel(f"/t{i}", "protobuf", schema) for i in range(3)]
+    for i in range(3000):  # several chunks, times a little out of order, sizes varying
+        t = 1_000_000 + i * 1000 + rng.randint(-3000, 3000)
+        writer.add_message(rng.choice(channels), t, rng.randbytes(rng.randint(0, 80)), t + 5, i)
+    writer.add_metadata("m", {"k": "v"})
+    writer.finish()
+    return out.getvalue()
+
+
+def test_the_fast_writer_writes_what_mcap_writes() -> None:
+    assert write_with(_Writer) == write_with(McapWriter)
+
+
+def test_the_fallback_path_writes_the_same() -> None:
+    assert write_with(_Writer, fast=False) == write_with(McapWriter)
+
+
+def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:
+    recorder_out = io.BytesIO()
+    recorder = Recorder(recorder_out)
+    expected = []
+    for n, flags in enumerate(itertools.product([False, True], repeat=6)):
+        for length in (0, 1, 8, 12, 64):
+            ext, fd, err, rtr, brs, esi = flags
+            frame = Frame(n * 100 + length, "radar", 0x1ABCDEF if ext else 0x7FF,
+                          bytes(range(length)), ext, fd, err, rtr, brs, esi, length)
+            recorder.write_frame(frame)
+            expected.append(CanFrame(bus="radar", id=frame.arbitration_id, extended=ext, fd=fd,
+                                     error=err, remote=rtr, bitrate_switch=brs,
+                                     error_state_indicator=esi, dlc=length,
+                                     data=frame.data).SerializeToString())
+    recorder.finish()
+    recorder_out.seek(0)
+    got = [m.data for _, _, m in make_reader(recorder_out).iter_messages(log_time_order=False)]
+    assert got == expected
