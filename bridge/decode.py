@@ -91,20 +91,21 @@ class MessageCodec:
         self.schema = schema
         self.bus = bus
         self.topic = message_topic(bus, message.name)
+        self.length = message.length
         self.decoded = 0
         self.truncated = 0
         self._cache: dict[bytes, Decoded] = {}
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
+        if len(data) < self.length:
+            self.truncated += 1
         hit = self._cache.get(data)
         if hit is not None:
             self.decoded += 1
             return hit
         signals: dict[str, Any] = self.message.decode(  # type: ignore[assignment]
             data, decode_choices=False, allow_truncated=True)
-        if len(data) < self.message.length:
-            self.truncated += 1
         result = Decoded(self, signals, self.schema.serialize(signals))
         if len(self._cache) >= _CACHE_SIZE:
             self._cache.clear()

@@ -115,7 +115,8 @@ def describe_message(
             and int_range is not None
             and signal.scale == 1
             and signal.offset == 0
-            and all(_INT32[0] <= int(v) <= _INT32[1] for v in choices)
+            and _INT32[0] <= int_range[0]
+            and int_range[1] <= _INT32[1]
         ):
             enum = out.enum_type.add(name=f"{name}_Values")
             for value_name, value in _enum_values(name, dict(choices)):
