@@ -37,17 +37,18 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
     inputs: list[Path] = list(args.inputs)
     dbcs = [_dbc_option(text) for text in args.dbc or []]
+    profile = args.profile
     if args.sample:
         inputs.append(data_dir() / "ecocar_sample.blf")
-        dbcs = dbcs or [_dbc_option("ecocar")]
+        profile = profile or "ecocar"
     if not inputs:
         raise BridgeError("convert: name at least one input log (or --sample)")
-    if not dbcs:
-        print("warning: no --dbc given: only raw frames are recorded", file=sys.stderr)
+    if not dbcs and profile is None:
+        print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
-        report = convert(inputs, args.output, dbcs, force=args.force, strict=args.strict,
-                         progress=bar)
+        report = convert(inputs, args.output, dbcs, profile=profile, scene_rate=args.scene_rate,
+                         force=args.force, strict=args.strict, progress=bar)
     finally:
         if bar is not None:
             bar.close()
@@ -103,8 +104,14 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
                          help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
                          "without BUS=; repeatable; a bundled name such as 'ecocar' works too")
+    convert.add_argument("--profile", metavar="NAME|PATH",
+                         help="vehicle profile (TOML) that says what the signals mean: adds the "
+                         "scene and perception topics; a bundled name such as 'ecocar' works too; "
+                         "without --dbc the profile's own databases are used")
+    convert.add_argument("--scene-rate", type=float, default=20.0, metavar="HZ",
+                         help="scene updates per second of log time (default 20, at most 50)")
     convert.add_argument("--sample", action="store_true",
-                         help="also convert the bundled sample drive (with the ecocar DBC)")
+                         help="also convert the bundled sample drive (with the ecocar profile)")
     convert.add_argument("--force", action="store_true", help="overwrite an existing output")
     convert.add_argument("--strict", action="store_true",
                          help="fail on the first unreadable line, damaged object or backwards "

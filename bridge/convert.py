@@ -22,6 +22,8 @@ from typing import IO, Any
 from bridge import __version__
 from bridge.decode import DatabaseFile, Decoder, load_database, parse_dbc_option
 from bridge.errors import OutputError
+from bridge.perception import DEFAULT_SCENE_RATE, Perception
+from bridge.profile import Profile, load_profile, read_profile_databases, resolve_profile
 from bridge.recorder import Recorder
 from bridge.source import LogSource, SourceIssue, merge
 
@@ -57,6 +59,19 @@ def build_decoder(dbc_options: Sequence[str]) -> Decoder:
     return Decoder(by_bus)
 
 
+def build_stages(dbc_options: Sequence[str],
+                 profile: str | Path | None) -> tuple[Decoder, Profile | None]:
+    """The decoder and the profile; without --dbc options the profile's own databases are used."""
+    if profile is None:
+        return build_decoder(dbc_options), None
+    path = resolve_profile(profile)
+    if not dbc_options:
+        dbc_options = [str(p) if bus == "*" else f"{bus}={p}"
+                       for bus, paths in read_profile_databases(path).items() for p in paths]
+    decoder = build_decoder(dbc_options)
+    return decoder, load_profile(path, [f.db for f in decoder.files])
+
+
 def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
     """Attachment name per database sha256: the file name, made unique where two collide."""
     names: dict[str, str] = {}
@@ -69,25 +84,47 @@ def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
 
 
 def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
+                 profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
                  progress: Progress | None = None, every: int = 16384) -> ConvertReport:
-    """Convert ``sources`` into an MCAP written to the open binary ``output``."""
+    """Convert ``sources`` into an MCAP written to the open binary ``output``.
+
+    With a profile, the drive also gets the scene and semantic topics at ``scene_rate``.
+    """
     started = time.perf_counter()
     recorder = Recorder(output)
-    write_frame, write_decoded = recorder.write_frame, recorder.write_decoded
+    write_frame, write_decoded, write = recorder.write_frame, recorder.write_decoded, recorder.write
     decode = decoder.decode
+    perception = Perception(profile, scene_rate=scene_rate) if profile is not None else None
+    wanted = perception.messages if perception is not None else frozenset()
+    next_tick: int | float = float("inf") if perception is None else float("-inf")
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
+    t = 0
     for frame in merge(sources):
+        t = frame.timestamp_ns
+        if t >= next_tick and perception is not None:
+            for out in perception.advance(t):
+                write(out.topic, out.message, out.t_ns)
+            next_tick = perception.next_tick_ns
         write_frame(frame)
         decoded = decode(frame)
         if decoded is not None:
-            write_decoded(frame.timestamp_ns, decoded)
+            write_decoded(t, decoded)
+            name = decoded.codec.message.name
+            if name in wanted and perception is not None:
+                perception.feed(name, decoded.signals, t)
         frames += 1
         if progress is not None and frames % every == 0:
             done = sum(s.progress()[0] for s in sources)
             progress(frames, done / total_bytes if total_bytes else None)
+    if perception is not None:
+        for out in perception.finish(t):
+            write(out.topic, out.message, out.t_ns)
     if progress is not None:
         progress(frames, 1.0)
+    if profile is not None:
+        recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
+                                media="application/toml")
 
     names = attachment_names(decoder.files)
     for f in decoder.files:
@@ -100,6 +137,8 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
             buses.setdefault(bus, []).append(names[f.sha256])
     recorder.add_metadata({
         "tankviz_version": __version__,
+        "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
+                     "scene_rate_hz": scene_rate} if profile is not None else None),
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
                     "backwards_jumps": s.backwards} for s in sources],
@@ -130,17 +169,19 @@ def check_output(path: Path, *, force: bool) -> None:
 
 
 def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
+            profile: str | Path | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
             force: bool = False, strict: bool = False,
             progress: Progress | None = None) -> ConvertReport:
     """Convert log files into ``output``; everything is checked before the output is touched."""
     output = Path(output)
     check_output(output, force=force)
-    decoder = build_decoder(dbc_options)
+    decoder, loaded_profile = build_stages(dbc_options, profile)
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
     partial = output.with_name(f".{output.name}.partial")
     try:
         with partial.open("wb") as stream:
-            report = record_drive(sources, decoder, stream, progress=progress)
+            report = record_drive(sources, decoder, stream, profile=loaded_profile,
+                                  scene_rate=scene_rate, progress=progress)
         os.replace(partial, output)
     except OSError as exc:
         partial.unlink(missing_ok=True)

@@ -27,3 +27,27 @@ def frames_topic(bus: str) -> str:
 def message_topic(bus: str, message_name: str) -> str:
     """The decoded signals of one DBC message on one bus."""
     return f"/can/{bus_segment(bus)}/{message_name}"
+
+
+def scene_topic(category: str) -> str:
+    """``foxglove.SceneUpdate`` of one category: ego, lanes, lead, mio, or an object group."""
+    return f"/scene/{category}"
+
+
+#: Sensor mounts as ``foxglove.FrameTransforms`` (parent: the vehicle frame).
+TF_TOPIC = "/tf"
+
+
+def objects_topic(group: str) -> str:
+    """Every valid object of one group as ``tankviz.PerceivedObjects``."""
+    return f"/perception/{group}"
+
+
+#: The lead vehicle and its MIO check (``tankviz.LeadVehicle``).
+LEAD_TOPIC = "/perception/lead"
+#: The lane model of the moment (``tankviz.Lanes``).
+LANES_TOPIC = "/perception/lanes"
+#: Ego speed, yaw rate, steering (``tankviz.EgoState``).
+EGO_TOPIC = "/ego"
+#: Messages for people (``foxglove.Log``): alarms, bus loss, skipped input.
+LOG_TOPIC = "/log"

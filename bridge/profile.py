@@ -1,0 +1,662 @@
+"""Vehicle profiles: what the DBC signals of one car *mean*, declared in TOML, checked on load.
+
+A profile names the sensors (mounting pose and conventions), the object groups (radar and camera
+detections, fused tracks) bound to families of DBC messages, the lead vehicle, the lane lines and
+the ego signals. A team with another car writes a profile, not Python. The format is documented
+in README.md ("Vehicle profiles"); bridge/data/ecocar.toml is a complete example.
+
+:func:`load_profile` checks every key, type, value, message and signal name (against the loaded
+databases) and raises :class:`ProfileError` naming the profile file, the key, the bad name and the
+closest existing names.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from cantools.database.can.database import Database
+from cantools.database.can.message import Message as DbcMessage
+
+from bridge.errors import BridgeError
+from bridge.expr import Expression, ExpressionError, parse
+from bridge.resources import data_dir
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+class ProfileError(BridgeError):
+    """A profile that cannot be used; the message names the file, the key and what is wrong."""
+
+    def __init__(self, path: Path | str, key: str, reason: str) -> None:
+        self.path = str(path)
+        self.key = key
+        self.reason = reason
+        super().__init__(f"{self.path}: {key}: {reason}" if key else f"{self.path}: {reason}")
+
+
+class ObjectClass(str, Enum):
+    """What an object is, whatever the sensor's own enumeration."""
+
+    UNKNOWN = "unknown"
+    CAR = "car"
+    TWO_WHEELER = "two_wheeler"
+    PEDESTRIAN = "pedestrian"
+    STATIONARY = "stationary"
+
+
+class SensorKind(str, Enum):
+    RADAR = "radar"
+    CAMERA = "camera"
+    FUSION = "fusion"
+
+
+@dataclass(frozen=True)
+class Mount:
+    """A sensor's pose in the vehicle frame: metres, and yaw in degrees (positive to the left)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A sensor and the conventions of what it reports."""
+
+    name: str
+    kind: SensorKind
+    mount: Mount = Mount()
+    #: Which way the sensor's positive lateral distance (and azimuth) points: "left" or "right".
+    lateral: str = "left"
+    #: "cartesian" (x, y) or "polar" (range, azimuth).
+    coordinates: str = "cartesian"
+    #: Unit of the azimuth for polar sensors: "deg" or "rad".
+    angle_unit: str = "deg"
+    #: Multiplies every distance the sensor reports (e.g. 0.01 for centimetres).
+    distance_scale: float = 1.0
+    #: Field of view: maximum range (m) and half opening angle (degrees), if known.
+    fov_range: float | None = None
+    fov_azimuth_deg: float | None = None
+
+    @property
+    def lateral_sign(self) -> float:
+        return 1.0 if self.lateral == "left" else -1.0
+
+
+@dataclass(frozen=True)
+class SignalRef:
+    """One signal of one DBC message, with a linear unit conversion: value·scale + offset."""
+
+    message: str
+    signal: str
+    scale: float = 1.0
+    offset: float = 0.0
+
+    def read(self, values: Mapping[str, Any]) -> float | None:
+        raw = values.get(self.signal)
+        if raw is None:
+            return None
+        return float(raw) * self.scale + self.offset
+
+
+@dataclass(frozen=True)
+class FamilyMember:
+    """One message of an object family and the object index it carries."""
+
+    template: str
+    index: int | None
+
+
+@dataclass(frozen=True)
+class ObjectGroup:
+    """A group of objects (detections of one sensor, or fused tracks) from a family of messages.
+
+    Object ``i`` is described by the messages ``templates`` with ``{i}`` replaced; the first
+    template carries the position and makes a new observation, the others (companions) add their
+    latest signals to it. Without an index range, a single message carries one object per frame
+    and the ``id`` signal says which.
+    """
+
+    name: str
+    sensor: Sensor
+    templates: tuple[str, ...]
+    #: Message name -> (template position, object index); built from the templates.
+    members: Mapping[str, FamilyMember]
+    x: SignalRef | None
+    y: SignalRef | None
+    range: SignalRef | None
+    azimuth: SignalRef | None
+    vx: SignalRef | None = None
+    vy: SignalRef | None = None
+    probability: SignalRef | None = None
+    class_signal: SignalRef | None = None
+    classes: Mapping[int, ObjectClass] = field(default_factory=dict)
+    id: SignalRef | None = None
+    valid: Expression | None = None
+    lifetime_s: float = 0.1
+
+    @property
+    def is_tracks(self) -> bool:
+        return self.sensor.kind is SensorKind.FUSION
+
+
+@dataclass(frozen=True)
+class LeadSpec:
+    """The lead vehicle (most important object): its own message(s), or chosen from tracks."""
+
+    #: "message": read from ``group``; "tracks": the closest valid track inside the ego lane.
+    source: str
+    group: ObjectGroup | None = None
+    lifetime_s: float = 0.3
+
+
+@dataclass(frozen=True)
+class LaneLine:
+    """One lane line: y = c0 + c1·x + c2·x² + c3·x³ in the sensor frame, from one message."""
+
+    name: str
+    message: str
+    c0: SignalRef
+    c1: SignalRef | None
+    c2: SignalRef | None
+    c3: SignalRef | None
+    valid: Expression | None = None
+
+
+@dataclass(frozen=True)
+class LaneSpec:
+    sensor: Sensor
+    lines: Mapping[str, LaneLine]
+    #: Camera lanes older than this (s) are stale: the steering fallback takes over.
+    stale_after_s: float = 0.5
+    #: Length drawn ahead of the vehicle (m).
+    length_m: float = 100.0
+    #: Lateral offsets of the fallback (steering) lanes in the vehicle frame (y left), metres.
+    fallback_left_m: float = 1.8
+    fallback_right_m: float = -1.8
+
+
+@dataclass(frozen=True)
+class EgoSpec:
+    """Ego signals, converted to m/s, rad/s and the steering wheel angle in radians (left +)."""
+
+    speed: SignalRef | None = None
+    yaw_rate: SignalRef | None = None
+    steering_wheel_angle: SignalRef | None = None
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    wheelbase_m: float = 2.8
+    steering_ratio: float = 15.0
+    length_m: float = 2.5
+    width_m: float = 1.5
+    height_m: float = 1.0
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    path: Path
+    vehicle: Vehicle
+    sensors: Mapping[str, Sensor]
+    groups: Mapping[str, ObjectGroup]
+    lead: LeadSpec | None
+    lanes: LaneSpec | None
+    ego: EgoSpec
+    #: Databases the profile names (bus or "*" -> paths), used when no --dbc is given.
+    databases: Mapping[str, tuple[Path, ...]] = field(default_factory=dict)
+
+    def message_names(self) -> set[str]:
+        """Every DBC message the profile reads."""
+        names = {m for g in self.groups.values() for m in g.members}
+        if self.lead is not None and self.lead.group is not None:
+            names |= set(self.lead.group.members)
+        if self.lanes is not None:
+            names |= {line.message for line in self.lanes.lines.values()}
+        for ref in (self.ego.speed, self.ego.yaw_rate, self.ego.steering_wheel_angle):
+            if ref is not None:
+                names.add(ref.message)
+        return names
+
+
+# --- loading -------------------------------------------------------------------------------
+
+_TOP_KEYS = {"profile", "vehicle", "sensors", "objects", "lead", "lanes", "ego"}
+_CLASS_NAMES = {c.value: c for c in ObjectClass}
+_INDEX = re.compile(r"\{i(?::0?(\d+)d)?\}")
+_LANE_NAMES = ("left", "right", "next_left", "next_right")
+
+
+def bundled_profile(name: str) -> Path | None:
+    """The bundled profile called ``name`` (``ecocar``), if there is one."""
+    candidate = data_dir() / f"{name}.toml"
+    return candidate if "/" not in name and candidate.is_file() else None
+
+
+def resolve_profile(name_or_path: str | Path) -> Path:
+    """A profile path from a path or the name of a bundled profile."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    bundled = bundled_profile(str(name_or_path))
+    if bundled is not None:
+        return bundled
+    known = sorted(p.stem for p in data_dir().glob("*.toml"))
+    raise ProfileError(path, "", f"no such profile file, and no bundled profile of that name "
+                       f"(bundled: {', '.join(known) or 'none'})")
+
+
+def read_profile_databases(path: Path) -> dict[str, tuple[Path, ...]]:
+    """The databases a profile names (``[profile] databases``), without loading anything else."""
+    return _Loader(path, _read_toml(path), []).databases()
+
+
+def load_profile(name_or_path: str | Path, databases: Iterable[Database]) -> Profile:
+    """Load and check a profile against the databases its messages must come from."""
+    path = resolve_profile(name_or_path)
+    return _Loader(path, _read_toml(path), list(databases)).profile()
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with path.open("rb") as f:
+            doc: dict[str, Any] = tomllib.load(f)
+            return doc
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(path, "", f"not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ProfileError(path, "", f"cannot read: {exc.strerror or exc}") from None
+
+
+def _closest(word: str, choices: Iterable[str]) -> str:
+    matches = difflib.get_close_matches(word, list(choices), n=3, cutoff=0.5)
+    return f"; closest: {', '.join(matches)}" if matches else ""
+
+
+def expand(template: str, index: int) -> str:
+    """``RadarObj{i}_A`` with ``{i}`` (or ``{i:02d}``) replaced by the index."""
+
+    def fill(match: re.Match[str]) -> str:
+        width = match.group(1)
+        return f"{index:0{int(width)}d}" if width else str(index)
+
+    return _INDEX.sub(fill, template)
+
+
+class _Loader:
+    """Reads one parsed TOML document into a :class:`Profile`, checking as it goes."""
+
+    def __init__(self, path: Path, doc: dict[str, Any], databases: list[Database]) -> None:
+        self.path = path
+        self.doc = doc
+        self.messages: dict[str, DbcMessage] = {}
+        for db in databases:
+            for m in db.messages:
+                self.messages.setdefault(m.name, m)
+
+    def fail(self, key: str, reason: str) -> ProfileError:
+        return ProfileError(self.path, key, reason)
+
+    # generic checks
+
+    def table(self, value: Any, key: str, allowed: set[str],
+              required: Sequence[str] = ()) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected a table, got {_type_name(value)}")
+        for name in value:
+            if name not in allowed:
+                raise self.fail(f"{key}.{name}" if key else name,
+                                f"unknown key{_closest(name, allowed)} "
+                                f"(allowed: {', '.join(sorted(allowed))})")
+        for name in required:
+            if name not in value:
+                raise self.fail(key, f"missing required key '{name}'")
+        return value
+
+    def number(self, table: Mapping[str, Any], key: str, name: str, default: float | None = None,
+               *, positive: bool = False, non_negative: bool = False) -> float:
+        value = table.get(name, default)
+        full = f"{key}.{name}"
+        if value is None:
+            raise self.fail(key, f"missing required key '{name}'")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(full, f"expected a number, got {_type_name(value)}")
+        if not math.isfinite(value):
+            raise self.fail(full, f"must be finite, got {value}")
+        if positive and value <= 0:
+            raise self.fail(full, f"must be greater than 0, got {value}")
+        if non_negative and value < 0:
+            raise self.fail(full, f"must not be negative, got {value}")
+        return float(value)
+
+    def string(self, table: Mapping[str, Any], key: str, name: str, default: str | None = None,
+               choices: Sequence[str] | None = None) -> str:
+        value = table.get(name, default)
+        full = f"{key}.{name}"
+        if value is None:
+            raise self.fail(key, f"missing required key '{name}'")
+        if not isinstance(value, str):
+            raise self.fail(full, f"expected a string, got {_type_name(value)}")
+        if choices is not None and value not in choices:
+            raise self.fail(full, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def message(self, name: str, key: str) -> DbcMessage:
+        m = self.messages.get(name)
+        if m is None:
+            raise self.fail(key, f"no message {name!r} in the databases"
+                            f"{_closest(name, self.messages)}")
+        return m
+
+    def rule(self, table: Mapping[str, Any], key: str, signals: set[str]) -> Expression | None:
+        text = table.get("valid")
+        if text is None:
+            return None
+        if not isinstance(text, str):
+            raise self.fail(f"{key}.valid", f"expected a rule (string), got {_type_name(text)}")
+        try:
+            expression = parse(text)
+        except ExpressionError as exc:
+            raise self.fail(f"{key}.valid", str(exc)) from None
+        for name in sorted(expression.names):
+            if name not in signals:
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is not a "
+                                f"signal of these messages{_closest(name, signals)}")
+        return expression
+
+    def signal(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> SignalRef:
+        """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
+        scale, offset = 1.0, 0.0
+        if isinstance(value, dict):
+            spec = self.table(value, key, {"signal", "scale", "offset"}, required=["signal"])
+            scale = self.number(spec, key, "scale", 1.0)
+            offset = self.number(spec, key, "offset", 0.0)
+            value = spec["signal"]
+            key = f"{key}.signal"
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"expected a signal name, got {_type_name(value)}")
+        message_name, _, signal_name = value.rpartition(".")
+        candidates = list(messages)
+        if message_name:
+            candidates = [m for m in messages if m.name == message_name]
+            if not candidates:
+                if messages:
+                    names = [m.name for m in messages]
+                    raise self.fail(key, f"message {message_name!r} is not one of "
+                                    f"{', '.join(names)}{_closest(message_name, names)}")
+                candidates = [self.message(message_name, key)]
+        owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
+        if not owners:
+            known = {s.name for m in candidates for s in m.signals}
+            where = ", ".join(m.name for m in candidates)
+            raise self.fail(key, f"no signal {signal_name!r} in {where}"
+                            f"{_closest(signal_name, known)}")
+        if len(owners) > 1:
+            raise self.fail(key, f"signal {signal_name!r} is in {owners[0].name} and "
+                            f"{owners[1].name}: write Message.Signal")
+        return SignalRef(owners[0].name, signal_name, scale, offset)
+
+    # sections
+
+    def databases(self) -> dict[str, tuple[Path, ...]]:
+        section = self.table(self.doc.get("profile", {}), "profile",
+                             {"name", "description", "databases"})
+        value = section.get("databases", [])
+        by_bus: dict[str, Any] = value if isinstance(value, dict) else {"*": value}
+        out: dict[str, tuple[Path, ...]] = {}
+        for bus, files in by_bus.items():
+            key = "profile.databases" + (f".{bus}" if isinstance(value, dict) else "")
+            if isinstance(files, str):
+                files = [files]
+            if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+                raise self.fail(key, f"expected a list of database files, got {_type_name(files)}")
+            paths = []
+            for f in files:
+                candidate = (self.path.parent / f)
+                if not candidate.is_file():
+                    candidate = data_dir() / f
+                if not candidate.is_file():
+                    raise self.fail(key, f"no database file {f!r} beside the profile or bundled")
+                paths.append(candidate)
+            out[bus] = tuple(paths)
+        return out
+
+    def profile(self) -> Profile:
+        doc = self.table(self.doc, "", _TOP_KEYS)
+        meta = self.table(doc.get("profile", {}), "profile", {"name", "description", "databases"})
+        name = self.string(meta, "profile", "name", self.path.stem)
+        vehicle = self.vehicle(doc.get("vehicle", {}))
+        sensors_doc = self.table(doc.get("sensors", {}), "sensors", set(doc.get("sensors", {})))
+        sensors = {n: self.sensor(n, v) for n, v in sensors_doc.items()}
+        objects_doc = self.table(doc.get("objects", {}), "objects", set(doc.get("objects", {})))
+        groups = {n: self.group(f"objects.{n}", n, v, sensors) for n, v in objects_doc.items()}
+        lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
+        lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
+        ego = self.ego(doc.get("ego", {}))
+        return Profile(name, self.path, vehicle, sensors, groups, lead, lanes, ego,
+                       self.databases())
+
+    def vehicle(self, value: Any) -> Vehicle:
+        t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",
+                                          "height"})
+        d = Vehicle()
+        return Vehicle(
+            self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True),
+            self.number(t, "vehicle", "steering_ratio", d.steering_ratio, positive=True),
+            self.number(t, "vehicle", "length", d.length_m, positive=True),
+            self.number(t, "vehicle", "width", d.width_m, positive=True),
+            self.number(t, "vehicle", "height", d.height_m, positive=True),
+        )
+
+    def sensor(self, name: str, value: Any) -> Sensor:
+        key = f"sensors.{name}"
+        t = self.table(value, key, {"kind", "mount", "lateral", "coordinates", "angle_unit",
+                                    "distance_scale", "fov"}, required=["kind"])
+        kind = SensorKind(self.string(t, key, "kind", choices=[k.value for k in SensorKind]))
+        mount_doc = self.table(t.get("mount", {}), f"{key}.mount", {"x", "y", "z", "yaw"})
+        mount = Mount(*(self.number(mount_doc, f"{key}.mount", axis, 0.0)
+                        for axis in ("x", "y", "z", "yaw")))
+        fov_doc = self.table(t.get("fov", {}), f"{key}.fov", {"range", "azimuth"})
+        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True)
+                     if "range" in fov_doc else None)
+        fov_azimuth = (self.number(fov_doc, f"{key}.fov", "azimuth", positive=True)
+                       if "azimuth" in fov_doc else None)
+        if fov_azimuth is not None and fov_azimuth > 180:
+            raise self.fail(f"{key}.fov.azimuth",
+                            f"is a half angle: at most 180, got {fov_azimuth}")
+        return Sensor(
+            name, kind, mount,
+            self.string(t, key, "lateral", "left", ["left", "right"]),
+            self.string(t, key, "coordinates", "cartesian", ["cartesian", "polar"]),
+            self.string(t, key, "angle_unit", "deg", ["deg", "rad"]),
+            self.number(t, key, "distance_scale", 1.0, positive=True),
+            fov_range, fov_azimuth,
+        )
+
+    def sensor_of(self, t: Mapping[str, Any], key: str, sensors: Mapping[str, Sensor]) -> Sensor:
+        name = self.string(t, key, "sensor")
+        if name not in sensors:
+            raise self.fail(f"{key}.sensor", f"no sensor {name!r} in [sensors]"
+                            f"{_closest(name, sensors)}")
+        return sensors[name]
+
+    def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
+              *, lifetime: float = 0.1) -> ObjectGroup:
+        fields = {"x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id"}
+        t = self.table(value, key, {"sensor", "messages", "index", "classes", "valid",
+                                    "lifetime"} | fields, required=["sensor", "messages"])
+        sensor = self.sensor_of(t, key, sensors)
+        templates = t["messages"]
+        if isinstance(templates, str):
+            templates = [templates]
+        if (not isinstance(templates, list) or not templates
+                or not all(isinstance(m, str) and m for m in templates)):
+            raise self.fail(f"{key}.messages", "expected a non-empty list of message names "
+                            "(templates with {i} for an indexed family)")
+        members: dict[str, FamilyMember] = {}
+        first_instances: list[DbcMessage] = []
+        if "index" in t:
+            index = t["index"]
+            if (not isinstance(index, list) or len(index) != 2
+                    or not all(isinstance(i, int) and not isinstance(i, bool) for i in index)):
+                raise self.fail(f"{key}.index", "expected [first, last] object indices, e.g. "
+                                "[0, 31]")
+            first, last = index
+            if last < first or first < 0:
+                raise self.fail(f"{key}.index", f"empty family: [{first}, {last}]")
+            for template in templates:
+                if not _INDEX.search(template):
+                    raise self.fail(f"{key}.messages", f"{template!r} has no {{i}} for the index")
+                for i in range(first, last + 1):
+                    m = self.message(expand(template, i), f"{key}.messages")
+                    members[m.name] = FamilyMember(template, i)
+                    if i == first:
+                        first_instances.append(m)
+        else:
+            if "id" not in t:
+                raise self.fail(key, "without 'index' each frame carries one object: name the "
+                                "signal that says which with 'id'")
+            for template in templates:
+                if _INDEX.search(template):
+                    raise self.fail(f"{key}.messages", f"{template!r} has {{i}} but there is no "
+                                    "'index' range")
+                m = self.message(template, f"{key}.messages")
+                members[m.name] = FamilyMember(template, None)
+                first_instances.append(m)
+
+        first_index = min((m.index for m in members.values() if m.index is not None), default=0)
+
+        def ref(name: str) -> SignalRef | None:
+            if name not in t:
+                return None
+            value = t[name]  # "Template{i}.Signal" names the family's first instance
+            if isinstance(value, str):
+                value = expand(value, first_index)
+            elif isinstance(value, dict) and isinstance(value.get("signal"), str):
+                value = {**value, "signal": expand(value["signal"], first_index)}
+            r = self.signal(value, f"{key}.{name}", first_instances)
+            # Stored with the template so that every instance of the family resolves it.
+            template = next(m.template for n, m in members.items() if n == r.message)
+            return SignalRef(template, r.signal, r.scale, r.offset)
+
+        if sensor.coordinates == "polar":
+            if "x" in t or "y" in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is polar: use range and azimuth, "
+                                "not x and y")
+            if "range" not in t or "azimuth" not in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is polar: name 'range' and "
+                                "'azimuth'")
+        else:
+            if "range" in t or "azimuth" in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is cartesian: use x and y (or set "
+                                "coordinates = \"polar\" on the sensor)")
+            if "x" not in t or "y" not in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is cartesian: name 'x' and 'y'")
+        classes: dict[int, ObjectClass] = {}
+        if "classes" in t:
+            if "class" not in t:
+                raise self.fail(f"{key}.classes", "given without a 'class' signal")
+            table = self.table(t["classes"], f"{key}.classes", set(t["classes"]))
+            for raw, label in table.items():
+                if not re.fullmatch(r"-?\d+", raw):
+                    raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
+                                    "(integers)")
+                if label not in _CLASS_NAMES:
+                    raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
+                                    f"{', '.join(_CLASS_NAMES)}")
+                classes[int(raw)] = _CLASS_NAMES[label]
+        signals = {s.name for m in first_instances for s in m.signals}
+        return ObjectGroup(
+            name, sensor, tuple(templates), members,
+            ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
+            ref("probability"), ref("class"), classes, ref("id"),
+            self.rule(t, key, signals),
+            self.number(t, key, "lifetime", lifetime, non_negative=True),
+        )
+
+    def lead(self, value: Any, sensors: Mapping[str, Sensor]) -> LeadSpec:
+        key = "lead"
+        if isinstance(value, dict) and value.get("source") == "tracks":
+            t = self.table(value, key, {"source", "lifetime"})
+            return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3,
+                                                        non_negative=True))
+        if isinstance(value, dict):
+            value = {k: v for k, v in value.items() if k != "source"}
+        group = self.group(key, "lead", value, sensors, lifetime=0.3)
+        return LeadSpec("message", group, group.lifetime_s)
+
+    def lanes(self, value: Any, sensors: Mapping[str, Sensor]) -> LaneSpec:
+        key = "lanes"
+        t = self.table(value, key, {"sensor", "stale_after", "length", "fallback", *_LANE_NAMES},
+                       required=["sensor"])
+        sensor = self.sensor_of(t, key, sensors)
+        lines = {}
+        for name in _LANE_NAMES:
+            if name not in t:
+                continue
+            lk = f"{key}.{name}"
+            lt = self.table(t[name], lk, {"message", "c0", "c1", "c2", "c3", "valid"},
+                            required=["message", "c0"])
+            message = self.message(self.string(lt, lk, "message"), f"{lk}.message")
+
+            def coefficient(c: str, lt: dict[str, Any] = lt, lk: str = lk,
+                            message: DbcMessage = message) -> SignalRef | None:
+                return self.signal(lt[c], f"{lk}.{c}", [message]) if c in lt else None
+
+            c0 = coefficient("c0")
+            assert c0 is not None
+            lines[name] = LaneLine(name, message.name, c0, coefficient("c1"), coefficient("c2"),
+                                   coefficient("c3"),
+                                   self.rule(lt, lk, {s.name for s in message.signals}))
+        if "left" not in lines or "right" not in lines:
+            raise self.fail(key, "needs at least [lanes.left] and [lanes.right]")
+        fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
+        return LaneSpec(
+            sensor, lines,
+            self.number(t, key, "stale_after", 0.5, positive=True),
+            self.number(t, key, "length", 100.0, positive=True),
+            self.number(fallback, f"{key}.fallback", "left", 1.8),
+            self.number(fallback, f"{key}.fallback", "right", -1.8),
+        )
+
+    def ego(self, value: Any) -> EgoSpec:
+        t = self.table(value, "ego", {"speed", "yaw_rate", "steering_wheel_angle"})
+        every = list(self.messages.values())
+
+        def ref(name: str) -> SignalRef | None:
+            if name not in t:
+                return None
+            raw = t[name]
+            text = raw["signal"] if isinstance(raw, dict) else raw
+            if isinstance(text, str) and "." not in text:
+                raise self.fail(f"ego.{name}", f"write Message.Signal, got {text!r}")
+            return self.signal(raw, f"ego.{name}", every)
+
+        return EgoSpec(ref("speed"), ref("yaw_rate"), ref("steering_wheel_angle"))
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, int | float):
+        return f"a number ({value})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a table"
+    return type(value).__name__

@@ -1,0 +1,229 @@
+"""Scene: pure functions from the world to ``foxglove.SceneUpdate`` messages, one per category.
+
+The look is the Tank Viz baseline: an orange-brown ego box, green camera lanes (magenta when
+extrapolated from the steering angle), small blue radar and white camera spheres, red track
+spheres labelled "TrackID: n / x: … / y: …", a green lead-vehicle box labelled "Lead Vehicle /
+x: … / y: …". Beyond it: class labels, pedestrians as tall yellow cylinders that cannot be missed,
+neighbour lane lines, sensor frames and the MIO check.
+
+Foxglove decodes protobuf with defaults, and a default is invisible (alpha 0, font size 0,
+thickness 0, a zero quaternion): every visible field is set here explicitly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.CylinderPrimitive_pb2 import CylinderPrimitive
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+from foxglove_schemas_protobuf.Point3_pb2 import Point3
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.SpherePrimitive_pb2 import SpherePrimitive
+from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.duration_pb2 import Duration
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from bridge.observe import ObjectObservation
+from bridge.profile import ObjectClass, Profile, SensorKind
+from bridge.topics import VEHICLE_FRAME
+from bridge.world import LaneModel, MioCheck, World
+
+NS = 1_000_000_000
+
+RGBA = tuple[float, float, float, float]
+EGO_COLOR: RGBA = (0.72, 0.42, 0.16, 1.0)  # orange-brown
+CAMERA_LANE_COLOR: RGBA = (0.0, 0.9, 0.1, 1.0)  # green
+NEIGHBOUR_LANE_COLOR: RGBA = (0.0, 0.9, 0.1, 0.55)
+STEERING_LANE_COLOR: RGBA = (1.0, 0.0, 1.0, 1.0)  # magenta
+RADAR_COLOR: RGBA = (0.1, 0.35, 1.0, 1.0)  # blue
+CAMERA_COLOR: RGBA = (1.0, 1.0, 1.0, 1.0)  # white
+TRACK_COLOR: RGBA = (1.0, 0.1, 0.1, 1.0)  # red
+LEAD_COLOR: RGBA = (0.0, 0.85, 0.2, 0.55)  # green, see-through so the track inside shows
+PEDESTRIAN_COLOR: RGBA = (1.0, 0.85, 0.0, 1.0)  # yellow
+MIO_COLOR: RGBA = (1.0, 0.55, 0.0, 1.0)  # orange
+TEXT_COLOR: RGBA = (1.0, 1.0, 1.0, 1.0)
+
+DETECTION_SIZE = 0.5  # m, sphere diameter
+TRACK_SIZE = 0.8
+LEAD_BOX = (4.5, 1.9, 1.5)  # m
+LANE_THICKNESS = 0.15  # m
+FONT_SIZE = 14.0  # px (scale invariant)
+
+CLASS_LABELS = {
+    ObjectClass.CAR: "car",
+    ObjectClass.TWO_WHEELER: "two-wheeler",
+    ObjectClass.PEDESTRIAN: "PEDESTRIAN",
+    ObjectClass.STATIONARY: "stationary",
+}
+
+
+def timestamp(t_ns: int) -> Timestamp:
+    return Timestamp(seconds=t_ns // NS, nanos=t_ns % NS)
+
+
+def duration(seconds: float) -> Duration:
+    ns = round(seconds * NS)
+    return Duration(seconds=ns // NS, nanos=ns % NS)
+
+
+def color(rgba: RGBA) -> Color:
+    return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def pose(x: float, y: float, z: float) -> Pose:
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0, y=0, z=0, w=1))
+
+
+def text(x: float, y: float, z: float, words: str) -> TextPrimitive:
+    return TextPrimitive(pose=pose(x, y, z), billboard=True, font_size=FONT_SIZE,
+                         scale_invariant=True, color=color(TEXT_COLOR), text=words)
+
+
+def entity(t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
+    return SceneEntity(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, id=entity_id,
+                       lifetime=duration(lifetime_s), frame_locked=True)
+
+
+def sphere(x: float, y: float, z: float, size: float, rgba: RGBA) -> SpherePrimitive:
+    return SpherePrimitive(pose=pose(x, y, z), size=Vector3(x=size, y=size, z=size),
+                           color=color(rgba))
+
+
+def ego_entities(profile: Profile, t_ns: int) -> list[SceneEntity]:
+    v = profile.vehicle
+    e = entity(t_ns, "ego", 0.0)
+    e.cubes.append(CubePrimitive(pose=pose(0.0, 0.0, v.height_m / 2),
+                                 size=Vector3(x=v.length_m, y=v.width_m, z=v.height_m),
+                                 color=color(EGO_COLOR)))
+    return [e]
+
+
+def lane_entities(lanes: LaneModel, t_ns: int) -> list[SceneEntity]:
+    out = []
+    for line in lanes.lines:
+        if lanes.source == "steering":
+            rgba = STEERING_LANE_COLOR
+        else:
+            rgba = NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
+        e = entity(t_ns, f"lane-{line.name}", 0.0)
+        e.lines.append(LinePrimitive(
+            type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0), thickness=LANE_THICKNESS,
+            scale_invariant=False, color=color(rgba),
+            points=[Point3(x=x, y=y, z=0.05) for x, y in line.points]))
+        e.metadata.add(key="source", value=lanes.source)
+        out.append(e)
+    return out
+
+
+def object_entities(objects: Iterable[ObjectObservation], kind: SensorKind, group: str,
+                    t_ns: int, lifetime_s: float) -> list[SceneEntity]:
+    """Detections (radar blue, camera white) or tracks (red, labelled), with class labels."""
+    out = []
+    for o in sorted(objects, key=lambda o: o.object_id):
+        e = entity(t_ns, f"{group}-{o.object_id}", lifetime_s)
+        if kind is SensorKind.FUSION:
+            e.spheres.append(sphere(o.x, o.y, 0.5, TRACK_SIZE, TRACK_COLOR))
+            label = f"TrackID: {o.object_id}\nx: {o.x:.2f}\ny: {o.y:.2f}"
+            if o.object_class in CLASS_LABELS:
+                label += f"\n{CLASS_LABELS[o.object_class]}"
+            e.texts.append(text(o.x, o.y, 1.6, label))
+        else:
+            rgba = RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR
+            e.spheres.append(sphere(o.x, o.y, 0.5, DETECTION_SIZE, rgba))
+            if o.object_class in CLASS_LABELS:
+                e.texts.append(text(o.x, o.y, 1.1, CLASS_LABELS[o.object_class]))
+        if o.object_class is ObjectClass.PEDESTRIAN:
+            e.cylinders.append(CylinderPrimitive(
+                pose=pose(o.x, o.y, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
+                top_scale=1.0, color=color(PEDESTRIAN_COLOR)))
+        e.metadata.add(key="class", value=o.object_class.value)
+        out.append(e)
+    return out
+
+
+def lead_entities(lead: ObjectObservation | None, t_ns: int,
+                  lifetime_s: float) -> list[SceneEntity]:
+    if lead is None:
+        return []
+    e = entity(t_ns, "lead", lifetime_s)
+    length, width, height = LEAD_BOX
+    e.cubes.append(CubePrimitive(pose=pose(lead.x + length / 2, lead.y, height / 2),
+                                 size=Vector3(x=length, y=width, z=height),
+                                 color=color(LEAD_COLOR)))
+    e.texts.append(text(lead.x, lead.y, height + 1.4,
+                        f"Lead Vehicle\nx: {lead.x:.2f}\ny: {lead.y:.2f}"))
+    return [e]
+
+
+def mio_entities(check: MioCheck, t_ns: int, lifetime_s: float) -> list[SceneEntity]:
+    """Nothing when the lead is the closest in-lane track; otherwise a ring and the reason."""
+    if check.ok:
+        return []
+    e = entity(t_ns, "mio-check", lifetime_s)
+    target = check.expected or check.lead
+    if target is not None:
+        e.cylinders.append(CylinderPrimitive(
+            pose=pose(target.x, target.y, 0.02), size=Vector3(x=3.0, y=3.0, z=0.04),
+            bottom_scale=1.0, top_scale=1.0, color=color(MIO_COLOR)))
+        e.texts.append(text(target.x, target.y, 3.2, f"MIO CHECK: {check.reason}"))
+    else:
+        e.texts.append(text(5.0, 0.0, 3.2, f"MIO CHECK: {check.reason}"))
+    return [e]
+
+
+def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
+    """One transform per sensor mount, parent the vehicle frame."""
+    transforms = []
+    for sensor in profile.sensors.values():
+        yaw = math.radians(sensor.mount.yaw_deg)
+        transforms.append(FrameTransform(
+            timestamp=timestamp(t_ns), parent_frame_id=VEHICLE_FRAME, child_frame_id=sensor.name,
+            translation=Vector3(x=sensor.mount.x, y=sensor.mount.y, z=sensor.mount.z),
+            rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))))
+    return FrameTransforms(transforms=transforms)
+
+
+@dataclass
+class SceneState:
+    """Entity ids sent last time per topic, so that vanished entities are deleted."""
+
+    sent: dict[str, set[str]]
+
+
+def update(topic: str, entities: list[SceneEntity], t_ns: int, state: SceneState) -> SceneUpdate:
+    """A SceneUpdate of ``entities`` that also deletes what was sent before and is gone now."""
+    ids = {e.id for e in entities}
+    gone = sorted(state.sent.get(topic, set()) - ids)
+    state.sent[topic] = ids
+    return SceneUpdate(
+        deletions=[SceneEntityDeletion(timestamp=timestamp(t_ns),
+                                       type=SceneEntityDeletion.MATCHING_ID, id=i) for i in gone],
+        entities=entities)
+
+
+def scene_entities(world: World, lanes: LaneModel, check: MioCheck,
+                   t_ns: int) -> dict[str, list[SceneEntity]]:
+    """Every category's entities at ``t_ns`` (category -> entities)."""
+    profile = world.profile
+    out: dict[str, list[SceneEntity]] = {
+        "ego": ego_entities(profile, t_ns),
+        "lanes": lane_entities(lanes, t_ns),
+    }
+    for name, group in profile.groups.items():
+        out[name] = object_entities(world.objects[name].values(), group.sensor.kind, name, t_ns,
+                                    group.lifetime_s)
+    if profile.lead is not None:
+        out["lead"] = lead_entities(check.lead, t_ns, profile.lead.lifetime_s)
+        out["mio"] = mio_entities(check, t_ns, profile.lead.lifetime_s)
+    return out

@@ -1,0 +1,82 @@
+"""Semantic messages: the world as typed protobuf (schemas/perception.proto) to plot and analyse."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from bridge.observe import ObjectObservation
+from bridge.pb.perception_pb2 import (
+    EgoState,
+    LaneLine,
+    Lanes,
+    LeadVehicle,
+    ObjectClass,
+    PerceivedObject,
+    PerceivedObjects,
+)
+from bridge.profile import ObjectClass as Kind
+from bridge.profile import Profile
+from bridge.scene import timestamp
+from bridge.topics import VEHICLE_FRAME
+from bridge.world import LaneModel, MioCheck, World, steering_curvature
+
+NS = 1_000_000_000
+
+_CLASSES = {
+    Kind.UNKNOWN: ObjectClass.OBJECT_CLASS_UNKNOWN,
+    Kind.CAR: ObjectClass.OBJECT_CLASS_CAR,
+    Kind.TWO_WHEELER: ObjectClass.OBJECT_CLASS_TWO_WHEELER,
+    Kind.PEDESTRIAN: ObjectClass.OBJECT_CLASS_PEDESTRIAN,
+    Kind.STATIONARY: ObjectClass.OBJECT_CLASS_STATIONARY,
+}
+
+
+def perceived(o: ObjectObservation, t_ns: int) -> PerceivedObject:
+    msg = PerceivedObject(id=o.object_id, x=o.x, y=o.y, object_class=_CLASSES[o.object_class],
+                          distance=math.hypot(o.x, o.y), age=(t_ns - o.t_ns) / NS)
+    if o.vx is not None:
+        msg.vx = o.vx
+    if o.vy is not None:
+        msg.vy = o.vy
+    if o.probability is not None:
+        msg.probability = o.probability
+    return msg
+
+
+def objects(group: str, sensor: str, found: Iterable[ObjectObservation],
+            t_ns: int) -> PerceivedObjects:
+    items = [perceived(o, t_ns) for o in sorted(found, key=lambda o: o.object_id)]
+    return PerceivedObjects(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, group=group,
+                            sensor=sensor, count=len(items), objects=items)
+
+
+def lead(check: MioCheck, t_ns: int) -> LeadVehicle:
+    msg = LeadVehicle(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME,
+                      present=check.lead is not None, expected_present=check.expected is not None,
+                      mio_ok=check.ok, mio_reason=check.reason)
+    if check.lead is not None:
+        msg.object.CopyFrom(perceived(check.lead, t_ns))
+    if check.expected is not None:
+        msg.expected.CopyFrom(perceived(check.expected, t_ns))
+    return msg
+
+
+def lanes(model: LaneModel, t_ns: int) -> Lanes:
+    return Lanes(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, source=model.source,
+                 camera_age=model.camera_age_s,
+                 lines=[LaneLine(name=line.name, c0=line.coefficients[0],
+                                 c1=line.coefficients[1], c2=line.coefficients[2],
+                                 c3=line.coefficients[3]) for line in model.lines])
+
+
+def ego(world: World, profile: Profile, t_ns: int) -> EgoState:
+    state = world.ego
+    msg = EgoState(timestamp=timestamp(t_ns), speed=state.speed or 0.0,
+                   yaw_rate=state.yaw_rate or 0.0,
+                   steering_wheel_angle=state.steering_wheel_angle or 0.0)
+    if state.steering_wheel_angle is not None:
+        msg.curvature = steering_curvature(state.steering_wheel_angle,
+                                           profile.vehicle.wheelbase_m,
+                                           profile.vehicle.steering_ratio)
+    return msg

@@ -1,0 +1,223 @@
+"""World: the latest observations with their times, expiring in log time, and what follows.
+
+The world keeps the newest valid observation of each object (per group and object id), the newest
+valid lane lines and the ego state. Objects expire after their group's lifetime, measured in log
+time, so conversion, replay and live agree. From that state it derives the lane model (camera
+lanes while they are fresh, otherwise lanes extrapolated from the steering angle) and the MIO
+check: is the lead vehicle the closest valid track inside the ego lane?
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from bridge.observe import (
+    LEAD_GROUP,
+    EgoObservation,
+    LaneObservation,
+    ObjectObservation,
+    Observation,
+    to_vehicle,
+)
+from bridge.profile import LaneSpec, Profile, Sensor
+
+NS = 1_000_000_000
+
+
+def polynomial(c: Sequence[float], x: float) -> float:
+    return c[0] + x * (c[1] + x * (c[2] + x * c[3]))
+
+
+def lane_to_vehicle(sensor: Sensor, c: Sequence[float]) -> tuple[float, float, float, float]:
+    """Sensor-frame lane coefficients as a vehicle-frame polynomial in x.
+
+    Exact for the mount offset and lateral sign; the mount's yaw is applied to first order.
+    """
+    a = sensor.mount.x
+    c0, c1, c2, c3 = c
+    shifted = (c0 - c1 * a + c2 * a * a - c3 * a**3, c1 - 2 * c2 * a + 3 * c3 * a * a,
+               c2 - 3 * c3 * a, c3)
+    s = sensor.lateral_sign
+    return (s * shifted[0] + sensor.mount.y, s * shifted[1] + math.tan(
+        math.radians(sensor.mount.yaw_deg)), s * shifted[2], s * shifted[3])
+
+
+@dataclass(frozen=True)
+class LaneCurve:
+    """One lane line to draw, as vehicle-frame points x = 0…length-1 m."""
+
+    name: str
+    points: tuple[tuple[float, float], ...]
+    coefficients: tuple[float, float, float, float]
+
+    def lateral_at(self, x: float) -> float:
+        return polynomial(self.coefficients, x)
+
+
+@dataclass(frozen=True)
+class LaneModel:
+    """The lanes of the moment: from the camera, extrapolated from the steering, or none."""
+
+    source: str  # "camera", "steering" or "none"
+    lines: tuple[LaneCurve, ...] = ()
+    camera_age_s: float = -1.0
+
+    def line(self, name: str) -> LaneCurve | None:
+        return next((line for line in self.lines if line.name == name), None)
+
+    def in_ego_lane(self, x: float, y: float) -> bool:
+        left, right = self.line("left"), self.line("right")
+        if left is None or right is None or x < 0:
+            return False
+        return right.lateral_at(x) < y < left.lateral_at(x)
+
+
+def steering_curvature(steering_wheel_angle: float, wheelbase: float, ratio: float) -> float:
+    """Path curvature (1/m, left positive) of a bicycle model from the steering wheel angle."""
+    return math.tan(steering_wheel_angle / ratio) / wheelbase
+
+
+def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -> LaneCurve:
+    points = tuple(to_vehicle(sensor, float(x), polynomial(c, float(x)))
+                   for x in range(int(length)))
+    return LaneCurve(name, points, lane_to_vehicle(sensor, c))
+
+
+def steering_curve(name: str, offset: float, curvature: float, length: float) -> LaneCurve:
+    c = (offset, 0.0, curvature / 2.0, 0.0)
+    return LaneCurve(name, tuple((float(x), polynomial(c, float(x))) for x in range(int(length))),
+                     c)
+
+
+@dataclass
+class EgoState:
+    t_ns: int | None = None
+    speed: float | None = None
+    yaw_rate: float | None = None
+    steering_wheel_angle: float | None = None
+
+
+@dataclass(frozen=True)
+class MioCheck:
+    """The lead vehicle against the closest valid track inside the ego lane."""
+
+    lead: ObjectObservation | None
+    expected: ObjectObservation | None
+    ok: bool
+    reason: str
+
+
+@dataclass
+class World:
+    """Everything known at the current log time."""
+
+    profile: Profile
+    objects: dict[str, dict[int, ObjectObservation]] = field(default_factory=dict)
+    lanes: dict[str, LaneObservation] = field(default_factory=dict)
+    ego: EgoState = field(default_factory=EgoState)
+    last_camera_lanes_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        self.lifetimes_ns = {name: round(g.lifetime_s * NS)
+                             for name, g in self.profile.groups.items()}
+        if self.profile.lead is not None:
+            self.lifetimes_ns[LEAD_GROUP] = round(self.profile.lead.lifetime_s * NS)
+        for name in self.lifetimes_ns:
+            self.objects.setdefault(name, {})
+
+    def apply(self, observation: Observation) -> None:
+        if isinstance(observation, ObjectObservation):
+            group = self.objects.setdefault(observation.group, {})
+            if observation.valid:
+                group[observation.object_id] = observation
+            else:
+                group.pop(observation.object_id, None)
+        elif isinstance(observation, LaneObservation):
+            if observation.valid:
+                self.lanes[observation.name] = observation
+            else:
+                self.lanes.pop(observation.name, None)
+        elif isinstance(observation, EgoObservation):
+            ego = self.ego
+            ego.t_ns = observation.t_ns
+            if observation.speed is not None:
+                ego.speed = observation.speed
+            if observation.yaw_rate is not None:
+                ego.yaw_rate = observation.yaw_rate
+            if observation.steering_wheel_angle is not None:
+                ego.steering_wheel_angle = observation.steering_wheel_angle
+
+    def expire(self, now_ns: int) -> None:
+        """Forget objects older than their group's lifetime."""
+        for name, objects in self.objects.items():
+            oldest = now_ns - self.lifetimes_ns.get(name, 0)
+            stale = [i for i, o in objects.items() if o.t_ns < oldest]
+            for i in stale:
+                del objects[i]
+
+    def lane_model(self, now_ns: int) -> LaneModel:
+        spec: LaneSpec | None = self.profile.lanes
+        if spec is None:
+            return LaneModel("none")
+        stale_ns = round(spec.stale_after_s * NS)
+        fresh = {name: obs for name, obs in self.lanes.items() if now_ns - obs.t_ns <= stale_ns}
+        if "left" in fresh and "right" in fresh:
+            self.last_camera_lanes_ns = max(fresh["left"].t_ns, fresh["right"].t_ns)
+        age = ((now_ns - self.last_camera_lanes_ns) / NS
+               if self.last_camera_lanes_ns is not None else -1.0)
+        if "left" in fresh and "right" in fresh:
+            lines = tuple(camera_curve(name, spec.sensor, fresh[name].coefficients, spec.length_m)
+                          for name in ("left", "right", "next_left", "next_right")
+                          if name in fresh)
+            return LaneModel("camera", lines, age)
+        if self.ego.steering_wheel_angle is None:
+            return LaneModel("none", (), age)
+        vehicle = self.profile.vehicle
+        curvature = steering_curvature(self.ego.steering_wheel_angle, vehicle.wheelbase_m,
+                                       vehicle.steering_ratio)
+        return LaneModel("steering", (
+            steering_curve("left", spec.fallback_left_m, curvature, spec.length_m),
+            steering_curve("right", spec.fallback_right_m, curvature, spec.length_m),
+        ), age)
+
+    def track_groups(self) -> list[str]:
+        return [name for name, g in self.profile.groups.items() if g.is_tracks]
+
+    def closest_in_lane(self, lanes: LaneModel) -> ObjectObservation | None:
+        """The closest valid track ahead inside the ego lane."""
+        candidates = [o for name in self.track_groups() for o in self.objects[name].values()
+                      if lanes.in_ego_lane(o.x, o.y)]
+        return min(candidates, key=lambda o: o.x, default=None)
+
+    def lead(self, lanes: LaneModel) -> ObjectObservation | None:
+        spec = self.profile.lead
+        if spec is None:
+            return None
+        if spec.source == "tracks":
+            return self.closest_in_lane(lanes)
+        objects = self.objects.get(LEAD_GROUP, {})
+        return min(objects.values(), key=lambda o: o.x, default=None)
+
+    def mio_check(self, lanes: LaneModel) -> MioCheck:
+        lead = self.lead(lanes)
+        if self.profile.lead is None or not self.track_groups() or lanes.source == "none":
+            return MioCheck(lead, None, True, "not checked (needs lead, tracks and lanes)")
+        expected = self.closest_in_lane(lanes)
+        if lead is None and expected is None:
+            return MioCheck(None, None, True, "no lead vehicle, no track in the ego lane")
+        if lead is None and expected is not None:
+            return MioCheck(None, expected, False, f"no lead vehicle reported, but track "
+                            f"#{expected.object_id} is in the ego lane at {expected.x:.1f} m")
+        assert lead is not None
+        if expected is None:
+            return MioCheck(lead, None, False, f"lead #{lead.object_id} at {lead.x:.1f} m, but "
+                            "no valid track is in the ego lane")
+        same = (lead.object_id == expected.object_id
+                or (abs(lead.x - expected.x) < 1.0 and abs(lead.y - expected.y) < 0.5))
+        if same:
+            return MioCheck(lead, expected, True, f"lead is track #{expected.object_id}")
+        return MioCheck(lead, expected, False, f"lead #{lead.object_id} at {lead.x:.1f} m is "
+                        f"not the closest in-lane track #{expected.object_id} at "
+                        f"{expected.x:.1f} m")

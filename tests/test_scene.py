@@ -1,0 +1,341 @@
+"""The scene: hand-made frame sequences to exact SceneUpdates (goldens), and its properties.
+
+Goldens live in tests/golden/*.json (SceneUpdate as protobuf JSON). After a deliberate change of
+the look, regenerate them with  TANKVIZ_REGENERATE_GOLDENS=1 python -m pytest tests/test_scene.py
+and review the diff before committing it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import cantools
+import pytest
+from conftest import ECOCAR_DBC
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf import json_format
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bridge.observe import polar_to_cartesian, to_vehicle
+from bridge.perception import Output, Perception
+from bridge.profile import Mount, Profile, Sensor, SensorKind, load_profile
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+REGENERATE = os.environ.get("TANKVIZ_REGENERATE_GOLDENS") == "1"
+T0 = 1_767_268_800_000_000_000
+MS = 1_000_000
+
+
+@pytest.fixture(scope="module")
+def db() -> cantools.database.can.Database:
+    return cantools.database.load_file(ECOCAR_DBC)
+
+
+@pytest.fixture(scope="module")
+def profile(db: cantools.database.can.Database) -> Profile:
+    return load_profile("ecocar", [db])
+
+
+class Drive:
+    """Feeds encoded-then-decoded ecocar messages through Perception, like convert does."""
+
+    def __init__(self, db: cantools.database.can.Database, profile: Profile,
+                 rate: float = 20.0) -> None:
+        self.db = db
+        self.perception = Perception(profile, scene_rate=rate)
+        self.outputs: list[Output] = []
+        self.perception.advance(T0)  # the drive starts at T0: first scene at T0 + 50 ms
+
+    def send(self, t_ms: float, name: str, **values: float) -> None:
+        t = T0 + round(t_ms * MS)
+        self.outputs += self.perception.advance(t)
+        message = self.db.get_message_by_name(name)
+        signals: dict[str, Any] = {s.name: 0 for s in message.signals}
+        signals.update(values)
+        data = message.encode(signals, strict=False)
+        self.perception.feed(name, message.decode(data, decode_choices=False), t)
+
+    def scene(self, category: str) -> list[SceneUpdate]:
+        return [o.message for o in self.outputs if o.topic == f"/scene/{category}"]
+
+    def topic(self, topic: str) -> list[Any]:
+        return [o.message for o in self.outputs if o.topic == topic]
+
+
+def lanes(drive: Drive, t_ms: float, *, valid: bool = True) -> None:
+    for name, c0 in (("CamLaneLeft", -1.8), ("CamLaneRight", 1.8)):  # camera: y positive right
+        drive.send(t_ms, name, C0_Offset=c0, C2_Curvature=0.0005, Source=1 if valid else 0,
+                   Quality=3 if valid else 0)
+
+
+def street(drive: Drive) -> None:
+    """Ego at 90 km/h on a gentle left curve; a pedestrian, a car, two tracks; the lead wrong."""
+    drive.send(0, "EgoMotion", VehicleSpeed=90.0, YawRate=2.0)
+    drive.send(1, "Steering", SteeringWheelAngle=30.0)
+    lanes(drive, 2)
+    drive.send(3, "RadarObj0_B", Class=3)
+    drive.send(4, "RadarObj0_A", LongDist=12.5, LatDist=-4.0, ProbExist=93.75, Valid=1)
+    drive.send(5, "RadarObj1_A", LongDist=60.0, LatDist=0.5, ProbExist=25.0, Valid=1)
+    drive.send(6, "CamObstacle0_A", ObstacleID=4, PosX=30.0, PosY=-0.5, Type=0, Valid=1)
+    drive.send(7, "FusionTrack0", TrackID=7, PosX=30.0, PosY=0.5, Class=1, Status=2)
+    drive.send(8, "FusionTrack1", TrackID=9, PosX=20.0, PosY=0.25, Class=1, Status=2)
+    drive.send(9, "LeadVehicle", Valid=1, TrackID=7, PosX=30.0, PosY=0.5)
+    drive.send(50, "EgoMotion", VehicleSpeed=90.0, YawRate=2.0)  # time passes: the scene is due
+
+
+def check_golden(name: str, message: SceneUpdate) -> None:
+    path = GOLDEN / f"{name}.json"
+    got = json.loads(json_format.MessageToJson(message))
+    if REGENERATE:
+        GOLDEN.mkdir(exist_ok=True)
+        path.write_text(json.dumps(got, indent=1, sort_keys=True) + "\n")
+    assert path.exists(), f"no golden {path.name}: run with TANKVIZ_REGENERATE_GOLDENS=1"
+    assert got == json.loads(path.read_text()), f"{name} differs from {path}"
+
+
+@pytest.mark.parametrize("category", ["ego", "lanes", "radar", "camera", "tracks", "lead", "mio"])
+def test_the_street_scene_matches_its_golden(db: cantools.database.can.Database,
+                                             profile: Profile, category: str) -> None:
+    drive = Drive(db, profile)
+    street(drive)
+    (update,) = drive.scene(category)
+    check_golden(f"street_{category}", update)
+
+
+def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: Profile) -> None:
+    """What the goldens pin down, spelled out."""
+    drive = Drive(db, profile)
+    street(drive)
+    (ego,) = drive.scene("ego")
+    cube = ego.entities[0].cubes[0]
+    assert (cube.size.x, cube.size.y, cube.size.z) == (2.5, 1.5, 1.0)
+    assert cube.color.r > cube.color.g > cube.color.b  # orange-brown
+
+    (radar,) = drive.scene("radar")
+    assert [e.id for e in radar.entities] == ["radar-0"]  # the 25 % detection is not valid
+    pedestrian = radar.entities[0]
+    assert pedestrian.spheres[0].color.b == 1.0  # blue sphere
+    assert (pedestrian.spheres[0].pose.position.x, pedestrian.spheres[0].pose.position.y) == (
+        12.5, -4.0)
+    assert pedestrian.cylinders[0].size.z == 1.8  # and a tall yellow cylinder
+    assert pedestrian.texts[0].text == "PEDESTRIAN"
+    assert pedestrian.lifetime.nanos == 100 * MS
+
+    (camera,) = drive.scene("camera")
+    position = camera.entities[0].spheres[0].pose.position
+    assert (position.x, position.y) == (30.0, 0.5)  # the camera's y points right: flipped
+    assert camera.entities[0].spheres[0].color.r == 1.0 == camera.entities[0].spheres[0].color.b
+
+    (tracks,) = drive.scene("tracks")
+    assert [e.texts[0].text for e in tracks.entities] == [
+        "TrackID: 7\nx: 30.00\ny: 0.50\ncar", "TrackID: 9\nx: 20.00\ny: 0.25\ncar"]
+    assert tracks.entities[0].lifetime.nanos == 300 * MS
+
+    (lead,) = drive.scene("lead")
+    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.00\ny: 0.50"
+    (mio,) = drive.scene("mio")
+    assert mio.entities[0].texts[0].text == (
+        "MIO CHECK: lead #7 at 30.0 m is not the closest in-lane track #9 at 20.0 m")
+
+    (lane_update,) = drive.scene("lanes")
+    left = lane_update.entities[0].lines[0]
+    assert lane_update.entities[0].id == "lane-left"
+    assert left.color.g > 0.8 and left.color.r == 0  # green
+    assert len(left.points) == 100 and left.points[-1].x == 99
+    assert left.points[0].y == pytest.approx(1.8)  # camera right-positive -1.8 is left +1.8
+    assert left.points[99].y == pytest.approx(1.8 - 0.0005 * 99**2)
+
+
+def test_every_visible_field_is_set(db: cantools.database.can.Database, profile: Profile) -> None:
+    """Foxglove draws protobuf defaults as nothing: alpha, sizes, font, thickness must be set."""
+    drive = Drive(db, profile)
+    street(drive)
+    for output in drive.outputs:
+        if not output.topic.startswith("/scene/"):
+            continue
+        for e in output.message.entities:
+            assert e.frame_id == "vehicle" and e.frame_locked
+            for primitive in [*e.cubes, *e.spheres, *e.cylinders, *e.lines]:
+                assert primitive.color.a > 0
+                assert primitive.pose.orientation.w == 1.0
+            for p in [*e.cubes, *e.spheres, *e.cylinders]:
+                assert min(p.size.x, p.size.y, p.size.z) > 0
+            for c in e.cylinders:
+                assert c.bottom_scale == 1.0 == c.top_scale
+            for t in e.texts:
+                assert t.font_size > 0 and t.color.a > 0 and t.billboard and t.text
+            for line in e.lines:
+                assert line.thickness > 0
+
+
+def test_objects_expire_after_their_lifetime_and_are_deleted(
+        db: cantools.database.can.Database, profile: Profile) -> None:
+    drive = Drive(db, profile)
+    drive.send(0, "RadarObj0_A", LongDist=12.5, LatDist=-4.0, ProbExist=90, Valid=1)
+    drive.send(0, "FusionTrack0", TrackID=7, PosX=30.0, PosY=0.5, Status=2)
+    for t in range(10, 500, 10):  # ego keeps the clock going; nothing else is heard of again
+        drive.send(t, "EgoMotion", VehicleSpeed=50)
+    radar = drive.scene("radar")
+    tracks = drive.scene("tracks")
+    # scenes at 50, 100, ...: radar lives 0.1 s, tracks 0.3 s
+    assert [len(u.entities) for u in radar[:3]] == [1, 1, 0]
+    assert [d.id for d in radar[2].deletions] == ["radar-0"]
+    assert [len(u.entities) for u in tracks[:7]] == [1, 1, 1, 1, 1, 1, 0]
+    assert [d.id for d in tracks[6].deletions] == ["tracks-7"]
+    assert all(not u.deletions for u in radar[3:])  # deleted once
+
+
+def test_an_invalid_observation_removes_the_object_at_once(
+        db: cantools.database.can.Database, profile: Profile) -> None:
+    drive = Drive(db, profile)
+    drive.send(0, "RadarObj3_A", LongDist=40, ProbExist=90, Valid=1)
+    drive.send(60, "RadarObj3_A", LongDist=40, ProbExist=90, Valid=0)
+    drive.send(110, "EgoMotion")
+    assert [[e.id for e in u.entities] for u in drive.scene("radar")] == [["radar-3"], []]
+
+
+def test_camera_lanes_fall_back_to_steering_and_come_back(
+        db: cantools.database.can.Database, profile: Profile) -> None:
+    drive = Drive(db, profile)
+    drive.send(0, "Steering", SteeringWheelAngle=-45.0)  # turning right
+    lanes(drive, 0)
+    lanes(drive, 60, valid=False)  # the camera says: no lanes
+    lanes(drive, 110, valid=False)
+    lanes(drive, 160)  # lanes again
+    drive.send(210, "EgoMotion")
+    sources = [u.entities[0].metadata[0].value for u in drive.scene("lanes")]
+    assert sources == ["camera", "steering", "steering", "camera"]
+    steering = drive.scene("lanes")[1]
+    left, right = (e.lines[0] for e in steering.entities)
+    assert (left.color.r, left.color.g, left.color.b) == (1.0, 0.0, 1.0)  # magenta
+    assert left.points[0].y == pytest.approx(1.8) and right.points[0].y == pytest.approx(-1.8)
+    curvature = math.tan(math.radians(-45.0) / 15.0) / 2.8
+    assert left.points[50].y == pytest.approx(1.8 + curvature / 2 * 50**2, abs=1e-3)
+    assert left.points[50].y < 1.8  # bends right
+    semantic = [m.source for m in drive.topic("/perception/lanes")]
+    assert semantic == sources
+
+
+def test_stale_camera_lanes_fall_back_too(db: cantools.database.can.Database,
+                                         profile: Profile) -> None:
+    drive = Drive(db, profile)
+    drive.send(0, "Steering", SteeringWheelAngle=0.0)
+    lanes(drive, 0)
+    for t in range(10, 700, 10):
+        drive.send(t, "EgoMotion")  # the camera goes silent
+    sources = [m.source for m in drive.topic("/perception/lanes")]
+    assert sources[:10] == ["camera"] * 10  # fresh for stale_after = 0.5 s
+    assert set(sources[10:]) == {"steering"}
+
+
+def test_the_mio_check_agrees_when_the_lead_is_the_closest_in_lane_track(
+        db: cantools.database.can.Database, profile: Profile) -> None:
+    drive = Drive(db, profile)
+    lanes(drive, 0)
+    drive.send(1, "FusionTrack0", TrackID=7, PosX=30.0, PosY=0.5, Status=2)
+    drive.send(2, "FusionTrack1", TrackID=9, PosX=15.0, PosY=3.6, Status=2)  # left lane
+    drive.send(3, "LeadVehicle", Valid=1, TrackID=7, PosX=30.0, PosY=0.5)
+    drive.send(60, "EgoMotion")
+    (lead,) = drive.topic("/perception/lead")
+    assert lead.mio_ok and lead.object.id == 7 and lead.expected.id == 7
+    assert drive.scene("mio")[0].entities == []
+
+
+def test_the_mio_check_flags_a_missing_lead(db: cantools.database.can.Database,
+                                           profile: Profile) -> None:
+    drive = Drive(db, profile)
+    lanes(drive, 0)
+    drive.send(1, "FusionTrack0", TrackID=7, PosX=30.0, PosY=0.5, Status=2)
+    drive.send(2, "LeadVehicle", Valid=0)
+    drive.send(60, "EgoMotion")
+    (lead,) = drive.topic("/perception/lead")
+    assert not lead.present and not lead.mio_ok
+    assert lead.mio_reason == "no lead vehicle reported, but track #7 is in the ego lane at 30.0 m"
+
+
+def test_scene_rate_sets_the_number_of_scenes(db: cantools.database.can.Database,
+                                             profile: Profile) -> None:
+    drive = Drive(db, profile, rate=50.0)
+    for t in range(0, 1001, 5):
+        drive.send(t, "EgoMotion")
+    assert len(drive.scene("ego")) == 50
+    times = [o.t_ns for o in drive.outputs if o.topic == "/scene/ego"]
+    assert {b - a for a, b in itertools.pairwise(times)} == {20 * MS}
+
+
+def test_sensor_mounts_are_frame_transforms(db: cantools.database.can.Database,
+                                           profile: Profile) -> None:
+    drive = Drive(db, profile)
+    drive.send(60, "EgoMotion")
+    (tf,) = drive.topic("/tf")
+    frames = {t.child_frame_id: t for t in tf.transforms}
+    assert set(frames) == {"radar", "camera", "fusion"}
+    assert {t.parent_frame_id for t in tf.transforms} == {"vehicle"}
+    assert frames["camera"].translation.z == 1.3 and frames["camera"].rotation.w == 1.0
+
+
+# --- properties -----------------------------------------------------------------------------
+
+finite = st.floats(min_value=-500, max_value=500, allow_nan=False)
+
+
+@given(x=finite, y=finite, mx=finite, my=finite, yaw=st.floats(-180, 180),
+       lateral=st.sampled_from(["left", "right"]))
+def test_mounting_is_a_rotation_then_a_translation(x: float, y: float, mx: float, my: float,
+                                                   yaw: float, lateral: str) -> None:
+    sensor = Sensor("s", SensorKind.RADAR, Mount(mx, my, 0.0, yaw), lateral)
+    vx, vy = to_vehicle(sensor, x, y)
+    # distance from the mount is kept, and a point on the sensor's axis lies along its yaw
+    assert math.hypot(vx - mx, vy - my) == pytest.approx(math.hypot(x, y), abs=1e-6)
+    ax, ay = to_vehicle(sensor, 10.0, 0.0)
+    assert (ax - mx, ay - my) == pytest.approx(
+        (10 * math.cos(math.radians(yaw)), 10 * math.sin(math.radians(yaw))), abs=1e-9)
+    if yaw == 0 and lateral == "right":
+        assert (vx, vy) == pytest.approx((x + mx, -y + my))
+
+
+@given(r=st.floats(0, 300), az=st.floats(-90, 90))
+def test_polar_to_cartesian_in_degrees_and_radians(r: float, az: float) -> None:
+    x, y = polar_to_cartesian(r, az, "deg")
+    assert math.hypot(x, y) == pytest.approx(r, abs=1e-9)
+    assert (x, y) == pytest.approx(polar_to_cartesian(r, math.radians(az), "rad"), abs=1e-9)
+    if r > 1e-3 and az > 1e-3:
+        assert y > 0  # positive azimuth to the left, as positive y
+
+
+signal_values = st.dictionaries(
+    st.sampled_from(["LongDist", "LatDist", "ProbExist", "Valid", "LongSpeed"]),
+    st.floats(min_value=-1e6, max_value=1e6, allow_nan=False), min_size=0, max_size=5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(frames=st.lists(st.tuples(st.integers(0, 31), signal_values, st.integers(0, 400)),
+                       max_size=40))
+def test_any_decoded_values_give_finite_unique_entities(
+        db: cantools.database.can.Database, profile: Profile,
+        frames: list[tuple[int, dict[str, float], int]]) -> None:
+    """Whatever the radar says, entities are finite, unique at once, and expire."""
+    perception = Perception(profile)
+    perception.advance(T0)
+    t = T0
+    outputs: list[Output] = []
+    for index, values, dt_ms in frames:
+        t += dt_ms * MS
+        outputs += perception.advance(t)
+        perception.feed(f"RadarObj{index}_A", values, t)
+    outputs += perception.advance(t + 10**9)  # a second later: everything expired
+    radar = [o.message for o in outputs if o.topic == "/scene/radar"]
+    for update in radar:
+        ids = [e.id for e in update.entities]
+        assert len(ids) == len(set(ids))
+        for e in update.entities:
+            p = e.spheres[0].pose.position
+            assert math.isfinite(p.x) and math.isfinite(p.y)
+    if radar:
+        assert radar[-1].entities == []
