@@ -1,0 +1,325 @@
+"""The live sink: a Foxglove WebSocket server (foxglove-websocket, ``foxglove.websocket.v1``).
+
+The server runs its asyncio loop in its own thread. The pipeline hands it messages with
+:meth:`LiveServer.publish`, which never blocks: it appends to an inbox and, at most once per
+batch, wakes the loop. foxglove-websocket sends to its clients one after another and awaits each,
+so a stalled client would hold up everyone; instead every client gets its own bounded queue and
+sender task here. A slow or stalled client loses its own oldest messages (counted in
+:attr:`ClientStats.dropped`), never anyone else's, and never delays the pipeline or the recorder.
+
+Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is advertised to every
+client but its messages go only to the clients that subscribed; :meth:`LiveServer.wanted` tells
+the pipeline whether anyone subscribed, so it can skip work nobody looks at. The protocol has no
+authentication: bind to 127.0.0.1 (the default) unless the network is trusted.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import collections
+import contextlib
+import json
+import logging
+import socket
+import struct
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from foxglove_websocket.server import FoxgloveServer, FoxgloveServerListener
+from foxglove_websocket.types import ChannelId
+from mcap_protobuf.schema import build_file_descriptor_set
+
+from bridge.errors import BridgeError
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+#: Messages waiting per client before its oldest are dropped (about 2 s of a busy scene).
+DEFAULT_QUEUE_LIMIT = 2000
+
+_MESSAGE_DATA = 0x01
+_TIME = 0x02
+
+log = logging.getLogger("tankviz.server")
+
+
+class ServerError(BridgeError):
+    """The server could not start (e.g. the port is taken)."""
+
+
+@dataclass
+class ClientStats:
+    """What one client was sent and what it lost."""
+
+    address: str
+    sent: int = 0
+    dropped: int = 0
+
+
+@dataclass
+class _Client:
+    """Our side of one connection: its bounded queue and its sender task."""
+
+    state: Any  # foxglove_websocket's ClientState: .connection, .subscriptions_by_channel
+    stats: ClientStats
+    limit: int
+    queue: collections.deque[Any] = field(default_factory=collections.deque)
+    control: collections.deque[Any] = field(default_factory=collections.deque)
+    ready: asyncio.Event = field(default_factory=asyncio.Event)
+    task: asyncio.Task[None] | None = None
+
+    def put(self, frame: Any) -> None:
+        if len(self.queue) >= self.limit:
+            self.queue.popleft()
+            self.stats.dropped += 1
+        self.queue.append(frame)
+        self.ready.set()
+
+    def put_control(self, frame: Any) -> None:
+        self.control.append(frame)
+        self.ready.set()
+
+    async def run(self) -> None:
+        connection = self.state.connection
+        # foxglove-websocket sends serverInfo and the channel list when a client connects; hold
+        # our own control messages until that handshake is surely done (the client subscribed,
+        # or a second passed). Data only flows after a subscription anyway.
+        loop = asyncio.get_running_loop()
+        settled = loop.time() + 1.0
+        while not self.state.subscriptions_by_channel and loop.time() < settled:
+            await asyncio.sleep(0.02)
+        try:
+            while True:
+                await self.ready.wait()
+                self.ready.clear()
+                while self.control or self.queue:
+                    frame = self.control.popleft() if self.control else self.queue.popleft()
+                    await connection.send(frame)
+                    self.stats.sent += 1
+        except Exception:  # the connection closed; foxglove-websocket forgets the client
+            return
+
+
+class _Subscriptions(FoxgloveServerListener):  # type: ignore[misc]
+    """Keeps the set of channels anyone subscribed to (first subscribe, last unsubscribe)."""
+
+    def __init__(self, wanted: set[int]) -> None:
+        self.wanted = wanted
+
+    def on_subscribe(self, server: FoxgloveServer, channel_id: ChannelId) -> None:
+        self.wanted.add(channel_id)
+
+    def on_unsubscribe(self, server: FoxgloveServer, channel_id: ChannelId) -> None:
+        self.wanted.discard(channel_id)
+
+
+class LiveServer:
+    """A Foxglove WebSocket server in a thread of its own; every public method is thread-safe
+    and non-blocking apart from :meth:`start` and :meth:`stop`."""
+
+    def __init__(self, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+                 name: str = "tankviz", queue_limit: int = DEFAULT_QUEUE_LIMIT,
+                 server_time: bool = False) -> None:
+        self.host = host
+        self.requested_port = port
+        self.name = name
+        self.queue_limit = queue_limit
+        self.server_time = server_time
+        self.session_id = f"tankviz-{uuid.uuid4().hex[:12]}"
+        self.port = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: FoxgloveServer | None = None
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._stop: asyncio.Event | None = None
+        self._inbox: collections.deque[tuple[Any, ...]] = collections.deque()
+        self._wake_pending = False
+        self._lock = threading.Lock()
+        self._channels: dict[str, int] = {}
+        self._next_channel = 0
+        self._wanted: set[int] = set()
+        self._clients: dict[int, _Client] = {}
+        self.finished: list[ClientStats] = []
+
+    # --- life cycle -----------------------------------------------------------------------
+
+    def start(self, timeout: float = 10.0) -> None:
+        """Start the server thread and wait until it listens (``port`` is then the real one)."""
+        self._thread = threading.Thread(target=self._run, name="tankviz-server", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout):
+            raise ServerError(f"the WebSocket server did not start within {timeout:g} s")
+        if self._error is not None:
+            raise ServerError(f"cannot serve on {self.host}:{self.requested_port}: "
+                              f"{self._error}") from self._error
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self._loop is not None and self._stop is not None and self._thread is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+            self._thread.join(timeout)
+
+    def __enter__(self) -> LiveServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def url(self) -> str:
+        host = "localhost" if self.host in ("127.0.0.1", "::1", "localhost") else self.host
+        return f"ws://{host}:{self.port}"
+
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._serve())
+        except BaseException as exc:  # reported to start() or logged
+            self._error = exc
+            self._ready.set()
+
+    async def _serve(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        try:  # bind here, so that a taken port is an error now and port 0 gets its number
+            family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+            sock = socket.create_server((self.host, self.requested_port), family=family)
+        except OSError as exc:
+            self._error = exc
+            self._ready.set()
+            return
+        capabilities = ["time"] if self.server_time else []
+        server = FoxgloveServer(None, None, self.name,
+                                capabilities=capabilities, supported_encodings=[],
+                                session_id=self.session_id,
+                                metadata={"tankviz": "live"}, logger=log,
+                                server_kwargs={"compression": None, "sock": sock})
+        server.set_listener(_Subscriptions(self._wanted))
+        self._server = server
+        server.start()
+        opened = await server.wait_opened()
+        sockets = opened.sockets or []
+        self.port = sockets[0].getsockname()[1] if sockets else self.requested_port
+        self._ready.set()
+        await self._stop.wait()
+        for client in self._clients.values():
+            if client.task is not None:
+                client.task.cancel()
+        server.close()
+        with contextlib.suppress(asyncio.TimeoutError):  # a stalled client cannot hold us up
+            await asyncio.wait_for(server.wait_closed(), 2.0)
+
+    # --- channels and messages (any thread) ------------------------------------------------
+
+    def channel(self, topic: str, message_class: Any) -> int:
+        """The channel id of ``topic`` carrying protobuf ``message_class``; advertised once."""
+        return self.channel_for_schema(
+            topic, message_class.DESCRIPTOR.full_name,
+            build_file_descriptor_set(message_class).SerializeToString())
+
+    def channel_for_schema(self, topic: str, schema_name: str, schema: bytes) -> int:
+        with self._lock:
+            channel_id = self._channels.get(topic)
+            if channel_id is not None:
+                return channel_id
+            channel_id = self._channels[topic] = self._next_channel
+            self._next_channel += 1
+        self._post(("channel", {
+            "id": channel_id, "topic": topic, "encoding": "protobuf", "schemaName": schema_name,
+            "schema": base64.b64encode(schema).decode("ascii"), "schemaEncoding": "protobuf"}))
+        return channel_id
+
+    def wanted(self, channel_id: int) -> bool:
+        """Whether any client subscribed to the channel (skip the work otherwise)."""
+        return channel_id in self._wanted
+
+    def subscribers(self, channel_id: int) -> int:
+        """How many clients subscribed to the channel."""
+        clients = self._server._clients if self._server is not None else ()
+        return sum(channel_id in c.subscriptions_by_channel for c in clients)
+
+    def publish(self, channel_id: int, t_ns: int, payload: bytes) -> None:
+        """Send a serialized message to the channel's subscribers; never blocks."""
+        if channel_id in self._wanted:
+            self._post(("message", channel_id, t_ns, payload))
+
+    def broadcast_time(self, t_ns: int) -> None:
+        """The protocol's server time, so viewers follow log time (replay)."""
+        self._post(("time", t_ns))
+
+    def client_stats(self) -> list[ClientStats]:
+        """Every client connected now and every one that left."""
+        return [c.stats for c in list(self._clients.values())] + self.finished
+
+    def _post(self, item: tuple[Any, ...]) -> None:
+        self._inbox.append(item)
+        if not self._wake_pending and self._loop is not None:
+            self._wake_pending = True
+            with contextlib.suppress(RuntimeError):  # the loop closed: the server is stopping
+                self._loop.call_soon_threadsafe(self._drain)
+
+    # --- the loop's side --------------------------------------------------------------------
+
+    def _sync_clients(self) -> None:
+        assert self._server is not None
+        current = {id(state): state for state in self._server._clients}
+        for key in [k for k in self._clients if k not in current]:
+            gone = self._clients.pop(key)
+            if gone.task is not None:
+                gone.task.cancel()
+            self.finished.append(gone.stats)
+        for key, state in current.items():
+            if key not in self._clients:
+                address = state.connection.remote_address
+                client = _Client(state, ClientStats(f"{address[0]}:{address[1]}"
+                                                    if address else "?"), self.queue_limit)
+                client.task = asyncio.get_running_loop().create_task(client.run())
+                self._clients[key] = client
+
+    def _drain(self) -> None:
+        self._wake_pending = False
+        server = self._server
+        if server is None:
+            return
+        self._sync_clients()
+        clients = list(self._clients.values())
+        inbox = self._inbox
+        while inbox:
+            item = inbox.popleft()
+            kind = item[0]
+            if kind == "message":
+                _, channel_id, t_ns, payload = item
+                for client in clients:
+                    subscription = client.state.subscriptions_by_channel.get(channel_id)
+                    if subscription is not None:
+                        header = _HEADER.pack(_MESSAGE_DATA, subscription, t_ns)
+                        client.put([header, payload])
+            elif kind == "channel":
+                channel = item[1]
+                server._channels[ChannelId(channel["id"])] = channel
+                text = json.dumps({"op": "advertise", "channels": [channel]},
+                                  separators=(",", ":"))
+                for client in clients:
+                    client.put_control(text)
+            elif kind == "time":
+                frame = _TIME_HEADER.pack(_TIME, item[1])
+                for client in clients:
+                    client.put_control(frame)
+
+
+_HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
+_TIME_HEADER = struct.Struct("<BQ")
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 0.01) -> bool:
+    """Poll ``condition`` until true or ``timeout`` (for tools and tests)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(step)
+    return condition()

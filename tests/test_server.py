@@ -1,0 +1,183 @@
+"""The live server speaks foxglove.websocket.v1 to a real client, and a stalled client hurts
+nobody else."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import socket
+import struct
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import pytest
+import websockets
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.server import LiveServer, ServerError, wait_for
+
+SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
+
+
+@asynccontextmanager
+async def client(server: LiveServer, **kwargs: Any) -> AsyncIterator[Any]:
+    async with websockets.connect(server.url, subprotocols=[SUBPROTOCOL], **kwargs) as ws:
+        yield ws
+
+
+async def next_json(ws: Any, op: str, timeout: float = 5.0) -> dict[str, Any]:
+    """The next JSON message with ``op`` (skipping others)."""
+    while True:
+        raw = await asyncio.wait_for(ws.recv(), timeout)
+        if isinstance(raw, str):
+            message: dict[str, Any] = json.loads(raw)
+            if message["op"] == op:
+                return message
+
+
+async def next_binary(ws: Any, timeout: float = 5.0) -> bytes:
+    while True:
+        raw = await asyncio.wait_for(ws.recv(), timeout)
+        if isinstance(raw, bytes):
+            return raw
+
+
+def decoder_for(channel: dict[str, Any]) -> Any:
+    """Build the message class from an advertised channel, as a Foxglove viewer does."""
+    assert channel["encoding"] == "protobuf" and channel["schemaEncoding"] == "protobuf"
+    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for f in fds.file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+def test_the_protocol_from_hello_to_unsubscribe() -> None:
+    with LiveServer(port=0) as server:
+        scene = server.channel("/scene/ego", SceneUpdate)
+        frames = server.channel("/can/can0/frames", CanFrame)
+
+        async def session() -> None:
+            async with client(server) as ws:
+                assert ws.subprotocol == "foxglove.websocket.v1"
+                info = await next_json(ws, "serverInfo")
+                assert info["name"] == "tankviz"
+                assert info["sessionId"] == server.session_id
+                advertised = await next_json(ws, "advertise")
+                channels = {c["topic"]: c for c in advertised["channels"]}
+                assert set(channels) == {"/scene/ego", "/can/can0/frames"}
+                scene_class = decoder_for(channels["/scene/ego"])
+                assert not server.wanted(scene)
+
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 7, "channelId": channels["/scene/ego"]["id"]}]}))
+                assert await asyncio.to_thread(wait_for, lambda: server.wanted(scene))
+                server.publish(frames, 1, b"nobody subscribed to this")
+                update = SceneUpdate()
+                update.entities.add(id="ego", frame_id="vehicle")
+                server.publish(scene, 1_700_000_000_123_456_789, update.SerializeToString())
+
+                data = await next_binary(ws)
+                opcode, subscription, stamp = struct.unpack_from("<BIQ", data)
+                assert (opcode, subscription, stamp) == (1, 7, 1_700_000_000_123_456_789)
+                decoded = scene_class.FromString(data[13:])
+                assert [e.id for e in decoded.entities] == ["ego"]
+
+                await ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [7]}))
+                assert await asyncio.to_thread(wait_for, lambda: not server.wanted(scene))
+
+        asyncio.run(session())
+
+
+def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
+    with LiveServer(port=0) as server:
+
+        async def session() -> None:
+            async with client(server) as ws:
+                await next_json(ws, "serverInfo")
+                await next_json(ws, "advertise")
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": []}))
+                server.channel("/scene/lanes", SceneUpdate)
+                late = await next_json(ws, "advertise")
+                assert [c["topic"] for c in late["channels"]] == ["/scene/lanes"]
+
+        asyncio.run(session())
+
+
+def test_server_time_for_replays() -> None:
+    with LiveServer(port=0, server_time=True) as server:
+        scene = server.channel("/scene/ego", SceneUpdate)
+
+        async def session() -> None:
+            async with client(server) as ws:
+                info = await next_json(ws, "serverInfo")
+                assert "time" in info["capabilities"]
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 1, "channelId": scene}]}))
+                await asyncio.to_thread(wait_for, lambda: server.wanted(scene))
+                server.broadcast_time(42_000_000_000)
+                data = await next_binary(ws)
+                assert struct.unpack("<BQ", data) == (2, 42_000_000_000)
+
+        asyncio.run(session())
+
+
+def test_every_start_is_a_new_session() -> None:
+    with LiveServer(port=0) as a, LiveServer(port=0) as b:
+        assert a.session_id != b.session_id
+        assert a.port != b.port != 0
+
+
+def test_a_taken_port_is_a_clear_error() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ServerError, match=rf"cannot serve on 127\.0\.0\.1:{port}: "):
+            LiveServer(port=port).start()
+
+
+def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> None:
+    """One client never reads; another keeps receiving every message at the scene rate."""
+    rate, seconds = 50, 3.0
+    payload = b"x" * 200_000  # a big scene: the stalled client's buffers fill within a second
+    with LiveServer(port=0, queue_limit=100) as server:
+        scene = server.channel("/scene/radar", SceneUpdate)
+
+        async def session() -> tuple[list[int], float]:
+            stalled = await websockets.connect(server.url, subprotocols=[SUBPROTOCOL],
+                                               max_size=None, max_queue=1)
+            await next_json(stalled, "serverInfo")
+            await next_json(stalled, "advertise")
+            await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": scene}]}))
+            stalled.transport.pause_reading()  # from now on it reads nothing at all
+            received: list[int] = []
+            async with client(server, max_size=None) as reader:
+                await next_json(reader, "advertise")
+                await reader.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 2, "channelId": scene}]}))
+                await asyncio.to_thread(wait_for, lambda: server.subscribers(scene) == 2)
+                worst_publish = 0.0
+                started = time.monotonic()
+                for i in range(int(rate * seconds)):
+                    t0 = time.perf_counter()
+                    server.publish(scene, i, payload)
+                    worst_publish = max(worst_publish, time.perf_counter() - t0)
+                    data = await next_binary(reader, timeout=1.0)
+                    received.append(struct.unpack_from("<BIQ", data)[2])
+                    await asyncio.sleep(max(0.0, started + (i + 1) / rate - time.monotonic()))
+            stalled.transport.abort()
+            return received, worst_publish
+
+        received, worst_publish = asyncio.run(session())
+        assert received == list(range(int(rate * seconds)))  # nothing lost, in order
+        assert worst_publish < 0.05  # publish never waits for a client
+        assert wait_for(lambda: any(s.dropped > 0 for s in server.client_stats()))
+        stalled_stats = max(server.client_stats(), key=lambda s: s.dropped)
+        assert stalled_stats.dropped > 0 and stalled_stats.sent < rate * seconds
