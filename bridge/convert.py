@@ -13,16 +13,15 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Any
 
-from bridge import __version__
 from bridge.decode import DatabaseFile, Decoder, load_database, parse_dbc_option
 from bridge.errors import OutputError
-from bridge.perception import DEFAULT_SCENE_RATE, Perception
+from bridge.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline import Pipeline, describe_drive
 from bridge.profile import Profile, load_profile, read_profile_databases, resolve_profile
 from bridge.recorder import Recorder
 from bridge.source import LogSource, SourceIssue, merge
@@ -72,81 +71,32 @@ def build_stages(dbc_options: Sequence[str],
     return decoder, load_profile(path, [f.db for f in decoder.files])
 
 
-def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
-    """Attachment name per database sha256: the file name, made unique where two collide."""
-    names: dict[str, str] = {}
-    for f in files:
-        name = f.path.name
-        if name in names.values():
-            name = f"{f.sha256[:8]}-{name}"
-        names.setdefault(f.sha256, name)
-    return names
-
-
 def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
                  profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
                  progress: Progress | None = None, every: int = 16384) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
-    With a profile, the drive also gets the scene and semantic topics at ``scene_rate``.
+    With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
     """
     started = time.perf_counter()
     recorder = Recorder(output)
-    write_frame, write_decoded, write = recorder.write_frame, recorder.write_decoded, recorder.write
-    decode = decoder.decode
-    perception = Perception(profile, scene_rate=scene_rate) if profile is not None else None
-    wanted = perception.messages if perception is not None else frozenset()
-    next_tick: int | float = float("inf") if perception is None else float("-inf")
+    pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, recorder=recorder)
+    process = pipeline.process
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
-    t = 0
     for frame in merge(sources):
-        t = frame.timestamp_ns
-        if t >= next_tick and perception is not None:
-            for out in perception.advance(t):
-                write(out.topic, out.message, out.t_ns)
-            next_tick = perception.next_tick_ns
-        write_frame(frame)
-        decoded = decode(frame)
-        if decoded is not None:
-            write_decoded(t, decoded)
-            name = decoded.codec.message.name
-            if name in wanted and perception is not None:
-                perception.feed(name, decoded.signals, t)
+        process(frame)
         frames += 1
         if progress is not None and frames % every == 0:
             done = sum(s.progress()[0] for s in sources)
             progress(frames, done / total_bytes if total_bytes else None)
-    if perception is not None:
-        for out in perception.finish(t):
-            write(out.topic, out.message, out.t_ns)
+    pipeline.finish()
     if progress is not None:
         progress(frames, 1.0)
-    if profile is not None:
-        recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
-                                media="application/toml")
-
-    names = attachment_names(decoder.files)
-    for f in decoder.files:
-        recorder.add_attachment(names[f.sha256], f.content)
     issues = [i for s in sources for i in s.issues]
-    statistics = decoder.stats.to_dict(decoder.codecs())
-    buses: dict[str, list[str]] = {}
-    for f in decoder.files:
-        for bus in decoder.buses_for(f):
-            buses.setdefault(bus, []).append(names[f.sha256])
-    recorder.add_metadata({
-        "tankviz_version": __version__,
-        "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
-                     "scene_rate_hz": scene_rate} if profile is not None else None),
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    statistics = describe_drive(recorder, decoder, profile, scene_rate, {
         "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
                     "backwards_jumps": s.backwards} for s in sources],
-        "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
-                       "path": str(f.path), "buses": decoder.buses_for(f)}
-                      for f in decoder.files],
-        "bus_databases": buses,
-        "statistics": statistics,
         "input_issues": {"count": len(issues),
                          "first": [str(i) for i in issues[:MAX_ISSUES_RECORDED]]},
     })

@@ -191,7 +191,13 @@ class Decoder:
         return [bus or "*" for bus, files in self._databases.items() if database in files]
 
     def codecs(self) -> list[MessageCodec]:
+        """Every message seen on a bus so far (or prepared with :meth:`codecs_for`)."""
         return [c for table in self._tables.values() for c in table.values()]
+
+    def codecs_for(self, bus: str) -> list[MessageCodec]:
+        """Every message the databases of ``bus`` define there."""
+        table = self._tables.get(bus)
+        return list((table if table is not None else self._table(bus)).values())
 
     def _files_for(self, bus: str | None) -> list[DatabaseFile]:
         files = list(self._databases.get(None, []))

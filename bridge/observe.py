@@ -21,6 +21,7 @@ from bridge.profile import (
     Profile,
     Sensor,
     SignalRef,
+    expand,
 )
 
 
@@ -93,69 +94,92 @@ Observation = ObjectObservation | LaneObservation | EgoObservation
 LEAD_GROUP = "lead"
 
 
+_FIELDS = ("x", "y", "range", "azimuth", "vx", "vy", "probability", "class_signal", "id")
+
+
 class _GroupReader:
-    """Turns the messages of one object group into object observations."""
+    """Turns the messages of one object group into object observations.
+
+    Any message of an object's family makes a new observation of it, from the latest values of
+    every message of the family, at the time of the newest position (the first message).
+    """
 
     def __init__(self, group: ObjectGroup) -> None:
         self.group = group
         self.primary = group.templates[0]
-        #: latest signals of each companion message, per object index
-        self.companions: dict[tuple[int | None, str], Mapping[str, Any]] = {}
-        refs = (group.x, group.y, group.range, group.azimuth, group.vx, group.vy,
-                group.probability, group.class_signal, group.id)
-        self.from_companions = any(r is not None and r.message != self.primary for r in refs)
+        #: latest values per (object index, message name)
+        self.latest: dict[tuple[int | None, str], Mapping[str, Any]] = {}
+        #: time of the latest position per object index
+        self.position_ns: dict[int | None, int] = {}
+        self._refs: dict[int | None, dict[str, SignalRef | None]] = {}
 
-    def read(self, ref: SignalRef | None, member: FamilyMember,
-             values: Mapping[str, Any]) -> float | None:
-        if ref is None:
-            return None
-        if ref.message == member.template:
-            return ref.read(values)
-        other = self.companions.get((member.index, ref.message))
-        return None if other is None else ref.read(other)
+    def refs(self, index: int | None) -> dict[str, SignalRef | None]:
+        refs = self._refs.get(index)
+        if refs is None:
+            refs = self._refs[index] = {}
+            for name in _FIELDS:
+                ref = getattr(self.group, name)
+                refs[name] = ref.at(index) if ref is not None else None
+        return refs
 
-    def observe(self, member: FamilyMember, values: Mapping[str, Any],
+    def observe(self, member: FamilyMember, message: str, values: Mapping[str, Any],
                 t_ns: int) -> ObjectObservation | None:
-        if member.template != self.primary:
-            self.companions[(member.index, member.template)] = values
-            return None
+        index = member.index
+        self.latest[(index, message)] = values
+        if member.template == self.primary:
+            self.position_ns[index] = t_ns
+        t_ns = self.position_ns.get(index, -1)
+        if t_ns < 0:
+            return None  # no position of this object yet
         g = self.group
-        merged: Mapping[str, Any] = values
-        if self.from_companions or g.valid is not None:
-            merged = dict(values)
-            for template in g.templates[1:]:
-                other = self.companions.get((member.index, template))
-                if other is not None:
-                    for k, v in other.items():
-                        merged.setdefault(k, v)
-        ident = self.read(g.id, member, values)
-        object_id = int(ident) if ident is not None else (member.index or 0)
+        refs = self.refs(index)
+        latest = self.latest
+
+        def read(name: str) -> float | None:
+            ref = refs[name]
+            if ref is None:
+                return None
+            found = latest.get((index, ref.message))
+            return ref.read(found) if found is not None else None
+
         sensor = g.sensor
-        if g.range is not None and g.azimuth is not None:
-            distance, azimuth = self.read(g.range, member, values), self.read(g.azimuth, member,
-                                                                               values)
+        if g.range is not None:
+            distance, azimuth = read("range"), read("azimuth")
             if distance is None or azimuth is None:
                 return None
             xs, ys = polar_to_cartesian(distance * sensor.distance_scale, azimuth,
                                         sensor.angle_unit)
         else:
-            xr, yr = self.read(g.x, member, values), self.read(g.y, member, values)
+            xr, yr = read("x"), read("y")
             if xr is None or yr is None:
                 return None
             xs, ys = xr * sensor.distance_scale, yr * sensor.distance_scale
         x, y = to_vehicle(sensor, xs, ys)
         if not (math.isfinite(x) and math.isfinite(y)):
             return None
-        vx, vy = self.read(g.vx, member, values), self.read(g.vy, member, values)
+        vx, vy = read("vx"), read("vy")
         if vx is not None or vy is not None:
             vx, vy = velocity_to_vehicle(sensor, (vx or 0.0) * sensor.distance_scale,
                                          (vy or 0.0) * sensor.distance_scale)
-        raw_class = self.read(g.class_signal, member, values)
+        ident = read("id")
+        raw_class = read("class_signal")
         object_class = (g.classes.get(int(raw_class), ObjectClass.UNKNOWN)
-                        if raw_class is not None else ObjectClass.UNKNOWN)
-        valid = g.valid.test(merged) if g.valid is not None else True
+                        if raw_class is not None and math.isfinite(raw_class)
+                        else ObjectClass.UNKNOWN)
+        valid = True
+        rule = g.valid.get(index)
+        if rule is not None:
+            merged: dict[str, Any] = {}
+            for template in reversed(g.templates):  # the first message wins a shared name
+                found = latest.get((index, template if index is None
+                                    else expand(template, index)))
+                if found is not None:
+                    merged.update(found)
+            valid = rule.test(merged)
+        object_id = (int(ident) if ident is not None and math.isfinite(ident)
+                     else (index or 0))
         return ObjectObservation(g.name, object_id, t_ns, x, y, valid, vx, vy,
-                                 self.read(g.probability, member, values), object_class)
+                                 read("probability"), object_class)
 
 
 class Observer:
@@ -190,7 +214,7 @@ class Observer:
         """The observations one decoded message makes (often none, e.g. for a companion)."""
         out: list[Observation] = []
         for reader, member in self._objects.get(message, ()):
-            obs = reader.observe(member, values, t_ns)
+            obs = reader.observe(member, message, values, t_ns)
             if obs is not None:
                 out.append(obs)
         for line in self._lanes.get(message, ()):

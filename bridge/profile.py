@@ -97,12 +97,22 @@ class Sensor:
 
 @dataclass(frozen=True)
 class SignalRef:
-    """One signal of one DBC message, with a linear unit conversion: value·scale + offset."""
+    """One signal of one DBC message, with a linear unit conversion: value·scale + offset.
+
+    In an object group, message and signal are templates: ``{i}`` stands for the object index.
+    """
 
     message: str
     signal: str
     scale: float = 1.0
     offset: float = 0.0
+
+    def at(self, index: int | None) -> SignalRef:
+        """The reference for object ``index`` of a family."""
+        if index is None:
+            return self
+        return SignalRef(expand(self.message, index), expand(self.signal, index), self.scale,
+                         self.offset)
 
     def read(self, values: Mapping[str, Any]) -> float | None:
         raw = values.get(self.signal)
@@ -144,7 +154,8 @@ class ObjectGroup:
     class_signal: SignalRef | None = None
     classes: Mapping[int, ObjectClass] = field(default_factory=dict)
     id: SignalRef | None = None
-    valid: Expression | None = None
+    #: the validity rule of each object (index); empty: every object is valid
+    valid: Mapping[int | None, Expression] = field(default_factory=dict)
     lifetime_s: float = 0.1
 
     @property
@@ -361,12 +372,16 @@ class _Loader:
                             f"{_closest(name, self.messages)}")
         return m
 
-    def rule(self, table: Mapping[str, Any], key: str, signals: set[str]) -> Expression | None:
+    def rule(self, table: Mapping[str, Any], key: str, signals: set[str],
+             index: int | None = None) -> Expression | None:
+        """The validity rule, ``{i}`` in it replaced by ``index``; every name it reads checked."""
         text = table.get("valid")
         if text is None:
             return None
         if not isinstance(text, str):
             raise self.fail(f"{key}.valid", f"expected a rule (string), got {_type_name(text)}")
+        if index is not None:
+            text = expand(text, index)
         try:
             expression = parse(text)
         except ExpressionError as exc:
@@ -507,7 +522,8 @@ class _Loader:
             raise self.fail(f"{key}.messages", "expected a non-empty list of message names "
                             "(templates with {i} for an indexed family)")
         members: dict[str, FamilyMember] = {}
-        first_instances: list[DbcMessage] = []
+        #: the messages of each object (index), in template order
+        instances: dict[int | None, list[DbcMessage]] = {}
         if "index" in t:
             index = t["index"]
             if (not isinstance(index, list) or len(index) != 2
@@ -523,34 +539,40 @@ class _Loader:
                 for i in range(first, last + 1):
                     m = self.message(expand(template, i), f"{key}.messages")
                     members[m.name] = FamilyMember(template, i)
-                    if i == first:
-                        first_instances.append(m)
+                    instances.setdefault(i, []).append(m)
         else:
             if "id" not in t:
                 raise self.fail(key, "without 'index' each frame carries one object: name the "
                                 "signal that says which with 'id'")
-            for template in templates:
-                if _INDEX.search(template):
-                    raise self.fail(f"{key}.messages", f"{template!r} has {{i}} but there is no "
-                                    "'index' range")
-                m = self.message(template, f"{key}.messages")
-                members[m.name] = FamilyMember(template, None)
-                first_instances.append(m)
-
-        first_index = min((m.index for m in members.values() if m.index is not None), default=0)
+            if len(templates) != 1:
+                raise self.fail(f"{key}.messages", "without 'index' the family is one message "
+                                "carrying one object per frame")
+            if _INDEX.search(templates[0]):
+                raise self.fail(f"{key}.messages", f"{templates[0]!r} has {{i}} but there is no "
+                                "'index' range")
+            m = self.message(templates[0], f"{key}.messages")
+            members[m.name] = FamilyMember(templates[0], None)
+            instances[None] = [m]
 
         def ref(name: str) -> SignalRef | None:
+            """A signal of every object of the family ({i} in names is each object's index)."""
             if name not in t:
                 return None
-            value = t[name]  # "Template{i}.Signal" names the family's first instance
-            if isinstance(value, str):
-                value = expand(value, first_index)
-            elif isinstance(value, dict) and isinstance(value.get("signal"), str):
-                value = {**value, "signal": expand(value["signal"], first_index)}
-            r = self.signal(value, f"{key}.{name}", first_instances)
-            # Stored with the template so that every instance of the family resolves it.
-            template = next(m.template for n, m in members.items() if n == r.message)
-            return SignalRef(template, r.signal, r.scale, r.offset)
+            value = t[name]
+            text = value.get("signal") if isinstance(value, dict) else value
+            found: SignalRef | None = None
+            for i, messages in instances.items():
+                filled = value
+                if i is not None and isinstance(value, str):
+                    filled = expand(value, i)
+                elif i is not None and isinstance(value, dict) and isinstance(text, str):
+                    filled = {**value, "signal": expand(text, i)}
+                r = self.signal(filled, f"{key}.{name}", messages)
+                found = found or r
+            assert found is not None and isinstance(text, str)
+            # Kept as templates: each object reads its own message and signal.
+            return SignalRef(members[found.message].template, text.rpartition(".")[2],
+                             found.scale, found.offset)
 
         if sensor.coordinates == "polar":
             if "x" in t or "y" in t:
@@ -578,12 +600,15 @@ class _Loader:
                     raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
                                     f"{', '.join(_CLASS_NAMES)}")
                 classes[int(raw)] = _CLASS_NAMES[label]
-        signals = {s.name for m in first_instances for s in m.signals}
+        rules: dict[int | None, Expression] = {}  # per object: a rule may name signals with {i}
+        for object_index, messages in instances.items():
+            rule = self.rule(t, key, {s.name for m in messages for s in m.signals}, object_index)
+            if rule is not None:
+                rules[object_index] = rule
         return ObjectGroup(
             name, sensor, tuple(templates), members,
             ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
-            ref("probability"), ref("class"), classes, ref("id"),
-            self.rule(t, key, signals),
+            ref("probability"), ref("class"), classes, ref("id"), rules,
             self.number(t, key, "lifetime", lifetime, non_negative=True),
         )
 

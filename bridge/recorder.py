@@ -175,14 +175,17 @@ class Recorder:
         self.messages += 1
 
     def write(self, topic: str, message: Any, timestamp_ns: int) -> None:
-        """Any protobuf message (scene, semantic, health) on its topic."""
+        """Any protobuf message (scene, perception, health) on its topic."""
+        self.write_payload(topic, type(message), message.SerializeToString(), timestamp_ns)
+
+    def write_payload(self, topic: str, message_class: Any, payload: bytes,
+                      timestamp_ns: int) -> None:
+        """An already serialized protobuf message of ``message_class`` on its topic."""
         channel_id = self._channels.get(topic)
         if channel_id is None:
-            cls = type(message)
-            channel_id = self.channel(topic, cls.DESCRIPTOR.full_name,
-                                      build_file_descriptor_set(cls).SerializeToString())
-        self._writer.add_message(channel_id, timestamp_ns, message.SerializeToString(),
-                                 timestamp_ns)
+            channel_id = self.channel(topic, message_class.DESCRIPTOR.full_name,
+                                      build_file_descriptor_set(message_class).SerializeToString())
+        self._writer.add_message(channel_id, timestamp_ns, payload, timestamp_ns)
         self.messages += 1
 
     def add_metadata(self, values: dict[str, Any], name: str = METADATA_NAME) -> None:

@@ -1,0 +1,174 @@
+"""The data path for one drive: frames → decode → perception → sinks (recorder, live server).
+
+:class:`Pipeline` is what convert, live, demo and replay run for every frame. The recorder gets
+every raw frame and every decoded message; the live server gets the scene and perception topics
+always, and raw frames and decoded signals only while a client subscribes to them. Each message
+is serialized once for both sinks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from datetime import datetime, timezone
+from typing import Any
+
+from bridge import __version__
+from bridge.decode import DatabaseFile, Decoder
+from bridge.frame import Frame
+from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
+from bridge.profile import Profile
+from bridge.recorder import Recorder
+from bridge.server import LiveServer
+from bridge.topics import frames_topic
+
+
+class Pipeline:
+    """Runs one drive's frames through decoding and perception into the sinks given."""
+
+    def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
+                 scene_rate: float = DEFAULT_SCENE_RATE, recorder: Recorder | None = None,
+                 server: LiveServer | None = None) -> None:
+        self.decoder = decoder
+        self.profile = profile
+        self.scene_rate = scene_rate
+        self.recorder = recorder
+        self.server = server
+        self.perception = (Perception(profile, scene_rate=scene_rate)
+                           if profile is not None else None)
+        self._wanted = self.perception.messages if self.perception is not None else frozenset()
+        self._next_tick: int | float = (float("-inf") if self.perception is not None
+                                        else float("inf"))
+        self._server_channels: dict[str, int] = {}
+        self.frames = 0
+        self.last_ns: int | None = None
+
+    def process(self, frame: Frame) -> None:
+        """One frame through every stage."""
+        t = frame.timestamp_ns
+        if t >= self._next_tick:
+            self.advance(t)
+        recorder, server = self.recorder, self.server
+        if recorder is not None:
+            recorder.write_frame(frame)
+        if server is not None:
+            self._serve_frame(server, frame)
+        decoded = self.decoder.decode(frame)
+        if decoded is not None:
+            if recorder is not None:
+                recorder.write_decoded(t, decoded)
+            if server is not None:
+                channel = self._server_channel(server, decoded.codec.topic,
+                                               decoded.codec.schema.full_name,
+                                               decoded.codec.schema.file_descriptor_set)
+                if server.wanted(channel):
+                    server.publish(channel, t, decoded.payload)
+            name = decoded.codec.message.name
+            if name in self._wanted and self.perception is not None:
+                self.perception.feed(name, decoded.signals, t)
+        self.frames += 1
+        self.last_ns = t
+
+    def advance(self, t_ns: int) -> None:
+        """Emit the scenes due before log time ``t_ns`` (also when no frame comes)."""
+        if self.perception is None:
+            return
+        self.emit(self.perception.advance(t_ns))
+        self._next_tick = self.perception.next_tick_ns
+
+    def finish(self) -> None:
+        """Emit what is still due at the end of the drive."""
+        if self.perception is not None and self.last_ns is not None:
+            self.emit(self.perception.finish(self.last_ns))
+
+    def emit(self, outputs: Iterable[Output]) -> None:
+        """Scene, perception and other messages to every sink."""
+        recorder, server = self.recorder, self.server
+        for out in outputs:
+            cls = type(out.message)
+            payload = out.message.SerializeToString()
+            if recorder is not None:
+                recorder.write_payload(out.topic, cls, payload, out.t_ns)
+            if server is not None:
+                server.publish(self._server_channel(server, out.topic, cls.DESCRIPTOR.full_name,
+                                                    lambda cls=cls: _fds(cls)),
+                               out.t_ns, payload)
+
+    def _serve_frame(self, server: LiveServer, frame: Frame) -> None:
+        channel = self._server_channel(server, frames_topic(frame.bus), "tankviz.CanFrame",
+                                       lambda: _fds(CanFrame))
+        if server.wanted(channel):
+            server.publish(channel, frame.timestamp_ns, CanFrame(
+                bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,
+                fd=frame.is_fd, bitrate_switch=frame.bitrate_switch,
+                error_state_indicator=frame.error_state_indicator, error=frame.is_error,
+                remote=frame.is_remote, dlc=frame.dlc, data=frame.data).SerializeToString())
+
+    def _server_channel(self, server: LiveServer, topic: str, schema_name: str,
+                        schema: Any) -> int:
+        channel = self._server_channels.get(topic)
+        if channel is None:
+            channel = self._server_channels[topic] = server.channel_for_schema(
+                topic, schema_name, schema())
+        return channel
+
+    def advertise(self, buses: Iterable[str]) -> None:
+        """Advertise every channel these buses can carry before any frame arrives (live)."""
+        server = self.server
+        if server is None:
+            return
+        for bus in buses:
+            self._server_channel(server, frames_topic(bus), "tankviz.CanFrame",
+                                 lambda: _fds(CanFrame))
+            for codec in self.decoder.codecs_for(bus):
+                self._server_channel(server, codec.topic, codec.schema.full_name,
+                                     codec.schema.file_descriptor_set)
+
+
+def _fds(cls: Any) -> bytes:
+    from mcap_protobuf.schema import build_file_descriptor_set
+
+    return bytes(build_file_descriptor_set(cls).SerializeToString())
+
+
+def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
+    """Attachment name per database sha256: the file name, made unique where two collide."""
+    names: dict[str, str] = {}
+    for f in files:
+        name = f.path.name
+        if name in names.values():
+            name = f"{f.sha256[:8]}-{name}"
+        names.setdefault(f.sha256, name)
+    return names
+
+
+def describe_drive(recorder: Recorder, decoder: Decoder, profile: Profile | None,
+                   scene_rate: float, extra: dict[str, Any]) -> dict[str, Any]:
+    """Attach the databases and the profile, and write the ``tankviz`` metadata record.
+
+    Returns the decode statistics that went into it.
+    """
+    names = attachment_names(decoder.files)
+    for f in decoder.files:
+        recorder.add_attachment(names[f.sha256], f.content)
+    if profile is not None:
+        recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
+                                media="application/toml")
+    buses: dict[str, list[str]] = {}
+    for f in decoder.files:
+        for bus in decoder.buses_for(f):
+            buses.setdefault(bus, []).append(names[f.sha256])
+    statistics = decoder.stats.to_dict(decoder.codecs())
+    recorder.add_metadata({
+        "tankviz_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
+                     "scene_rate_hz": scene_rate} if profile is not None else None),
+        "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
+                       "path": str(f.path), "buses": decoder.buses_for(f)}
+                      for f in decoder.files],
+        "bus_databases": buses,
+        "statistics": statistics,
+        **extra,
+    })
+    return statistics
