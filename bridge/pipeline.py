@@ -18,7 +18,7 @@ from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
 from bridge.profile import Profile
-from bridge.recorder import Recorder
+from bridge.recorder import FrameSink, Recorder
 from bridge.server import LiveServer
 from bridge.topics import frames_topic
 
@@ -27,7 +27,7 @@ class Pipeline:
     """Runs one drive's frames through decoding and perception into the sinks given."""
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
-                 scene_rate: float = DEFAULT_SCENE_RATE, recorder: Recorder | None = None,
+                 scene_rate: float = DEFAULT_SCENE_RATE, recorder: FrameSink | None = None,
                  server: LiveServer | None = None) -> None:
         self.decoder = decoder
         self.profile = profile

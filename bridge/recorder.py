@@ -7,11 +7,13 @@ way mcap_protobuf builds them. Chunks are zstd-compressed.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
+import os
 import struct
 import time
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
@@ -71,12 +73,24 @@ class _Writer(McapWriter):
         self._chunk: Any = getattr(self, private + "chunk_builder", None)
         self._chunk_size: Any = getattr(self, private + "chunk_size", None)
         self._finalize: Any = getattr(self, private + "maybe_finalize_chunk", None)
+        self._finalize_now: Any = getattr(self, private + "finalize_chunk", None)
+        self._output = output
         self._fast = (
             None not in (self._statistics, self._chunk, self._chunk_size, self._finalize)
             and hasattr(self._statistics, "channel_message_counts")
             and hasattr(getattr(self._chunk, "record_writer", None), "_buffer")
             and hasattr(self._chunk, "message_indices")
         )
+
+    def flush(self) -> None:
+        """Close the chunk being built and push everything written so far to the disk."""
+        if self._finalize_now is not None:
+            self._finalize_now()
+        self._output.flush()
+        fileno = getattr(self._output, "fileno", None)
+        if fileno is not None:
+            with contextlib.suppress(OSError, ValueError):  # not a real file (BytesIO, a pipe)
+                os.fsync(fileno())
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                     sequence: int = 0) -> None:
@@ -107,6 +121,17 @@ class _Writer(McapWriter):
         buffer.write(data)
         if buffer.tell() > self._chunk_size:
             self._finalize()
+
+
+class FrameSink(Protocol):
+    """What the pipeline records into: a :class:`Recorder`, or a drive split into parts."""
+
+    def write_frame(self, frame: Frame) -> None: ...
+
+    def write_decoded(self, timestamp_ns: int, decoded: Decoded) -> None: ...
+
+    def write_payload(self, topic: str, message_class: Any, payload: bytes,
+                      timestamp_ns: int) -> None: ...
 
 
 class Recorder:
@@ -187,6 +212,10 @@ class Recorder:
                                       build_file_descriptor_set(message_class).SerializeToString())
         self._writer.add_message(channel_id, timestamp_ns, payload, timestamp_ns)
         self.messages += 1
+
+    def flush(self) -> None:
+        """Everything recorded so far onto the disk (the current chunk is closed early)."""
+        self._writer.flush()
 
     def add_metadata(self, values: dict[str, Any], name: str = METADATA_NAME) -> None:
         """A metadata record; values that are not strings are stored as JSON."""

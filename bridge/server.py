@@ -221,16 +221,20 @@ class LiveServer:
             topic, message_class.DESCRIPTOR.full_name,
             build_file_descriptor_set(message_class).SerializeToString())
 
-    def channel_for_schema(self, topic: str, schema_name: str, schema: bytes) -> int:
+    def channel_for_schema(self, topic: str, schema_name: str, schema: bytes, *,
+                           encoding: str = "protobuf", schema_encoding: str = "protobuf") -> int:
+        """The channel id of ``topic``; advertised once. Binary schemas are sent as base64."""
         with self._lock:
             channel_id = self._channels.get(topic)
             if channel_id is not None:
                 return channel_id
             channel_id = self._channels[topic] = self._next_channel
             self._next_channel += 1
+        text = (base64.b64encode(schema).decode("ascii") if schema_encoding == "protobuf"
+                else schema.decode("utf-8", errors="replace"))
         self._post(("channel", {
-            "id": channel_id, "topic": topic, "encoding": "protobuf", "schemaName": schema_name,
-            "schema": base64.b64encode(schema).decode("ascii"), "schemaEncoding": "protobuf"}))
+            "id": channel_id, "topic": topic, "encoding": encoding, "schemaName": schema_name,
+            "schema": text, "schemaEncoding": schema_encoding}))
         return channel_id
 
     def wanted(self, channel_id: int) -> bool:
