@@ -147,7 +147,9 @@ def _layout_hint() -> str:
     return str(layout) if layout.exists() else "(layouts/tank-viz.json)"
 
 
-def _run_live(args: argparse.Namespace, buses: list[Any], before: Any = None) -> int:
+def _run_live(args: argparse.Namespace, buses: list[Any], *, start_feed: Any = None,
+              stop_feed: Any = None) -> int:
+    """Live on ``buses``; ``start_feed``/``stop_feed`` run a frame source beside it (demo)."""
     import threading
 
     from bridge.live import Live, install_stop_signals
@@ -165,9 +167,15 @@ def _run_live(args: argparse.Namespace, buses: list[Any], before: Any = None) ->
                     drives=None if args.no_record else args.drives, server=server,
                     split_size=(round(args.split_size * 1e6) if args.split_size else None),
                     split_duration_s=args.split_duration)
-        install_stop_signals(live.stop)
+
+        def stop() -> None:
+            if stop_feed is not None:
+                stop_feed()  # first, so that every frame it sent is read and recorded
+            live.stop()
+
+        install_stop_signals(stop)
         if args.run_for:
-            threading.Timer(args.run_for, live.stop).start()
+            threading.Timer(args.run_for, stop).start()
         print(f"buses: {', '.join(str(b) for b in buses)}")
         if server is not None:
             print(f"Foxglove: open connection {server.url} (Foxglove WebSocket)")
@@ -175,8 +183,9 @@ def _run_live(args: argparse.Namespace, buses: list[Any], before: Any = None) ->
         if live.recorder is not None:
             print(f"recording into {args.drives}/")
         print("Ctrl+C stops and finishes the recording.", flush=True)
-        if before is not None:
-            before()
+        live.start()
+        if start_feed is not None:
+            start_feed()
         report = live.run()
     finally:
         if server is not None:
@@ -192,7 +201,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     from bridge.live import BusSpec
 
     if args.print_systemd_unit:
-        print(systemd_unit(sys.argv[1:] if args.argv is None else args.argv))
+        print(systemd_unit(args.argv))
         return 0
     if not args.bus:
         raise BridgeError("live: name at least one --bus NAME=INTERFACE:CHANNEL[@BITRATE]")
@@ -232,10 +241,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from bridge.live import BusSpec
 
     car = SimulatedCar(seed=args.seed, scenario_s=args.scenario)
-    try:
-        return _run_live(args, [BusSpec("can0", "virtual", DEMO_CHANNEL)], before=car.start)
-    finally:
+
+    def stop_car() -> None:
         car.stop()
+        if car.is_alive():
+            car.join(2.0)
+
+    try:
+        return _run_live(args, [BusSpec("can0", "virtual", DEMO_CHANNEL)],
+                         start_feed=car.start, stop_feed=stop_car)
+    finally:
+        stop_car()
+        print(f"the simulated car sent {car.sent:,} frames")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -362,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_record_options(live)
     live.add_argument("--print-systemd-unit", action="store_true",
                       help="print a systemd service running this command at boot, then exit")
-    live.set_defaults(run=_cmd_live, argv=None)
+    live.set_defaults(run=_cmd_live)
 
     demo = sub.add_parser(
         "demo", help="the simulated ecocar drive, live: open Foxglove and watch",
@@ -407,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(argv) if argv is not None else sys.argv[1:]
     try:
         code: int = args.run(args)
         return code

@@ -103,10 +103,20 @@ class BusReader(threading.Thread):
         self.open_bus = open_bus
         self.backoff = backoff
         self.stopping = threading.Event()
+        #: set once the bus was opened, or failed to open, for the first time
+        self.tried = threading.Event()
         self.frames = 0
 
     def stop(self) -> None:
         self.stopping.set()
+
+    def _put(self, message: can.Message) -> None:
+        self.frames += 1
+        self.out.put(Frame(
+            to_ns(message.timestamp), self.spec.name, message.arbitration_id,
+            bytes(message.data), message.is_extended_id, message.is_fd, message.is_error_frame,
+            message.is_remote_frame, message.bitrate_switch, message.error_state_indicator,
+            message.dlc))
 
     def run(self) -> None:
         name, out = self.spec.name, self.out
@@ -115,21 +125,23 @@ class BusReader(threading.Thread):
         while not self.stopping.is_set():
             bus: can.BusABC | None = None
             try:
-                bus = self.open_bus(self.spec)
+                try:
+                    bus = self.open_bus(self.spec)
+                finally:
+                    self.tried.set()
                 if down:
                     out.put(BusEvent(name, True, time.time_ns()))
                     down = False
                 delay = self.backoff[0]
                 while not self.stopping.is_set():
                     message = bus.recv(0.1)
-                    if message is None:
-                        continue
-                    self.frames += 1
-                    out.put(Frame(
-                        to_ns(message.timestamp), name, message.arbitration_id,
-                        bytes(message.data), message.is_extended_id, message.is_fd,
-                        message.is_error_frame, message.is_remote_frame, message.bitrate_switch,
-                        message.error_state_indicator, message.dlc))
+                    if message is not None:
+                        self._put(message)
+                # Stopping: keep what the interface has already received (a bounded while, as a
+                # busy bus never runs dry).
+                until = time.monotonic() + 0.25
+                while time.monotonic() < until and (message := bus.recv(0)) is not None:
+                    self._put(message)
             except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
                 if not down:
                     out.put(BusEvent(name, False, time.time_ns(),
@@ -296,10 +308,17 @@ class Live:
     def stop(self) -> None:
         self.stopping.set()
 
+    def start(self, timeout: float = 5.0) -> None:
+        """Open the buses (each in its reader thread); returns once each was tried."""
+        for reader in self.readers:
+            if not reader.is_alive():
+                reader.start()
+        for reader in self.readers:
+            reader.tried.wait(timeout)
+
     def run(self) -> LiveReport:
         """Until :meth:`stop`: read, record, serve. Files are finished cleanly on the way out."""
-        for reader in self.readers:
-            reader.start()
+        self.start()
         pipeline, q = self.pipeline, self.queue
         process = pipeline.process
         last_frame_ns: int | None = None

@@ -12,9 +12,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
 from bridge import scene, semantic
 from bridge.errors import UsageError
 from bridge.observe import Observer
+from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObjects
 from bridge.profile import Profile
 from bridge.topics import (
     EGO_TOPIC,
@@ -60,6 +64,22 @@ class Perception:
         self._started = False
         self.ticks = 0
         self.messages = self.observer.messages
+
+    def topics(self) -> list[tuple[str, Any]]:
+        """Every topic :meth:`tick` emits, with its message class (to advertise them early)."""
+        profile = self.profile
+        categories = ["ego", "lanes", *profile.groups]
+        if profile.lead is not None:
+            categories += ["lead", "mio"]
+        out: list[tuple[str, Any]] = [(scene_topic(c), SceneUpdate) for c in categories]
+        out.append((TF_TOPIC, FrameTransforms))
+        out += [(objects_topic(name), PerceivedObjects) for name in profile.groups]
+        if profile.lead is not None:
+            out.append((LEAD_TOPIC, LeadVehicle))
+        if profile.lanes is not None:
+            out.append((LANES_TOPIC, Lanes))
+        out.append((EGO_TOPIC, EgoState))
+        return out
 
     def feed(self, message: str, values: Mapping[str, Any], t_ns: int) -> None:
         """Apply what one decoded message says (call :meth:`advance` with its time first)."""

@@ -12,6 +12,8 @@ from collections.abc import Iterable
 from datetime import datetime, timezone
 from typing import Any
 
+from foxglove_schemas_protobuf.Log_pb2 import Log
+
 from bridge import __version__
 from bridge.decode import DatabaseFile, Decoder
 from bridge.frame import Frame
@@ -20,7 +22,7 @@ from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
 from bridge.profile import Profile
 from bridge.recorder import FrameSink, Recorder
 from bridge.server import LiveServer
-from bridge.topics import frames_topic
+from bridge.topics import LOG_TOPIC, frames_topic
 
 
 class Pipeline:
@@ -113,10 +115,15 @@ class Pipeline:
         return channel
 
     def advertise(self, buses: Iterable[str]) -> None:
-        """Advertise every channel these buses can carry before any frame arrives (live)."""
+        """Advertise every channel before any frame arrives (live): the scene and perception
+        topics, /log, and all that these buses can carry."""
         server = self.server
         if server is None:
             return
+        topics = self.perception.topics() if self.perception is not None else []
+        for topic, cls in [*topics, (LOG_TOPIC, Log)]:
+            self._server_channel(server, topic, cls.DESCRIPTOR.full_name,
+                                 lambda cls=cls: _fds(cls))
         for bus in buses:
             self._server_channel(server, frames_topic(bus), "tankviz.CanFrame",
                                  lambda: _fds(CanFrame))

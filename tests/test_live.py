@@ -1,0 +1,291 @@
+"""tankviz live and demo: every frame recorded, clean files on SIGTERM, salvageable on SIGKILL,
+bus loss survived, recordings split into complete parts, slow viewers hurting nobody."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import pytest
+import websockets
+from conftest import ECOCAR_DBC
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from bridge.convert import build_stages
+from bridge.live import BusSpec, Live, drive_name
+from bridge.server import LiveServer, wait_for
+from bridge.simulate import simulate
+
+NS = 1_000_000_000
+
+
+def summary_counts(path: Path) -> dict[str, int]:
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    return {summary.channels[i].topic: n
+            for i, n in summary.statistics.channel_message_counts.items()}
+
+
+def frames_recorded(path: Path) -> int:
+    return sum(n for topic, n in summary_counts(path).items() if topic.endswith("/frames"))
+
+
+def start_demo(tmp_path: Path, *extra: str) -> subprocess.Popen[str]:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bridge", "demo", "--port", "0", "--drives",
+         str(tmp_path / "drives"), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    assert process.stdout is not None
+    for line in process.stdout:
+        if line.startswith("Ctrl+C"):
+            return process
+    raise AssertionError(f"demo did not start: {process.wait()}")
+
+
+def test_bus_specs_name_interface_channel_and_bitrate() -> None:
+    assert BusSpec.parse("radar=socketcan:can0") == BusSpec("radar", "socketcan", "can0")
+    assert BusSpec.parse("car=pcan:PCAN_USBBUS1@500000") == BusSpec(
+        "car", "pcan", "PCAN_USBBUS1", 500000)
+    assert BusSpec.parse("chassis") == BusSpec("chassis")
+    with pytest.raises(Exception, match=r"--bus radar=can0: expected NAME=INTERFACE:CHANNEL"):
+        BusSpec.parse("radar=can0")
+
+
+def test_drives_are_named_by_their_utc_start() -> None:
+    start = 1_767_268_800_000_000_000  # 2026-01-01T12:00:00Z
+    assert drive_name(start, 1) == "2026-01-01T12-00-00Z.mcap"
+    assert drive_name(start, 2) == "2026-01-01T12-00-00Z_part002.mcap"
+
+
+def test_sigterm_finishes_a_valid_drive_with_every_frame_the_car_sent(tmp_path: Path) -> None:
+    demo = start_demo(tmp_path)
+    time.sleep(3.0)
+    demo.send_signal(signal.SIGTERM)
+    out, _ = demo.communicate(timeout=30)
+    assert demo.returncode == 0, out
+    sent = int(re.search(r"the simulated car sent ([\d,]+) frames", out)[1].replace(",", ""))
+    (drive,) = (tmp_path / "drives").glob("*.mcap")
+    assert sent > 5000
+    assert frames_recorded(drive) == sent
+    counts = summary_counts(drive)
+    assert counts["/scene/ego"] >= 2.5 * 20  # the scene at 20 Hz
+    with drive.open("rb") as f:
+        meta = next(m.metadata for m in make_reader(f).iter_metadata() if m.name == "tankviz")
+    assert json.loads(meta["statistics"])["decode_errors"] == {}
+
+
+def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
+    from bridge.recover import recover_file
+
+    demo = start_demo(tmp_path)
+    time.sleep(4.0)
+    killed_at = time.time_ns()
+    demo.send_signal(signal.SIGKILL)
+    demo.communicate(timeout=30)
+    (cut,) = (tmp_path / "drives").glob("*.mcap")
+    fixed = tmp_path / "fixed.mcap"
+    report = recover_file(cut, fixed)
+    assert report.messages > 0
+    with fixed.open("rb") as f:
+        times = [m.log_time for _, c, m in make_reader(f).iter_messages()
+                 if c.topic == "/can/can0/frames"]
+    assert len(times) > 3 * 2000  # about 2,300 frames a second were sent
+    assert killed_at - max(times) < 1.6 * NS
+
+
+class FlakyBus(can.BusABC):
+    """A bus that delivers a numbered frame every millisecond and breaks when told."""
+
+    def __init__(self, source: FlakySource) -> None:
+        self.source = source
+        super().__init__(channel="flaky")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        time.sleep(0.001)
+        if self.source.broken.is_set():
+            raise can.CanOperationError("adapter unplugged")
+        self.source.sent += 1
+        return can.Message(timestamp=time.time(), arbitration_id=0x100,
+                           data=self.source.sent.to_bytes(8, "little")), False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise NotImplementedError
+
+
+class FlakySource:
+    def __init__(self) -> None:
+        self.broken = threading.Event()
+        self.sent = 0
+        self.opens = 0
+
+    def open(self, spec: BusSpec) -> can.BusABC:
+        self.opens += 1
+        if self.broken.is_set():
+            raise can.CanInitializationError("no such device")
+        return FlakyBus(self)
+
+
+def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
+    source = FlakySource()
+    decoder, profile = build_stages([str(ECOCAR_DBC)], "ecocar")
+    said: list[str] = []
+    live = Live([BusSpec("chassis", "flaky", "x")], decoder, profile=profile,
+                drives=tmp_path, open_bus=source.open, say=said.append)
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    time.sleep(0.5)
+    source.broken.set()
+    time.sleep(1.0)
+    before_gap = source.sent
+    source.broken.clear()
+    assert wait_for(lambda: source.sent > before_gap + 300, timeout=10)
+    live.stop()
+    runner.join(10)
+
+    (drive,) = tmp_path.glob("*.mcap")
+    assert frames_recorded(drive) == source.sent  # nothing lost before, during or after
+    assert source.opens >= 3  # retried while the adapter was away
+    assert said[0] == "bus chassis lost: CanOperationError: adapter unplugged; retrying"
+    assert re.fullmatch(r"bus chassis is back after \d\.\d s", said[1])
+    with drive.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        logs = [m.message for _, c, _, m in reader.iter_decoded_messages() if c.topic == "/log"]
+        meta = next(m.metadata for m in reader.iter_metadata() if m.name == "tankviz")
+    assert logs == said
+    (gap,) = json.loads(meta["bus_gaps"])
+    assert gap["bus"] == "chassis" and 0.8e9 < gap["to_ns"] - gap["from_ns"] < 3e9
+
+
+def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
+    decoder, profile = build_stages([], "ecocar")
+    channel = f"split-{os.getpid()}"
+    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
+                drives=tmp_path, split_duration_s=0.7)
+    live.start()
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    sent = 0
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        for frame in simulate(duration_s=2.0):
+            bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                                 is_fd=frame.is_fd, dlc=frame.dlc))
+            sent += 1
+            if sent % 100 == 0:
+                time.sleep(0.03)
+        time.sleep(0.3)
+    live.stop()
+    runner.join(10)
+    parts = sorted(tmp_path.glob("*.mcap"))
+    assert len(parts) >= 3
+    assert parts[1].name.endswith("_part002.mcap")
+    assert sum(frames_recorded(p) for p in parts) == sent
+    for part in parts:  # each is a complete MCAP with its own databases and profile
+        with part.open("rb") as f:
+            reader = make_reader(f)
+            assert {a.name for a in reader.iter_attachments()} == {"ecocar.dbc",
+                                                                   "profile-ecocar.toml"}
+
+
+def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
+    """One viewer never reads, another gets the scene at the scene rate, every frame is kept."""
+    decoder, profile = build_stages([], "ecocar")
+    channel = f"stall-{os.getpid()}"
+    with LiveServer(port=0, queue_limit=50) as server:
+        live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
+                    drives=tmp_path, server=server, scene_rate=50)
+        live.start()
+        runner = threading.Thread(target=live.run)
+        runner.start()
+        scene_times: list[float] = []
+
+        async def viewers() -> int:
+            proto = [websockets.Subprotocol("foxglove.websocket.v1")]
+            stalled = await websockets.connect(server.url, subprotocols=proto, max_queue=1)
+            channels: dict[str, int] = {}
+            while "/scene/radar" not in channels:
+                message = json.loads(await stalled.recv())
+                channels.update({c["topic"]: c["id"] for c in message.get("channels", [])})
+            everything = [{"id": i, "channelId": c} for i, c in enumerate(channels.values())]
+            await stalled.send(json.dumps({"op": "subscribe", "subscriptions": everything}))
+            stalled.transport.pause_reading()
+            sent = 0
+            async with websockets.connect(server.url, subprotocols=proto,
+                                          max_size=None) as viewer:
+                await viewer.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 1, "channelId": channels["/scene/radar"]}]}))
+                with can.Bus(interface="virtual", channel=channel) as bus:
+                    started = time.monotonic()
+                    for frame in simulate(duration_s=3.0):
+                        due = started + (frame.timestamp_ns - 1_767_268_800_000_000_000) / NS
+                        while time.monotonic() < due:
+                            try:
+                                data = await asyncio.wait_for(viewer.recv(), 0.002)
+                                if isinstance(data, bytes):
+                                    scene_times.append(time.monotonic())
+                            except asyncio.TimeoutError:
+                                pass
+                        bus.send(can.Message(arbitration_id=frame.arbitration_id,
+                                             data=frame.data, is_fd=frame.is_fd, dlc=frame.dlc))
+                        sent += 1
+            stalled.transport.abort()
+            return sent
+
+        sent = asyncio.run(viewers())
+        time.sleep(0.3)
+        live.stop()
+        runner.join(10)
+    (drive,) = tmp_path.glob("*.mcap")
+    assert frames_recorded(drive) == sent
+    gaps = [b - a for a, b in itertools.pairwise(scene_times)]
+    assert len(scene_times) > 0.8 * 50 * 3  # the scene at 50 Hz reached the reading viewer
+    assert sorted(gaps)[int(0.99 * len(gaps))] < 0.2
+    assert any(s.dropped > 0 for s in server.client_stats())  # the stalled one lost its own
+
+
+def test_print_systemd_unit(capsys: pytest.CaptureFixture[str]) -> None:
+    from bridge.cli import main
+
+    assert main(["live", "--bus", "car=socketcan:can0", "--profile", "ecocar",
+                 "--print-systemd-unit"]) == 0
+    unit = capsys.readouterr().out
+    assert "[Service]" in unit and "WantedBy=multi-user.target" in unit
+    (exec_line,) = [line for line in unit.splitlines() if line.startswith("ExecStart=")]
+    assert exec_line.endswith("-m bridge live --bus car=socketcan:can0 --profile ecocar")
+    assert "KillSignal=SIGTERM" in unit
+
+
+def run_cli(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "bridge", *argv], capture_output=True, text=True,
+                          cwd=cwd, timeout=60)
+
+
+def test_simulate_writes_logs_and_drives_and_the_same_seed_the_same_log(tmp_path: Path) -> None:
+    for name in ("a.blf", "b.blf", "c.asc", "d.mcap"):
+        result = run_cli("simulate", "-o", name, "--duration", "2", cwd=tmp_path)
+        assert result.returncode == 0, result.stderr
+    assert (tmp_path / "a.blf").read_bytes()[200:] == (tmp_path / "b.blf").read_bytes()[200:]
+    counts = summary_counts(tmp_path / "d.mcap")
+    assert counts["/scene/radar"] == 39 and counts["/can/can0/frames"] > 4000  # 20 Hz, 2 s
+    refused = run_cli("simulate", "-o", "a.blf", cwd=tmp_path)
+    assert refused.returncode == 1 and "exists already" in refused.stderr
+
+
+def test_live_refuses_nonsense(tmp_path: Path) -> None:
+    no_bus = run_cli("live", cwd=tmp_path)
+    assert no_bus.returncode == 1
+    assert no_bus.stderr.strip() == ("error: live: name at least one --bus "
+                                     "NAME=INTERFACE:CHANNEL[@BITRATE]")
+    nothing = run_cli("live", "--bus", "a=virtual:x", "--no-record", "--no-server", cwd=tmp_path)
+    assert nothing.stderr.strip() == "error: --no-record and --no-server: nothing would be done"
