@@ -11,6 +11,7 @@ renames it only when the MCAP is complete.
 
 from __future__ import annotations
 
+import gc
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -84,12 +85,20 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     process = pipeline.process
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
-    for frame in merge(sources):
-        process(frame)
-        frames += 1
-        if progress is not None and frames % every == 0:
-            done = sum(s.progress()[0] for s in sources)
-            progress(frames, done / total_bytes if total_bytes else None)
+    # The hot loop makes millions of short-lived tuples and no reference cycles: the cyclic
+    # garbage collector would only walk the long-lived caches over and over (about 8 %).
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        for frame in merge(sources):
+            process(frame)
+            frames += 1
+            if progress is not None and frames % every == 0:
+                done = sum(s.progress()[0] for s in sources)
+                progress(frames, done / total_bytes if total_bytes else None)
+    finally:
+        if collecting:
+            gc.enable()
     pipeline.finish()
     if progress is not None:
         progress(frames, 1.0)
