@@ -113,6 +113,10 @@ class _GroupReader:
         self.position_ns: dict[int | None, int] = {}
         self._refs: dict[int | None, dict[str, SignalRef | None]] = {}
 
+    def message_names(self, index: int | None) -> list[str]:
+        """The messages of object ``index``, in the family's order."""
+        return [t if index is None else expand(t, index) for t in self.group.templates]
+
     def refs(self, index: int | None) -> dict[str, SignalRef | None]:
         refs = self._refs.get(index)
         if refs is None:
@@ -169,13 +173,12 @@ class _GroupReader:
         valid = True
         rule = g.valid.get(index)
         if rule is not None:
+            by_message = {name: found for name in self.message_names(index)
+                          if (found := latest.get((index, name))) is not None}
             merged: dict[str, Any] = {}
-            for template in reversed(g.templates):  # the first message wins a shared name
-                found = latest.get((index, template if index is None
-                                    else expand(template, index)))
-                if found is not None:
-                    merged.update(found)
-            valid = rule.test(merged)
+            for found in reversed(by_message.values()):  # the first message wins a shared name
+                merged.update(found)
+            valid = rule.test(merged, by_message)
         object_id = (int(ident) if ident is not None and math.isfinite(ident)
                      else (index or 0))
         return ObjectObservation(g.name, object_id, t_ns, x, y, valid, vx, vy,
@@ -224,7 +227,8 @@ class Observer:
                 continue
             coefficients = (float(c[0] or 0.0), float(c[1] or 0.0), float(c[2] or 0.0),
                             float(c[3] or 0.0))
-            valid = line.valid.test(values) if line.valid is not None else True
+            valid = (line.valid.test(values, {message: values}) if line.valid is not None
+                     else True)
             out.append(LaneObservation(line.name, t_ns, coefficients,
                                        valid and all(math.isfinite(v) for v in coefficients)))
         refs = self._ego.get(message)

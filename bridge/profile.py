@@ -28,6 +28,7 @@ from cantools.database.can.message import Message as DbcMessage
 from bridge.errors import BridgeError
 from bridge.expr import Expression, ExpressionError, parse
 from bridge.resources import data_dir
+from bridge.topics import VEHICLE_FRAME
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -122,6 +123,34 @@ class SignalRef:
 
 
 @dataclass(frozen=True)
+class Rule:
+    """A validity rule over plain signal names and ``Message.Signal`` names."""
+
+    expression: Expression
+    #: (name in the rule, message, signal) for every Message.Signal name it reads
+    qualified: tuple[tuple[str, str, str], ...] = ()
+
+    @property
+    def text(self) -> str:
+        return self.expression.text
+
+    @property
+    def names(self) -> frozenset[str]:
+        return self.expression.names
+
+    def test(self, values: Mapping[str, Any],
+             by_message: Mapping[str, Mapping[str, Any]] | None = None) -> bool:
+        """Whether the rule holds; ``values`` by plain name, ``by_message`` for qualified ones."""
+        if self.qualified and by_message is not None:
+            values = dict(values)
+            for name, message, signal in self.qualified:
+                found = by_message.get(message)
+                if found is not None and signal in found:
+                    values[name] = found[signal]
+        return self.expression.test(values)
+
+
+@dataclass(frozen=True)
 class FamilyMember:
     """One message of an object family and the object index it carries."""
 
@@ -155,7 +184,7 @@ class ObjectGroup:
     classes: Mapping[int, ObjectClass] = field(default_factory=dict)
     id: SignalRef | None = None
     #: the validity rule of each object (index); empty: every object is valid
-    valid: Mapping[int | None, Expression] = field(default_factory=dict)
+    valid: Mapping[int | None, Rule] = field(default_factory=dict)
     lifetime_s: float = 0.1
 
     @property
@@ -183,7 +212,7 @@ class LaneLine:
     c1: SignalRef | None
     c2: SignalRef | None
     c3: SignalRef | None
-    valid: Expression | None = None
+    valid: Rule | None = None
 
 
 @dataclass(frozen=True)
@@ -245,9 +274,11 @@ class Profile:
 
 # --- loading -------------------------------------------------------------------------------
 
+#: Scene categories that are not object groups (a group gets /scene/<name>).
+_RESERVED_GROUPS = {"ego", "lanes", "lead", "mio"}
 _TOP_KEYS = {"profile", "vehicle", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
-_INDEX = re.compile(r"\{i(?::0?(\d+)d)?\}")
+_INDEX = re.compile(r"\{i(?::0?(\d{1,2})d)?\}")
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
 
 
@@ -288,13 +319,22 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return doc
     except tomllib.TOMLDecodeError as exc:
         raise ProfileError(path, "", f"not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ProfileError(path, "", f"not valid TOML: not UTF-8 text (byte "
+                           f"0x{exc.object[exc.start]:02x} at position {exc.start})") from None
     except OSError as exc:
         raise ProfileError(path, "", f"cannot read: {exc.strerror or exc}") from None
 
 
-def _closest(word: str, choices: Iterable[str]) -> str:
-    matches = difflib.get_close_matches(word, list(choices), n=3, cutoff=0.5)
-    return f"; closest: {', '.join(matches)}" if matches else ""
+def _closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
+    """``; closest: …`` naming likely meant names; with ``or_all``, else every name."""
+    choices = list(choices)
+    matches = difflib.get_close_matches(word, choices, n=3, cutoff=0.75)
+    if matches:
+        return f"; closest: {', '.join(matches)}"
+    if or_all and choices:
+        return f"; there are: {', '.join(sorted(choices))}"
+    return ""
 
 
 def expand(template: str, index: int) -> str:
@@ -337,6 +377,12 @@ class _Loader:
                 raise self.fail(key, f"missing required key '{name}'")
         return value
 
+    def section(self, value: Any, key: str) -> dict[str, Any]:
+        """A table whose keys are names the user chooses (sensors, groups, classes)."""
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected a table, got {_type_name(value)}")
+        return value
+
     def number(self, table: Mapping[str, Any], key: str, name: str, default: float | None = None,
                *, positive: bool = False, non_negative: bool = False) -> float:
         value = table.get(name, default)
@@ -345,8 +391,15 @@ class _Loader:
             raise self.fail(key, f"missing required key '{name}'")
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise self.fail(full, f"expected a number, got {_type_name(value)}")
-        if not math.isfinite(value):
-            raise self.fail(full, f"must be finite, got {value}")
+        try:
+            finite = math.isfinite(value)
+        except OverflowError:  # an integer too large for a float
+            finite = False
+        if not finite:
+            text = str(value)
+            if len(text) > 20:
+                text = f"{text[:20]}… ({len(text.lstrip('-'))} digits)"
+            raise self.fail(full, f"must be finite, got {text}")
         if positive and value <= 0:
             raise self.fail(full, f"must be greater than 0, got {value}")
         if non_negative and value < 0:
@@ -372,9 +425,10 @@ class _Loader:
                             f"{_closest(name, self.messages)}")
         return m
 
-    def rule(self, table: Mapping[str, Any], key: str, signals: set[str],
-             index: int | None = None) -> Expression | None:
-        """The validity rule, ``{i}`` in it replaced by ``index``; every name it reads checked."""
+    def rule(self, table: Mapping[str, Any], key: str, messages: Sequence[DbcMessage],
+             index: int | None = None) -> Rule | None:
+        """The validity rule, ``{i}`` in it replaced by ``index``; every name it reads checked
+        against ``messages`` (plain names must be in exactly one of them)."""
         text = table.get("valid")
         if text is None:
             return None
@@ -386,11 +440,27 @@ class _Loader:
             expression = parse(text)
         except ExpressionError as exc:
             raise self.fail(f"{key}.valid", str(exc)) from None
+        where = ", ".join(m.name for m in messages)
+        qualified = []
         for name in sorted(expression.names):
-            if name not in signals:
+            message_name, _, signal_name = name.rpartition(".")
+            candidates = [m for m in messages if m.name == message_name] if message_name else \
+                list(messages)
+            if message_name and not candidates:
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, but "
+                                f"{message_name!r} is not one of {where}")
+            owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
+            if not owners:
+                known = {s.name for m in candidates for s in m.signals}
+                named = message_name or where
                 raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is not a "
-                                f"signal of these messages{_closest(name, signals)}")
-        return expression
+                                f"signal of {named}{_closest(signal_name, known)}")
+            if len(owners) > 1:
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is in "
+                                f"{owners[0].name} and {owners[1].name}: write Message.Signal")
+            if message_name:
+                qualified.append((name, message_name, signal_name))
+        return Rule(expression, tuple(qualified))
 
     def signal(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> SignalRef:
         """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
@@ -430,6 +500,8 @@ class _Loader:
         section = self.table(self.doc.get("profile", {}), "profile",
                              {"name", "description", "databases"})
         value = section.get("databases", [])
+        if value == [] or value == {}:
+            return {}
         by_bus: dict[str, Any] = value if isinstance(value, dict) else {"*": value}
         out: dict[str, tuple[Path, ...]] = {}
         for bus, files in by_bus.items():
@@ -453,10 +525,18 @@ class _Loader:
         doc = self.table(self.doc, "", _TOP_KEYS)
         meta = self.table(doc.get("profile", {}), "profile", {"name", "description", "databases"})
         name = self.string(meta, "profile", "name", self.path.stem)
+        self.string(meta, "profile", "description", "")
         vehicle = self.vehicle(doc.get("vehicle", {}))
-        sensors_doc = self.table(doc.get("sensors", {}), "sensors", set(doc.get("sensors", {})))
+        sensors_doc = self.section(doc.get("sensors", {}), "sensors")
+        if VEHICLE_FRAME in sensors_doc:
+            raise self.fail(f"sensors.{VEHICLE_FRAME}", f"'{VEHICLE_FRAME}' is the vehicle frame; "
+                            "name the sensor otherwise")
         sensors = {n: self.sensor(n, v) for n, v in sensors_doc.items()}
-        objects_doc = self.table(doc.get("objects", {}), "objects", set(doc.get("objects", {})))
+        objects_doc = self.section(doc.get("objects", {}), "objects")
+        for n in objects_doc:
+            if n in _RESERVED_GROUPS:
+                raise self.fail(f"objects.{n}", f"'{n}' is taken by /scene/{n}; not one of "
+                                f"{', '.join(sorted(_RESERVED_GROUPS))}")
         groups = {n: self.group(f"objects.{n}", n, v, sensors) for n, v in objects_doc.items()}
         lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
         lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
@@ -505,7 +585,7 @@ class _Loader:
         name = self.string(t, key, "sensor")
         if name not in sensors:
             raise self.fail(f"{key}.sensor", f"no sensor {name!r} in [sensors]"
-                            f"{_closest(name, sensors)}")
+                            f"{_closest(name, sensors, or_all=True)}")
         return sensors[name]
 
     def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
@@ -521,6 +601,9 @@ class _Loader:
                 or not all(isinstance(m, str) and m for m in templates)):
             raise self.fail(f"{key}.messages", "expected a non-empty list of message names "
                             "(templates with {i} for an indexed family)")
+        for n, template in enumerate(templates):
+            if template in templates[:n]:
+                raise self.fail(f"{key}.messages", f"{template!r} is named twice")
         members: dict[str, FamilyMember] = {}
         #: the messages of each object (index), in template order
         instances: dict[int | None, list[DbcMessage]] = {}
@@ -531,9 +614,16 @@ class _Loader:
                 raise self.fail(f"{key}.index", "expected [first, last] object indices, e.g. "
                                 "[0, 31]")
             first, last = index
-            if last < first or first < 0:
+            if first < 0:
+                raise self.fail(f"{key}.index", f"indices cannot be negative, got "
+                                f"[{first}, {last}]")
+            if last < first:
                 raise self.fail(f"{key}.index", f"empty family: [{first}, {last}]")
             for template in templates:
+                wide = re.search(r"\{i:0?(\d{3,})d\}", template)
+                if wide:
+                    raise self.fail(f"{key}.messages", f"{template!r}: the width of {{i:0Nd}} is "
+                                    f"at most 2 digits, got {wide.group(1)}")
                 if not _INDEX.search(template):
                     raise self.fail(f"{key}.messages", f"{template!r} has no {{i}} for the index")
                 for i in range(first, last + 1):
@@ -591,8 +681,11 @@ class _Loader:
         if "classes" in t:
             if "class" not in t:
                 raise self.fail(f"{key}.classes", "given without a 'class' signal")
-            table = self.table(t["classes"], f"{key}.classes", set(t["classes"]))
+            table = self.section(t["classes"], f"{key}.classes")
             for raw, label in table.items():
+                if not isinstance(label, str):
+                    raise self.fail(f"{key}.classes.{raw}", f"expected a class name (string), "
+                                    f"got {_type_name(label)}")
                 if not re.fullmatch(r"-?\d+", raw):
                     raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
                                     "(integers)")
@@ -600,9 +693,9 @@ class _Loader:
                     raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
                                     f"{', '.join(_CLASS_NAMES)}")
                 classes[int(raw)] = _CLASS_NAMES[label]
-        rules: dict[int | None, Expression] = {}  # per object: a rule may name signals with {i}
+        rules: dict[int | None, Rule] = {}  # per object: a rule may name signals with {i}
         for object_index, messages in instances.items():
-            rule = self.rule(t, key, {s.name for m in messages for s in m.signals}, object_index)
+            rule = self.rule(t, key, messages, object_index)
             if rule is not None:
                 rules[object_index] = rule
         return ObjectGroup(
@@ -614,6 +707,8 @@ class _Loader:
 
     def lead(self, value: Any, sensors: Mapping[str, Sensor]) -> LeadSpec:
         key = "lead"
+        if isinstance(value, dict) and "source" in value:
+            self.string(value, key, "source", choices=["message", "tracks"])
         if isinstance(value, dict) and value.get("source") == "tracks":
             t = self.table(value, key, {"source", "lifetime"})
             return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3,
@@ -645,7 +740,7 @@ class _Loader:
             assert c0 is not None
             lines[name] = LaneLine(name, message.name, c0, coefficient("c1"), coefficient("c2"),
                                    coefficient("c3"),
-                                   self.rule(lt, lk, {s.name for s in message.signals}))
+                                   self.rule(lt, lk, [message]))
         if "left" not in lines or "right" not in lines:
             raise self.fail(key, "needs at least [lanes.left] and [lanes.right]")
         fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
@@ -659,16 +754,22 @@ class _Loader:
 
     def ego(self, value: Any) -> EgoSpec:
         t = self.table(value, "ego", {"speed", "yaw_rate", "steering_wheel_angle"})
-        every = list(self.messages.values())
 
         def ref(name: str) -> SignalRef | None:
             if name not in t:
                 return None
-            raw = t[name]
-            text = raw["signal"] if isinstance(raw, dict) else raw
-            if isinstance(text, str) and "." not in text:
-                raise self.fail(f"ego.{name}", f"write Message.Signal, got {text!r}")
-            return self.signal(raw, f"ego.{name}", every)
+            raw, key = t[name], f"ego.{name}"
+            text = raw
+            if isinstance(raw, dict):
+                text = self.table(raw, key, {"signal", "scale", "offset"},
+                                  required=["signal"])["signal"]
+                key = f"{key}.signal"
+            if not isinstance(text, str):
+                raise self.fail(key, f"expected Message.Signal, got {_type_name(text)}")
+            message_name, _, signal_name = text.rpartition(".")
+            if not message_name or not signal_name:
+                raise self.fail(key, f"write Message.Signal, got {text!r}")
+            return self.signal(raw, f"ego.{name}", [self.message(message_name, key)])
 
         return EgoSpec(ref("speed"), ref("yaw_rate"), ref("steering_wheel_angle"))
 
