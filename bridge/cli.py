@@ -333,6 +333,21 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from bridge.progress import ProgressBar
+    from bridge.recover import format_report, recover_file
+
+    bar = ProgressBar(sys.stderr, unit="messages") if not args.quiet else None
+    try:
+        report = recover_file(args.input, args.output, force=args.force, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(format_report(report, args.input, args.output))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tankviz",
@@ -418,6 +433,18 @@ def build_parser() -> argparse.ArgumentParser:
     _add_stage_options(replay, profile_default=None)
     _add_server_options(replay)
     replay.set_defaults(run=_cmd_replay)
+
+    recover = sub.add_parser(
+        "recover", help="salvage a drive (MCAP) cut short by a power loss or a crash",
+        description="Copy every complete record of an MCAP file that was cut short (power loss, "
+        "killed recorder) into a complete new MCAP, and say what was recovered and where and why "
+        "reading stopped. Damaged chunks (CRC mismatch) are skipped and reported.")
+    recover.add_argument("input", type=Path, metavar="BROKEN.mcap")
+    recover.add_argument("-o", "--output", type=Path, required=True, metavar="FIXED.mcap",
+                         help="the complete MCAP to write")
+    recover.add_argument("--force", action="store_true", help="overwrite an existing output")
+    recover.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no report")
+    recover.set_defaults(run=_cmd_recover)
     return parser
 
 

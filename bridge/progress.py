@@ -1,4 +1,4 @@
-"""A one-line progress bar for a terminal: frames, rate, percentage and ETA."""
+"""A one-line progress bar for a terminal: count, rate, percentage and ETA."""
 
 from __future__ import annotations
 
@@ -10,8 +10,10 @@ from typing import TextIO
 class ProgressBar:
     """Redraws one line on ``stream`` at most ``hz`` times a second; silent off a terminal."""
 
-    def __init__(self, stream: TextIO = sys.stderr, *, width: int = 30, hz: float = 5.0) -> None:
+    def __init__(self, stream: TextIO = sys.stderr, *, width: int = 30, hz: float = 5.0,
+                 unit: str = "frames") -> None:
         self.stream = stream
+        self.unit = unit
         self.width = width
         self._interval = 1.0 / hz
         self._start = time.monotonic()
@@ -19,10 +21,11 @@ class ProgressBar:
         self.enabled = stream.isatty()
 
     @staticmethod
-    def render(frames: int, fraction: float | None, elapsed: float, width: int = 30) -> str:
+    def render(count: int, fraction: float | None, elapsed: float, width: int = 30,
+               unit: str = "frames") -> str:
         """The text of the bar (pure, for tests)."""
-        rate = frames / elapsed if elapsed > 0 else 0.0
-        text = f"{frames:>12,} frames  {rate:>10,.0f} frames/s"
+        rate = count / elapsed if elapsed > 0 else 0.0
+        text = f"{count:>12,} {unit}  {rate:>10,.0f} {unit}/s"
         if fraction is not None:
             fraction = min(max(fraction, 0.0), 1.0)
             filled = round(fraction * width)
@@ -41,7 +44,8 @@ class ProgressBar:
         if now - self._last < self._interval and fraction != 1.0:
             return
         self._last = now
-        self.stream.write("\r" + self.render(frames, fraction, now - self._start, self.width))
+        self.stream.write("\r" + self.render(frames, fraction, now - self._start, self.width,
+                                             self.unit))
         self.stream.flush()
 
     def close(self) -> None:

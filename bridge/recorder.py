@@ -55,7 +55,7 @@ class _MessageIndex(MessageIndex):
         stream.finish_record()
 
 
-class _Writer(McapWriter):
+class FastWriter(McapWriter):
     """mcap's Writer, with a faster ``add_message`` for the per-frame hot path.
 
     mcap's own ``add_message`` spends about 3 µs per message building a record object and
@@ -139,7 +139,7 @@ class Recorder:
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD) -> None:
-        self._writer = _Writer(output, chunk_size=chunk_size, compression=compression)
+        self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression)
         self._writer.start(profile="", library=f"tankviz {__version__}")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

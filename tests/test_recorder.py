@@ -11,7 +11,7 @@ from mcap.writer import Writer as McapWriter
 
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.recorder import Recorder, _Writer
+from bridge.recorder import FastWriter, Recorder
 
 
 def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
@@ -32,11 +32,11 @@ def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
 
 
 def test_the_fast_writer_writes_what_mcap_writes() -> None:
-    assert write_with(_Writer) == write_with(McapWriter)
+    assert write_with(FastWriter) == write_with(McapWriter)
 
 
 def test_the_fallback_path_writes_the_same() -> None:
-    assert write_with(_Writer, fast=False) == write_with(McapWriter)
+    assert write_with(FastWriter, fast=False) == write_with(McapWriter)
 
 
 def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:
