@@ -122,8 +122,14 @@ def _add_record_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true", help="view only: record nothing")
     parser.add_argument("--no-server", action="store_true",
                         help="record only: no WebSocket server, no display load")
+    _add_run_for(parser)
+
+
+def _add_run_for(parser: argparse.ArgumentParser) -> None:
+    default = _env("RUN_FOR", "")
     parser.add_argument("--for", dest="run_for", type=float, metavar="S",
-                        help="stop by itself after this many seconds")
+                        default=float(default) if default else None,
+                        help="stop by itself after this many seconds (env TANKVIZ_RUN_FOR)")
 
 
 def _stages(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -428,8 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--loop", action="store_true", help="start again at the end")
     replay.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
                         help="skip this many seconds of the drive")
-    replay.add_argument("--for", dest="run_for", type=float, metavar="S",
-                        help="stop by itself after this many seconds")
+    _add_run_for(replay)
     _add_stage_options(replay, profile_default=None)
     _add_server_options(replay)
     replay.set_defaults(run=_cmd_replay)
