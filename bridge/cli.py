@@ -271,10 +271,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if output.suffix.lower() == ".mcap":
         from bridge.convert import build_stages
         from bridge.pipeline import Pipeline, describe_drive
-        from bridge.recorder import Recorder
+        from bridge.recorder import Recorder, atomic_output
 
         decoder, profile = build_stages([], "ecocar")
-        with output.open("wb") as stream:
+        with atomic_output(output) as stream:
             recorder = Recorder(stream)
             pipeline = Pipeline(decoder, profile=profile, recorder=recorder)
             for frame in frames:

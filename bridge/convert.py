@@ -5,8 +5,7 @@ The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
 SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs) and every
 database file as an attachment, so a drive can be decoded again from the MCAP alone.
 
-A conversion that fails leaves no output file: it writes ``.<name>.partial`` beside the output and
-renames it only when the MCAP is complete.
+A conversion that fails leaves no output file (:func:`bridge.recorder.atomic_output`).
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from bridge.errors import OutputError
 from bridge.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline import Pipeline, describe_drive
 from bridge.profile import Profile, load_profile, read_profile_databases, resolve_profile
-from bridge.recorder import Recorder
+from bridge.recorder import Recorder, atomic_output
 from bridge.source import LogSource, SourceIssue, merge
 
 #: How many source issues are kept in the metadata (all are counted).
@@ -136,17 +135,8 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
     check_output(output, force=force)
     decoder, loaded_profile = build_stages(dbc_options, profile)
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
-    partial = output.with_name(f".{output.name}.partial")
-    try:
-        with partial.open("wb") as stream:
-            report = record_drive(sources, decoder, stream, profile=loaded_profile,
-                                  scene_rate=scene_rate, progress=progress)
-        os.replace(partial, output)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
+    with atomic_output(output) as stream:
+        report = record_drive(sources, decoder, stream, profile=loaded_profile,
+                              scene_rate=scene_rate, progress=progress)
     report.output = output
     return report

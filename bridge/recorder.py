@@ -13,6 +13,8 @@ import json
 import os
 import struct
 import time
+from collections.abc import Iterator
+from pathlib import Path
 from typing import IO, Any, Protocol
 
 from mcap.opcode import Opcode
@@ -24,6 +26,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
 from bridge.decode import Decoded, MessageCodec
+from bridge.errors import OutputError
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.topics import frames_topic
@@ -121,6 +124,23 @@ class FastWriter(McapWriter):
         buffer.write(data)
         if buffer.tell() > self._chunk_size:
             self._finalize()
+
+
+@contextlib.contextmanager
+def atomic_output(path: Path) -> Iterator[IO[bytes]]:
+    """An output file that appears only complete: written as ``.<name>.partial`` and renamed
+    when the block succeeds; after any failure no file is left behind."""
+    partial = path.with_name(f".{path.name}.partial")
+    try:
+        with partial.open("wb") as stream:
+            yield stream
+        os.replace(partial, path)
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise OutputError(path, f"cannot write: {exc.strerror or exc}") from exc
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
 
 
 class FrameSink(Protocol):

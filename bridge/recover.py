@@ -73,6 +73,7 @@ from zstandard import ZstdError
 from bridge import __version__
 from bridge.errors import InputError, OutputError
 from bridge.recorder import FastWriter as Writer  # mcap's Writer, faster add_message
+from bridge.recorder import atomic_output
 
 #: Name of the metadata record that says what was recovered.
 METADATA_NAME = "tankviz.recover"
@@ -592,18 +593,8 @@ def recover_file(broken: Path | str, fixed: Path | str, *, force: bool = False,
         source = broken.open("rb")
     except OSError as exc:
         raise InputError(broken, f"cannot read: {exc.strerror or exc}") from None
-    partial = fixed.with_name(f".{fixed.name}.partial")
-    try:
-        with source, partial.open("wb") as stream:
-            report = recover(source, stream, source_name=str(broken), progress=progress)
-        os.replace(partial, fixed)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise OutputError(fixed, f"cannot write: {exc.strerror or exc}") from exc
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
-    return report
+    with source, atomic_output(fixed) as stream:
+        return recover(source, stream, source_name=str(broken), progress=progress)
 
 
 def format_report(report: RecoverReport, broken_path: Path | str, fixed_path: Path | str) -> str:
