@@ -21,7 +21,7 @@ from typing import IO, Any
 from bridge.decode import DatabaseFile, Decoder, load_database, parse_dbc_option
 from bridge.errors import OutputError
 from bridge.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline import Pipeline, describe_drive
+from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
 from bridge.profile import Profile, load_profile, read_profile_databases, resolve_profile
 from bridge.recorder import Recorder, atomic_output
 from bridge.source import LogSource, SourceIssue, merge
@@ -80,7 +80,9 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     """
     started = time.perf_counter()
     recorder = Recorder(output)
-    pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, recorder=recorder)
+    health = new_health_monitor(decoder, profile)
+    pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, recorder=recorder,
+                        health=health)
     process = pipeline.process
     total_bytes = sum(s.progress()[1] for s in sources)
     frames = 0
@@ -107,6 +109,7 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
                     "backwards_jumps": s.backwards} for s in sources],
         "input_issues": {"count": len(issues),
                          "first": [str(i) for i in issues[:MAX_ISSUES_RECORDED]]},
+        "alarms": health.event_records(),
     })
     recorder.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,

@@ -136,6 +136,12 @@ def format_summary(path: str, s: DriveSummary) -> str:
                 f"{k} ({v})" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
         for k, text in list(stats.get("last_decode_error", {}).items())[:12]:
             lines.append(f"    {k}: {text}")
+        alarms = _json(ours.get("alarms", "[]"))
+        lines += ["", f"alarms ({sum(a['event'] == 'raised' for a in alarms)} raised):"]
+        lines += [f"  {_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: {a['message']}"
+                  for a in alarms[:50]]
+        if len(alarms) > 50:
+            lines.append(f"  … {len(alarms) - 50} more in the metadata")
         issues = _json(ours.get("input_issues", "{}"))
         if issues.get("count"):
             lines += ["", f"skipped in the inputs ({issues['count']}):"]

@@ -28,7 +28,7 @@ from bridge.decode import Decoder
 from bridge.errors import OutputError, UsageError
 from bridge.frame import Frame
 from bridge.perception import DEFAULT_SCENE_RATE, Output
-from bridge.pipeline import Pipeline, describe_drive
+from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
 from bridge.profile import Profile
 from bridge.recorder import Recorder
 from bridge.scene import timestamp
@@ -295,15 +295,18 @@ class Live:
         self.readers = [BusReader(spec, self.queue, open_bus=open_bus) for spec in buses]
         self.recorder = (DriveRecorder(drives, self._describe, split_size, split_duration_s)
                          if drives is not None else None)
+        self.health = new_health_monitor(
+            decoder, profile, {b.name: b.bitrate for b in buses if b.bitrate is not None})
         self.pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate,
-                                 recorder=self.recorder, server=server)
+                                 recorder=self.recorder, server=server, health=self.health)
         self.pipeline.advertise(names)
         self.stopping = threading.Event()
         self._down: dict[str, Gap] = {}
 
     def _describe(self, recorder: Recorder, extra: dict[str, Any]) -> None:
         describe_drive(recorder, self.decoder, self.profile, self.scene_rate, {
-            "buses": [str(b) for b in self.buses], **extra})
+            "buses": [str(b) for b in self.buses], "alarms": self.health.event_records(),
+            **extra})
 
     def stop(self) -> None:
         self.stopping.set()

@@ -28,7 +28,7 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
-from bridge.world import World
+from bridge.world import LaneModel, World
 
 NS = 1_000_000_000
 DEFAULT_SCENE_RATE = 20.0
@@ -64,6 +64,8 @@ class Perception:
         self._started = False
         self.ticks = 0
         self.messages = self.observer.messages
+        #: the lane model of the latest tick
+        self.lanes: LaneModel | None = None
 
     def topics(self) -> list[tuple[str, Any]]:
         """Every topic :meth:`tick` emits, with its message class (to advertise them early)."""
@@ -110,7 +112,7 @@ class Perception:
         self.ticks += 1
         world, profile = self.world, self.profile
         world.expire(t_ns)
-        lanes = world.lane_model(t_ns)
+        lanes = self.lanes = world.lane_model(t_ns)
         check = world.mio_check(lanes)
         out = [Output(scene_topic(category), scene.update(scene_topic(category), entities, t_ns,
                                                           self.scene_state), t_ns)

@@ -8,21 +8,25 @@ is serialized once for both sinks.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from bridge import __version__
+from bridge import __version__, scene
 from bridge.decode import DatabaseFile, Decoder
 from bridge.frame import Frame
+from bridge.health import HealthMonitor, alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
 from bridge.profile import Profile
 from bridge.recorder import FrameSink, Recorder
 from bridge.server import LiveServer
-from bridge.topics import LOG_TOPIC, frames_topic
+from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, frames_topic, scene_topic
+
+INF = float("inf")
 
 
 class Pipeline:
@@ -30,7 +34,7 @@ class Pipeline:
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, recorder: FrameSink | None = None,
-                 server: LiveServer | None = None) -> None:
+                 server: LiveServer | None = None, health: HealthMonitor | None = None) -> None:
         self.decoder = decoder
         self.profile = profile
         self.scene_rate = scene_rate
@@ -38,9 +42,10 @@ class Pipeline:
         self.server = server
         self.perception = (Perception(profile, scene_rate=scene_rate)
                            if profile is not None else None)
+        self.health = health
         self._wanted = self.perception.messages if self.perception is not None else frozenset()
         self._next_tick: int | float = (float("-inf") if self.perception is not None
-                                        else float("inf"))
+                                        or health is not None else float("inf"))
         self._server_channels: dict[str, int] = {}
         self.frames = 0
         self.last_ns: int | None = None
@@ -56,6 +61,8 @@ class Pipeline:
         if server is not None:
             self._serve_frame(server, frame)
         decoded = self.decoder.decode(frame)
+        if self.health is not None:
+            self.health.on_frame(frame, decoded)
         if decoded is not None:
             if recorder is not None:
                 recorder.write_decoded(t, decoded)
@@ -72,16 +79,42 @@ class Pipeline:
         self.last_ns = t
 
     def advance(self, t_ns: int) -> None:
-        """Emit the scenes due before log time ``t_ns`` (also when no frame comes)."""
-        if self.perception is None:
-            return
-        self.emit(self.perception.advance(t_ns))
-        self._next_tick = self.perception.next_tick_ns
+        """Emit the scenes and health checks due before log time ``t_ns`` (also when no frame
+        comes)."""
+        perception, health = self.perception, self.health
+        outputs: list[Output] = []
+        if perception is not None:
+            outputs = perception.advance(t_ns)
+            if outputs and health is not None:
+                outputs.append(self._health_scene(perception, health, outputs[0].t_ns))
+        if health is not None:
+            outputs += health.advance(t_ns)
+        self.emit(outputs)
+        self._next_tick = min(perception.next_tick_ns if perception is not None else INF,
+                              health.next_tick_ns if health is not None else INF)
+
+    def _health_scene(self, perception: Perception, health: HealthMonitor, t_ns: int) -> Output:
+        """The health checks look at the world of this scene tick; the scene shows the alarms
+        beside the ego and each sensor's field of view (red when alarmed)."""
+        assert self.profile is not None
+        health.on_world(t_ns, perception.world, perception.lanes)
+        alarms = health.active_alarms()
+        entities = alarm_entities(alarms, t_ns) + fov_entities(self.profile, alarms, t_ns)
+        topic = scene_topic(HEALTH_CATEGORY)
+        return Output(topic, scene.update(topic, entities, t_ns, perception.scene_state), t_ns)
 
     def finish(self) -> None:
         """Emit what is still due at the end of the drive."""
-        if self.perception is not None and self.last_ns is not None:
-            self.emit(self.perception.finish(self.last_ns))
+        if self.last_ns is None:
+            return
+        if self.perception is not None:
+            outputs = self.perception.finish(self.last_ns)
+            if outputs and self.health is not None:
+                outputs.append(self._health_scene(self.perception, self.health,
+                                                  outputs[0].t_ns))
+            self.emit(outputs)
+        if self.health is not None:
+            self.emit(self.health.finish(self.last_ns))
 
     def emit(self, outputs: Iterable[Output]) -> None:
         """Scene, perception and other messages to every sink."""
@@ -121,6 +154,10 @@ class Pipeline:
         if server is None:
             return
         topics = self.perception.topics() if self.perception is not None else []
+        if self.health is not None:
+            topics += self.health.topics()
+            if self.perception is not None:
+                topics.append((scene_topic(HEALTH_CATEGORY), SceneUpdate))
         for topic, cls in [*topics, (LOG_TOPIC, Log)]:
             self._server_channel(server, topic, cls.DESCRIPTOR.full_name,
                                  lambda cls=cls: _fds(cls))
@@ -130,6 +167,15 @@ class Pipeline:
             for codec in self.decoder.codecs_for(bus):
                 self._server_channel(server, codec.topic, codec.schema.full_name,
                                      codec.schema.file_descriptor_set)
+
+
+def new_health_monitor(decoder: Decoder, profile: Profile | None,
+                       bitrates: Mapping[str, int] | None = None) -> HealthMonitor:
+    """The health monitor of a drive; bitrates given here override the profile's."""
+    rates = dict(profile.bitrates) if profile is not None else {}
+    rates.update(bitrates or {})
+    return HealthMonitor(profile, decoder, bitrates=rates,
+                         data_bitrates=profile.data_bitrates if profile is not None else None)
 
 
 def _fds(cls: Any) -> bytes:

@@ -258,6 +258,9 @@ class Profile:
     ego: EgoSpec
     #: Databases the profile names (bus or "*" -> paths), used when no --dbc is given.
     databases: Mapping[str, tuple[Path, ...]] = field(default_factory=dict)
+    #: Nominal bitrate per bus (bit/s), for the bus load; and the CAN FD data bitrate.
+    bitrates: Mapping[str, int] = field(default_factory=dict)
+    data_bitrates: Mapping[str, int] = field(default_factory=dict)
 
     def message_names(self) -> set[str]:
         """Every DBC message the profile reads."""
@@ -275,8 +278,8 @@ class Profile:
 # --- loading -------------------------------------------------------------------------------
 
 #: Scene categories that are not object groups (a group gets /scene/<name>).
-_RESERVED_GROUPS = {"ego", "lanes", "lead", "mio"}
-_TOP_KEYS = {"profile", "vehicle", "sensors", "objects", "lead", "lanes", "ego"}
+_RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "mio"}
+_TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
 _INDEX = re.compile(r"\{i(?::0?(\d{1,2})d)?\}")
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
@@ -541,8 +544,21 @@ class _Loader:
         lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
         lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
         ego = self.ego(doc.get("ego", {}))
+        bitrates, data_bitrates = self.buses(doc.get("buses", {}))
         return Profile(name, self.path, vehicle, sensors, groups, lead, lanes, ego,
-                       self.databases())
+                       self.databases(), bitrates, data_bitrates)
+
+    def buses(self, value: Any) -> tuple[dict[str, int], dict[str, int]]:
+        """``[buses.NAME] bitrate = …, data_bitrate = …``: for the bus load in /health."""
+        bitrates: dict[str, int] = {}
+        data_bitrates: dict[str, int] = {}
+        for bus, spec in self.section(value, "buses").items():
+            key = f"buses.{bus}"
+            t = self.table(spec, key, {"bitrate", "data_bitrate"}, required=["bitrate"])
+            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True))
+            if "data_bitrate" in t:
+                data_bitrates[bus] = round(self.number(t, key, "data_bitrate", positive=True))
+        return bitrates, data_bitrates
 
     def vehicle(self, value: Any) -> Vehicle:
         t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",

@@ -30,6 +30,18 @@ positive RIGHT (as its DBC comments say), radar, fusion and lead vehicle y posit
 Episodes are judged on frame timestamps (``Episode.window_ns``): no radar frame has a timestamp
 inside the radar dropout, every lane frame inside the lane dropout says "no lanes". The moving
 scenario itself is evaluated at each family's nominal cycle tick (its measurement time).
+
+Scenarios (``simulate(scenario=...)``, :data:`SCENARIOS`): ``drive`` (the default) is the drive
+above with its episodes. The others are the same traffic (lead braking, cut-in) with at most one
+sensor or bus fault, from :data:`FAULT_ONSET_S` to :data:`FAULT_RECOVERY_S` seconds after the
+start (timestamps ``onset <= t < recovery``, see :meth:`Scenario.window_ns`), for the health
+monitor to catch: ``clean`` has no fault at all (no lane dropout, no radar episode);
+``radar_dropout`` (the radar sends nothing), ``radar_yaw`` (the radar is knocked
+:data:`MISALIGNMENT_DEG` to the left and does not know it: ``HorizontMisalignment`` stays 0),
+``radar_blind`` (the radar sends every frame, but no valid object), ``radar_slow`` (the radar
+sends one cycle in :data:`RADAR_SLOW_EVERY`), ``lane_loss`` (the camera reports no lanes),
+``bus_silent`` (no frame at all on the bus) and ``babbling`` (a stuck gateway floods the bus with
+one ``SensorDiag`` frame every :data:`BABBLE_PERIOD_US` microseconds, on top of the traffic).
 """
 
 from __future__ import annotations
@@ -135,6 +147,88 @@ class Timeline:
 
 #: The scenario's timeline; tests and health monitoring check against it.
 TIMELINE = Timeline()
+
+#: When the fault of a fault scenario starts and ends, in seconds since the start of the run, and
+#: the duration the scenarios are made for (a shorter run ends inside the fault).
+FAULT_ONSET_S = 6.0
+FAULT_RECOVERY_S = 11.0
+SCENARIO_DURATION_S = 16.0
+
+#: ``radar_slow``: the radar sends one cycle in this many (a third of its rate).
+RADAR_SLOW_EVERY = 3
+#: ``babbling``: the stuck gateway's repetition period (1 kHz), on top of the normal traffic.
+BABBLE_PERIOD_US = 1000
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named scenario of :func:`simulate` and when its fault happens (seconds since start)."""
+
+    name: str
+    description: str
+    #: The fault's start and end (None: no fault); frames with ``onset <= t < recovery``.
+    onset_s: float | None = None
+    recovery_s: float | None = None
+    #: The run length the scenario is made for.
+    duration_s: float = SCENARIO_DURATION_S
+
+    def window_ns(self, start_ns: int = DEFAULT_START_NS) -> tuple[int, int] | None:
+        """The fault as absolute timestamps ``(onset, recovery)``, or None without a fault."""
+        if self.onset_s is None or self.recovery_s is None:
+            return None
+        return start_ns + round(self.onset_s * _NS), start_ns + round(self.recovery_s * _NS)
+
+
+def _fault(name: str, description: str) -> Scenario:
+    return Scenario(name, description, FAULT_ONSET_S, FAULT_RECOVERY_S)
+
+
+#: Every scenario by name; ``drive`` is the default.
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
+    Scenario("drive", "the scripted drive with every TIMELINE episode (the sample log)", None,
+             None, 10.0),
+    Scenario("clean", "the same traffic without any fault: no lane dropout, no radar episode",
+             None, None, 20.0),
+    _fault("radar_dropout", "the radar sends nothing"),
+    _fault("radar_yaw", f"the radar points {MISALIGNMENT_DEG:g} degrees left and does not know"),
+    _fault("radar_blind", "the radar sends every frame but reports no valid object"),
+    _fault("radar_slow", f"the radar sends one cycle in {RADAR_SLOW_EVERY}"),
+    _fault("lane_loss", "the camera reports no lanes"),
+    _fault("bus_silent", "no frame at all on the bus"),
+    _fault("babbling", "a stuck gateway floods the bus with one SensorDiag frame"),
+)}
+
+#: A window no timestamp is in (an absent fault).
+_NEVER = (-(1 << 62), -(1 << 62))
+
+
+@dataclass(frozen=True)
+class _Faults:
+    """The fault windows of one run (absolute timestamps, ``begin <= t < end``)."""
+
+    lane_dropout: tuple[int, int] = _NEVER
+    radar_dropout: tuple[int, int] = _NEVER
+    radar_misalignment: tuple[int, int] = _NEVER
+    #: when RadarStatus and SensorDiag report the misalignment
+    misalignment_reported: tuple[int, int] = _NEVER
+    radar_blind: tuple[int, int] = _NEVER
+    radar_slow: tuple[int, int] = _NEVER
+    bus_silent: tuple[int, int] = _NEVER
+    babbling: tuple[int, int] = _NEVER
+
+
+def _faults(scenario: Scenario, duration_s: float, start_ns: int) -> _Faults:
+    if scenario.name == "drive":
+        misaligned = TIMELINE.radar_misalignment.window_ns(duration_s, start_ns)
+        return _Faults(lane_dropout=TIMELINE.lane_dropout.window_ns(duration_s, start_ns),
+                       radar_dropout=TIMELINE.radar_dropout.window_ns(duration_s, start_ns),
+                       radar_misalignment=misaligned, misalignment_reported=misaligned)
+    window = scenario.window_ns(start_ns)
+    if window is None:
+        return _Faults()
+    field_name = {"radar_yaw": "radar_misalignment", "lane_loss": "lane_dropout"}.get(
+        scenario.name, scenario.name)
+    return _Faults(**{field_name: window})
 
 
 def load_ecocar() -> cantools.database.can.Database:
@@ -479,6 +573,7 @@ class _Run:
     end_ns: int
     duration_s: float
     codecs: dict[str, _Codec]
+    faults: _Faults
     radar_object_count: int = 0  # of the radar's latest cycle, for RadarStatus
 
     def codec(self, name: str) -> _Codec:
@@ -486,9 +581,6 @@ class _Run:
 
     def rng(self, family: str) -> random.Random:
         return random.Random(f"tankviz-simulate:{self.seed}:{family}")
-
-    def window(self, episode: Episode) -> tuple[int, int]:
-        return episode.window_ns(self.duration_s, self.start_ns)
 
     def ticks(self, rng: random.Random, cycle_ms: int, phase_us: tuple[int, int],
               jitter_us: int = 200) -> Iterator[tuple[int, int]]:
@@ -676,8 +768,10 @@ def _radar(run: _Run) -> Iterator[Frame]:
     slots = _Slots(32)
     age: dict[Hashable, int] = {}
     empty_cache: dict[tuple[int, int], bytes] = {}
-    dropout = run.window(TIMELINE.radar_dropout)
-    misaligned = run.window(TIMELINE.radar_misalignment)
+    faults = run.faults
+    dropout = faults.radar_dropout
+    misaligned = faults.radar_misalignment
+    blind, slow = faults.radar_blind, faults.radar_slow
     n_frames = 1 + 2 * len(objs)
     for tick, ts in run.ticks(rng, 50, (2000, 8000), 300):
         times = run.burst(rng, ts, n_frames)
@@ -686,6 +780,8 @@ def _radar(run: _Run) -> Iterator[Frame]:
         if times[0] < dropout[1] and times[-1] >= dropout[0]:
             slots.clear()  # the radar restarts its tracker after the outage
             age.clear()
+            continue
+        if slow[0] <= times[0] < slow[1] and (tick // (50 * _MS)) % RADAR_SLOW_EVERY:
             continue
         snap = run.world.at(tick)
         t = snap.t
@@ -708,6 +804,8 @@ def _radar(run: _Run) -> Iterator[Frame]:
         detections.sort(key=lambda m: (m[6] is None, m[1] * m[1] + m[2] * m[2]))
         by_key = {m[0]: m for m in detections}
         owners = slots.assign([m[0] for m in detections])
+        if blind[0] <= times[0] < blind[1]:
+            owners = [None] * len(objs)  # blocked: every slot reports "no object"
         for key in [k for k in age if k not in by_key]:
             del age[key]
         rotate = misaligned[0] <= times[0] < misaligned[1]
@@ -777,8 +875,8 @@ def _radar_status(run: _Run) -> Iterator[Frame]:
     rng = run.rng("RadarStatus")
     codec = run.codec("RadarStatus")
     counter = rng.randrange(codec.counter_mod)
-    dropout = run.window(TIMELINE.radar_dropout)
-    misaligned = run.window(TIMELINE.radar_misalignment)
+    dropout = run.faults.radar_dropout
+    misaligned = run.faults.misalignment_reported
     for tick, ts in run.ticks(rng, 100, (40_000, 60_000)):
         if ts >= run.end_ns:
             return
@@ -840,7 +938,7 @@ def _camera(run: _Run) -> Iterator[Frame]:
     slots = _Slots(10)
     ids = _Ids(rng.randrange(1, 200))
     age: dict[Hashable, int] = {}
-    dropout = run.window(TIMELINE.lane_dropout)
+    dropout = run.faults.lane_dropout
     sc = run.world.scenario
     n_frames = 2 * len(obstacles) + len(lanes)
     for tick, ts in run.ticks(rng, 66, (0, 20_000)):
@@ -944,13 +1042,14 @@ def _fusion(run: _Run) -> Iterator[Frame]:
     slots = _Slots(20)
     ids = _Ids(rng.randrange(1, 100))
     tracks: dict[Hashable, _Track] = {}
-    radar_out = run.window(TIMELINE.radar_dropout)
+    radar_out = run.faults.radar_dropout
+    radar_blind = run.faults.radar_blind
     for tick, ts in run.ticks(rng, 50, (18_000, 28_000)):
         times = run.burst(rng, ts, len(tracks_codecs) + 1)
         if times[0] >= run.end_ns:
             return
         snap = run.world.at(tick)
-        radar_ok = not (radar_out[0] <= ts < radar_out[1])
+        radar_ok = not (radar_out[0] <= ts < radar_out[1] or radar_blind[0] <= ts < radar_blind[1])
         sources: dict[Hashable, int] = {}
         for s in snap.objects:
             by_radar, by_camera = s.radar and radar_ok, s.camera
@@ -1024,7 +1123,7 @@ def _diagnostics(run: _Run) -> Iterator[Frame]:
     rng = run.rng("SensorDiag")
     codec = run.codec("SensorDiag")
     counter = rng.randrange(codec.counter_mod)
-    misaligned = run.window(TIMELINE.radar_misalignment)
+    misaligned = run.faults.misalignment_reported
     uptime_min = rng.randrange(2, 120)
     for k, (tick, ts) in enumerate(run.ticks(rng, 1000, (200_000, 400_000))):
         if ts >= run.end_ns:
@@ -1058,13 +1157,27 @@ _MESSAGES = (
     *(f"FusionTrack{i}" for i in range(20)), "LeadVehicle", "SensorDiag",
 )
 
+def _babbler(run: _Run) -> Iterator[Frame]:
+    """``babbling``: a stuck gateway repeats one SensorDiag frame (page 0) every
+    :data:`BABBLE_PERIOD_US` microseconds during the fault."""
+    codec = run.codec("SensorDiag")
+    data = codec.encode({"DiagPage": 0, "DiagSource": 0, "Counter": 0, "FwVersionMajor": 2,
+                         "FwVersionMinor": 4, "FwVersionPatch": 1, "HwRevision": 3,
+                         "SerialNumber": 41_000})
+    begin, end = run.faults.babbling
+    ts = begin
+    while ts < min(end, run.end_ns):
+        yield run.out.frame(ts, codec, data)
+        ts += BABBLE_PERIOD_US * _US
+
+
 _FAMILIES = (_ego_motion, _steering, _driver_inputs, _ego_position, _radar, _radar_status,
              _camera, _fusion, _diagnostics)
 
 
 def simulate(*, duration_s: float, seed: int = 0, start_ns: int = DEFAULT_START_NS,
-             bus: str = "can0", database: cantools.database.can.Database | None = None
-             ) -> Iterator[Frame]:
+             bus: str = "can0", database: cantools.database.can.Database | None = None,
+             scenario: str = "drive") -> Iterator[Frame]:
     """Frames of a simulated drive, in non-decreasing timestamp order.
 
     - ``duration_s``: length of the drive in seconds (frames have ``start_ns <= timestamp <
@@ -1075,11 +1188,24 @@ def simulate(*, duration_s: float, seed: int = 0, start_ns: int = DEFAULT_START_
     - ``bus``: the bus name of every frame (default ``"can0"``).
     - ``database``: the DBC to encode with (default: the bundled ecocar DBC); it must have the
       ecocar messages.
+    - ``scenario``: a name in :data:`SCENARIOS` (default ``"drive"``, the scripted drive of the
+      sample log); the fault scenarios place their fault at fixed seconds, not fractions
+      (:data:`FAULT_ONSET_S`, :data:`FAULT_RECOVERY_S`).
     """
     if not duration_s > 0 or not math.isfinite(duration_s):
         raise ValueError(f"duration_s must be a positive number of seconds, not {duration_s!r}")
+    if scenario not in SCENARIOS:
+        raise ValueError(f"no scenario {scenario!r}; one of {', '.join(SCENARIOS)}")
     db = database if database is not None else _default_database()
     codecs = {name: _Codec(db, name) for name in _MESSAGES}
     run = _Run(_World(duration_s), _Out(bus), seed, start_ns,
-               start_ns + round(duration_s * _NS), duration_s, codecs)
-    return heapq.merge(*(family(run) for family in _FAMILIES))
+               start_ns + round(duration_s * _NS), duration_s, codecs,
+               _faults(SCENARIOS[scenario], duration_s, start_ns))
+    families = [family(run) for family in _FAMILIES]
+    if scenario == "babbling":
+        families.append(_babbler(run))
+    frames: Iterator[Frame] = heapq.merge(*families)
+    silent = run.faults.bus_silent
+    if scenario == "bus_silent":
+        frames = (f for f in frames if not silent[0] <= f.timestamp_ns < silent[1])
+    return frames

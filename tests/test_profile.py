@@ -438,7 +438,7 @@ def test_databases_must_exist(error: Callable[[str], str], car: Path, databases:
     pytest.param(
         "[vehicle]", "[vehicel]",
         "vehicel: unknown key; closest: vehicle "
-        "(allowed: ego, lanes, lead, objects, profile, sensors, vehicle)",
+        "(allowed: buses, ego, lanes, lead, objects, profile, sensors, vehicle)",
         id="top-level"),
     pytest.param(
         'name = "ecocar"', 'nam = "ecocar"',
@@ -789,12 +789,12 @@ def test_a_message_named_twice(error: Callable[[str], str]) -> None:
         "car.toml: objects.tracks.messages: 'FusionTrack{i}' is named twice")
 
 
-@pytest.mark.parametrize("name", ["ego", "lanes", "lead", "mio"])
+@pytest.mark.parametrize("name", ["ego", "health", "lanes", "lead", "mio"])
 def test_group_names_that_are_taken(error: Callable[[str], str], name: str) -> None:
     # each would overwrite its /scene/<name> topic
     assert error(edit(("[objects.tracks]", f"[objects.{name}]"))) == (
-        f"car.toml: objects.{name}: '{name}' is taken by /scene/{name}; not one of ego, lanes, "
-        "lead, mio")
+        f"car.toml: objects.{name}: '{name}' is taken by /scene/{name}; not one of ego, health, "
+        "lanes, lead, mio")
 
 
 def test_a_sensor_named_like_the_vehicle_frame(error: Callable[[str], str]) -> None:

@@ -5,6 +5,7 @@ Scenario facts are checked the way a consumer sees them: by decoding the frames 
 
 from __future__ import annotations
 
+import functools
 import importlib
 import itertools
 import math
@@ -19,8 +20,13 @@ from cantools.database.namedsignalvalue import NamedSignalValue
 
 from bridge.frame import Frame
 from bridge.simulate import (
+    BABBLE_PERIOD_US,
     DEFAULT_START_NS,
+    FAULT_ONSET_S,
+    FAULT_RECOVERY_S,
     MISALIGNMENT_DEG,
+    RADAR_SLOW_EVERY,
+    SCENARIOS,
     STEERING_RATIO,
     TIMELINE,
     WHEELBASE_M,
@@ -420,3 +426,112 @@ def test_the_sample_log_tool_writes_a_readable_log(tmp_path: Path) -> None:
     count = make_sample_log.write_blf(path, simulate(duration_s=1.0, seed=5))
     assert list(LogSource(path)) == list(simulate(duration_s=1.0, seed=5))
     assert count > 2000
+
+
+# --- fault scenarios (for the health monitor) -------------------------------------------------
+
+SCENARIO_S = FAULT_RECOVERY_S + 1.0  # the fault and a second after it
+
+
+@functools.cache
+def scenario(name: str) -> list[Decoded]:
+    """A fault scenario, decoded (a second past the recovery)."""
+    db = load_ecocar()
+    out = []
+    for f in simulate(duration_s=SCENARIO_S, scenario=name):
+        message = db.get_message_by_frame_id(f.arbitration_id)
+        out.append(Decoded((f.timestamp_ns - DEFAULT_START_NS) / 1e9, f.timestamp_ns,
+                           message.name, decode(message, f.data)))
+    return out
+
+
+def fault(d: Decoded) -> bool:
+    return FAULT_ONSET_S <= d.t < FAULT_RECOVERY_S
+
+
+def test_every_fault_scenario_has_its_fault_at_the_documented_times() -> None:
+    for name, s in SCENARIOS.items():
+        if name in ("drive", "clean"):
+            assert s.window_ns() is None
+        else:
+            assert s.window_ns(0) == (FAULT_ONSET_S * 1e9, FAULT_RECOVERY_S * 1e9)
+            assert s.duration_s > FAULT_RECOVERY_S + 3  # room to see the alarm clear
+    with pytest.raises(ValueError, match="radar_dropout"):
+        simulate(duration_s=1.0, scenario="no_such_scenario")
+
+
+def test_the_clean_scenario_has_no_fault_at_all() -> None:
+    clean = scenario("clean")
+    assert all(d.signals["Source"] == "camera" for d in clean if d.name in LANE_MESSAGES)
+    assert all(abs(d.signals["HorizontMisalignment"]) < 0.1 for d in named(clean, "RadarStatus"))
+    headers = [d.t for d in named(clean, "RadarHeader")]
+    assert len(headers) == pytest.approx(SCENARIO_S * 20, abs=1)  # every radar cycle
+    assert max(b - a for a, b in itertools.pairwise(headers)) < 0.06
+
+
+def test_radar_dropout_silences_the_radar_only_during_the_fault() -> None:
+    frames = scenario("radar_dropout")
+    radar = [d for d in frames if d.name.startswith("Radar")]
+    assert not [d for d in radar if fault(d)]
+    assert [d for d in radar if d.t < FAULT_ONSET_S] and [d for d in radar if d.t >= 11.0]
+    assert [d for d in frames if fault(d) and d.name.startswith("Cam")]
+
+
+def test_the_yawed_radar_sees_everything_turned_right_and_does_not_know() -> None:
+    frames = scenario("radar_yaw")
+    assert all(abs(d.signals["HorizontMisalignment"]) < 0.1 for d in named(frames, "RadarStatus"))
+    leads = named(frames, "LeadVehicle")
+    inside, outside = [], []
+    for o in radar_objects(frames):
+        if o["Valid"] != "valid" or o["Class"] != "four_wheel" or o["LongDist"] < 10:
+            continue
+        lead = min(leads, key=lambda d: abs(d.t - o["t"])).signals
+        if lead["Valid"] == "lead" and abs(o["LongDist"] - lead["PosX"]) < 1.5:
+            offset = math.degrees(math.atan2(o["LatDist"], o["LongDist"])
+                                  - math.atan2(lead["PosY"], lead["PosX"]))
+            (inside if FAULT_ONSET_S + 0.1 <= o["t"] < FAULT_RECOVERY_S else outside).append(
+                offset)
+    assert sum(inside) / len(inside) == pytest.approx(-MISALIGNMENT_DEG, abs=1.0)
+    assert abs(sum(outside) / len(outside)) < 1.0
+
+
+def test_the_blind_radar_sends_every_frame_but_no_valid_object() -> None:
+    frames = scenario("radar_blind")
+    objects = [o for o in radar_objects(frames) if FAULT_ONSET_S <= o["t"] < FAULT_RECOVERY_S]
+    assert len(objects) == pytest.approx(32 * 20 * (FAULT_RECOVERY_S - FAULT_ONSET_S), rel=0.02)
+    assert all(o["Valid"] == "invalid" for o in objects)
+    assert any(o["Valid"] == "valid" for o in radar_objects(frames) if o["t"] >= 11.1)
+
+
+def test_the_slow_radar_sends_one_cycle_in_three() -> None:
+    headers = [d for d in named(scenario("radar_slow"), "RadarHeader")]
+    inside = [d for d in headers if fault(d)]
+    expected = (FAULT_RECOVERY_S - FAULT_ONSET_S) * 20 / RADAR_SLOW_EVERY
+    assert len(inside) == pytest.approx(expected, abs=1)
+    assert len([d for d in headers if d.t < FAULT_ONSET_S]) == pytest.approx(
+        FAULT_ONSET_S * 20, abs=1)
+
+
+def test_lane_loss_reports_no_lanes_during_the_fault() -> None:
+    lanes = [d for d in scenario("lane_loss") if d.name in LANE_MESSAGES]
+    assert all((d.signals["Source"] == "none") == fault(d) for d in lanes)
+
+
+def test_a_silent_bus_carries_no_frame_at_all_during_the_fault() -> None:
+    frames = scenario("bus_silent")
+    assert not [d for d in frames if fault(d)]
+    assert frames[-1].t >= SCENARIO_S - 0.1  # and it comes back
+
+
+def test_a_babbling_gateway_floods_the_bus_with_one_frame() -> None:
+    frames = scenario("babbling")
+    diag = named(frames, "SensorDiag")
+    inside = [d for d in diag if fault(d)]
+    period_s = BABBLE_PERIOD_US / 1e6
+    babble = (FAULT_RECOVERY_S - FAULT_ONSET_S) / period_s
+    assert babble <= len(inside) <= babble + 6  # and its own once a second
+    payloads = Counter(tuple(sorted(d.signals.items())) for d in inside)
+    assert payloads.most_common(1)[0][1] == babble  # one stuck payload
+    assert len([d for d in diag if not fault(d)]) <= SCENARIO_S - 4  # 1 Hz outside
+    clean = scenario("clean")
+    assert len(frames) - len(inside) == pytest.approx(len(clean), rel=0.001)

@@ -1,0 +1,1132 @@
+"""Health: sensor and CAN bus diagnostics, computed in log time for live, convert and replay alike.
+
+The seed's team found a radar knocked out of alignment only because the blue spheres were missing;
+:class:`HealthMonitor` says so itself. It watches
+
+- every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
+  included, over the bitrate; no bitrate, no load), error frames, unknown ids, decode errors,
+  gaps (no traffic for longer than ``gap_factor`` x the bus's shortest cycle time), and the
+  busiest id (babbling);
+- every message family of the profile (object groups such as radar, camera and tracks; the lead
+  vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
+  ``GenMsgCycleTime``, or learned over the first seconds), actual rate, age of the newest frame,
+  valid objects;
+
+and raises alarms with hysteresis (a condition must hold for ``raise_after_s`` to raise an alarm,
+and be gone for ``clear_after_s`` to clear it):
+
+=========================  ===================================================================
+``<sensor>.silent``        no frame of one of the sensor's families for ``gap_factor`` x its
+                           cycle time (``ego.silent`` for the ego signals)
+``<sensor>.rate``          a family's rate below ``rate_threshold`` of the expected rate
+``<sensor>.blind``         frames but no valid object (for as long as makes it silent), while
+                           another sensor sees objects (not stationary ones) inside this
+                           sensor's field of view
+``<a>-<b>.misaligned``     objects both sensors see (greedy nearest neighbour within
+                           ``bias_gate_m``) are offset on average by more than
+                           ``bias_lateral_m`` or ``bias_angle_deg``: one sensor is misaligned
+``lanes.lost``             no valid camera lanes (the steering fallback) for ``lane_loss_s``
+``bus.<bus>.silent``       no traffic at all on the bus (a gap)
+``bus.<bus>.babbling``     one id far above its cycle time, or (without one) most of the bus
+=========================  ===================================================================
+
+A silent bus explains everything on it: while a bus is in a gap, the sensor alarms of families
+that only come on it are not raised. Likewise a silent lane family does not also raise
+``lanes.lost``, and a sensor is judged on its rate only after a full window of traffic. Without
+enough matched objects the misalignment check has no evidence either way: its alarm stays as it
+is.
+
+Time is log time (frame timestamps) throughout: :meth:`HealthMonitor.advance` evaluates on a grid
+of ``eval_hz`` ticks, catching up the ticks of a gap in the log (so a bus that went silent raises
+its alarm at the right log time even in a conversion, where nothing arrives during the gap). It
+returns ``/health`` (:data:`HEALTH_TOPIC`, ``tankviz.Health``) at ``publish_hz`` and
+``foxglove.Log`` messages on ``/log`` when an alarm is raised or cleared.
+
+The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations
+and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonitor.on_world`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from enum import Enum
+from typing import Any
+
+from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.Point3_pb2 import Point3
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+
+from bridge.decode import Decoded, Decoder, MessageCodec
+from bridge.errors import UsageError
+from bridge.frame import Frame
+from bridge.observe import LEAD_GROUP, ObjectObservation
+from bridge.pb import health_pb2
+from bridge.perception import Output
+from bridge.profile import ObjectClass, Profile, Sensor, SensorKind
+from bridge.scene import RGBA, color, entity, pose, text, timestamp
+from bridge.topics import HEALTH_TOPIC, LOG_TOPIC
+from bridge.world import LaneModel, World
+
+NS = 1_000_000_000
+_NEVER = -(1 << 62)  # a time before everything
+_UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
+_EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as bridge.decode does)
+
+# ---------------------------------------------------------------------------------------------
+# Bits on the wire
+# ---------------------------------------------------------------------------------------------
+
+#: An error frame: error flag (6), the other nodes' error flags (up to 6), delimiter (8), IFS (3).
+ERROR_FRAME_BITS = 23
+#: After the CRC, at the nominal bitrate: CRC delimiter, ACK slot, ACK delimiter, EOF (7), IFS (3).
+_TAIL_BITS = 13
+#: Expected stuff bits in the 15 CRC bits of a classic frame: random bits get one stuff bit in
+#: about 30 (a Markov chain over the run length: P(run of 4 continues) = (1/8) / 1.875 / 2).
+_CRC15_STUFF = 15 / 30
+#: CAN FD payload lengths; a payload between two is padded up to the next with this byte.
+_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+_FD_PADDING = 0xCC
+
+
+def _fd_length(n: int) -> tuple[int, int]:
+    """The DLC code and the length on the wire of an ``n``-byte CAN FD payload."""
+    for code, length in enumerate(_FD_LENGTHS):
+        if n <= length:
+            return code, length
+    return 15, 64
+
+
+def _stuff(value: int, nbits: int, state: int) -> tuple[int, int]:
+    """Stuff bits inserted into ``nbits`` bits of ``value`` (MSB first), and the state after.
+
+    The state is ``polarity * 4 + (run - 1)``: the wire's last bit and how many equal bits end
+    the wire (1-4; at 5 a complementary stuff bit is inserted, which starts a run of 1 itself).
+    """
+    polarity, run = state >> 2, (state & 3) + 1
+    stuffed = 0
+    for i in range(nbits - 1, -1, -1):
+        bit = (value >> i) & 1
+        if bit == polarity:
+            run += 1
+        else:
+            polarity, run = bit, 1
+        if run == 5:
+            stuffed += 1
+            polarity, run = polarity ^ 1, 1
+    return stuffed, polarity * 4 + run - 1
+
+
+#: The state before SOF: any run of recessive bits (SOF, dominant, always starts a new run).
+_IDLE = 4
+#: Per (state, byte): stuff bits << 3 | state after, for the data field.
+_STUFF_TABLE = [0] * (8 * 256)
+for _state in range(8):
+    for _byte in range(256):
+        _n, _after = _stuff(_byte, 8, _state)
+        _STUFF_TABLE[_byte << 3 | _state] = _n << 3 | _after
+
+
+class _Header:
+    """What comes before the data of one kind of frame: its bits (stuff bits included) in the
+    arbitration phase and in the data phase (CAN FD with bit rate switch), the stuffing state
+    after it, and the bits after the data in both phases."""
+
+    __slots__ = ("arbitration", "data_phase", "length", "padding", "state", "tail_arbitration",
+                 "tail_data")
+
+    def __init__(self, arbitration_id: int, extended: bool, fd: bool, remote: bool,
+                 brs: bool, esi: bool, n: int) -> None:
+        fields_: list[tuple[int, int]] = [(0, 1)]  # SOF
+        if extended:  # base id, SRR, IDE, id extension
+            fields_ += [(arbitration_id >> 18 & 0x7FF, 11), (1, 1), (1, 1),
+                        (arbitration_id & 0x3FFFF, 18)]
+        else:
+            fields_.append((arbitration_id & 0x7FF, 11))
+        data_fields: list[tuple[int, int]] = []
+        if fd:
+            code, self.length = _fd_length(n)
+            fields_.append((0, 1))  # RRS
+            if not extended:
+                fields_.append((0, 1))  # IDE
+            fields_ += [(1, 1), (0, 1)]  # FDF, res
+            tail = [(esi, 1), (code, 4)]
+            if brs:
+                fields_.append((1, 1))
+                data_fields = tail
+            else:
+                fields_ += [(0, 1), *tail]
+            crc = 17 if self.length <= 16 else 21
+            # stuff count (3 bits + parity), CRC, a fixed stuff bit before and every 4 bits
+            crc_bits = 4 + crc + (4 + crc + 3) // 4
+        else:
+            self.length = 0 if remote else min(n, 8)
+            code = min(n, 15) if remote else self.length
+            fields_.append((int(remote), 1))  # RTR
+            fields_ += [(0, 1), (0, 1)]  # IDE and r0, or r1 and r0 (extended)
+            fields_.append((code, 4))
+            crc_bits = 0
+        state = _IDLE
+        self.arbitration = 0.0
+        for value, nbits in fields_:
+            stuffed, state = _stuff(value, nbits, state)
+            self.arbitration += nbits + stuffed
+        self.data_phase = 0.0
+        for value, nbits in data_fields:
+            stuffed, state = _stuff(value, nbits, state)
+            self.data_phase += nbits + stuffed
+        self.state = state
+        self.padding = max(0, self.length - n)
+        if fd:
+            self.tail_data, self.tail_arbitration = float(crc_bits), float(_TAIL_BITS)
+        else:
+            self.tail_data, self.tail_arbitration = 0.0, 15 + _CRC15_STUFF + _TAIL_BITS
+        if fd and not brs:  # everything at the nominal bitrate
+            self.arbitration += self.data_phase
+            self.data_phase = 0.0
+            self.tail_arbitration += self.tail_data
+            self.tail_data = 0.0
+
+
+_HEADERS: dict[tuple[int, bool, bool, bool, bool, bool, int], _Header] = {}
+
+
+def frame_bits(frame: Frame) -> tuple[float, float]:
+    """The frame's bits on the wire: ``(arbitration phase, data phase)``.
+
+    Every field from SOF to the end of the interframe space counts, with the stuff bits: exact
+    for everything up to the end of the data field, and the expected 0.5 stuff bits for the
+    15-bit CRC of a classic frame (CAN FD's CRC field has fixed stuff bits: exact). The data
+    phase, sent at the data bitrate, is from the bit rate switch (BRS) to the CRC delimiter of a
+    CAN FD frame with BRS; it is 0 for every other frame. A CAN FD payload between two lengths is
+    padded to the next (with 0xCC); an error frame counts :data:`ERROR_FRAME_BITS`.
+    """
+    _, _, arbitration_id, data, extended, fd, error, remote, brs, esi, dlc = frame
+    if error:
+        return float(ERROR_FRAME_BITS), 0.0
+    n = len(data)
+    key = (arbitration_id, extended, fd, remote, brs, esi, dlc if remote else n)
+    header = _HEADERS.get(key)
+    if header is None:
+        if len(_HEADERS) > 65536:
+            _HEADERS.clear()
+        header = _HEADERS[key] = _Header(*key)
+    state = header.state
+    stuffed = 0
+    table = _STUFF_TABLE
+    for byte in data if n == header.length else data[:header.length]:
+        entry = table[byte << 3 | state]
+        stuffed += entry >> 3
+        state = entry & 7
+    for _ in range(header.padding):
+        entry = table[_FD_PADDING << 3 | state]
+        stuffed += entry >> 3
+        state = entry & 7
+    payload = 8 * header.length + stuffed
+    if header.data_phase:
+        return (header.arbitration + header.tail_arbitration,
+                header.data_phase + payload + header.tail_data)
+    return header.arbitration + payload + header.tail_arbitration, 0.0
+
+
+def estimate_frame_bits(frame: Frame, *, bitrate: int | None = None,
+                        data_bitrate: int | None = None) -> float:
+    """Estimated bits one frame takes on the wire, stuff bits included (see :func:`frame_bits`).
+
+    In nominal bit times: given both bitrates, each data-phase bit of a CAN FD frame with bit
+    rate switch counts ``bitrate / data_bitrate``; otherwise every bit counts 1 (the plain
+    number of bits on the wire).
+    """
+    arbitration, data_phase = frame_bits(frame)
+    if data_phase and bitrate and data_bitrate:
+        return arbitration + data_phase * bitrate / data_bitrate
+    return arbitration + data_phase
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings and alarms
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HealthSettings:
+    """Thresholds and timing of the health checks (every time in seconds of log time)."""
+
+    #: Rates and counts are over this window.
+    window_s: float = 1.0
+    #: /health messages per second (1-2 Hz is plenty to plot).
+    publish_hz: float = 1.0
+    #: Checks per second (alarms are raised and cleared on this grid).
+    eval_hz: float = 10.0
+    #: A condition raises its alarm once it has held this long ...
+    raise_after_s: float = 1.0
+    #: ... and clears it once it has been gone this long.
+    clear_after_s: float = 2.0
+    #: A family below this fraction of its expected rate is too slow ...
+    rate_threshold: float = 0.5
+    #: ... measured over this window (or five of the family's cycles, if longer): shorter than
+    #: ``window_s`` so that a slow sensor is caught within two seconds.
+    rate_window_s: float = 0.5
+    #: No frame for this many expected periods is a gap (a silent sensor or bus).
+    gap_factor: float = 5.0
+    #: Families (and buses) without a cycle time in the databases learn their rate over this
+    #: long after their first frame; families never seen are silent after this long.
+    learning_s: float = 3.0
+    #: Radar-camera association: nearest neighbours at most this far apart (m) ...
+    bias_gate_m: float = 2.5
+    #: ... at least this far from the first sensor (near objects make wild angles) ...
+    bias_min_range_m: float = 10.0
+    #: ... over this window: a mean lateral offset beyond this (m) ...
+    bias_lateral_m: float = 1.0
+    #: ... or a mean angular offset beyond this (degrees) means a misaligned sensor ...
+    bias_angle_deg: float = 1.5
+    #: ... once at least this many pairs were matched in the window.
+    bias_min_matches: int = 8
+    bias_window_s: float = 0.5
+    #: Camera lanes lost (steering fallback) this long raise ``lanes.lost``.
+    lane_loss_s: float = 1.0
+    #: Babbling: an id at more than this many times its database rate ...
+    babble_factor: float = 10.0
+    #: ... or, without a cycle time, more than this share of its bus's frames ...
+    babble_share: float = 0.5
+    #: ... and at least this many frames per second.
+    babble_min_hz: float = 200.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise UsageError(f"health setting {f.name}={value!r}: must be a positive number")
+        if self.rate_threshold >= 1 or self.babble_share > 1:
+            raise UsageError("health settings: rate_threshold must be below 1 and "
+                             "babble_share at most 1")
+
+
+class AlarmKind(str, Enum):
+    """What an alarm is about; the value is the last part of its id."""
+
+    SENSOR_SILENT = "silent"
+    RATE_LOW = "rate"
+    NO_OBJECTS = "blind"
+    MISALIGNED = "misaligned"
+    LANES_LOST = "lost"
+    BUS_SILENT = "bus_silent"
+    BABBLING = "babbling"
+
+
+_PB_KINDS = {
+    AlarmKind.SENSOR_SILENT: health_pb2.ALARM_KIND_SENSOR_SILENT,
+    AlarmKind.RATE_LOW: health_pb2.ALARM_KIND_RATE_LOW,
+    AlarmKind.NO_OBJECTS: health_pb2.ALARM_KIND_NO_OBJECTS,
+    AlarmKind.MISALIGNED: health_pb2.ALARM_KIND_MISALIGNED,
+    AlarmKind.LANES_LOST: health_pb2.ALARM_KIND_LANES_LOST,
+    AlarmKind.BUS_SILENT: health_pb2.ALARM_KIND_BUS_SILENT,
+    AlarmKind.BABBLING: health_pb2.ALARM_KIND_BABBLING,
+}
+
+
+@dataclass(frozen=True)
+class AlarmInfo:
+    """An active alarm, for the scene overlay."""
+
+    id: str
+    kind: AlarmKind
+    #: the sensor, sensor pair, "lanes" or bus it is about
+    subject: str
+    message: str
+    #: log time it was raised
+    since_ns: int
+    #: the profile sensors it concerns (their field-of-view outlines turn red)
+    sensors: tuple[str, ...]
+
+
+class _Alarm:
+    """One alarm and its hysteresis."""
+
+    def __init__(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
+                 raise_ns: int, clear_ns: int) -> None:
+        self.id = alarm_id
+        self.kind = kind
+        self.subject = subject
+        self.sensors = tuple(sensors)
+        self.raise_ns = raise_ns
+        self.clear_ns = clear_ns
+        self.active = False
+        self.since_ns: int | None = None
+        self.holding_since: int | None = None
+        self.gone_since: int | None = None
+        self.message = ""
+        self.raised = 0
+
+    def update(self, t_ns: int, holds: bool, message: str = "") -> str | None:
+        """Feed the condition at ``t_ns``; returns "raised" or "cleared" when that happens."""
+        if holds:
+            self.gone_since = None
+            self.message = message
+            if self.holding_since is None:
+                self.holding_since = t_ns
+            if not self.active and t_ns - self.holding_since >= self.raise_ns:
+                self.active, self.since_ns = True, t_ns
+                self.raised += 1
+                return "raised"
+            return None
+        self.holding_since = None
+        if self.active:
+            if self.gone_since is None:
+                self.gone_since = t_ns
+            if t_ns - self.gone_since >= self.clear_ns:
+                self.active, self.since_ns = False, t_ns
+                return "cleared"
+        return None
+
+    def info(self) -> AlarmInfo:
+        return AlarmInfo(self.id, self.kind, self.subject, self.message, self.since_ns or 0,
+                         self.sensors)
+
+    def to_pb(self) -> health_pb2.Alarm:
+        msg = health_pb2.Alarm(id=self.id, kind=_PB_KINDS[self.kind], subject=self.subject,
+                               message=self.message, active=self.active,
+                               raised_count=self.raised)
+        if self.since_ns is not None:
+            msg.since.CopyFrom(timestamp(self.since_ns))
+        return msg
+
+
+# ---------------------------------------------------------------------------------------------
+# What is watched
+# ---------------------------------------------------------------------------------------------
+
+
+class _Bus:
+    __slots__ = ("bitrate", "bits", "brs_bits", "cycles", "data_bitrate", "decode_errors",
+                 "error_frames", "families", "first_ns", "frames", "gap_ns", "gaps", "ids",
+                 "known", "last_ns", "name", "unknown")
+
+    def __init__(self, name: str, t_ns: int, known: frozenset[int], bitrate: int | None,
+                 data_bitrate: int | None) -> None:
+        self.name = name
+        self.first_ns = t_ns
+        self.last_ns = t_ns
+        self.known = known
+        self.bitrate = bitrate
+        self.data_bitrate = data_bitrate
+        self.frames = 0
+        self.bits = 0.0  # arbitration-phase bits (every bit of frames without bit rate switch)
+        self.brs_bits = 0.0  # data-phase bits of CAN FD frames with bit rate switch
+        self.error_frames = 0
+        self.unknown = 0
+        self.decode_errors = 0
+        self.gaps = 0
+        self.gap_ns = _UNKNOWN
+        self.ids: Counter[int] = Counter()
+        self.cycles: dict[int, float] = {}  # id key -> database cycle time (s)
+        self.families: set[str] = set()
+
+
+class _Family:
+    __slots__ = ("buses", "expected_hz", "first_ns", "frames", "gap_ns", "group", "kind",
+                 "last_ns", "last_valid_ns", "messages", "name", "rate_window_ns", "resumed_ns",
+                 "seen_messages", "sensor", "source", "subject", "valid_objects", "witnessed_ns")
+
+    def __init__(self, name: str, kind: str, sensor: Sensor | None, messages: Iterable[str],
+                 group: str | None) -> None:
+        self.name = name
+        self.kind = kind  # "objects", "lead", "lanes" or "ego"
+        self.sensor = sensor
+        self.subject = sensor.name if sensor is not None else name
+        self.messages = frozenset(messages)
+        self.group = group  # the world's object group, for object families
+        self.expected_hz: float | None = None
+        self.source = "learning"
+        self.gap_ns = _UNKNOWN
+        self.rate_window_ns = _UNKNOWN
+        self.frames = 0
+        self.first_ns = _NEVER
+        self.last_ns = _NEVER
+        self.resumed_ns = _NEVER
+        self.last_valid_ns = _NEVER
+        self.witnessed_ns = _NEVER
+        self.valid_objects = 0
+        self.seen_messages: set[str] = set()
+        self.buses: set[str] = set()
+
+
+@dataclass(frozen=True)
+class _Pair:
+    """Two sensors whose objects are compared for the misalignment check."""
+
+    name: str
+    a: _Family
+    b: _Family
+
+
+@dataclass
+class _Snapshot:
+    t_ns: int
+    buses: dict[str, tuple[int, float, float, int, int, int, dict[int, int]]]
+    families: dict[str, int]
+
+
+def in_fov(sensor: Sensor, x: float, y: float) -> bool:
+    """Whether a vehicle-frame point is inside the sensor's field of view (True if unknown)."""
+    dx, dy = x - sensor.mount.x, y - sensor.mount.y
+    if sensor.mount.yaw_deg:
+        yaw = math.radians(sensor.mount.yaw_deg)
+        c, s = math.cos(yaw), math.sin(yaw)
+        dx, dy = c * dx + s * dy, -s * dx + c * dy
+    if sensor.fov_range is not None and math.hypot(dx, dy) > sensor.fov_range:
+        return False
+    return not (sensor.fov_azimuth_deg is not None
+                and abs(math.degrees(math.atan2(dy, dx))) > sensor.fov_azimuth_deg)
+
+
+def _has_fov(sensor: Sensor) -> bool:
+    return sensor.fov_range is not None or sensor.fov_azimuth_deg is not None
+
+
+def _seconds(ns: int) -> float:
+    return ns / NS
+
+
+class HealthMonitor:
+    """Sensor and bus health of one drive (see the module documentation).
+
+    - ``profile``: the families and sensors to watch (None: buses only).
+    - ``decoder``: the pipeline's decoder, for the databases' cycle times and which ids a bus
+      knows.
+    - ``bitrates`` and ``data_bitrates``: nominal and CAN FD data bitrate per bus (bit/s); a bus
+      without a bitrate gets no load figure (nor one with bit-rate-switched frames but no data
+      bitrate).
+    - ``settings``: thresholds and timing (:class:`HealthSettings`).
+    """
+
+    def __init__(self, profile: Profile | None, decoder: Decoder, *,
+                 bitrates: Mapping[str, int] | None = None,
+                 data_bitrates: Mapping[str, int] | None = None,
+                 settings: HealthSettings | None = None) -> None:
+        self.profile = profile
+        self.decoder = decoder
+        self.bitrates = dict(bitrates or {})
+        self.data_bitrates = dict(data_bitrates or {})
+        self.settings = s = settings or HealthSettings()
+        self.period_ns = round(NS / s.eval_hz)
+        self.publish_ns = round(NS / s.publish_hz)
+        self.window_ns = round(s.window_s * NS)
+        self.learning_ns = round(s.learning_s * NS)
+        self._raise_ns = round(s.raise_after_s * NS)
+        self._clear_ns = round(s.clear_after_s * NS)
+        #: log time of the next check; frames at or after it make it happen
+        self.next_tick_ns: int | float = float("-inf")
+        self._next_publish_ns: int | None = None
+        self.first_ns: int | None = None
+        self.last_tick_ns: int | None = None
+        self._buses: dict[str, _Bus] = {}
+        self._families_of: dict[MessageCodec, tuple[_Family, ...]] = {}
+        self._snapshots: deque[_Snapshot] = deque()
+        self._cycles = {m.name: m.cycle_time / 1000.0 for f in decoder.files
+                        for m in f.db.messages if m.cycle_time}
+        self.families = self._make_families(profile) if profile is not None else []
+        self._by_message: dict[str, list[_Family]] = {}
+        for family in self.families:
+            for name in family.messages:
+                self._by_message.setdefault(name, []).append(family)
+        self._pairs = self._make_pairs()
+        self._bias: dict[str, deque[tuple[int, float, float]]] = {
+            p.name: deque() for p in self._pairs}
+        self._bias_means: dict[str, tuple[int, float, float]] = {
+            p.name: (0, 0.0, 0.0) for p in self._pairs}
+        self._lane_source: str | None = None
+        self._world_ns: int | None = None
+        self._alarms: dict[str, _Alarm] = {}
+        #: the busiest id of each bus in the last window
+        self._top_keys: dict[str, int] = {}
+        for family in self.families:
+            sensors = (family.subject,) if family.sensor is not None else ()
+            for kind in (AlarmKind.SENSOR_SILENT, AlarmKind.RATE_LOW):
+                self._alarm(f"{family.subject}.{kind.value}", kind, family.subject, sensors)
+            if self._blind_checked(family):
+                self._alarm(f"{family.subject}.blind", AlarmKind.NO_OBJECTS, family.subject,
+                            sensors)
+        for pair in self._pairs:
+            self._alarm(f"{pair.name}.misaligned", AlarmKind.MISALIGNED, pair.name,
+                        (pair.a.subject, pair.b.subject))
+        if profile is not None and profile.lanes is not None:
+            self._alarm("lanes.lost", AlarmKind.LANES_LOST, "lanes", (profile.lanes.sensor.name,),
+                        raise_ns=round(s.lane_loss_s * NS))
+        #: (id, "raised"/"cleared", log time, message) of every alarm event so far
+        self.events: list[tuple[str, str, int, str]] = []
+
+    # --- set-up --------------------------------------------------------------------------
+
+    def _make_families(self, profile: Profile) -> list[_Family]:
+        families = [_Family(name, "objects", g.sensor, g.members, name)
+                    for name, g in profile.groups.items()]
+        if profile.lead is not None and profile.lead.group is not None:
+            lead = profile.lead.group
+            families.append(_Family("lead", "lead", lead.sensor, lead.members, LEAD_GROUP))
+        if profile.lanes is not None:
+            families.append(_Family("lanes", "lanes", profile.lanes.sensor,
+                                    (line.message for line in profile.lanes.lines.values()),
+                                    None))
+        ego = profile.ego
+        messages = {ref.message for ref in (ego.speed, ego.yaw_rate, ego.steering_wheel_angle)
+                    if ref is not None}
+        if messages:
+            families.append(_Family("ego", "ego", None, messages, None))
+        gap_factor = self.settings.gap_factor
+        for family in families:
+            cycles = [self._cycles.get(m) for m in family.messages]
+            if cycles and all(c is not None for c in cycles):
+                known = [c for c in cycles if c is not None]
+                family.expected_hz = sum(1.0 / c for c in known)
+                family.gap_ns = round(gap_factor * min(known) * NS)
+                family.rate_window_ns = self._rate_window(max(known))
+                family.source = "dbc"
+        return families
+
+    def _rate_window(self, period_s: float) -> int:
+        return round(max(self.settings.rate_window_s, 5 * period_s) * NS)
+
+    def _make_pairs(self) -> list[_Pair]:
+        """Every two object families of different radar or camera sensors."""
+        candidates = [f for f in self.families if f.kind == "objects" and f.sensor is not None
+                      and f.sensor.kind is not SensorKind.FUSION]
+        pairs = []
+        for i, a in enumerate(candidates):
+            for b in candidates[i + 1:]:
+                assert a.sensor is not None and b.sensor is not None
+                if a.sensor.name != b.sensor.name:
+                    pairs.append(_Pair(f"{a.sensor.name}-{b.sensor.name}", a, b))
+        return pairs
+
+    def _blind_checked(self, family: _Family) -> bool:
+        return (family.kind == "objects" and family.sensor is not None
+                and family.sensor.kind is not SensorKind.FUSION and _has_fov(family.sensor))
+
+    def _alarm(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
+               raise_ns: int | None = None) -> _Alarm:
+        alarm = self._alarms.get(alarm_id)
+        if alarm is None:
+            alarm = self._alarms[alarm_id] = _Alarm(
+                alarm_id, kind, subject, sensors,
+                self._raise_ns if raise_ns is None else raise_ns, self._clear_ns)
+        return alarm
+
+    def _add_bus(self, name: str, t_ns: int) -> _Bus:
+        known = frozenset(c.message.frame_id | _EXTENDED if c.message.is_extended_frame
+                          else c.message.frame_id for c in self.decoder.codecs_for(name))
+        bus = self._buses[name] = _Bus(name, t_ns, known, self.bitrates.get(name),
+                                       self.data_bitrates.get(name))
+        if self.first_ns is None:
+            self.first_ns = t_ns
+        self._alarm(f"bus.{name}.silent", AlarmKind.BUS_SILENT, name, ())
+        self._alarm(f"bus.{name}.babbling", AlarmKind.BABBLING, name, ())
+        return bus
+
+    def _resolve(self, bus: _Bus, codec: MessageCodec) -> tuple[_Family, ...]:
+        """First frame of a message on a bus: its families, cycle time and the bus's gap."""
+        message = codec.message
+        families = tuple(self._by_message.get(message.name, ()))
+        self._families_of[codec] = families
+        for family in families:
+            family.seen_messages.add(message.name)
+            family.buses.add(bus.name)
+            bus.families.add(family.name)
+        if message.cycle_time:
+            key = message.frame_id | _EXTENDED if message.is_extended_frame else message.frame_id
+            bus.cycles[key] = message.cycle_time / 1000.0
+            gap = round(self.settings.gap_factor * message.cycle_time / 1000.0 * NS)
+            bus.gap_ns = min(bus.gap_ns, gap)
+        return families
+
+    # --- the hot path ---------------------------------------------------------------------
+
+    def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
+        """Count one frame (call it for every frame, after decoding it)."""
+        t = frame.timestamp_ns
+        bus = self._buses.get(frame.bus)
+        if bus is None:
+            bus = self._add_bus(frame.bus, t)
+        if t - bus.last_ns > bus.gap_ns:
+            bus.gaps += 1  # a gap just ended
+        bus.last_ns = t
+        bus.frames += 1
+        arbitration, data_phase = frame_bits(frame)
+        bus.bits += arbitration
+        if data_phase:
+            bus.brs_bits += data_phase
+        key = frame.arbitration_id | _EXTENDED if frame.is_extended else frame.arbitration_id
+        bus.ids[key] += 1
+        if decoded is None:
+            if frame.is_error:
+                bus.error_frames += 1
+            elif frame.is_remote:
+                pass
+            elif key in bus.known:
+                bus.decode_errors += 1
+            else:
+                bus.unknown += 1
+            return
+        families = self._families_of.get(decoded.codec)
+        if families is None:
+            families = self._resolve(bus, decoded.codec)
+        for family in families:
+            if t - family.last_ns > family.gap_ns:
+                family.resumed_ns = t
+                if family.first_ns == _NEVER:
+                    family.first_ns = t
+            family.last_ns = t
+            family.frames += 1
+
+    # --- scene ticks ----------------------------------------------------------------------
+
+    def on_world(self, t_ns: int, world: World, lanes: LaneModel | None = None) -> None:
+        """Look at the world of a scene tick (after :meth:`World.expire`): valid objects, who
+        sees what in whose field of view, radar-camera offsets, camera lanes. Without ``lanes``
+        the camera lanes are judged like :meth:`World.lane_model` does (fresh left and right)."""
+        self._world_ns = t_ns
+        objects = world.objects
+        for family in self.families:
+            if family.group is not None:
+                found = objects.get(family.group, {})
+                family.valid_objects = len(found)
+                if found:
+                    family.last_valid_ns = t_ns
+        spec = world.profile.lanes
+        if spec is not None:
+            if lanes is not None:
+                source = lanes.source
+                count = len(lanes.lines) if source == "camera" else 0
+            else:
+                stale = round(spec.stale_after_s * NS)
+                fresh = [name for name, o in world.lanes.items() if t_ns - o.t_ns <= stale]
+                source = "camera" if "left" in fresh and "right" in fresh else "steering"
+                count = len(fresh) if source == "camera" else 0
+            self._lane_source = source
+            for family in self.families:
+                if family.kind == "lanes":
+                    family.valid_objects = count
+        seers = [f for f in self.families if f.kind == "objects" and f.sensor is not None
+                 and f.sensor.kind is not SensorKind.FUSION]
+        for family in seers:
+            sensor = family.sensor
+            if sensor is None or not _has_fov(sensor):
+                continue
+            for other in seers:
+                if other.sensor is None or other.sensor.name == sensor.name:
+                    continue
+                assert other.group is not None
+                if any(o.object_class is not ObjectClass.STATIONARY and in_fov(sensor, o.x, o.y)
+                       for o in objects.get(other.group, {}).values()):
+                    family.witnessed_ns = t_ns
+                    break
+        for pair in self._pairs:
+            assert pair.a.group is not None and pair.b.group is not None
+            matches = self._bias[pair.name]
+            for lateral, angular in associate(
+                    objects.get(pair.a.group, {}).values(), objects.get(pair.b.group, {}).values(),
+                    pair.a.sensor, pair.b.sensor, t_ns, gate_m=self.settings.bias_gate_m,
+                    min_range_m=self.settings.bias_min_range_m):
+                matches.append((t_ns, lateral, angular))
+
+    # --- checks ---------------------------------------------------------------------------
+
+    def advance(self, t_ns: int) -> list[Output]:
+        """The checks due before log time ``t_ns`` (call it before each frame's
+        :meth:`on_frame`, and with the clock when no frame comes); cheap unless one is due."""
+        if t_ns < self.next_tick_ns:
+            return []
+        if self.next_tick_ns == float("-inf"):
+            self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
+            if self.first_ns is None:
+                self.first_ns = t_ns
+            return []
+        tick = int(self.next_tick_ns)
+        due = (t_ns - tick) // self.period_ns + 1
+        out: list[Output] = []
+        limit = 600  # a gap of more than a minute: the first minute, then the latest tick
+        for _ in range(min(due, limit)):
+            out += self.tick(tick)
+            tick += self.period_ns
+        if due > limit:
+            tick += (due - limit - 1) * self.period_ns
+            out += self.tick(tick)
+            tick += self.period_ns
+        self.next_tick_ns = tick
+        return out
+
+    def finish(self, t_ns: int) -> list[Output]:
+        """The checks still due at the end of the drive (log time ``t_ns``)."""
+        return self.advance(t_ns + 1) if self.next_tick_ns != float("-inf") else []
+
+    def tick(self, t_ns: int) -> list[Output]:
+        """Check everything at log time ``t_ns``: alarm events as ``/log`` messages, and the
+        ``/health`` message when one is due."""
+        if self.first_ns is None:
+            self.first_ns = t_ns
+        self.last_tick_ns = t_ns
+        self._snapshot(t_ns)
+        self._learn(t_ns)
+        out: list[Output] = []
+        buses = self._bus_figures(t_ns)
+        families = self._family_figures(t_ns)
+        self._update_bias(t_ns)
+        events = self._check(t_ns, buses, families)
+        for alarm, event in events:
+            out.append(Output(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
+        if self._next_publish_ns is None or t_ns >= self._next_publish_ns:
+            self._next_publish_ns = (t_ns // self.publish_ns + 1) * self.publish_ns
+            out.append(Output(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
+        return out
+
+    def event_records(self) -> list[dict[str, Any]]:
+        """Every alarm raised or cleared so far, for a drive's metadata (``tankviz inspect``)."""
+        return [{"alarm": alarm, "event": event, "t_ns": t, "message": message}
+                for alarm, event, t, message in self.events]
+
+    def active_alarms(self) -> list[AlarmInfo]:
+        """Every active alarm, oldest first."""
+        active = [a for a in self._alarms.values() if a.active]
+        return [a.info() for a in sorted(active, key=lambda a: (a.since_ns or 0, a.id))]
+
+    def alarm_ids(self) -> list[str]:
+        """Every alarm the monitor checks (so far: bus alarms appear with their bus)."""
+        return list(self._alarms)
+
+    def _snapshot(self, t_ns: int) -> None:
+        snaps = self._snapshots
+        snaps.append(_Snapshot(
+            t_ns,
+            {name: (b.frames, b.bits, b.brs_bits, b.error_frames, b.unknown, b.decode_errors,
+                    dict(b.ids)) for name, b in self._buses.items()},
+            {f.name: f.frames for f in self.families}))
+        keep = max([self.window_ns, *(f.rate_window_ns for f in self.families
+                                      if f.rate_window_ns != _UNKNOWN)])
+        while len(snaps) > 2 and snaps[1].t_ns <= t_ns - keep:
+            snaps.popleft()
+
+    def _base(self, t_ns: int, window_ns: int) -> _Snapshot:
+        """The newest snapshot at least ``window_ns`` old (or the oldest there is)."""
+        found = self._snapshots[0]
+        for snap in self._snapshots:
+            if snap.t_ns > t_ns - window_ns:
+                break
+            found = snap
+        return found
+
+    def _learn(self, t_ns: int) -> None:
+        gap_factor = self.settings.gap_factor
+        for family in self.families:
+            if (family.expected_hz is None and family.first_ns != _NEVER
+                    and t_ns - family.first_ns >= self.learning_ns):
+                family.expected_hz = family.frames / _seconds(t_ns - family.first_ns)
+                family.source = "learned"
+                per_message = max(1, len(family.seen_messages)) / family.expected_hz
+                family.gap_ns = round(gap_factor * per_message * NS)
+                family.rate_window_ns = self._rate_window(per_message)
+        for bus in self._buses.values():
+            if (bus.gap_ns == _UNKNOWN and bus.ids and t_ns - bus.first_ns >= self.learning_ns):
+                fastest = max(bus.ids.values()) / _seconds(t_ns - bus.first_ns)
+                bus.gap_ns = round(gap_factor / fastest * NS)
+
+    def _bus_figures(self, t_ns: int) -> dict[str, health_pb2.BusHealth]:
+        base = self._base(t_ns, self.window_ns)
+        elapsed = _seconds(t_ns - base.t_ns)
+        self._top_keys = {}
+        out = {}
+        for name, bus in self._buses.items():
+            frames, bits, brs_bits, errors, unknown, decode_errors, ids = base.buses.get(
+                name, (0, 0.0, 0.0, 0, 0, 0, {}))
+            msg = health_pb2.BusHealth(
+                bus=name, bitrate=bus.bitrate or 0, data_bitrate=bus.data_bitrate or 0,
+                error_frames=bus.error_frames - errors, error_frames_total=bus.error_frames,
+                unknown_ids=bus.unknown - unknown, unknown_ids_total=bus.unknown,
+                decode_errors=bus.decode_errors - decode_errors,
+                decode_errors_total=bus.decode_errors, silent_s=_seconds(t_ns - bus.last_ns),
+                gap=t_ns - bus.last_ns > bus.gap_ns,
+                expected_period_s=(_seconds(bus.gap_ns) / self.settings.gap_factor
+                                   if bus.gap_ns != _UNKNOWN else 0.0),
+                frames_total=bus.frames)
+            msg.gaps_total = bus.gaps + int(msg.gap)
+            if elapsed > 0:
+                window_frames = bus.frames - frames
+                msg.frames_per_s = window_frames / elapsed
+                nominal, data_phase = bus.bits - bits, bus.brs_bits - brs_bits
+                if bus.bitrate and (not data_phase or bus.data_bitrate):
+                    time_s = nominal / bus.bitrate + (
+                        data_phase / bus.data_bitrate if bus.data_bitrate else 0.0)
+                    msg.load = time_s / elapsed
+                    msg.bits_per_s = time_s * bus.bitrate / elapsed
+                else:
+                    msg.bits_per_s = (nominal + data_phase) / elapsed
+                top, top_count = 0, 0
+                for key, count in bus.ids.items():
+                    delta = count - ids.get(key, 0)
+                    if delta > top_count:
+                        top, top_count = key, delta
+                if top_count:
+                    msg.top_id = top & ~_EXTENDED
+                    msg.top_id_hz = top_count / elapsed
+                    msg.top_id_share = top_count / window_frames
+                    self._top_keys[name] = top
+            out[name] = msg
+        return out
+
+    def _family_figures(self, t_ns: int) -> dict[str, health_pb2.FamilyHealth]:
+        base = self._base(t_ns, self.window_ns)
+        elapsed = _seconds(t_ns - base.t_ns)
+        out = {}
+        for family in self.families:
+            msg = health_pb2.FamilyHealth(
+                name=family.name, sensor=family.sensor.name if family.sensor else "",
+                expected_hz=family.expected_hz or 0.0, expected_source=family.source,
+                age_s=_seconds(t_ns - family.last_ns) if family.last_ns != _NEVER else -1.0,
+                valid_objects=family.valid_objects,
+                silent=family.last_ns != _NEVER and t_ns - family.last_ns > family.gap_ns,
+                frames_total=family.frames)
+            if elapsed > 0:
+                msg.actual_hz = (family.frames - base.families.get(family.name, 0)) / elapsed
+                if family.expected_hz:
+                    msg.rate_ratio = msg.actual_hz / family.expected_hz
+            out[family.name] = msg
+        return out
+
+    def _update_bias(self, t_ns: int) -> None:
+        oldest = t_ns - round(self.settings.bias_window_s * NS)
+        for name, matches in self._bias.items():
+            while matches and matches[0][0] <= oldest:
+                matches.popleft()
+            n = len(matches)
+            self._bias_means[name] = (
+                (n, sum(m[1] for m in matches) / n, sum(m[2] for m in matches) / n) if n
+                else (0, 0.0, 0.0))
+
+    def _check(self, t_ns: int, buses: Mapping[str, health_pb2.BusHealth],
+               families: Mapping[str, health_pb2.FamilyHealth]) -> list[tuple[_Alarm, str]]:
+        s = self.settings
+        conditions: dict[str, list[str]] = {}  # alarm id -> why (empty: does not hold)
+
+        def hold(alarm_id: str, why: str) -> None:
+            conditions.setdefault(alarm_id, []).append(why)
+
+        in_gap = {name: msg.gap for name, msg in buses.items()}
+        for name, msg in buses.items():
+            if msg.gap:
+                hold(f"bus.{name}.silent", f"bus {name}: no frame for {msg.silent_s:.1f} s")
+            key = self._top_keys.get(name)
+            if key is None or msg.top_id_hz < s.babble_min_hz:
+                continue
+            cycle = self._buses[name].cycles.get(key)
+            ident = f"0x{key & ~_EXTENDED:X}"
+            if cycle is not None and msg.top_id_hz > s.babble_factor / cycle:
+                hold(f"bus.{name}.babbling", f"bus {name}: id {ident} at {msg.top_id_hz:.0f} "
+                     f"frames/s, its cycle time is {cycle * 1000:g} ms")
+            elif cycle is None and msg.top_id_share > s.babble_share:
+                hold(f"bus.{name}.babbling", f"bus {name}: id {ident} is "
+                     f"{msg.top_id_share:.0%} of the frames ({msg.top_id_hz:.0f}/s)")
+        started = self.first_ns is not None and t_ns - self.first_ns >= self.learning_ns
+        quiet: set[str] = set()  # families that are silent (or behind a silent bus)
+        for family in self.families:
+            fig = families[family.name]
+            behind_silent_bus = (all(in_gap.get(b, False) for b in family.buses) if family.buses
+                                 else bool(in_gap) and all(in_gap.values()))
+            never = family.last_ns == _NEVER
+            if behind_silent_bus or fig.silent or (never and started):
+                quiet.add(family.name)
+            if behind_silent_bus:
+                continue
+            subject = family.subject
+            if fig.silent:
+                hold(f"{subject}.silent", f"{family.name}: no frame for {fig.age_s:.1f} s")
+            elif never and started:
+                hold(f"{subject}.silent", f"{family.name}: no frame since the start")
+            if never or fig.silent:
+                continue
+            window = family.rate_window_ns
+            if family.expected_hz and t_ns - family.resumed_ns >= window:
+                base = self._base(t_ns, window)
+                elapsed = _seconds(t_ns - base.t_ns)
+                rate = (family.frames - base.families.get(family.name, 0)) / elapsed
+                if rate < s.rate_threshold * family.expected_hz:
+                    hold(f"{subject}.rate", f"{family.name}: {rate:.0f} frames/s, "
+                         f"{rate / family.expected_hz:.0%} of the expected "
+                         f"{family.expected_hz:.0f}/s")
+            nothing_since = max(family.last_valid_ns, family.resumed_ns)
+            if (self._blind_checked(family) and self._world_ns is not None
+                    and t_ns - nothing_since > family.gap_ns
+                    and t_ns - family.witnessed_ns < self.window_ns):
+                hold(f"{subject}.blind", f"{family.name}: frames but no valid object for "
+                     f"{_seconds(t_ns - nothing_since):.1f} s while another sensor sees "
+                     "objects in its field of view")
+        no_evidence = set()
+        for pair in self._pairs:
+            n, lateral, angular = self._bias_means[pair.name]
+            if n < s.bias_min_matches:
+                no_evidence.add(f"{pair.name}.misaligned")
+            elif abs(lateral) > s.bias_lateral_m or abs(angular) > s.bias_angle_deg:
+                a, b = pair.a.subject, pair.b.subject
+                side = "right" if angular < 0 else "left"
+                hold(f"{pair.name}.misaligned",
+                     f"{a} sees objects {abs(angular):.1f} deg ({abs(lateral):.1f} m) to the "
+                     f"{side} of where {b} sees them ({n} matches): one of them is misaligned")
+        lanes = next((f for f in self.families if f.kind == "lanes"), None)
+        if (lanes is not None and lanes.name not in quiet and self._lane_source is not None
+                and self._lane_source != "camera"):
+            hold("lanes.lost", "no valid camera lanes: lanes extrapolated from the steering"
+                 if self._lane_source == "steering" else "no valid camera lanes and no steering "
+                 "angle: no lanes")
+        events = []
+        for alarm_id, alarm in self._alarms.items():
+            if alarm_id in no_evidence:
+                continue
+            why = conditions.get(alarm_id)
+            event = alarm.update(t_ns, why is not None, "; ".join(why or ()))
+            if event is not None:
+                if alarm.kind in (AlarmKind.BUS_SILENT, AlarmKind.BABBLING):
+                    bus = self._buses.get(alarm.subject)
+                    alarm.sensors = tuple(sorted(
+                        {f.subject for f in self.families if bus is not None
+                         and f.name in bus.families and f.sensor is not None}))
+                events.append((alarm, event))
+                self.events.append((alarm.id, event, t_ns, alarm.message))
+        return events
+
+    def _log(self, alarm: _Alarm, event: str, t_ns: int) -> Log:
+        if event == "raised":
+            level, words = Log.WARNING, f"ALARM {alarm.id}: {alarm.message}"
+        else:
+            duration = ""
+            if alarm.holding_since is None and alarm.gone_since is not None:
+                duration = f" (the condition ended {_seconds(t_ns - alarm.gone_since):.1f} s ago)"
+            level, words = Log.INFO, f"cleared {alarm.id}{duration}: was {alarm.message}"
+        return Log(timestamp=timestamp(t_ns), level=level, message=words, name="tankviz.health")
+
+    def _health(self, t_ns: int, buses: Mapping[str, health_pb2.BusHealth],
+                families: Mapping[str, health_pb2.FamilyHealth]) -> health_pb2.Health:
+        msg = health_pb2.Health(timestamp=timestamp(t_ns), window_s=self.settings.window_s)
+        msg.buses.extend(buses[name] for name in sorted(buses))
+        msg.families.extend(families[f.name] for f in self.families)
+        for pair in self._pairs:
+            n, lateral, angular = self._bias_means[pair.name]
+            msg.biases.add(pair=pair.name, sensor_a=pair.a.subject, sensor_b=pair.b.subject,
+                           matches=n, lateral_offset_m=lateral, angular_offset_deg=angular)
+        msg.alarms.extend(a.to_pb() for a in self._alarms.values())
+        msg.active_alarms = sum(a.active for a in self._alarms.values())
+        return msg
+
+    def topics(self) -> list[tuple[str, Any]]:
+        """The topics :meth:`tick` emits, with their message classes (to advertise them)."""
+        return [(HEALTH_TOPIC, health_pb2.Health), (LOG_TOPIC, Log)]
+
+
+def associate(a_objects: Iterable[ObjectObservation], b_objects: Iterable[ObjectObservation],
+              a_sensor: Sensor | None, b_sensor: Sensor | None, t_ns: int, *, gate_m: float,
+              min_range_m: float) -> list[tuple[float, float]]:
+    """Objects two sensors both see, as ``(lateral offset m, angular offset deg)`` of a minus b.
+
+    Each object is predicted to ``t_ns`` with its velocity (where the sensor reports one); only
+    objects inside both fields of view and at least ``min_range_m`` from sensor a count. Pairs
+    are matched greedily, nearest first, at most ``gate_m`` apart. Angles are seen from sensor
+    a's mount, left positive.
+    """
+
+    def usable(objects: Iterable[ObjectObservation]) -> list[tuple[float, float]]:
+        out = []
+        for o in objects:
+            dt = (t_ns - o.t_ns) / NS
+            x, y = o.x + (o.vx or 0.0) * dt, o.y + (o.vy or 0.0) * dt
+            if ((a_sensor is None or in_fov(a_sensor, x, y))
+                    and (b_sensor is None or in_fov(b_sensor, x, y))
+                    and math.hypot(x - mx, y - my) >= min_range_m):
+                out.append((x, y))
+        return out
+
+    mx = a_sensor.mount.x if a_sensor is not None else 0.0
+    my = a_sensor.mount.y if a_sensor is not None else 0.0
+    a_points, b_points = usable(a_objects), usable(b_objects)
+    gate = gate_m * gate_m
+    candidates = sorted(
+        ((ax - bx) ** 2 + (ay - by) ** 2, i, j)
+        for i, (ax, ay) in enumerate(a_points) for j, (bx, by) in enumerate(b_points)
+        if (ax - bx) ** 2 + (ay - by) ** 2 <= gate)
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    out = []
+    for _, i, j in candidates:
+        if i in used_a or j in used_b:
+            continue
+        used_a.add(i)
+        used_b.add(j)
+        (ax, ay), (bx, by) = a_points[i], b_points[j]
+        angle = math.degrees(math.atan2(ay - my, ax - mx) - math.atan2(by - my, bx - mx))
+        out.append((ay - by, (angle + 180.0) % 360.0 - 180.0))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The scene: alarm overlay and field-of-view outlines
+# ---------------------------------------------------------------------------------------------
+
+ALARM_COLOR: RGBA = (1.0, 0.15, 0.1, 1.0)  # signal red
+FOV_COLOR: RGBA = (0.75, 0.75, 0.75, 0.25)  # dim grey
+FOV_ALARM_COLOR: RGBA = (1.0, 0.1, 0.1, 0.9)
+ALARM_FONT_SIZE = 18.0
+FOV_THICKNESS = 0.05  # m
+FOV_ALARM_THICKNESS = 0.15
+
+
+def alarm_entities(alarms: Sequence[AlarmInfo], t_ns: int, *, x: float = 0.0, y: float = 0.0,
+                   z: float = 3.0, lifetime_s: float = 0.0) -> list[SceneEntity]:
+    """A red text above the ego listing the active alarms (nothing when there are none)."""
+    if not alarms:
+        return []
+    e = entity(t_ns, "health-alarms", lifetime_s)
+    lines = [f"HEALTH: {len(alarms)} ALARM{'S' if len(alarms) > 1 else ''}"]
+    lines += [f"{a.id}: {a.message}" for a in alarms]
+    label = text(x, y, z, "\n".join(lines))
+    label.font_size = ALARM_FONT_SIZE
+    label.color.CopyFrom(color(ALARM_COLOR))
+    e.texts.append(label)
+    e.metadata.add(key="alarms", value=",".join(a.id for a in alarms))
+    return [e]
+
+
+def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
+                 lifetime_s: float = 0.0, arc_points: int = 24) -> list[SceneEntity]:
+    """Each sensor's field of view (from the profile) as an outline on the ground: dim when
+    healthy, red and labelled when an active alarm concerns the sensor."""
+    alarmed: dict[str, list[str]] = {}
+    for a in alarms:
+        for name in a.sensors:
+            alarmed.setdefault(name, []).append(a.id)
+    out = []
+    for sensor in profile.sensors.values():
+        if sensor.fov_range is None or sensor.fov_azimuth_deg is None:
+            continue
+        half = math.radians(sensor.fov_azimuth_deg)
+        yaw = math.radians(sensor.mount.yaw_deg)
+        mx, my, r = sensor.mount.x, sensor.mount.y, sensor.fov_range
+        points = [(mx, my)]
+        for k in range(arc_points + 1):
+            angle = yaw - half + 2 * half * k / arc_points
+            points.append((mx + r * math.cos(angle), my + r * math.sin(angle)))
+        points.append((mx, my))
+        ids = alarmed.get(sensor.name)
+        e = entity(t_ns, f"fov-{sensor.name}", lifetime_s)
+        e.lines.append(LinePrimitive(
+            type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
+            thickness=FOV_ALARM_THICKNESS if ids else FOV_THICKNESS, scale_invariant=False,
+            color=color(FOV_ALARM_COLOR if ids else FOV_COLOR),
+            points=[Point3(x=px, y=py, z=0.03) for px, py in points]))
+        if ids:
+            far = min(r, 30.0)
+            label = text(mx + far * math.cos(yaw), my + far * math.sin(yaw), 1.5,
+                         f"{sensor.name}: {', '.join(ids)}")
+            label.color.CopyFrom(color(ALARM_COLOR))
+            e.texts.append(label)
+        e.metadata.add(key="state", value="alarm" if ids else "ok")
+        out.append(e)
+    return out
