@@ -270,18 +270,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     frames = simulate(duration_s=args.duration, seed=args.seed)
     if output.suffix.lower() == ".mcap":
         from bridge.convert import build_stages
-        from bridge.pipeline import Pipeline, describe_drive
+        from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
         from bridge.recorder import Recorder, atomic_output
 
         decoder, profile = build_stages([], "ecocar")
         with atomic_output(output) as stream:
             recorder = Recorder(stream)
-            pipeline = Pipeline(decoder, profile=profile, recorder=recorder)
+            health = new_health_monitor(decoder, profile)
+            pipeline = Pipeline(decoder, profile=profile, recorder=recorder, health=health)
             for frame in frames:
                 pipeline.process(frame)
             pipeline.finish()
             describe_drive(recorder, decoder, profile, pipeline.scene_rate,
-                           {"simulated": {"seed": args.seed, "duration_s": args.duration}})
+                           {"simulated": {"seed": args.seed, "duration_s": args.duration},
+                            "alarms": health.event_records()})
             recorder.finish()
         count = pipeline.frames
     else:
@@ -351,6 +353,18 @@ def _cmd_recover(args: argparse.Namespace) -> int:
             bar.close()
     if not args.quiet:
         print(format_report(report, args.input, args.output))
+    return 0
+
+
+def _cmd_layouts(args: argparse.Namespace) -> int:
+    from bridge.layouts import export_layouts, format_listing, select_layouts
+
+    if args.export is None:
+        print(format_listing(select_layouts(args.names)))
+        return 0
+    for path in export_layouts(args.export, names=args.names, force=args.force):
+        print(f"wrote {path}")
+    print("import in Foxglove: Layouts menu > Import layout")
     return 0
 
 
@@ -450,6 +464,20 @@ def build_parser() -> argparse.ArgumentParser:
     recover.add_argument("--force", action="store_true", help="overwrite an existing output")
     recover.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no report")
     recover.set_defaults(run=_cmd_recover)
+
+    layouts = sub.add_parser(
+        "layouts", help="list the bundled Foxglove layouts, or copy them out to import them",
+        description="List the bundled Foxglove layouts (tank-viz: the Tank Viz 3D view; "
+        "engineer: 3D, plots and the lead vehicle; can-debug: decoded signals and raw frames), "
+        "or copy them into a folder with --export; import them in Foxglove from the Layouts "
+        "menu (Import layout).")
+    layouts.add_argument("names", nargs="*", metavar="NAME",
+                         help="only these layouts (default: all)")
+    layouts.add_argument("--export", type=Path, metavar="DIR",
+                         help="copy the layout files (JSON) into DIR (created if needed)")
+    layouts.add_argument("--force", action="store_true",
+                         help="overwrite layout files that already exist in DIR")
+    layouts.set_defaults(run=_cmd_layouts)
     return parser
 
 

@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from bridge.decode import Decoder
 from bridge.errors import InputError, UsageError
 from bridge.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline import Pipeline
+from bridge.pipeline import Pipeline, new_health_monitor
 from bridge.profile import Profile
 from bridge.server import LiveServer
 from bridge.source import LogSource, merge
@@ -124,7 +124,8 @@ def replay_log(paths: list[Path], decoder: Decoder, server: LiveServer, *,
     frames, loops = 0, 0
     while not stopping.is_set():
         sources = [LogSource(p) for p in paths]
-        pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, server=server)
+        pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, server=server,
+                            health=new_health_monitor(decoder, profile))
         clock = Clock(speed, stopping)
         first_ns: int | None = None
         last_time_ns = 0

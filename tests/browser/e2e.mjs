@@ -1,0 +1,463 @@
+// End-to-end driver: the real Foxglove Studio web app (host/, served by serve.mjs) in headless
+// Chromium, driven by playwright-core, reads tankviz output live (Foxglove WebSocket) or from a
+// drive (MCAP, remote-file source), with a layout applied through the app's own "Import layout"
+// button (its file picker is fed the layout file) or preloaded into its layout storage.
+//
+//   node tests/browser/e2e.mjs PLAN.json      (prints one JSON result line on stdout)
+//
+// PLAN: {
+//   "chromium": "/usr/bin/chromium", "viewport": {"width": 1600, "height": 1000},
+//   "dataDir": "/tmp/…" (served as /data/ for remote-file sources), "timeoutMs": 60000,
+//   "shots": [{
+//     "name": "live",
+//     "source": {"ws": "ws://127.0.0.1:PORT"} | {"mcap": "drive.mcap", "time": "2026-01-01T12:00:09Z"},
+//     "layout": "/abs/path/layouts/tank-viz.json", "via": "import" | "preload",
+//     "scene": {"panel": "3D!tankviz", "expect": ["ego", "greenLanes", …], "absent": [...]},
+//                                        (the 3D panel to read; keys of pixels.mjs verdict())
+//     "plots": true, "plotExtent": 0.8,  every Plot panel shows a value for each of its paths
+//                                        and data lines over that share of its width
+//     "panelText": {"RawMessages!lead": ["tankviz.LeadVehicle @", …]},  text in a panel
+//     "ocr": ["Lead Vehicle", "TrackID"],  words to read in the 3D labels (needs tesseract)
+//     "screenshot": "/abs/out.png"
+//   }]
+// }
+// Result: {"ok", "seconds", "shots": [{"name", "ok", "failures", "verdict", "reading", "plots",
+// "ocr", "steps", "errors", "seconds"}]}
+// Every wait is for a condition, with the plan's timeout; a shot that times out is reported with
+// what was seen last (and its screenshot), not thrown.
+
+import { spawnSync } from "node:child_process";
+import fs from "node:fs";
+import os from "node:os";
+import path from "node:path";
+
+import { chromium } from "playwright-core";
+
+import { decodePng } from "./png.mjs";
+import { encodePng } from "./pngout.mjs";
+import { blobs, readTankViz, verdict } from "./pixels.mjs";
+import { startServer } from "./serve.mjs";
+
+export const CHROMIUM_ARGS = [
+  "--headless",
+  "--no-sandbox",
+  "--disable-gpu",
+  "--disable-quic",
+  "--no-first-run",
+  "--disable-background-networking",
+  "--disable-component-update",
+  "--disable-sync",
+  "--use-gl=angle",
+  "--use-angle=swiftshader",
+  "--enable-unsafe-swiftshader",
+];
+
+const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+
+function log(...args) {
+  console.error(`[e2e ${new Date().toISOString().slice(11, 23)}]`, ...args);
+}
+
+/** Poll `check` (async, returns a truthy value when done) until it is done or time is up. */
+async function until(check, timeoutMs, stepMs = 250) {
+  const deadline = Date.now() + timeoutMs;
+  for (;;) {
+    const value = await check();
+    if (value) {
+      return value;
+    }
+    if (Date.now() > deadline) {
+      return undefined;
+    }
+    await sleep(stepMs);
+  }
+}
+
+function appUrl(base, shot) {
+  const params = new URLSearchParams();
+  if (shot.source.ws) {
+    params.set("ds", "foxglove-websocket");
+    params.set("ds.url", shot.source.ws);
+  } else {
+    params.set("ds", "remote-file");
+    params.set("ds.url", `${base}/data/${encodeURIComponent(shot.source.mcap)}`);
+    if (shot.source.time) {
+      params.set("time", shot.source.time);
+    }
+  }
+  if (shot.via === "preload") {
+    params.set("layout", `/layouts/${path.basename(shot.layout)}`);
+  }
+  return `${base}/?${params}`;
+}
+
+/** Before any page script: a user who has seen the 3D onboarding tooltip, and a file picker that
+ * answers with the layout file (the app's Import layout calls window.showOpenFilePicker). */
+function initScript({ name, content }) {
+  const profile = JSON.parse(localStorage.getItem("studio.profile-data") ?? "{}");
+  profile.onboarding = { settingsTooltipShownForPanelTypes: ["3D", "Plot", "RawMessages"] };
+  localStorage.setItem("studio.profile-data", JSON.stringify(profile));
+  window.__tankvizPicked = 0;
+  window.showOpenFilePicker = async () => {
+    window.__tankvizPicked++;
+    const file = new File([content], name, { type: "application/json" });
+    return [{ kind: "file", name, getFile: async () => file }];
+  };
+}
+
+async function importLayout(page, timeoutMs) {
+  const nav = page.locator('button[title="Layouts"]');
+  await nav.click({ timeout: timeoutMs });
+  await page.locator('button[aria-label="Import layout"]').click({ timeout: timeoutMs });
+  await page.waitForFunction(() => window.__tankvizPicked > 0, null, { timeout: timeoutMs });
+}
+
+/**
+ * One panel of the layout, by its id (Foxglove marks each panel root with
+ * data-testid="panel-mouseenter-container <id>"): its largest canvas, the small elements drawn
+ * over that canvas (toolbar buttons, plot legends; masked before reading pixels) and its text.
+ */
+async function panelInfo(page, panelId) {
+  return page.evaluate((id) => {
+    const root = document.querySelector(`[data-testid="panel-mouseenter-container ${id}"]`);
+    if (!root) {
+      return undefined;
+    }
+    const text = root.innerText;
+    let canvas;
+    let best = 0;
+    for (const c of root.querySelectorAll("canvas")) {
+      const r = c.getBoundingClientRect();
+      if (r.width * r.height > best) {
+        best = r.width * r.height;
+        canvas = c;
+      }
+    }
+    if (!canvas || best < 100 * 100) {
+      return { text, region: undefined, overlays: [] };
+    }
+    const r = canvas.getBoundingClientRect();
+    const region = {
+      x: Math.max(0, Math.round(r.x)),
+      y: Math.max(0, Math.round(r.y)),
+      width: Math.round(Math.min(r.width, window.innerWidth - r.x)),
+      height: Math.round(Math.min(r.height, window.innerHeight - r.y)),
+    };
+    const overlays = [];
+    for (const el of root.querySelectorAll("*")) {
+      if (el === canvas || el.contains(canvas) || el.tagName === "CANVAS") {
+        continue;
+      }
+      const b = el.getBoundingClientRect();
+      const overlaps = b.right > r.left && b.left < r.right && b.bottom > r.top && b.top < r.bottom;
+      const small = b.width * b.height < 0.25 * r.width * r.height;
+      const shown = getComputedStyle(el).visibility !== "hidden" && b.width > 0 && b.height > 0;
+      if (overlaps && small && shown) {
+        overlays.push({ x: Math.floor(b.x) - 2, y: Math.floor(b.y) - 2, width: Math.ceil(b.width) + 4, height: Math.ceil(b.height) + 4 });
+      }
+    }
+    return { text, region, overlays };
+  }, panelId);
+}
+
+/** How much of a plot's width carries coloured data lines (0..1) and how many such pixels. */
+function plotCoverage(image, region) {
+  let min = Infinity;
+  let max = -Infinity;
+  let pixels = 0;
+  for (let y = region.y; y < region.y + region.height; y++) {
+    for (let x = region.x; x < region.x + region.width; x++) {
+      const i = (y * image.width + x) * 4;
+      const r = image.data[i];
+      const g = image.data[i + 1];
+      const b = image.data[i + 2];
+      if (Math.max(r, g, b) - Math.min(r, g, b) >= 80) {
+        pixels++;
+        min = Math.min(min, x);
+        max = Math.max(max, x);
+      }
+    }
+  }
+  return { pixels, extent: pixels ? +((max - min + 1) / region.width).toFixed(3) : 0 };
+}
+
+const escapeRegExp = (text) => text.replace(/[.*+?^${}()|[\]\\]/g, "\\$&");
+
+/** Plot legend labels (or paths) each followed by a number: the path resolved to data. */
+function legendValues(text, config) {
+  const missing = [];
+  for (const p of config.paths ?? []) {
+    const label = p.label || p.value;
+    const pattern = new RegExp(`${escapeRegExp(label)}\\s*\\n\\s*-?[0-9]`);
+    if (!pattern.test(text)) {
+      missing.push(label);
+    }
+  }
+  return missing;
+}
+
+/** Paint the overlays background grey so that no class matches there. */
+function maskOverlays(image, overlays) {
+  for (const o of overlays) {
+    for (let y = Math.max(0, o.y); y < Math.min(image.height, o.y + o.height); y++) {
+      for (let x = Math.max(0, o.x); x < Math.min(image.width, o.x + o.width); x++) {
+        const i = (y * image.width + x) * 4;
+        image.data[i] = image.data[i + 1] = image.data[i + 2] = 48;
+      }
+    }
+  }
+}
+
+/**
+ * OCR of the scene's text labels. Foxglove draws them as white text on black boxes: find the
+ * boxes, cut each out (white on black made black on white, scaled 3x), stack them in one image
+ * and let tesseract read it as a block of lines.
+ */
+function ocrLabels(image, region) {
+  const probe = spawnSync("tesseract", ["--version"], { encoding: "utf8" });
+  if (probe.error || probe.status !== 0) {
+    return { available: false, text: "" };
+  }
+  const black = (r, g, b) => r < 12 && g < 12 && b < 12;
+  const margin = 4;
+  const inside = (b) => b.x0 - margin >= 0 && b.y0 - margin >= 0 &&
+    b.x1 + margin < image.width && b.y1 + margin < image.height;
+  const boxes = blobs(image, black, region)
+    .filter((b) => b.w >= 25 && b.h >= 12 && b.fill > 0.3 && inside(b))
+    .slice(0, 40);
+  if (!boxes.length) {
+    return { available: true, text: "", boxes: 0 };
+  }
+  const scale = 3;
+  const gap = 10;
+  const width = Math.max(...boxes.map((b) => b.w + 2 * margin)) * scale;
+  const height = boxes.reduce((n, b) => n + (b.h + 2 * margin) * scale + gap, 0);
+  const out = Buffer.alloc(width * height * 4, 255);
+  let top = 0;
+  for (const b of boxes) {
+    for (let y = b.y0 - margin; y <= b.y1 + margin; y++) {
+      for (let x = b.x0 - margin; x <= b.x1 + margin; x++) {
+        const i = (y * image.width + x) * 4;
+        const lightness = Math.min(image.data[i], image.data[i + 1], image.data[i + 2]);
+        const inBox = x >= b.x0 && x <= b.x1 && y >= b.y0 && y <= b.y1;
+        const ink = inBox ? 255 - lightness : 255;
+        for (let sy = 0; sy < scale; sy++) {
+          for (let sx = 0; sx < scale; sx++) {
+            const o = ((top + (y - b.y0 + margin) * scale + sy) * width + (x - b.x0 + margin) * scale + sx) * 4;
+            out[o] = out[o + 1] = out[o + 2] = ink;
+          }
+        }
+      }
+    }
+    top += (b.h + 2 * margin) * scale + gap;
+  }
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), "tankviz-ocr-"));
+  const file = path.join(dir, "labels.png");
+  fs.writeFileSync(file, encodePng({ width, height, data: out }));
+  const run = spawnSync("tesseract", [file, "stdout", "--psm", "6"], { encoding: "utf8", timeout: 60000 });
+  fs.rmSync(dir, { recursive: true, force: true });
+  return { available: true, text: run.stdout ?? "", boxes: boxes.length,
+    error: run.status === 0 ? undefined : run.stderr };
+}
+
+async function closeSidebar(page, nav, timeoutMs) {
+  // The left nav buttons toggle the sidebar: open the Layouts tab (if it is not) and close it.
+  const importButton = page.locator('button[aria-label="Import layout"]');
+  if (!(await importButton.isVisible())) {
+    await nav.click({ timeout: timeoutMs });
+    await importButton.waitFor({ state: "visible", timeout: timeoutMs });
+  }
+  await nav.click({ timeout: timeoutMs });
+  await importButton.waitFor({ state: "hidden", timeout: timeoutMs });
+}
+
+async function runShot(ctx, base, shot, plan) {
+  const timeoutMs = plan.timeoutMs ?? 60000;
+  const started = Date.now();
+  const layout = JSON.parse(fs.readFileSync(shot.layout, "utf8"));
+  const layoutName = path.basename(shot.layout, ".json");
+  const result = { name: shot.name, layout: layoutName, ok: false, steps: {}, errors: [], failures: [] };
+  const mark = (step) => {
+    result.steps[step] = Date.now() - started;
+    log(shot.name, step, `${result.steps[step]} ms`);
+  };
+  const page = await ctx.newPage();
+  page.on("pageerror", (error) => result.errors.push(`pageerror: ${error.message}`));
+  page.on("console", (message) => {
+    if (message.type() === "error" && !/favicon|Failed to load resource/.test(message.text())) {
+      result.errors.push(`console: ${message.text().slice(0, 300)}`);
+    }
+  });
+  let last;
+  try {
+    await page.addInitScript(initScript, {
+      name: path.basename(shot.layout),
+      content: fs.readFileSync(shot.layout, "utf8"),
+    });
+    await page.goto(appUrl(base, shot), { timeout: timeoutMs });
+    await page.waitForFunction(() => window.__tankviz?.rendered || window.__tankviz?.errors.length,
+      null, { timeout: timeoutMs });
+    const hostErrors = await page.evaluate(() => window.__tankviz.errors);
+    if (hostErrors.length) {
+      throw new Error(`the Foxglove app did not start: ${hostErrors.join("; ")}`);
+    }
+    mark("app");
+    const nav = page.locator('button[title="Layouts"]');
+    if (shot.via !== "preload") {
+      await importLayout(page, timeoutMs);
+      // The imported layout is listed (by its file name) and becomes the current one.
+      await page.locator(`text=${layoutName}`).first().waitFor({ timeout: timeoutMs });
+      mark("imported");
+    }
+    // Every panel of the layout is on screen.
+    const panelIds = Object.keys(layout.configById);
+    const shown = await until(async () => {
+      for (const id of panelIds) {
+        if (!(await panelInfo(page, id))) {
+          return false;
+        }
+      }
+      return true;
+    }, timeoutMs);
+    if (!shown) {
+      throw new Error(`the layout's panels did not all appear: ${panelIds.join(", ")}`);
+    }
+    await closeSidebar(page, nav, timeoutMs);
+    mark("panels");
+
+    // Wait (polling screenshots and the DOM) until everything the shot expects is on screen.
+    const scene = shot.scene;
+    const plots = panelIds.filter((id) => id.startsWith("Plot!"));
+    const minExtent = shot.plotExtent ?? 0;
+    const panelText = shot.panelText ?? {};
+    const check = async () => {
+      const png = await page.screenshot({ type: "png" });
+      const image = decodePng(png);
+      const state = { png, image, failures: [] };
+      if (scene) {
+        const info = await panelInfo(page, scene.panel);
+        if (!info?.region) {
+          state.failures.push(`no canvas in ${scene.panel}`);
+        } else {
+          const masked = { ...image, data: Buffer.from(image.data) };
+          maskOverlays(masked, info.overlays);
+          state.reading = readTankViz(masked, info.region);
+          state.verdict = verdict(state.reading);
+          state.region = info.region;
+          for (const k of scene.expect ?? []) {
+            if (!state.verdict[k]) state.failures.push(`${scene.panel}: ${k} not on screen`);
+          }
+          for (const k of scene.absent ?? []) {
+            if (state.verdict[k]) state.failures.push(`${scene.panel}: ${k} on screen, should not be`);
+          }
+        }
+      }
+      state.plots = {};
+      if (shot.plots) {
+        for (const id of plots) {
+          const info = await panelInfo(page, id);
+          const missing = legendValues(info?.text ?? "", layout.configById[id]);
+          const coverage = info?.region ? plotCoverage(image, info.region) : { pixels: 0, extent: 0 };
+          state.plots[id] = { missingValues: missing, ...coverage };
+          if (missing.length) state.failures.push(`${id}: no value for ${missing.join(", ")}`);
+          if (coverage.pixels < 100 || coverage.extent < minExtent) {
+            state.failures.push(`${id}: data lines cover ${coverage.extent} of the width (${coverage.pixels} px)`);
+          }
+        }
+      }
+      for (const [id, words] of Object.entries(panelText)) {
+        const info = await panelInfo(page, id);
+        for (const word of words) {
+          if (!info?.text.includes(word)) state.failures.push(`${id}: no text ${JSON.stringify(word)}`);
+        }
+      }
+      last = state;
+      return state.failures.length === 0 ? state : undefined;
+    };
+    const seen = await until(check, timeoutMs, 400);
+    mark(seen ? "seen" : "timeout");
+    result.failures = last?.failures ?? ["nothing checked"];
+
+    // Labels: OCR of a few screenshots until every wanted word was read.
+    let ocr;
+    if (shot.ocr?.length && scene) {
+      const wanted = shot.ocr;
+      const readText = [];
+      for (let attempt = 0; attempt < 6; attempt++) {
+        const info = await panelInfo(page, scene.panel);
+        const image = attempt === 0 ? last.image : decodePng(await page.screenshot({ type: "png" }));
+        const read = ocrLabels(image, info.region);
+        if (!read.available) {
+          ocr = { available: false };
+          break;
+        }
+        readText.push(read.text);
+        const all = readText.join("\n");
+        const squash = (t) => t.toLowerCase().replace(/[^a-z0-9]/g, "");
+        const found = wanted.filter((w) => squash(all).includes(squash(w)));
+        ocr = { available: true, wanted, found, text: all.slice(0, 4000), attempts: attempt + 1 };
+        if (found.length === wanted.length) {
+          break;
+        }
+      }
+      mark("ocr");
+    }
+    Object.assign(result, {
+      ok: Boolean(seen),
+      verdict: last?.verdict,
+      reading: last?.reading,
+      plots: last?.plots,
+      ocr,
+    });
+  } catch (error) {
+    result.errors.push(String(error?.stack ?? error));
+    result.failures.push(String(error?.message ?? error));
+  } finally {
+    // The picture to keep: the one the checks passed on (or the last one seen).
+    if (shot.screenshot) {
+      try {
+        fs.mkdirSync(path.dirname(shot.screenshot), { recursive: true });
+        fs.writeFileSync(shot.screenshot, last?.png ?? (await page.screenshot({ type: "png" })));
+      } catch {
+        // the page may be gone
+      }
+    }
+    result.seconds = +((Date.now() - started) / 1000).toFixed(1);
+    await page.close().catch(() => {});
+  }
+  return result;
+}
+
+export async function run(plan) {
+  const { server, url: base } = await startServer({ dataDir: plan.dataDir });
+  const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), "tankviz-chromium-"));
+  const started = Date.now();
+  let ctx;
+  try {
+    ctx = await chromium.launchPersistentContext(userDataDir, {
+      executablePath: plan.chromium ?? "/usr/bin/chromium",
+      headless: true,
+      args: CHROMIUM_ARGS,
+      viewport: plan.viewport ?? { width: 1600, height: 1000 },
+      deviceScaleFactor: 1,
+      timeout: plan.timeoutMs ?? 60000,
+    });
+    log("chromium", ctx.browser()?.version() ?? "", `${Date.now() - started} ms`);
+    const shots = [];
+    for (const shot of plan.shots) {
+      shots.push(await runShot(ctx, base, shot, plan));
+    }
+    return { ok: shots.every((s) => s.ok), seconds: +((Date.now() - started) / 1000).toFixed(1), shots };
+  } finally {
+    await ctx?.close().catch(() => {});
+    server.close();
+    fs.rmSync(userDataDir, { recursive: true, force: true });
+  }
+}
+
+if (process.argv[1] && path.resolve(process.argv[1]) === new URL(import.meta.url).pathname) {
+  const plan = JSON.parse(fs.readFileSync(process.argv[2], "utf8"));
+  const result = await run(plan);
+  process.stdout.write(`${JSON.stringify(result)}\n`);
+  process.exit(0);
+}
