@@ -14,6 +14,7 @@ from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__, scene
 from bridge.decode import DatabaseFile, Decoder
@@ -179,8 +180,6 @@ def new_health_monitor(decoder: Decoder, profile: Profile | None,
 
 
 def _fds(cls: Any) -> bytes:
-    from mcap_protobuf.schema import build_file_descriptor_set
-
     return bytes(build_file_descriptor_set(cls).SerializeToString())
 
 
