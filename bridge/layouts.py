@@ -9,7 +9,11 @@ the id is ``<PanelType>!<name>``), ``layout`` (the mosaic tree of panel ids), ``
 the bridge produces for a profile (:func:`produced`: every topic the live pipeline advertises,
 with the schema it advertises it with, and the frames of :mod:`bridge.topics` and the
 profile's sensors), walking the protobuf descriptors field by field, so that a plot of
-``/perception/lead.object.x`` is known to read a number of ``tankviz.LeadVehicle``.
+``/perception/lead.object.x`` is known to read a number of ``tankviz.LeadVehicle``. Filters on
+``/health`` (``/health.alarms[:]{id=="radar.silent"}.active``) are also checked against the
+``/health`` the pipeline's own health monitor reports, so an alarm id, bus or message family
+the bridge does not have is an error; Indicator panels must read one value and have rules that
+can match it, Log panels must show a ``foxglove.Log`` topic.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from typing import Any
 
 from bridge.errors import BridgeError
 from bridge.resources import layouts_dir
-from bridge.topics import VEHICLE_FRAME
+from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, VEHICLE_FRAME
 
 #: The keys of Foxglove Studio's layout import/export format.
 LAYOUT_KEYS = ("configById", "layout", "globalVariables", "userNodes", "playbackConfig")
@@ -235,6 +239,20 @@ class Produced:
 
     topics: dict[str, Any] = field(default_factory=dict)
     frames: set[str] = field(default_factory=set)
+    #: a message of each topic whose repeated elements are known in advance, to check message
+    #: path filters on their :data:`SAMPLE_KEYS` against: ``/health`` with every bus, message
+    #: family, sensor pair and alarm
+    samples: dict[str, Any] = field(default_factory=dict)
+
+
+#: The fields that say which element of a sample's repeated field an element is (a filter on
+#: one of them must match an element of the sample); every other field is state that changes.
+SAMPLE_KEYS: dict[str, frozenset[str]] = {
+    "tankviz.BusHealth": frozenset({"bus"}),
+    "tankviz.FamilyHealth": frozenset({"name", "sensor"}),
+    "tankviz.SensorBias": frozenset({"pair", "sensor_a", "sensor_b"}),
+    "tankviz.Alarm": frozenset({"id", "kind", "subject"}),
+}
 
 
 class _Announcements:
@@ -276,20 +294,38 @@ def produced(decoder: Any, profile: Any, buses: Iterable[str] = ("can0",)) -> Pr
     The live pipeline's own announcement (:meth:`~bridge.pipeline.Pipeline.advertise`) is
     recorded, and each topic's descriptor is built from the FileDescriptorSet it is advertised
     with: the scene, perception and health topics, /log, and per bus the raw frames and every
-    message its databases define. Frames: the vehicle frame and the profile's sensors.
+    message its databases define. Frames: the vehicle frame and the profile's sensors. Sample:
+    the pipeline's own health monitor's ``/health`` (:func:`health_sample`).
     """
     from bridge.pipeline import Pipeline, new_health_monitor
 
+    buses = list(buses)
     announcements = _Announcements()
+    health = new_health_monitor(decoder, profile)
     pipeline = Pipeline(decoder, profile=profile, server=announcements,  # type: ignore[arg-type]
-                        health=new_health_monitor(decoder, profile))
-    pipeline.advertise(list(buses))
+                        health=health)
+    pipeline.advertise(buses)
     out = Produced(frames={VEHICLE_FRAME})
     if profile is not None:
         out.frames.update(profile.sensors)
     for topic, (schema_name, schema) in announcements.schemas.items():
         out.topics[topic] = descriptor_of(schema_name, schema)
+    out.samples[HEALTH_TOPIC] = health_sample(health, buses)
     return out
+
+
+def health_sample(monitor: Any, buses: Iterable[str]) -> Any:
+    """The ``/health`` message a new :class:`~bridge.health.HealthMonitor` publishes once each of
+    ``buses`` has carried a frame: every bus, message family, sensor pair and alarm it reports
+    (bus alarms appear with their bus). ``monitor`` is used up."""
+    from bridge.frame import Frame
+
+    for bus in buses:
+        monitor.on_frame(Frame(0, bus, 0, b"", is_remote=True), None)
+    for output in monitor.tick(0):
+        if output.topic == HEALTH_TOPIC:
+            return output.message
+    raise BridgeError("the health monitor published no /health")  # pragma: no cover
 
 
 def bundled_produced(profile: str = "ecocar", buses: Iterable[str] = ("can0",)) -> Produced:
@@ -302,11 +338,24 @@ def bundled_produced(profile: str = "ecocar", buses: Iterable[str] = ("can0",)) 
 
 # --- message paths ---------------------------------------------------------------------------
 
-_SEGMENT = re.compile(r"""
+#: A field name and its indexes, slices and filters (quoted filter values may hold ``.``, ``]``
+#: and ``}``).
+_SUFFIX_TOKEN = r"""\[[^\]]*\]|\{(?:[^}"']|"[^"]*"|'[^']*')*\}"""
+_SEGMENT = re.compile(rf"""
     (?P<name>[A-Za-z_][A-Za-z0-9_]*)          # a field
-    (?P<suffix>(?:\[[^\]]*\]|\{[^}]*\})*)      # indexes, slices and filters
+    (?P<suffix>(?:{_SUFFIX_TOKEN})*)           # indexes, slices and filters
     """, re.VERBOSE)
-_FILTER = re.compile(r"\{\s*([A-Za-z_][A-Za-z0-9_.]*)\s*(==|!=|<=|>=|<|>)\s*([^}]+)\}")
+_TOKEN = re.compile(_SUFFIX_TOKEN)
+_FILTER = re.compile(r"\{\s*([A-Za-z_][A-Za-z0-9_.]*)\s*(==|!=|<=|>=|<|>)\s*(.+?)\s*\}",
+                     re.DOTALL)
+_INDEX = re.compile(r"\s*(-?\d+)?\s*(?::\s*(-?\d+)?\s*)?")
+_STRING_TYPE = 9
+_BYTES_TYPE = 12
+_BOOL_TYPE = 8
+_UNKNOWN = object()  # a filter value that is a layout variable ($name): not known in advance
+_COMPARE = {"==": lambda a, b: a == b, "!=": lambda a, b: a != b,
+            "<": lambda a, b: a < b, "<=": lambda a, b: a <= b,
+            ">": lambda a, b: a > b, ">=": lambda a, b: a >= b}
 
 
 @dataclass(frozen=True)
@@ -317,6 +366,9 @@ class Resolved:
     schema: str
     #: the field descriptor at the end, or None for the whole message
     leaf: Any
+    #: whether the path can give more than one value (a slice that nothing narrows down, or,
+    #: where the topic's elements are known in advance, a filter that matches several)
+    several: bool = False
 
     @property
     def plottable(self) -> bool:
@@ -340,9 +392,94 @@ def _split_topic(path: str, topics: Mapping[str, Any]) -> tuple[str, str]:
     return best, path[len(best):]
 
 
+def _segments(rest: str, path: str) -> list[str]:
+    """``a[:]{id=="x.y"}.b`` → ``['a[:]{id=="x.y"}', 'b']``: dots inside brackets, filters
+    and quotes do not separate fields."""
+    parts: list[str] = []
+    current: list[str] = []
+    depth = 0
+    quote = ""
+    for ch in rest:
+        if quote:
+            quote = "" if ch == quote else quote
+        elif ch in "\"'" and depth:
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "." and depth == 0:
+            parts.append("".join(current))
+            current = []
+            continue
+        current.append(ch)
+    if quote or depth:
+        raise BridgeError(f"{path}: unbalanced brackets or quotes")
+    parts.append("".join(current))
+    return parts
+
+
+def _literal(text: str, path: str) -> Any:
+    """The value of a filter: a quoted string, true/false, a number or a $variable."""
+    if text.startswith("$"):
+        return _UNKNOWN
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "\"'":
+        return text[1:-1]
+    if text in ("true", "false"):
+        return text == "true"
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        raise BridgeError(f"{path}: cannot read the filter value {text!r} (a quoted string, "
+                          "a number, true or false)") from None
+
+
+def _field_of(message: Any, dotted: str) -> Any:
+    """The field descriptor ``a.b`` of a message descriptor (None if there is none)."""
+    leaf = None
+    for name in dotted.split("."):
+        if message is None:
+            return None
+        leaf = message.fields_by_name.get(name)
+        if leaf is None or _is_repeated(leaf):
+            return None
+        message = leaf.message_type if leaf.type == _MESSAGE_TYPE else None
+    return leaf
+
+
+def _value_of(element: Any, dotted: str) -> Any:
+    for name in dotted.split("."):
+        element = getattr(element, name)
+    return element
+
+
+def _filter_type_error(leaf: Any, value: Any) -> str | None:
+    """Why a filter value can never equal the field (None if it can)."""
+    if value is _UNKNOWN:
+        return None
+    if leaf.type == _STRING_TYPE:
+        return None if isinstance(value, str) else "a string field: quote the value"
+    if leaf.type == _BOOL_TYPE:
+        return None if isinstance(value, bool) else "a boolean field: true or false"
+    if leaf.type in _NUMERIC_TYPES:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        return None if ok else "a number field: compare it with a number"
+    return "not a number, a string or a boolean"
+
+
 def resolve_path(path: str, where: Produced) -> Resolved:
     """Resolve a Foxglove message path (``/topic.field.sub``, ``[0]``, ``[:]``, ``{id==3}``,
-    a trailing ``.@derivative`` and the like) against the produced topics' descriptors."""
+    ``{id=="radar.silent"}``, a trailing ``.@derivative`` and the like) against the produced
+    topics' descriptors.
+
+    On a topic with a sample message (:attr:`Produced.samples`, e.g. ``/health``), the path is
+    also followed through the sample: an index past the end or a filter that matches no
+    element (an alarm id, bus or family the bridge does not report) is an error.
+    """
     topic, rest = _split_topic(path, where.topics)
     if not topic:
         raise BridgeError(f"{path}: no such topic")
@@ -355,7 +492,11 @@ def resolve_path(path: str, where: Produced) -> Resolved:
         raise BridgeError(f"{path}: expected '.field' after {topic}")
     message, leaf = descriptor, None
     walked = topic
-    for part in rest[1:].split("."):
+    sample = where.samples.get(topic)
+    #: the sample's values at the path walked so far (None: no sample, or not known)
+    values: list[Any] | None = [sample] if sample is not None else None
+    several = False
+    for part in _segments(rest[1:], path):
         match = _SEGMENT.fullmatch(part)
         if match is None:
             raise BridgeError(f"{path}: cannot read {part!r}")
@@ -370,17 +511,74 @@ def resolve_path(path: str, where: Produced) -> Resolved:
                               f"fields: {fields}")
         walked += f".{name}"
         suffix = match["suffix"]
-        if _is_repeated(leaf) and "[" not in suffix:
+        repeated = _is_repeated(leaf)
+        if repeated and "[" not in suffix:
             raise BridgeError(f"{path}: {walked} is repeated: index it ([0], [:])")
-        if not _is_repeated(leaf) and "[" in suffix:
+        if not repeated and "[" in suffix:
             raise BridgeError(f"{path}: {walked} is not repeated: it cannot be indexed")
         message = leaf.message_type if leaf.type == _MESSAGE_TYPE else None
-        for filter_match in _FILTER.finditer(suffix):
-            field_name = filter_match[1].split(".")[0]
-            if message is None or field_name not in message.fields_by_name:
+        if values is not None:
+            values = [getattr(v, name) for v in values]
+        tokens = _TOKEN.findall(suffix)
+        if sum(t.startswith("[") for t in tokens) > 1:
+            raise BridgeError(f"{path}: {walked} is indexed twice")
+        sliced = False
+        for token in tokens:
+            if token.startswith("["):
+                values, sliced = _index(token, values, path, walked)
+                continue
+            filtered = _FILTER.fullmatch(token)
+            if filtered is None:
+                raise BridgeError(f"{path}: cannot read the filter {token}")
+            field_name, operator, raw = filtered[1], filtered[2], filtered[3]
+            field_leaf = _field_of(message, field_name) if message is not None else None
+            if message is None or field_leaf is None:
                 raise BridgeError(f"{path}: the filter on {walked} names no field "
                                   f"{field_name!r}")
-    return Resolved(topic, schema, leaf)
+            value = _literal(raw, path)
+            problem = _filter_type_error(field_leaf, value)
+            if problem:
+                raise BridgeError(f"{path}: the filter on {walked}: {field_name} is {problem}")
+            sliced = False  # narrowed down
+            keys = SAMPLE_KEYS.get(message.full_name, frozenset())
+            if values is None or value is _UNKNOWN or field_name not in keys:
+                values = None  # which elements match is not known in advance
+                continue
+            kept = [v for v in values if _COMPARE[operator](_value_of(v, field_name), value)]
+            if not kept:
+                there = sorted({str(_value_of(v, field_name)) for v in values})
+                raise BridgeError(
+                    f"{path}: no {walked} has {field_name} {operator} {raw}; "
+                    f"{field_name}: {', '.join(there) if there else 'none at all'}")
+            values = kept
+        several = several or sliced
+    if values is not None:
+        several = len(values) > 1
+    return Resolved(topic, schema, leaf, several)
+
+
+def _index(token: str, values: list[Any] | None, path: str,
+           walked: str) -> tuple[list[Any] | None, bool]:
+    """Apply ``[n]`` or ``[a:b]`` to the sample's repeated values (each a list)."""
+    inner = token[1:-1]
+    if "$" in inner:  # a layout variable
+        return None, ":" in inner
+    match = _INDEX.fullmatch(inner)
+    if match is None or (match[1] is None and ":" not in inner):
+        raise BridgeError(f"{path}: cannot read the index {token} (n, a:b or :)")
+    if ":" not in inner:
+        n = int(match[1])
+        if values is None:
+            return None, False
+        picked = [v[n] for v in values if -len(v) <= n < len(v)]
+        if not picked:
+            raise BridgeError(f"{path}: {walked} has no element {n}")
+        return picked, False
+    if values is None:
+        return None, True
+    a = int(match[1]) if match[1] is not None else None
+    b = int(match[2]) if match[2] is not None else None
+    return [e for v in values for e in list(v)[a:b]], True
 
 
 # --- checking a layout -----------------------------------------------------------------------
@@ -394,7 +592,7 @@ def _paths_of(panel_id: str, config: Mapping[str, Any]) -> Iterator[tuple[str, s
         if isinstance(value, str) and value:
             if key == "diffTopicPath" and not config.get("diffEnabled"):
                 continue
-            yield f"{panel_id}.{key}", value, kind in ("Indicator", "Gauge")
+            yield f"{panel_id}.{key}", value, kind == "Gauge"
     for i, item in enumerate(config.get("paths", []) or []):
         value = item.get("value") if isinstance(item, dict) else None
         if isinstance(value, str):
@@ -427,6 +625,81 @@ def _check_3d(panel_id: str, config: Mapping[str, Any], where: Produced) -> Iter
                    f"frames: {', '.join(frames)}")
 
 
+#: What the Indicator panel's rules compare with (Foxglove Studio 1.48).
+INDICATOR_OPERATORS = ("=", "<", "<=", ">", ">=")
+INDICATOR_STYLES = ("bulb", "background")
+#: Message types the Log panel shows.
+LOG_SCHEMAS = frozenset({"foxglove.Log"})
+_COLOR = re.compile(r"#(?:[0-9a-fA-F]{3}|[0-9a-fA-F]{6}|[0-9a-fA-F]{8})")
+
+
+def _rule_value_problem(leaf: Any, raw: str, operator: str) -> str | None:
+    """Why an Indicator rule's value can never match the values of ``leaf`` (None if it can).
+
+    Foxglove parses the value as JSON for numbers and booleans and compares with ``===``."""
+    if leaf.type == _STRING_TYPE:
+        return None
+    try:
+        value = json.loads(raw)
+    except ValueError:
+        value = None
+    if leaf.type == _BOOL_TYPE:
+        if not isinstance(value, bool):
+            return f"{raw!r} is not true or false"
+        return None if operator == "=" else f"a boolean is compared with '=', not {operator!r}"
+    if leaf.type in _NUMERIC_TYPES:
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        return None if number else f"{raw!r} is not a number"
+    return "the path is not a number, a string or a boolean"
+
+
+def _check_indicator(panel_id: str, config: Mapping[str, Any], leaf: Any) -> Iterator[str]:
+    """The Indicator panel's settings: a path, a style, colours, and rules whose values the
+    path's field can have (``leaf``: its descriptor, None when the path did not resolve)."""
+    if not config.get("path"):
+        yield f"{panel_id}.path: missing: the Indicator shows nothing"
+    if config.get("style", "bulb") not in INDICATOR_STYLES:
+        yield f"{panel_id}.style: {config.get('style')!r}; one of {', '.join(INDICATOR_STYLES)}"
+    color = config.get("fallbackColor")
+    if color is not None and not (isinstance(color, str) and _COLOR.fullmatch(color)):
+        yield f"{panel_id}.fallbackColor: {color!r} is not a colour (#rrggbb)"
+    rules = config.get("rules")
+    if not isinstance(rules, list) or not rules:
+        yield f"{panel_id}.rules: expected a list of rules"
+        return
+    for i, rule in enumerate(rules):
+        where = f"{panel_id}.rules[{i}]"
+        if not isinstance(rule, dict):
+            yield f"{where}: expected an object"
+            continue
+        operator, raw = rule.get("operator"), rule.get("rawValue")
+        if operator not in INDICATOR_OPERATORS:
+            yield f"{where}.operator: {operator!r}; one of {', '.join(INDICATOR_OPERATORS)}"
+        if not isinstance(rule.get("color"), str) or not _COLOR.fullmatch(rule["color"]):
+            yield f"{where}.color: {rule.get('color')!r} is not a colour (#rrggbb)"
+        if not isinstance(rule.get("label"), str):
+            yield f"{where}.label: expected a text"
+        if not isinstance(raw, str):
+            yield f"{where}.rawValue: expected a text"
+        elif leaf is not None and operator in INDICATOR_OPERATORS:
+            problem = _rule_value_problem(leaf, raw, operator)
+            if problem:
+                yield f"{where}.rawValue: never matches {leaf.full_name}: {problem}"
+
+
+def _check_log(panel_id: str, config: Mapping[str, Any], where: Produced) -> Iterator[str]:
+    """The Log panel shows a foxglove.Log topic (by default the first one there is)."""
+    topic = config.get("topicToRender")
+    if topic is None:
+        if not any(d.full_name in LOG_SCHEMAS for d in where.topics.values()):
+            yield f"{panel_id}: no {', '.join(sorted(LOG_SCHEMAS))} topic to show"
+        return
+    descriptor = where.topics.get(topic) if isinstance(topic, str) else None
+    if descriptor is not None and descriptor.full_name not in LOG_SCHEMAS:
+        yield (f"{panel_id}.topicToRender: {topic} is {descriptor.full_name}; the Log panel "
+               f"shows {', '.join(sorted(LOG_SCHEMAS))} (such as {LOG_TOPIC})")
+
+
 def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
     """Everything a layout names that the bridge does not produce (empty when all resolve)."""
     problems = check_format(layout)
@@ -434,8 +707,12 @@ def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
         return problems
     scripts = layout["userNodes"]
     for panel_id, config in layout["configById"].items():
-        if panel_type(panel_id) == "3D":
+        kind = panel_type(panel_id)
+        if kind == "3D":
             problems += _check_3d(panel_id, config, where)
+        if kind == "RosOut":
+            problems += _check_log(panel_id, config, where)
+        leaf = None
         for place, path, numeric in _paths_of(panel_id, config):
             if scripts and path.startswith(USER_SCRIPT_PREFIX):
                 continue  # published by the layout's own user script
@@ -446,8 +723,20 @@ def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
                 continue
             if numeric and not resolved.plottable:
                 whole = resolved.leaf is None or resolved.leaf.type == _MESSAGE_TYPE
-                kind = "a message" if whole else "not a number"
-                problems.append(f"{place}: {path} is {kind}: nothing to plot")
+                what = "a message" if whole else "not a number"
+                problems.append(f"{place}: {path} is {what}: nothing to plot")
+            elif kind in ("Indicator", "Gauge") and place == f"{panel_id}.path":
+                leaf = resolved.leaf
+                if leaf is None or leaf.type in (_MESSAGE_TYPE, _BYTES_TYPE):
+                    what = "bytes" if leaf is not None and leaf.type == _BYTES_TYPE else "a message"
+                    problems.append(f"{place}: {path} is {what}: nothing to show")
+                    leaf = None
+                elif resolved.several:
+                    problems.append(f"{place}: {path} can give several values; the "
+                                    f"{PANEL_NAMES[kind]} panel shows one: pick it with [n] "
+                                    "or a filter")
+        if kind == "Indicator":
+            problems += _check_indicator(panel_id, config, leaf)
     return problems
 
 

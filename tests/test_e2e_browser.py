@@ -3,8 +3,9 @@ package @foxglove/studio-base, mounted by tests/browser/host) in headless Chromi
 tankviz serves live (`tankviz demo`, `tankviz replay`) and what it records (`tankviz simulate`,
 opened as a remote file), with the bundled layouts applied through the app's own "Import
 layout" button (or preloaded into its layout storage); the checks read the screenshots' pixels
-(ego box, lanes, detections, tracks, lead box), the text labels (OCR with tesseract) and the
-panels' text (plot legends, Raw Messages).
+(ego box, lanes, detections, tracks, lead box), the text labels (OCR with tesseract), the
+panels' text (plot legends, Raw Messages, Log) and the Indicator panels of the sensor health
+alarms (their label, and their colour read from the pixels).
 
 Needs node + npm (the packages in tests/browser/package-lock.json are installed with `npm ci` when
 missing), Debian's chromium and tesseract-ocr. Without them the tests skip with the reason,
@@ -37,7 +38,13 @@ pytestmark = pytest.mark.browser
 ROOT = Path(__file__).resolve().parents[1]
 BROWSER = ROOT / "tests" / "browser"
 LAYOUTS = ROOT / "layouts"
-DRIVE_S = 20.0
+#: Long enough for the radar dropout (5 % of the drive: 2.5 s) to raise radar.silent (1 s after
+#: the radar is found silent) and to show it on a /health message (1 Hz) while it lasts.
+DRIVE_S = 50.0
+#: `tankviz demo`'s scenario length: its first fault (the lane dropout, at 40 %: lanes.lost after
+#: 49 s) comes well after the live shots, which need a demo without any alarm, while the lead
+#: brakes (12-42 s) and the traffic is close.
+DEMO_SCENARIO_S = 120.0
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome")
 #: Colours of the Tank Viz view that must be on screen live (pixels.mjs verdict keys).
 LIVE_VIEW = ["ego", "greenLanes", "radar", "camera", "tracks", "lead"]
@@ -105,9 +112,42 @@ def drive_time(seconds: float) -> str:
     return (start + timedelta(seconds=seconds)).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
+def active_alarms_at(drive: Path, seconds: float) -> set[str]:
+    """The alarms active on the drive's last /health message at or before `seconds` into it
+    (what Foxglove shows there)."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    until = DEFAULT_START_NS + round(seconds * 1e9)
+    latest: Any = None
+    with drive.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, message, health in reader.iter_decoded_messages(topics=["/health"]):
+            if message.log_time <= until:
+                latest = health
+    assert latest is not None, f"{drive}: no /health before {seconds} s"
+    return {alarm.id for alarm in latest.alarms if alarm.active}
+
+
+def indicators(layout: str, active: set[str]) -> dict[str, dict[str, str]]:
+    """What each Indicator panel of a layout must show: its rule for true (the alarm is active)
+    or false (label and colour), read from the layout itself."""
+    data = json.loads((LAYOUTS / layout).read_text(encoding="utf-8"))
+    out = {}
+    for panel_id, config in data["configById"].items():
+        if panel_id.startswith("Indicator!"):
+            alarm = re.fullmatch(r'/health\.alarms\[:\]\{id=="([^"]+)"\}\.active',
+                                 config["path"])
+            assert alarm, f"{layout}: {panel_id}: {config['path']}"
+            wanted = "true" if alarm[1] in active else "false"
+            (rule,) = [r for r in config["rules"] if r["rawValue"] == wanted]
+            out[panel_id] = {"label": rule["label"], "color": rule["color"]}
+    return out
+
+
 @pytest.fixture(scope="module")
 def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """One browser session for every shot (the whole run takes about a minute)."""
+    """One browser session for every shot (the whole run takes about a minute and a half)."""
     browser = chromium()
     if browser is None:
         unavailable("chromium is not installed (apt-get install chromium)")
@@ -119,9 +159,19 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
                     str(DRIVE_S), "--force"], cwd=ROOT, check=True, capture_output=True)
     begin, end = TIMELINE.lane_dropout.window_s(DRIVE_S)
     dropout = drive_time((begin + end) / 2)
-    demo, url = start_tankviz("demo", "--port", "0", "--no-record")
+    # Late in the radar dropout: radar.silent is raised and on the latest /health message.
+    radar_begin, radar_end = TIMELINE.radar_dropout.window_s(DRIVE_S)
+    radar_out_s = radar_end - 0.2
+    radar_alarms = active_alarms_at(drive, radar_out_s)
+    assert radar_alarms == {"radar.silent"}, (
+        f"the drive's /health at {radar_out_s} s (radar dropout {radar_begin}-{radar_end} s): "
+        f"active {sorted(radar_alarms)}")
+    radar_out = drive_time(radar_out_s)
+    demo_started = time.monotonic()
+    demo, url = start_tankviz("demo", "--port", "0", "--no-record", "--scenario",
+                              f"{DEMO_SCENARIO_S:g}")
     # The drive served live by `tankviz replay` from just inside the camera dropout, slowly
-    # (0.05x: the dropout lasts half a minute), so the browser is there before it ends.
+    # (0.05x: the dropout lasts over a minute and a half), so the browser is there before it ends.
     replay, replay_url = start_tankviz("replay", str(drive), "--port", "0", "--start",
                                        f"{begin + 0.2:.1f}", "--speed", "0.05")
     plan = {
@@ -130,32 +180,44 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         "timeoutMs": 60000,
         "viewport": {"width": 1600, "height": 1000},
         "shots": [
+            {"name": "tank-viz", "source": {"ws": url}, "via": "import",
+             "layout": str(LAYOUTS / "tank-viz.json"),
+             "scene": {"panel": "3D!tankviz", "expect": LIVE_VIEW},
+             "ocr": ["Lead Vehicle", "TrackID"], "screenshot": str(out / "tank-viz.png")},
+            # No fault in the demo before 40 % of its scenario: every alarm a green OK.
+            {"name": "engineer-live", "source": {"ws": url}, "via": "preload",
+             "layout": str(LAYOUTS / "engineer.json"),
+             "scene": {"panel": "3D!engineer", "expect": ["ego", "greenLanes", "lead"]},
+             "plots": True, "plotExtent": 0.3,
+             "indicators": indicators("engineer.json", set()),
+             "screenshot": str(out / "engineer-live.png")},
             {"name": "replay", "source": {"ws": replay_url}, "via": "preload",
              "layout": str(LAYOUTS / "tank-viz.json"),
              "scene": {"panel": "3D!tankviz", "expect": ["ego", "magentaLanes", "lead"],
                        "absent": ["greenLanes"]},
              "screenshot": str(out / "replay.png")},
-            {"name": "tank-viz", "source": {"ws": url}, "via": "import",
-             "layout": str(LAYOUTS / "tank-viz.json"),
-             "scene": {"panel": "3D!tankviz", "expect": LIVE_VIEW},
-             "ocr": ["Lead Vehicle", "TrackID"], "screenshot": str(out / "tank-viz.png")},
             {"name": "dropout", "source": {"mcap": drive.name, "time": dropout},
              "via": "preload", "layout": str(LAYOUTS / "tank-viz.json"),
              "scene": {"panel": "3D!tankviz", "expect": ["ego", "magentaLanes", "tracks", "lead"],
                        "absent": ["greenLanes"]},
              "screenshot": str(out / "dropout.png")},
-            {"name": "engineer", "source": {"mcap": drive.name, "time": dropout},
+            # The recorded drive in its radar dropout: radar.silent red, no blue radar spheres.
+            {"name": "engineer", "source": {"mcap": drive.name, "time": radar_out},
              "via": "import", "layout": str(LAYOUTS / "engineer.json"),
-             "scene": {"panel": "3D!engineer", "expect": ["ego", "magentaLanes", "lead"]},
+             "scene": {"panel": "3D!engineer", "expect": ["ego", "greenLanes", "tracks", "lead"],
+                       "absent": ["radar"]},
              "plots": True, "plotExtent": 0.8,
-             "panelText": {"RawMessages!lead": ["tankviz.LeadVehicle @", "mio_ok", "present"]},
+             "indicators": indicators("engineer.json", radar_alarms),
+             "panelText": {"RawMessages!lead": ["tankviz.LeadVehicle @", "mio_ok", "present"],
+                           "RosOut!alarms": ["ALARM radar.silent", "no frame for"]},
              "screenshot": str(out / "engineer.png")},
-            {"name": "can-debug", "source": {"mcap": drive.name, "time": dropout},
+            {"name": "can-debug", "source": {"mcap": drive.name, "time": radar_out},
              "via": "import", "layout": str(LAYOUTS / "can-debug.json"),
              "plots": True, "plotExtent": 0.8,
+             "indicators": indicators("can-debug.json", radar_alarms),
              "panelText": {"RawMessages!frames": ["tankviz.CanFrame @", "dlc", "data"],
                            "SourceInfo!topics": ["/can/can0/frames", "tankviz.CanFrame",
-                                                 "/scene/lanes", "foxglove.SceneUpdate"]},
+                                                 "/health", "tankviz.Health"]},
              "screenshot": str(out / "can-debug.png")},
         ],
     }
@@ -175,6 +237,11 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     result = json.loads(lines[-1])
     (out / "result.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
     shots = {shot["name"]: shot for shot in result["shots"]}
+    # How far into the demo each shot ended, at most (the driver's time, shot by shot).
+    elapsed = started - demo_started
+    for shot in result["shots"]:
+        elapsed += shot["seconds"]
+        shot["demoSeconds"] = round(elapsed, 1)
     if os.environ.get("TANKVIZ_UPDATE_PREVIEWS"):
         for name in ("tank-viz", "engineer", "can-debug"):
             if shots[name]["ok"]:
@@ -228,20 +295,55 @@ def test_lane_dropout_shows_magenta_lanes(e2e: dict[str, Any]) -> None:
     assert len(shot["reading"]["lanes"]["magenta"]) >= 2
 
 
+ENGINEER_PLOTS = {"Plot!lead", "Plot!ego", "Plot!counts", "Plot!rates"}
+
+
 def test_engineer_layout_plots_and_raw_messages(e2e: dict[str, Any]) -> None:
     shot = e2e["shots"]["engineer"]
     assert shot["ok"], explain(shot)
-    assert set(shot["plots"]) == {"Plot!lead", "Plot!ego", "Plot!counts"}
+    assert set(shot["plots"]) == ENGINEER_PLOTS
     for plot in shot["plots"].values():
         assert plot["missingValues"] == [] and plot["extent"] >= 0.8
+
+
+def test_engineer_indicators_live_without_alarms(e2e: dict[str, Any]) -> None:
+    """`tankviz demo` live, before its first fault: every alarm's Indicator is a green OK, and
+    the health plot (family rates from /health) has values."""
+    shot = e2e["shots"]["engineer-live"]
+    first_fault_s = TIMELINE.lane_dropout.start * DEMO_SCENARIO_S
+    assert shot["ok"], (f"ended at most {shot['demoSeconds']} s into the demo (its first fault: "
+                        f"{first_fault_s:g} s)\n{explain(shot)}")
+    shown = shot["indicators"]
+    assert len(shown) == 14, sorted(shown)
+    assert {i["label"] for i in shown.values()} == {"OK"}
+    assert all(i["share"] >= 0.5 for i in shown.values())
+    assert set(shot["plots"]) == ENGINEER_PLOTS
+    assert shot["plots"]["Plot!rates"]["missingValues"] == []
+
+
+def test_engineer_indicators_in_the_radar_dropout(e2e: dict[str, Any]) -> None:
+    """The recorded drive opened in its radar dropout: radar.silent is red and says so, every
+    other alarm is a green OK, the Log panel has the alarm and the rate plot the gap."""
+    shot = e2e["shots"]["engineer"]
+    assert shot["ok"], explain(shot)
+    shown = shot["indicators"]
+    assert len(shown) == 14
+    red = {k for k, v in shown.items() if v["label"] != "OK"}
+    assert red == {"Indicator!radar.silent"}
+    assert shown["Indicator!radar.silent"]["label"] == "radar.silent"
+    assert not shot["verdict"]["radar"], "no radar detections while the radar is silent"
+    rates = shot["plots"]["Plot!rates"]
+    assert rates["missingValues"] == [] and rates["extent"] >= 0.8
 
 
 def test_can_debug_layout(e2e: dict[str, Any]) -> None:
     shot = e2e["shots"]["can-debug"]
     assert shot["ok"], explain(shot)
-    assert len(shot["plots"]) == 4
+    assert len(shot["plots"]) == 7
     for plot in shot["plots"].values():
         assert plot["missingValues"] == [] and plot["extent"] >= 0.8
+    assert set(shot["indicators"]) == {"Indicator!bus.can0.silent", "Indicator!bus.can0.babbling"}
+    assert {i["label"] for i in shot["indicators"].values()} == {"OK"}
 
 
 def test_no_errors_in_the_app(e2e: dict[str, Any]) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,8 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bridge.convert import build_stages
 from bridge.errors import BridgeError
+from bridge.frame import Frame
+from bridge.health import HealthMonitor
 from bridge.layouts import (
     LAYOUT_KEYS,
     Produced,
@@ -34,7 +37,9 @@ from bridge.perception import Perception
 from bridge.resources import layouts_dir
 from bridge.topics import (
     EGO_TOPIC,
+    HEALTH_TOPIC,
     LEAD_TOPIC,
+    LOG_TOPIC,
     VEHICLE_FRAME,
     frames_topic,
     message_topic,
@@ -45,6 +50,9 @@ from bridge.topics import (
 LAYOUTS = layouts_dir()
 NAMES = ("tank-viz", "engineer", "can-debug")
 PNG = b"\x89PNG\r\n\x1a\n"
+#: The bus of `tankviz demo` and `tankviz simulate`.
+BUS = "can0"
+OK_GREEN, ALARM_RED = "#1e8e3e", "#d93025"
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +63,41 @@ def stages() -> tuple[Any, Any]:
 @pytest.fixture(scope="module")
 def made(stages: tuple[Any, Any]) -> Produced:
     decoder, profile = stages
-    return produced(decoder, profile, ["can0"])  # the bus of tankviz demo and simulate
+    return produced(decoder, profile, [BUS])
+
+
+@pytest.fixture(scope="module")
+def alarm_ids(stages: tuple[Any, Any]) -> list[str]:
+    """Every alarm the health monitor checks for the bundled profile once the demo's bus has
+    carried a frame (bus alarms appear with their bus)."""
+    decoder, profile = stages
+    monitor = HealthMonitor(profile, decoder)
+    monitor.on_frame(Frame(0, BUS, 0x100, bytes(8)), None)
+    return monitor.alarm_ids()
+
+
+def alarm_path(alarm: str) -> str:
+    return f'{HEALTH_TOPIC}.alarms[:]{{id=="{alarm}"}}.active'
+
+
+def check_indicators(data: dict[str, Any]) -> dict[str, str]:
+    """The alarm of each Indicator panel, after checking that it is a green OK while the alarm
+    is inactive and red with the alarm id while it is active."""
+    out = {}
+    for panel_id, config in panels(data, "Indicator").items():
+        alarm = panel_id.split("!", 1)[1]
+        assert config["path"] == alarm_path(alarm), panel_id
+        assert config["foxglovePanelTitle"] == alarm
+        assert config["style"] == "background"
+        rules = {r["rawValue"]: r for r in config["rules"]}
+        assert set(rules) == {"true", "false"} and len(config["rules"]) == 2
+        assert all(r["operator"] == "=" for r in rules.values())
+        assert (rules["true"]["label"], rules["true"]["color"]) == (alarm, ALARM_RED)
+        assert (rules["false"]["label"], rules["false"]["color"]) == ("OK", OK_GREEN)
+        assert config["fallbackLabel"] == "no data"
+        assert config["fallbackColor"] not in (OK_GREEN, ALARM_RED), "no data is neither"
+        out[panel_id] = alarm
+    return out
 
 
 def layout(name: str) -> dict[str, Any]:
@@ -75,7 +117,9 @@ def test_the_bundled_layouts_with_their_previews() -> None:
         data = b.preview.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, f"{b.preview}: not a screenshot"
     assert found["tank-viz"].summary == "3D"
-    assert found["engineer"].summary == "3D, 3 plots, Raw Messages"
+    assert found["engineer"].summary == "3D, 4 plots, Raw Messages, Log, 14 Indicator panels"
+    assert (found["can-debug"].summary
+            == "7 plots, 2 Indicator panels, Raw Messages, Data Source Info")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -122,7 +166,7 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
     assert grid["position"] == [70, 0, 0]
 
 
-def test_engineer_layout(made: Produced) -> None:
+def test_engineer_layout(made: Produced, alarm_ids: list[str]) -> None:
     data = layout("engineer")
     (view,) = panels(data, "3D").values()
     (tank,) = panels(layout("tank-viz"), "3D").values()
@@ -138,21 +182,145 @@ def test_engineer_layout(made: Produced) -> None:
             == PerceivedObjects.DESCRIPTOR.full_name)
     (raw,) = panels(data, "RawMessages").values()
     assert raw["topicPath"] == LEAD_TOPIC
+    # Health: one Indicator per alarm the monitor checks, the family rates, the alarm log.
+    shown = check_indicators(data)
+    assert sorted(shown.values()) == sorted(alarm_ids)
+    assert len(alarm_ids) == 14 and "radar.silent" in alarm_ids
+    rates = [p["value"] for p in data["configById"]["Plot!rates"]["paths"]]
+    assert rates == [f'{HEALTH_TOPIC}.families[:]{{name=="{family}"}}.{rate}'
+                     for family in ("radar", "camera", "tracks")
+                     for rate in ("actual_hz", "expected_hz")]
+    for path in rates:
+        resolved = resolve_path(path, made)
+        assert resolved.plottable and not resolved.several
+    (log,) = panels(data, "RosOut").values()
+    assert log["topicToRender"] == LOG_TOPIC
+    assert made.topics[LOG_TOPIC].full_name == "foxglove.Log"
 
 
 def test_can_debug_layout(made: Produced) -> None:
     data = layout("can-debug")
     (raw,) = panels(data, "RawMessages").values()
-    assert raw["topicPath"] == frames_topic("can0")
+    assert raw["topicPath"] == frames_topic(BUS)
     assert panels(data, "SourceInfo"), "topics with message counts and rates"
-    plotted = [p["value"] for plot in panels(data, "Plot").values() for p in plot["paths"]]
-    assert len(plotted) >= 8
-    for path in plotted:
+    plots = panels(data, "Plot")
+    signals = [p["value"] for plot_id, plot in plots.items() for p in plot["paths"]
+               if not plot_id.startswith("Plot!bus-")]
+    assert len(signals) >= 8
+    for path in signals:
         resolved = resolve_path(path, made)
-        assert resolved.topic.startswith("/can/can0/") and resolved.plottable
+        assert resolved.topic.startswith(f"/can/{BUS}/") and resolved.plottable
         assert resolved.schema.startswith("tankviz.dbc.ecocar.")
-    assert f"{message_topic('can0', 'EgoMotion')}.VehicleSpeed" in plotted
-    assert referenced_topics(data, made) >= {frames_topic("can0")}
+    assert f"{message_topic(BUS, 'EgoMotion')}.VehicleSpeed" in signals
+    # The bus's health from /health: frames/s, load, error frames, unknown ids, decode errors.
+    bus = [p["value"] for plot_id, plot in plots.items() for p in plot["paths"]
+           if plot_id.startswith("Plot!bus-")]
+    assert bus == [f'{HEALTH_TOPIC}.buses[:]{{bus=="{BUS}"}}.{figure}'
+                   for figure in ("frames_per_s", "load", "error_frames", "unknown_ids",
+                                  "decode_errors")]
+    for path in bus:
+        resolved = resolve_path(path, made)
+        assert resolved.plottable and not resolved.several
+    assert sorted(check_indicators(data).values()) == [f"bus.{BUS}.babbling", f"bus.{BUS}.silent"]
+    assert referenced_topics(data, made) >= {frames_topic(BUS), HEALTH_TOPIC}
+
+
+def test_the_health_sample_is_what_the_monitor_reports(made: Produced,
+                                                       alarm_ids: list[str]) -> None:
+    """The checker knows /health's buses, families and alarms from the pipeline's own health
+    monitor: the same alarms as a monitor of the bundled profile on the demo's bus."""
+    health = made.samples[HEALTH_TOPIC]
+    assert [a.id for a in health.alarms] == alarm_ids
+    assert [b.bus for b in health.buses] == [BUS]
+    assert {f.name for f in health.families} >= {"radar", "camera", "tracks"}
+    assert [b.pair for b in health.biases] == ["radar-camera"]
+
+
+def test_filters_in_message_paths(made: Produced, stages: tuple[Any, Any]) -> None:
+    silent = resolve_path(alarm_path("radar.silent"), made)
+    assert silent.leaf.full_name == "tankviz.Alarm.active" and silent.plottable
+    assert not silent.several, "ids are unique: one value"
+    assert resolve_path(f"{HEALTH_TOPIC}.alarms[:].active", made).several
+    assert not resolve_path(f"{HEALTH_TOPIC}.alarms[0].active", made).several
+    assert resolve_path(f"{HEALTH_TOPIC}.alarms[1:3].active", made).several
+    # Quoted values may hold dots, brackets and braces; single quotes work too.
+    assert not resolve_path(f"{HEALTH_TOPIC}.alarms[:]{{id=='lanes.lost'}}.active",
+                            made).several
+    # State fields (not known in advance) and layout variables are not checked by value.
+    assert resolve_path(f"{HEALTH_TOPIC}.alarms[:]{{active==true}}.id", made).leaf.type == 9
+    assert resolve_path(f"{HEALTH_TOPIC}.alarms[:]{{id==$alarm}}.active", made).plottable
+    assert resolve_path(f"{objects_topic('radar')}.objects[:]{{id==3}}.x", made).plottable
+    for path, message in [
+        (alarm_path("radar.silnet"), 'no /health.alarms has id == "radar.silnet"; id: '),
+        (alarm_path(f"bus.{BUS}x.silent"), f'has id == "bus.{BUS}x.silent"'),
+        (f"{HEALTH_TOPIC}.alarms[99].active", "/health.alarms has no element 99"),
+        (f'{HEALTH_TOPIC}.alarms[:]{{id=="radar.silent"}}.activ',
+         "tankviz.Alarm has no field 'activ'"),
+        (f'{HEALTH_TOPIC}.alarms[:]{{ids=="radar.silent"}}.active',
+         "the filter on /health.alarms names no field 'ids'"),
+        (f"{HEALTH_TOPIC}.alarms[:]{{id==3}}.active", "id is a string field: quote the value"),
+        (f'{HEALTH_TOPIC}.alarms[:]{{active=="yes"}}.id', "active is a boolean field"),
+        (f'{HEALTH_TOPIC}.buses[:]{{frames_per_s=="x"}}.load', "a number field"),
+        (f'{HEALTH_TOPIC}.families[:]{{name=="lidar"}}.actual_hz',
+         'no /health.families has name == "lidar"; name: camera, ego, lanes, lead, radar, '
+         "tracks"),
+        (f'{HEALTH_TOPIC}.alarms[:]{{id=="radar.silent".active', "unbalanced"),
+        (f"{HEALTH_TOPIC}.alarms[:][0].active", "indexed twice"),
+    ]:
+        with pytest.raises(BridgeError, match=re.escape(message)):
+            resolve_path(path, made)
+    # Another bus has its own alarms.
+    decoder, profile = stages
+    two = produced(decoder, profile, [BUS, "can1"])
+    assert not resolve_path(alarm_path("bus.can1.babbling"), two).several
+    with pytest.raises(BridgeError, match=re.escape('has id == "bus.can1.babbling"')):
+        resolve_path(alarm_path("bus.can1.babbling"), made)
+
+
+def test_the_check_names_wrong_alarms_and_panels(made: Produced) -> None:
+    """A misspelt alarm id, one the monitor does not check (another bus), a misspelt field, a
+    path with several values, rules that never match and a Log panel on the wrong topic."""
+    broken = layout("engineer")
+    configs = broken["configById"]
+    configs["Indicator!radar.silent"]["path"] = alarm_path("radar.silnet")
+    configs["Indicator!radar.rate"]["path"] = alarm_path("bus.can1.silent")
+    configs["Indicator!radar.blind"]["path"] = alarm_path("radar.blind").replace(
+        ".active", ".activ")
+    configs["Indicator!camera.silent"]["path"] = f"{HEALTH_TOPIC}.alarms[:].active"
+    configs["Indicator!camera.rate"]["path"] = f"{HEALTH_TOPIC}.alarms[:]{{id==\"camera.rate\"}}"
+    rules = configs["Indicator!lanes.lost"]["rules"]
+    rules[0]["rawValue"] = "yes"
+    rules[1]["operator"] = "=="
+    rules[1]["color"] = "green"
+    configs["Indicator!ego.rate"]["style"] = "lamp"
+    del configs["Indicator!ego.silent"]["path"]
+    configs["RosOut!alarms"]["topicToRender"] = HEALTH_TOPIC
+    configs["Plot!rates"]["paths"][0]["value"] = (
+        f'{HEALTH_TOPIC}.families[:]{{name=="raddar"}}.actual_hz')
+    problems = check_layout(broken, made)
+    text = "\n".join(problems)
+    assert 'Indicator!radar.silent.path: /health.alarms[:]{id=="radar.silnet"}.active: no ' in text
+    assert 'no /health.alarms has id == "bus.can1.silent"' in text
+    assert "tankviz.Alarm has no field 'activ'" in text
+    assert ("Indicator!camera.silent.path: /health.alarms[:].active can give several values; "
+            "the Indicator panel shows one") in text
+    assert "Indicator!camera.rate.path: " in text and "is a message: nothing to show" in text
+    assert ("Indicator!lanes.lost.rules[0].rawValue: never matches tankviz.Alarm.active: "
+            "'yes' is not true or false") in text
+    assert "Indicator!lanes.lost.rules[1].operator: '=='; one of =, <, <=, >, >=" in text
+    assert "Indicator!lanes.lost.rules[1].color: 'green' is not a colour" in text
+    assert "Indicator!ego.rate.style: 'lamp'; one of bulb, background" in text
+    assert "Indicator!ego.silent.path: missing" in text
+    assert ("RosOut!alarms.topicToRender: /health is tankviz.Health; the Log panel shows "
+            "foxglove.Log") in text
+    assert 'no /health.families has name == "raddar"' in text
+    assert len(problems) == 12, text
+    # Every bundled Indicator rule is checked against the field it reads.
+    fine = layout("engineer")
+    fine["configById"]["Indicator!radar.silent"]["rules"][0]["rawValue"] = "1"
+    assert check_layout(fine, made) == [
+        "Indicator!radar.silent.rules[0].rawValue: never matches tankviz.Alarm.active: '1' is "
+        "not true or false"]
 
 
 def test_the_check_names_what_is_wrong(made: Produced) -> None:

@@ -17,12 +17,15 @@
 //     "plots": true, "plotExtent": 0.8,  every Plot panel shows a value for each of its paths
 //                                        and data lines over that share of its width
 //     "panelText": {"RawMessages!lead": ["tankviz.LeadVehicle @", …]},  text in a panel
+//     "indicators": {"Indicator!radar.silent": {"label": "OK", "color": "#1e8e3e"}, …},
+//                                        Indicator panels showing that label, and that colour
+//                                        on most of their coloured box (read from the pixels)
 //     "ocr": ["Lead Vehicle", "TrackID"],  words to read in the 3D labels (needs tesseract)
 //     "screenshot": "/abs/out.png"
 //   }]
 // }
 // Result: {"ok", "seconds", "shots": [{"name", "ok", "failures", "verdict", "reading", "plots",
-// "ocr", "steps", "errors", "seconds"}]}
+// "indicators", "ocr", "steps", "errors", "seconds"}]}
 // Every wait is for a condition, with the plan's timeout; a shot that times out is reported with
 // what was seen last (and its screenshot), not thrown.
 
@@ -158,6 +161,60 @@ async function panelInfo(page, panelId) {
     }
     return { text, region, overlays };
   }, panelId);
+}
+
+/**
+ * An Indicator panel: its label (the MUI h1 text) and the box its colour is painted on (the
+ * element with the inline background colour: the whole panel body in "background" style, the
+ * bulb in "bulb" style).
+ */
+async function indicatorInfo(page, panelId) {
+  return page.evaluate((id) => {
+    const root = document.querySelector(`[data-testid="panel-mouseenter-container ${id}"]`);
+    const label = root?.querySelector(".MuiTypography-h1");
+    if (!label) {
+      return undefined;
+    }
+    const painted = [...root.querySelectorAll("[style]")].filter((el) => el.style.backgroundColor);
+    const box = painted[painted.length - 1];
+    const r = (box ?? label).getBoundingClientRect();
+    return {
+      label: label.innerText,
+      css: box ? getComputedStyle(box).backgroundColor : undefined,
+      box: { x: Math.round(r.x), y: Math.round(r.y), width: Math.round(r.width), height: Math.round(r.height) },
+    };
+  }, panelId);
+}
+
+const hex = (r, g, b) => `#${[r, g, b].map((v) => v.toString(16).padStart(2, "0")).join("")}`;
+
+/** The most frequent colour in a box of the screenshot, and its share of the box's pixels. */
+function dominantColor(image, box) {
+  const counts = new Map();
+  let total = 0;
+  for (let y = Math.max(0, box.y); y < Math.min(image.height, box.y + box.height); y++) {
+    for (let x = Math.max(0, box.x); x < Math.min(image.width, box.x + box.width); x++) {
+      const i = (y * image.width + x) * 4;
+      const key = hex(image.data[i], image.data[i + 1], image.data[i + 2]);
+      counts.set(key, (counts.get(key) ?? 0) + 1);
+      total++;
+    }
+  }
+  let best;
+  let most = 0;
+  for (const [key, n] of counts) {
+    if (n > most) {
+      best = key;
+      most = n;
+    }
+  }
+  return { color: best, share: total ? +(most / total).toFixed(3) : 0 };
+}
+
+function colorDistance(a, b) {
+  const parse = (h) => [1, 3, 5].map((i) => parseInt(h.slice(i, i + 2), 16));
+  const [p, q] = [parse(a), parse(b)];
+  return Math.max(...p.map((v, i) => Math.abs(v - q[i])));
 }
 
 /** How much of a plot's width carries coloured data lines (0..1) and how many such pixels. */
@@ -365,6 +422,22 @@ async function runShot(ctx, base, shot, plan) {
           }
         }
       }
+      state.indicators = {};
+      for (const [id, want] of Object.entries(shot.indicators ?? {})) {
+        const info = await indicatorInfo(page, id);
+        if (!info) {
+          state.failures.push(`${id}: no Indicator label on screen`);
+          continue;
+        }
+        const seen = dominantColor(image, info.box);
+        state.indicators[id] = { label: info.label, css: info.css, ...seen };
+        if (info.label !== want.label) {
+          state.failures.push(`${id}: label ${JSON.stringify(info.label)}, expected ${JSON.stringify(want.label)}`);
+        }
+        if (!seen.color || colorDistance(seen.color, want.color) > 24 || seen.share < 0.5) {
+          state.failures.push(`${id}: colour ${seen.color} on ${seen.share} of it, expected ${want.color}`);
+        }
+      }
       for (const [id, words] of Object.entries(panelText)) {
         const info = await panelInfo(page, id);
         for (const word of words) {
@@ -407,6 +480,7 @@ async function runShot(ctx, base, shot, plan) {
       verdict: last?.verdict,
       reading: last?.reading,
       plots: last?.plots,
+      indicators: last?.indicators,
       ocr,
     });
   } catch (error) {
