@@ -48,6 +48,7 @@ class Pipeline:
         self._next_tick: int | float = (float("-inf") if self.perception is not None
                                         or health is not None else float("inf"))
         self._server_channels: dict[str, int] = {}
+        self._frame_channels: dict[str, int] = {}
         self.frames = 0
         self.last_ns: int | None = None
 
@@ -131,8 +132,10 @@ class Pipeline:
                                out.t_ns, payload)
 
     def _serve_frame(self, server: LiveServer, frame: Frame) -> None:
-        channel = self._server_channel(server, frames_topic(frame.bus), "tankviz.CanFrame",
-                                       lambda: _fds(CanFrame))
+        channel = self._frame_channels.get(frame.bus)
+        if channel is None:
+            channel = self._frame_channels[frame.bus] = self._server_channel(
+                server, frames_topic(frame.bus), "tankviz.CanFrame", lambda: _fds(CanFrame))
         if server.wanted(channel):
             server.publish(channel, frame.timestamp_ns, CanFrame(
                 bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,

@@ -96,10 +96,16 @@ class _Client:
             while True:
                 await self.ready.wait()
                 self.ready.clear()
+                sent = 0
                 while self.control or self.queue:
                     frame = self.control.popleft() if self.control else self.queue.popleft()
                     await connection.send(frame)
                     self.stats.sent += 1
+                    sent += 1
+                    if sent % _FAIR_SHARE == 0:
+                        # A send that fits the socket buffer does not yield: let the loop take
+                        # in new messages and serve the other clients now and then.
+                        await asyncio.sleep(0)
         except Exception:  # the connection closed; foxglove-websocket forgets the client
             return
 
@@ -197,7 +203,10 @@ class LiveServer:
                                 capabilities=capabilities, supported_encodings=[],
                                 session_id=self.session_id,
                                 metadata={"tankviz": "live"}, logger=log,
-                                server_kwargs={"compression": None, "sock": sock})
+                                # No keepalive pings: websockets' legacy protocol cannot have a
+                                # ping and our sender wait on one full socket at the same time.
+                                server_kwargs={"compression": None, "sock": sock,
+                                               "ping_interval": None})
         server.set_listener(_Subscriptions(self._wanted))
         self._server = server
         server.start()
@@ -314,6 +323,9 @@ class LiveServer:
                 for client in clients:
                     client.put_control(frame)
 
+
+#: Messages one client's sender sends before letting the others have a turn.
+_FAIR_SHARE = 16
 
 _HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
 _TIME_HEADER = struct.Struct("<BQ")
