@@ -111,19 +111,27 @@ class _GroupReader:
         self.latest: dict[tuple[int | None, str], Mapping[str, Any]] = {}
         #: time of the latest position per object index
         self.position_ns: dict[int | None, int] = {}
-        self._refs: dict[int | None, dict[str, SignalRef | None]] = {}
+        self._refs: dict[int | None, dict[str, tuple[str, str, float, float] | None]] = {}
+        self._names: dict[int | None, list[str]] = {}
 
     def message_names(self, index: int | None) -> list[str]:
         """The messages of object ``index``, in the family's order."""
-        return [t if index is None else expand(t, index) for t in self.group.templates]
+        names = self._names.get(index)
+        if names is None:
+            names = self._names[index] = [t if index is None else expand(t, index)
+                                          for t in self.group.templates]
+        return names
 
-    def refs(self, index: int | None) -> dict[str, SignalRef | None]:
+    def refs(self, index: int | None) -> dict[str, tuple[str, str, float, float] | None]:
+        """Per field of object ``index``: (message, signal, scale, offset), or None."""
         refs = self._refs.get(index)
         if refs is None:
             refs = self._refs[index] = {}
             for name in _FIELDS:
-                ref = getattr(self.group, name)
-                refs[name] = ref.at(index) if ref is not None else None
+                ref: SignalRef | None = getattr(self.group, name)
+                if ref is not None:
+                    ref = ref.at(index)
+                refs[name] = (ref.message, ref.signal, ref.scale, ref.offset) if ref else None
         return refs
 
     def observe(self, member: FamilyMember, message: str, values: Mapping[str, Any],
@@ -143,8 +151,9 @@ class _GroupReader:
             ref = refs[name]
             if ref is None:
                 return None
-            found = latest.get((index, ref.message))
-            return ref.read(found) if found is not None else None
+            found = latest.get((index, ref[0]))
+            raw = found.get(ref[1]) if found is not None else None
+            return None if raw is None else float(raw) * ref[2] + ref[3]
 
         sensor = g.sensor
         if g.range is not None:
@@ -176,8 +185,11 @@ class _GroupReader:
             by_message = {name: found for name in self.message_names(index)
                           if (found := latest.get((index, name))) is not None}
             merged: dict[str, Any] = {}
-            for found in reversed(by_message.values()):  # the first message wins a shared name
-                merged.update(found)
+            for name in rule.names:  # only what the rule reads; the first message has it
+                for found in by_message.values():
+                    if name in found:
+                        merged[name] = found[name]
+                        break
             valid = rule.test(merged, by_message)
         object_id = (int(ident) if ident is not None and math.isfinite(ident)
                      else (index or 0))
