@@ -9,6 +9,7 @@ import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -212,7 +213,13 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
 
         async def viewers() -> int:
             proto = [websockets.Subprotocol("foxglove.websocket.v1")]
-            stalled = await websockets.connect(server.url, subprotocols=proto, max_queue=1)
+            # A small receive window, so that its stall fills the server's buffers at once.
+            small = socket.socket()
+            small.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            small.connect(("127.0.0.1", server.port))
+            small.setblocking(False)
+            stalled = await websockets.connect(server.url, subprotocols=proto, max_queue=1,
+                                               sock=small)
             channels: dict[str, int] = {}
             while "/scene/radar" not in channels:
                 message = json.loads(await stalled.recv())
