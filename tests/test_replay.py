@@ -1,0 +1,129 @@
+"""tankviz replay: a drive or a CAN log served in log time, with server time for the viewer."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import can
+import pytest
+import websockets
+
+from bridge.cli import main
+from bridge.convert import build_stages
+from bridge.errors import UsageError
+from bridge.replay import replay_log, replay_mcap
+from bridge.server import LiveServer
+from bridge.simulate import simulate
+
+NS = 1_000_000_000
+PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]
+
+
+def watch(server: LiveServer, topic: str, run: Callable[[], object]) -> tuple[list[int],
+                                                                          list[int]]:
+    """Run the replay in a thread, subscribe to ``topic`` once it is advertised, and collect
+    the message times and the server times until the replay ends."""
+    messages: list[int] = []
+    times: list[int] = []
+    replaying = threading.Thread(target=run)
+
+    async def session() -> None:
+        async with websockets.connect(server.url, subprotocols=PROTO, max_size=None) as ws:
+            replaying.start()
+            channel = None
+            while channel is None:
+                raw = await asyncio.wait_for(ws.recv(), 10)
+                if isinstance(raw, bytes):  # server time before the channel: not yet
+                    continue
+                message = json.loads(raw)
+                channel = next((c["id"] for c in message.get("channels", [])
+                                if c["topic"] == topic), None)
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": channel}]}))
+            while replaying.is_alive():
+                try:
+                    data = await asyncio.wait_for(ws.recv(), 0.5)
+                except asyncio.TimeoutError:
+                    continue
+                if isinstance(data, bytes) and data[0] == 1:
+                    messages.append(struct.unpack_from("<BIQ", data)[2])
+                elif isinstance(data, bytes) and data[0] == 2:
+                    times.append(struct.unpack("<BQ", data)[1])
+
+    asyncio.run(session())
+    replaying.join(10)
+    return messages, times
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("replay") / "drive.mcap"
+    assert main(["simulate", "-o", str(path), "--duration", "3"]) == 0
+    return path
+
+
+def test_a_drive_is_served_in_log_time_with_server_time(drive: Path) -> None:
+    with LiveServer(port=0, server_time=True) as server:
+        started = time.monotonic()
+        messages, times = watch(server, "/scene/ego", lambda: replay_mcap(
+            drive, server, speed=1.5, start_s=1.0))
+        took = time.monotonic() - started
+    # what follows the subscription (a new client's adverts settle for up to 1 s)
+    assert messages == sorted(messages) and len(messages) >= 5
+    assert messages[0] - 1_767_268_800_000_000_000 >= 1.0 * NS  # --start 1
+    assert times and times == sorted(times)  # the viewer follows log time
+    assert 1.0 < took < 5  # 2 s of drive at 1.5x
+
+
+def test_a_can_log_goes_through_the_pipeline(tmp_path: Path) -> None:
+    log = tmp_path / "drive.blf"
+    with can.Logger(log) as logger:
+        for f in simulate(duration_s=1.5):
+            logger.on_message_received(can.Message(
+                timestamp=f.timestamp_ns / 1e9, arbitration_id=f.arbitration_id, data=f.data,
+                is_fd=f.is_fd, dlc=f.dlc, channel=0))
+    decoder, profile = build_stages([], "ecocar")
+    with LiveServer(port=0, server_time=True) as server:
+        loops: list[int] = []
+
+        def run() -> None:
+            loops.append(replay_log([log], decoder, server, profile=profile, speed=5.0,
+                                    loop=True, stopping=stop).loops)
+
+        stop = threading.Event()
+        threading.Timer(1.2, stop.set).start()
+        messages, _ = watch(server, "/scene/radar", run)
+    assert len(messages) >= 10
+    assert loops == [loops[0]] and loops[0] >= 2  # --loop started it again
+
+
+def test_nonsense_speed_and_start_are_refused(drive: Path) -> None:
+    with LiveServer(port=0) as server:
+        with pytest.raises(UsageError, match=r"--speed 0: must be above 0"):
+            replay_mcap(drive, server, speed=0)
+        with pytest.raises(UsageError, match=r"--start -1: must not be negative"):
+            replay_mcap(drive, server, start_s=-1)
+
+
+def test_a_scene_rate_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str],
+                                              tmp_path: Path) -> None:
+    assert main(["convert", "--sample", "-o", str(tmp_path / "o.mcap"), "--scene-rate",
+                 "80"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: --scene-rate 80: must be above 0 and at most 50 Hz")
+
+
+def test_layouts_list_and_export(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["layouts"]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in ("tank-viz", "engineer", "can-debug"))
+    assert main(["layouts", "--export", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.glob("*.json")) == [
+        "can-debug.json", "engineer.json", "tank-viz.json"]
+    assert main(["layouts", "--export", str(tmp_path)]) == 1  # no overwriting without --force
