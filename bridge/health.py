@@ -48,6 +48,7 @@ and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonit
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
@@ -135,8 +136,8 @@ class _Header:
     arbitration phase and in the data phase (CAN FD with bit rate switch), the stuffing state
     after it, and the bits after the data in both phases."""
 
-    __slots__ = ("arbitration", "data_phase", "length", "padding", "state", "tail_arbitration",
-                 "tail_data")
+    __slots__ = ("arbitration", "data_phase", "length", "padding", "recent", "state",
+                 "tail_arbitration", "tail_data")
 
     def __init__(self, arbitration_id: int, extended: bool, fd: bool, remote: bool,
                  brs: bool, esi: bool, n: int) -> None:
@@ -180,6 +181,8 @@ class _Header:
             self.data_phase += nbits + stuffed
         self.state = state
         self.padding = max(0, self.length - n)
+        #: the bits of recent payloads (counters and signals repeat: most payloads come back)
+        self.recent: dict[bytes, tuple[float, float]] = {}
         if fd:
             self.tail_data, self.tail_arbitration = float(crc_bits), float(_TAIL_BITS)
         else:
@@ -214,6 +217,20 @@ def frame_bits(frame: Frame) -> tuple[float, float]:
         if len(_HEADERS) > 65536:
             _HEADERS.clear()
         header = _HEADERS[key] = _Header(*key)
+    bits = header.recent.get(data)
+    if bits is None:
+        bits = _bits(header, data, n)
+        if len(header.recent) >= _RECENT_PAYLOADS:
+            header.recent.clear()
+        header.recent[data] = bits
+    return bits
+
+
+#: Payloads remembered per kind of frame by :func:`frame_bits`.
+_RECENT_PAYLOADS = 256
+
+
+def _bits(header: _Header, data: bytes, n: int) -> tuple[float, float]:
     state = header.state
     stuffed = 0
     table = _STUFF_TABLE
@@ -1094,6 +1111,25 @@ def alarm_entities(alarms: Sequence[AlarmInfo], t_ns: int, *, x: float = 0.0, y:
     return [e]
 
 
+@functools.lru_cache(maxsize=64)
+def _fov_outline(sensor: Sensor, alarmed: bool, arc_points: int) -> LinePrimitive:
+    """A sensor's field of view on the ground (made once: the scene draws it at every tick)."""
+    assert sensor.fov_range is not None and sensor.fov_azimuth_deg is not None
+    half = math.radians(sensor.fov_azimuth_deg)
+    yaw = math.radians(sensor.mount.yaw_deg)
+    mx, my, r = sensor.mount.x, sensor.mount.y, sensor.fov_range
+    points = [(mx, my)]
+    for k in range(arc_points + 1):
+        angle = yaw - half + 2 * half * k / arc_points
+        points.append((mx + r * math.cos(angle), my + r * math.sin(angle)))
+    points.append((mx, my))
+    return LinePrimitive(
+        type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
+        thickness=FOV_ALARM_THICKNESS if alarmed else FOV_THICKNESS, scale_invariant=False,
+        color=color(FOV_ALARM_COLOR if alarmed else FOV_COLOR),
+        points=[Point3(x=px, y=py, z=0.03) for px, py in points])
+
+
 def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
                  lifetime_s: float = 0.0, arc_points: int = 24) -> list[SceneEntity]:
     """Each sensor's field of view (from the profile) as an outline on the ground: dim when
@@ -1106,23 +1142,12 @@ def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
     for sensor in profile.sensors.values():
         if sensor.fov_range is None or sensor.fov_azimuth_deg is None:
             continue
-        half = math.radians(sensor.fov_azimuth_deg)
-        yaw = math.radians(sensor.mount.yaw_deg)
-        mx, my, r = sensor.mount.x, sensor.mount.y, sensor.fov_range
-        points = [(mx, my)]
-        for k in range(arc_points + 1):
-            angle = yaw - half + 2 * half * k / arc_points
-            points.append((mx + r * math.cos(angle), my + r * math.sin(angle)))
-        points.append((mx, my))
         ids = alarmed.get(sensor.name)
         e = entity(t_ns, f"fov-{sensor.name}", lifetime_s)
-        e.lines.append(LinePrimitive(
-            type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
-            thickness=FOV_ALARM_THICKNESS if ids else FOV_THICKNESS, scale_invariant=False,
-            color=color(FOV_ALARM_COLOR if ids else FOV_COLOR),
-            points=[Point3(x=px, y=py, z=0.03) for px, py in points]))
+        e.lines.add().CopyFrom(_fov_outline(sensor, bool(ids), arc_points))
         if ids:
-            far = min(r, 30.0)
+            yaw = math.radians(sensor.mount.yaw_deg)
+            mx, my, far = sensor.mount.x, sensor.mount.y, min(sensor.fov_range, 30.0)
             label = text(mx + far * math.cos(yaw), my + far * math.sin(yaw), 1.5,
                          f"{sensor.name}: {', '.join(ids)}")
             label.color.CopyFrom(color(ALARM_COLOR))

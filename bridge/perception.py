@@ -5,6 +5,14 @@ It is driven by frame times: call :meth:`advance` with each frame's time (cheap 
 tick is due) and :meth:`feed` with each decoded message. At each tick of the scene rate it emits
 the scene (``/scene/*``), the semantic topics and the sensor frames for that tick's log time,
 from everything observed before it.
+
+Between two ticks :meth:`feed` only notes the newest message of each name; the tick observes
+them. The world keeps the newest observation of each object, lane line and ego signal, and an
+observation always reads the newest values of every message of its family, so the world at the
+tick is the same as if every message had been observed on arrival: the observations in between
+would have been overwritten unseen. (One exception, by design: when a sensor renumbers an object
+twice between two ticks, the number it had in between never shows.) On a busy bus this saves
+observing a message many times per tick, and an object once per message of its family.
 """
 
 from __future__ import annotations
@@ -66,6 +74,8 @@ class Perception:
         self.messages = self.observer.messages
         #: the lane model of the latest tick
         self.lanes: LaneModel | None = None
+        #: the newest (values, time) of each message fed since the last tick, in arrival order
+        self._pending: dict[str, tuple[Mapping[str, Any], int]] = {}
 
     def topics(self) -> list[tuple[str, Any]]:
         """Every topic :meth:`tick` emits, with its message class (to advertise them early)."""
@@ -84,10 +94,21 @@ class Perception:
         return out
 
     def feed(self, message: str, values: Mapping[str, Any], t_ns: int) -> None:
-        """Apply what one decoded message says (call :meth:`advance` with its time first)."""
+        """Take one decoded message (call :meth:`advance` with its time first); the next tick
+        observes it."""
         if message in self.messages:
-            for observation in self.observer.observe(message, values, t_ns):
-                self.world.apply(observation)
+            pending = self._pending
+            pending.pop(message, None)
+            pending[message] = (values, t_ns)
+
+    def observe_pending(self) -> None:
+        """Observe the messages fed since the last tick into the world."""
+        pending = self._pending
+        if pending:
+            apply = self.world.apply
+            for observation in self.observer.observe_latest(pending):
+                apply(observation)
+            pending.clear()
 
     def advance(self, t_ns: int) -> list[Output]:
         """The scenes due before log time ``t_ns`` (none most of the time)."""
@@ -110,6 +131,7 @@ class Perception:
     def tick(self, t_ns: int) -> list[Output]:
         """Scene, semantic topics and frames at log time ``t_ns``."""
         self.ticks += 1
+        self.observe_pending()
         world, profile = self.world, self.profile
         world.expire(t_ns)
         lanes = self.lanes = world.lane_model(t_ns)

@@ -23,7 +23,7 @@ from bridge.health import HealthMonitor, alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
 from bridge.profile import Profile
-from bridge.recorder import FrameSink, Recorder
+from bridge.recorder import FrameSink, Recorder, frame_payload
 from bridge.server import LiveServer
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, frames_topic, scene_topic
 
@@ -58,10 +58,12 @@ class Pipeline:
         if t >= self._next_tick:
             self.advance(t)
         recorder, server = self.recorder, self.server
+        payload = None
         if recorder is not None:
-            recorder.write_frame(frame)
+            payload = frame_payload(frame)
+            recorder.write_frame(frame, payload)
         if server is not None:
-            self._serve_frame(server, frame)
+            self._serve_frame(server, frame, payload)
         decoded = self.decoder.decode(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
@@ -130,18 +132,16 @@ class Pipeline:
                 server.publish(self._server_channel(server, out.topic, cls.DESCRIPTOR.full_name,
                                                     lambda cls=cls: _fds(cls)),
                                out.t_ns, payload)
+        if server is not None:
+            server.flush()
 
-    def _serve_frame(self, server: LiveServer, frame: Frame) -> None:
+    def _serve_frame(self, server: LiveServer, frame: Frame, payload: bytes | None) -> None:
         channel = self._frame_channels.get(frame.bus)
         if channel is None:
             channel = self._frame_channels[frame.bus] = self._server_channel(
                 server, frames_topic(frame.bus), "tankviz.CanFrame", lambda: _fds(CanFrame))
         if server.wanted(channel):
-            server.publish(channel, frame.timestamp_ns, CanFrame(
-                bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,
-                fd=frame.is_fd, bitrate_switch=frame.bitrate_switch,
-                error_state_indicator=frame.error_state_indicator, error=frame.is_error,
-                remote=frame.is_remote, dlc=frame.dlc, data=frame.data).SerializeToString())
+            server.publish(channel, frame.timestamp_ns, payload or frame_payload(frame))
 
     def _server_channel(self, server: LiveServer, topic: str, schema_name: str,
                         schema: Any) -> int:

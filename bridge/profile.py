@@ -19,6 +19,7 @@ import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,12 @@ class Sensor:
     @property
     def lateral_sign(self) -> float:
         return 1.0 if self.lateral == "left" else -1.0
+
+    @cached_property
+    def rotation(self) -> tuple[float, float]:
+        """cos and sin of the mount's yaw (computed once: every position needs them)."""
+        yaw = math.radians(self.mount.yaw_deg)
+        return math.cos(yaw), math.sin(yaw)
 
 
 @dataclass(frozen=True)

@@ -143,10 +143,30 @@ def atomic_output(path: Path) -> Iterator[IO[bytes]]:
         raise
 
 
+_FRAME_HEADS: dict[tuple[Any, ...], bytes] = {}
+
+
+def frame_payload(frame: Frame) -> bytes:
+    """The frame as a serialized ``tankviz.CanFrame``."""
+    key = frame[1:3] + frame[4:]  # everything but the time and the data
+    head = _FRAME_HEADS.get(key)
+    if head is None:
+        if len(_FRAME_HEADS) > 65536:  # ids x buses x flags: only a babbling bus gets here
+            _FRAME_HEADS.clear()
+        head = _FRAME_HEADS[key] = CanFrame(
+            bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,
+            fd=frame.is_fd, bitrate_switch=frame.bitrate_switch,
+            error_state_indicator=frame.error_state_indicator, error=frame.is_error,
+            remote=frame.is_remote, dlc=frame.dlc).SerializeToString()
+    # Serialized protobuf messages concatenate into their merge, and data is the last field, so
+    # this is byte for byte what serializing the whole CanFrame gives.
+    return head + bytes(CanFrame(data=frame.data).SerializeToString())
+
+
 class FrameSink(Protocol):
     """What the pipeline records into: a :class:`Recorder`, or a drive split into parts."""
 
-    def write_frame(self, frame: Frame) -> None: ...
+    def write_frame(self, frame: Frame, payload: bytes | None = None) -> None: ...
 
     def write_decoded(self, timestamp_ns: int, decoded: Decoded) -> None: ...
 
@@ -163,7 +183,6 @@ class Recorder:
         self._writer.start(profile="", library=f"tankviz {__version__}")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._frame_heads: dict[tuple[Any, ...], bytes] = {}
         self._frame_channels: dict[str, int] = {}
         self._codec_channels: dict[MessageCodec, int] = {}
         self._frame_schema: int | None = None
@@ -187,26 +206,15 @@ class Recorder:
             self._channels[topic] = channel_id
         return channel_id
 
-    def write_frame(self, frame: Frame) -> None:
-        """A raw frame on ``/can/<bus>/frames``."""
-        key = frame[1:3] + frame[4:]  # everything but the time and the data
-        head = self._frame_heads.get(key)
-        if head is None:
-            head = self._frame_heads[key] = CanFrame(
-                bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,
-                fd=frame.is_fd, bitrate_switch=frame.bitrate_switch,
-                error_state_indicator=frame.error_state_indicator, error=frame.is_error,
-                remote=frame.is_remote, dlc=frame.dlc).SerializeToString()
+    def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
+        """A raw frame on ``/can/<bus>/frames`` (``payload``: its :func:`frame_payload`)."""
         channel_id = self._frame_channels.get(frame.bus)
         if channel_id is None:
             channel_id = self._frame_channels[frame.bus] = self.channel(
                 frames_topic(frame.bus), CanFrame.DESCRIPTOR.full_name,
                 build_file_descriptor_set(CanFrame).SerializeToString())
-        # Serialized protobuf messages concatenate into their merge, and data is the last field,
-        # so this is byte for byte what serializing the whole CanFrame gives.
         t = frame.timestamp_ns
-        data = head + CanFrame(data=frame.data).SerializeToString()
-        self._writer.add_message(channel_id, t, data, t)
+        self._writer.add_message(channel_id, t, payload or frame_payload(frame), t)
         self.messages += 1
 
     def write_decoded(self, timestamp_ns: int, decoded: Decoded) -> None:

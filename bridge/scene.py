@@ -22,7 +22,6 @@ from foxglove_schemas_protobuf.CylinderPrimitive_pb2 import CylinderPrimitive
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
-from foxglove_schemas_protobuf.Point3_pb2 import Point3
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
@@ -117,10 +116,12 @@ def lane_entities(lanes: LaneModel, t_ns: int) -> list[SceneEntity]:
         else:
             rgba = NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
         e = entity(t_ns, f"lane-{line.name}", 0.0)
-        e.lines.append(LinePrimitive(
-            type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0), thickness=LANE_THICKNESS,
-            scale_invariant=False, color=color(rgba),
-            points=[Point3(x=x, y=y, z=0.05) for x, y in line.points]))
+        primitive = e.lines.add(type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
+                                thickness=LANE_THICKNESS, scale_invariant=False,
+                                color=color(rgba))
+        add = primitive.points.add  # in place: twice as fast as making Point3s to copy
+        for x, y in line.points:
+            add(x=x, y=y, z=0.05)
         e.metadata.add(key="source", value=lanes.source)
         out.append(e)
     return out

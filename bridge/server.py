@@ -1,11 +1,15 @@
 """The live sink: a Foxglove WebSocket server (foxglove-websocket, ``foxglove.websocket.v1``).
 
 The server runs its asyncio loop in its own thread. The pipeline hands it messages with
-:meth:`LiveServer.publish`, which never blocks: it appends to an inbox and, at most once per
-batch, wakes the loop. foxglove-websocket sends to its clients one after another and awaits each,
-so a stalled client would hold up everyone; instead every client gets its own bounded queue and
-sender task here. A slow or stalled client loses its own oldest messages (counted in
-:attr:`ClientStats.dropped`), never anyone else's, and never delays the pipeline or the recorder.
+:meth:`LiveServer.publish`, which never blocks and costs next to nothing: it appends to an inbox
+that the loop empties every :data:`DRAIN_INTERVAL_S`, or at once after :meth:`LiveServer.flush`
+(the pipeline flushes after each scene). Waking the loop for every message would cost a system
+call each and hand the GIL back and forth thousands of times a second.
+
+foxglove-websocket sends to its clients one after another and awaits each, so a stalled client
+would hold up everyone; instead every client gets its own bounded queue and sender task here. A
+slow or stalled client loses its own oldest messages (counted in :attr:`ClientStats.dropped`),
+never anyone else's, and never delays the pipeline or the recorder.
 
 Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is advertised to every
 client but its messages go only to the clients that subscribed; :meth:`LiveServer.wanted` tells
@@ -33,6 +37,8 @@ from typing import Any
 from foxglove_websocket.server import FoxgloveServer, FoxgloveServerListener
 from foxglove_websocket.types import ChannelId
 from mcap_protobuf.schema import build_file_descriptor_set
+from websockets.frames import Frame as WebSocketFrame
+from websockets.frames import Opcode
 
 from bridge.errors import BridgeError
 
@@ -40,6 +46,8 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 #: Messages waiting per client before its oldest are dropped (about 2 s of a busy scene).
 DEFAULT_QUEUE_LIMIT = 2000
+#: How often the loop takes in published messages without being asked to (s).
+DRAIN_INTERVAL_S = 0.005
 
 _MESSAGE_DATA = 0x01
 _TIME = 0x02
@@ -62,21 +70,29 @@ class ClientStats:
 
 @dataclass
 class _Client:
-    """Our side of one connection: its bounded queue and its sender task."""
+    """Our side of one connection: its bounded queue and its sender task.
+
+    The queue holds the pipeline's own ``(channel, time, payload)`` items, shared by every client;
+    the message header (this client's subscription id) is made when the message is sent, so a
+    message that is dropped costs next to nothing.
+    """
 
     state: Any  # foxglove_websocket's ClientState: .connection, .subscriptions_by_channel
     stats: ClientStats
     limit: int
-    queue: collections.deque[Any] = field(default_factory=collections.deque)
+    queue: collections.deque[tuple[Any, ...]] = field(init=False)
     control: collections.deque[Any] = field(default_factory=collections.deque)
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
 
-    def put(self, frame: Any) -> None:
-        if len(self.queue) >= self.limit:
-            self.queue.popleft()
+    def __post_init__(self) -> None:
+        self.queue = collections.deque(maxlen=self.limit)  # a full one drops its oldest
+
+    def put(self, item: tuple[Any, ...]) -> None:
+        queue = self.queue
+        if len(queue) == self.limit:
             self.stats.dropped += 1
-        self.queue.append(frame)
+        queue.append(item)
         self.ready.set()
 
     def put_control(self, frame: Any) -> None:
@@ -84,30 +100,54 @@ class _Client:
         self.ready.set()
 
     async def run(self) -> None:
-        connection = self.state.connection
+        state = self.state
+        connection = state.connection
         # foxglove-websocket sends serverInfo and the channel list when a client connects; hold
         # our own control messages until that handshake is surely done (the client subscribed,
         # or a second passed). Data only flows after a subscription anyway.
         loop = asyncio.get_running_loop()
         settled = loop.time() + 1.0
-        while not self.state.subscriptions_by_channel and loop.time() < settled:
+        while not state.subscriptions_by_channel and loop.time() < settled:
             await asyncio.sleep(0.02)
+        control, queue = self.control, self.queue
         try:
             while True:
                 await self.ready.wait()
                 self.ready.clear()
-                sent = 0
-                while self.control or self.queue:
-                    frame = self.control.popleft() if self.control else self.queue.popleft()
-                    await connection.send(frame)
-                    self.stats.sent += 1
-                    sent += 1
-                    if sent % _FAIR_SHARE == 0:
-                        # A send that fits the socket buffer does not yield: let the loop take
-                        # in new messages and serve the other clients now and then.
-                        await asyncio.sleep(0)
+                while control or queue:
+                    await connection.ensure_open()
+                    frames = self._next_frames(_FAIR_SHARE)
+                    if frames:
+                        # Several messages, one write: each still its own WebSocket message,
+                        # framed by websockets itself; drain() keeps its flow control.
+                        connection.transport.write(b"".join(
+                            frame.serialize(mask=False, extensions=connection.extensions)
+                            for frame in frames))
+                        self.stats.sent += len(frames)
+                        await connection.drain()
+                    # Let the loop take in new messages and serve the other clients.
+                    await asyncio.sleep(0)
         except Exception:  # the connection closed; foxglove-websocket forgets the client
             return
+
+    def _next_frames(self, limit: int) -> list[WebSocketFrame]:
+        """Up to ``limit`` queued messages as WebSocket frames, control messages first."""
+        frames: list[WebSocketFrame] = []
+        control, queue = self.control, self.queue
+        # (a new mapping at every (un)subscribe: read it now)
+        subscriptions = self.state.subscriptions_by_channel
+        while len(frames) < limit and (control or queue):
+            if control:
+                data = control.popleft()
+                frames.append(WebSocketFrame(Opcode.TEXT, data.encode()) if isinstance(data, str)
+                              else WebSocketFrame(Opcode.BINARY, data))
+                continue
+            channel_id, t_ns, payload = queue.popleft()
+            subscription = subscriptions.get(channel_id)
+            if subscription is not None:  # else unsubscribed since
+                frames.append(WebSocketFrame(Opcode.BINARY, _HEADER.pack(
+                    _MESSAGE_DATA, subscription, t_ns) + payload))
+        return frames
 
 
 class _Subscriptions(FoxgloveServerListener):  # type: ignore[misc]
@@ -214,7 +254,11 @@ class LiveServer:
         sockets = opened.sockets or []
         self.port = sockets[0].getsockname()[1] if sockets else self.requested_port
         self._ready.set()
-        await self._stop.wait()
+        while not self._stop.is_set():
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._stop.wait(), DRAIN_INTERVAL_S)
+            if self._inbox:
+                self._drain()
         for client in self._clients.values():
             if client.task is not None:
                 client.task.cancel()
@@ -256,9 +300,15 @@ class LiveServer:
         return sum(channel_id in c.subscriptions_by_channel for c in clients)
 
     def publish(self, channel_id: int, t_ns: int, payload: bytes) -> None:
-        """Send a serialized message to the channel's subscribers; never blocks."""
+        """Send a serialized message to the channel's subscribers; never blocks. It leaves
+        within :data:`DRAIN_INTERVAL_S`, or at once after :meth:`flush`."""
         if channel_id in self._wanted:
-            self._post(("message", channel_id, t_ns, payload))
+            self._inbox.append(("message", (channel_id, t_ns, payload)))
+
+    def flush(self) -> None:
+        """Have what was published so far sent now (e.g. after a scene)."""
+        if self._inbox:
+            self._wake()
 
     def broadcast_time(self, t_ns: int) -> None:
         """The protocol's server time, so viewers follow log time (replay)."""
@@ -270,6 +320,9 @@ class LiveServer:
 
     def _post(self, item: tuple[Any, ...]) -> None:
         self._inbox.append(item)
+        self._wake()
+
+    def _wake(self) -> None:
         if not self._wake_pending and self._loop is not None:
             self._wake_pending = True
             with contextlib.suppress(RuntimeError):  # the loop closed: the server is stopping
@@ -305,12 +358,11 @@ class LiveServer:
             item = inbox.popleft()
             kind = item[0]
             if kind == "message":
-                _, channel_id, t_ns, payload = item
+                message = item[1]
+                channel_id = message[0]
                 for client in clients:
-                    subscription = client.state.subscriptions_by_channel.get(channel_id)
-                    if subscription is not None:
-                        header = _HEADER.pack(_MESSAGE_DATA, subscription, t_ns)
-                        client.put([header, payload])
+                    if channel_id in client.state.subscriptions_by_channel:
+                        client.put(message)
             elif kind == "channel":
                 channel = item[1]
                 server._channels[ChannelId(channel["id"])] = channel
@@ -324,8 +376,8 @@ class LiveServer:
                     client.put_control(frame)
 
 
-#: Messages one client's sender sends before letting the others have a turn.
-_FAIR_SHARE = 16
+#: Messages one client's sender writes at once before letting the others have a turn.
+_FAIR_SHARE = 64
 
 _HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
 _TIME_HEADER = struct.Struct("<BQ")

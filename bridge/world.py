@@ -19,7 +19,6 @@ from bridge.observe import (
     LaneObservation,
     ObjectObservation,
     Observation,
-    to_vehicle,
 )
 from bridge.profile import LaneSpec, Profile, Sensor
 
@@ -80,8 +79,18 @@ def steering_curvature(steering_wheel_angle: float, wheelbase: float, ratio: flo
 
 
 def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -> LaneCurve:
-    points = tuple(to_vehicle(sensor, float(x), polynomial(c, float(x)))
-                   for x in range(int(length)))
+    # to_vehicle(sensor, x, polynomial(c, x)) for every metre, spelled out: 400 points a tick
+    c0, c1, c2, c3 = c
+    sign = sensor.lateral_sign
+    mount = sensor.mount
+    cos, sin = sensor.rotation
+    xs = [float(x) for x in range(int(length))]
+    ys = [(c0 + x * (c1 + x * (c2 + x * c3))) * sign for x in xs]
+    if mount.yaw_deg:
+        points = tuple((cos * x - sin * y + mount.x, sin * x + cos * y + mount.y)
+                       for x, y in zip(xs, ys, strict=True))
+    else:
+        points = tuple((x + mount.x, y + mount.y) for x, y in zip(xs, ys, strict=True))
     return LaneCurve(name, points, lane_to_vehicle(sensor, c))
 
 
