@@ -313,6 +313,21 @@ def test_the_bit_estimate_is_within_five_percent_of_the_exact_count() -> None:
     assert all(abs(estimate_frame_bits(f) - exact_bits(f)) <= 3 for f in frames)
 
 
+def test_remembered_payloads_count_the_same_as_new_ones() -> None:
+    """frame_bits remembers the bits of recent payloads per kind of frame: a payload seen again,
+    and one seen again after the memory was emptied (more payloads than it keeps), count the
+    same as the first time."""
+    rng = random.Random(7)
+    payloads = [rng.randbytes(64) for _ in range(300)] + [bytes(64), b"\xff" * 64]
+    frames = [Frame(0, "can0", 0x301, data, is_fd=True, bitrate_switch=True, dlc=64)
+              for data in payloads]
+    first = [frame_bits(f) for f in frames]
+    again = [frame_bits(f) for f in reversed(frames)][::-1]
+    assert again == first
+    assert all(abs(sum(bits) - exact_bits(f)) <= 3 for bits, f in zip(first, frames, strict=True))
+    assert first[-2] != first[-1]  # zeros and ones stuff differently: keyed by the payload
+
+
 def test_a_classic_frame_of_eight_bytes_is_at_least_111_bits() -> None:
     frame = Frame(0, "can0", 0x555, bytes([0x55] * 8), dlc=8)  # alternating bits: no stuffing
     assert estimate_frame_bits(frame) == pytest.approx(111, abs=1)

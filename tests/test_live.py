@@ -24,7 +24,8 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.convert import build_stages
-from bridge.live import BusSpec, Live, drive_name
+from bridge.frame import Frame
+from bridge.live import BusSpec, Live, drive_name, merge_batches
 from bridge.server import LiveServer, wait_for
 from bridge.simulate import simulate
 
@@ -260,6 +261,18 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
     assert len(scene_times) > 0.7 * 50 * 3
     assert sorted(gaps)[int(0.99 * len(gaps))] < 0.25
     assert any(s.dropped > 0 for s in server.client_stats())  # the stalled one lost its own
+
+
+def test_the_buses_batches_are_processed_in_time_order() -> None:
+    """Each reader hands over a batch; frames of several buses are merged by time (equal times
+    keep their order), so a scene tick comes after every earlier frame that had arrived."""
+    radar = [Frame(t, "radar", 0x100, b"") for t in (10, 20, 30, 40)]
+    camera = [Frame(t, "camera", 0x200, b"") for t in (15, 20, 35)]
+    merged = merge_batches([radar, camera])
+    assert [(f.timestamp_ns, f.bus) for f in merged] == [
+        (10, "radar"), (15, "camera"), (20, "radar"), (20, "camera"), (30, "radar"),
+        (35, "camera"), (40, "radar")]
+    assert merge_batches([radar]) is radar
 
 
 def test_print_systemd_unit(capsys: pytest.CaptureFixture[str]) -> None:

@@ -339,3 +339,68 @@ def test_any_decoded_values_give_finite_unique_entities(
             assert math.isfinite(p.x) and math.isfinite(p.y)
     if radar:
         assert radar[-1].entities == []
+
+
+# The messages of the property below: (name, signal -> strategy), plain values (no encoding).
+_MESSAGES = [
+    (f"RadarObj{i}_{part}", part) for i in range(3) for part in "AB"
+] + [("FusionTrack1", "T"), ("CamLaneLeft", "L"), ("CamLaneRight", "L"), ("EgoMotion", "E"),
+     ("Steering", "S")]
+_VALUES = {
+    "A": st.fixed_dictionaries({"LongDist": st.floats(0, 200), "LatDist": st.floats(-20, 20),
+                                "ProbExist": st.sampled_from([50.0, 90.0]),
+                                "Valid": st.integers(0, 1), "LongSpeed": st.floats(-30, 30)}),
+    "B": st.fixed_dictionaries({"LatSpeed": st.floats(-5, 5), "Class": st.integers(0, 7)}),
+    "T": st.fixed_dictionaries({"TrackID": st.just(7), "PosX": st.floats(0, 200),
+                                "PosY": st.floats(-20, 20), "Status": st.integers(0, 2)}),
+    "L": st.fixed_dictionaries({"C0_Offset": st.floats(-3, 3), "C2_Curvature": st.just(0.001),
+                                "Source": st.integers(0, 1), "Quality": st.integers(0, 3)}),
+    "E": st.fixed_dictionaries({"VehicleSpeed": st.floats(0, 150), "YawRate": st.floats(-5, 5)}),
+    "S": st.fixed_dictionaries({"SteeringWheelAngle": st.floats(-90, 90)}),
+}
+
+
+@st.composite
+def message_sequences(draw: st.DrawFn) -> list[tuple[int, str, dict[str, float]]]:
+    out = []
+    t = T0
+    for _ in range(draw(st.integers(1, 60))):
+        t += draw(st.integers(0, 30)) * MS
+        name, kind = draw(st.sampled_from(_MESSAGES))
+        out.append((t, name, draw(_VALUES[kind])))
+    return out
+
+
+@settings(max_examples=80, deadline=None)
+@given(sequence=message_sequences())
+def test_observing_at_the_tick_gives_the_world_observing_each_message_gives(
+        profile: Profile, sequence: list[tuple[int, str, dict[str, float]]]) -> None:
+    """Perception notes messages and observes them at the tick, one observation per object;
+    the world it ticks with is the one observing every message on arrival makes."""
+    from bridge.observe import Observer
+    from bridge.world import World
+
+    perception = Perception(profile, scene_rate=50)
+    perception.advance(T0)
+    eager_observer, eager_world = Observer(profile), World(profile)
+    worlds: list[tuple[World, World]] = []  # (lazy, eager) at every tick
+
+    def snapshot(world: World) -> Any:
+        return ({g: dict(objects) for g, objects in world.objects.items()}, dict(world.lanes),
+                (world.ego.speed, world.ego.yaw_rate, world.ego.steering_wheel_angle))
+
+    def tick(t: int) -> None:
+        outputs = perception.advance(t)
+        if outputs:  # the tick expired old objects: so does the eager world
+            eager_world.expire(outputs[0].t_ns)
+            worlds.append((snapshot(perception.world), snapshot(eager_world)))
+
+    for t, name, values in sequence:
+        tick(t)
+        perception.feed(name, values, t)
+        for observation in eager_observer.observe(name, values, t):
+            eager_world.apply(observation)
+    tick(sequence[-1][0] + 20 * MS)  # a last tick after the last message
+    assert worlds
+    for lazy, eager in worlds:
+        assert lazy == eager

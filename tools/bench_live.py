@@ -490,8 +490,8 @@ def time_scene_stages(pipeline: Any) -> dict[int, list[int]]:
 
 #: Where the pipeline thread's time goes: (label, module file ending, function name).
 PROFILE_PARTS = (
-    ("perception feed (profile -> observations -> world)", "perception.py", "feed"),
-    ("scene ticks (world, lanes, scene, semantic topics)", "perception.py", "tick"),
+    ("perception feed (notes the newest message)", "perception.py", "feed"),
+    ("scene ticks (observe, world, lanes, scene, semantic)", "perception.py", "tick"),
     ("scene emit (serialise, record, publish)", "pipeline.py", "emit"),
     ("decode (cantools, protobuf)", "decode.py", "decode"),
     ("record raw frames", "live.py", "write_frame"),
