@@ -71,10 +71,13 @@ minus the newest frame processed) and the backlogs of the pipeline queue and the
 RSS. ``ru_maxrss`` of this process (bridge + senders + the prepared traffic), taken before the
 drive is read back; the RSS before the bridge started is printed for comparison.
 
-Options for looking closer: ``--cprofile`` profiles the pipeline thread (thread CPU time) and
-prints the share of each stage; ``--stalled-topics scene`` lets the stalled client subscribe to
-the scene only (what do the raw and decoded topics cost?); ``--switch-interval`` sets
-``sys.setswitchinterval`` (GIL hand-over) for this process.
+Options for looking closer: ``--stages N`` runs N frames of the same traffic through the
+pipeline alone in one thread (no buses, no clients, no other thread) and prints the cost per
+frame as decoding, recording, health, perception and serving are added; ``--cprofile``
+profiles the pipeline thread (thread CPU time) and prints the share of each stage;
+``--stalled-topics scene`` lets the stalled client subscribe to the scene only (what do the raw
+and decoded topics cost?); ``--switch-interval`` sets ``sys.setswitchinterval`` (GIL hand-over)
+for this process.
 
     python tools/bench_live.py --quick      # 10 s
     python tools/bench_live.py              # 60 s
@@ -822,6 +825,67 @@ def run(args: argparse.Namespace) -> None:
     tmp.cleanup()
 
 
+class _EveryoneWants:
+    """A stand-in server for --stages: every channel has a subscriber; messages are counted."""
+
+    def __init__(self) -> None:
+        self.channels: dict[str, int] = {}
+        self.published = 0
+
+    def channel_for_schema(self, topic: str, *args: Any, **kwargs: Any) -> int:
+        return self.channels.setdefault(topic, len(self.channels))
+
+    def wanted(self, channel_id: int) -> bool:
+        return True
+
+    def publish(self, channel_id: int, t_ns: int, payload: bytes) -> None:
+        self.published += 1
+
+    def flush(self) -> None:
+        pass
+
+
+def stage_costs(frames_count: int) -> None:
+    """The pipeline alone in this thread, no other thread: µs per frame as stages are added."""
+    import io
+
+    from bridge.convert import build_stages
+    from bridge.frame import Frame
+    from bridge.pipeline import Pipeline, new_health_monitor
+    from bridge.recorder import Recorder
+
+    messages = traffic(60.0)
+    frames = []
+    t = 1_767_268_800_000_000_000
+    for i in range(frames_count):  # the buses in turn, 12,000 frames/s of log time
+        bus = BUSES[i % 3]
+        m = messages[bus][(i // 3) % len(messages[bus])]
+        t += NS // 12_000
+        frames.append(Frame(t, bus, m.arbitration_id, bytes(m.data), m.is_extended_id,
+                            m.is_fd, False, False, m.bitrate_switch, False, m.dlc))
+    gc.freeze()
+    print(f"pipeline alone, one thread, {frames_count:,} frames of the benchmark's traffic:")
+    for label, record, health, profile, serve in (
+            ("decode", False, False, False, False),
+            ("+ record", True, False, False, False),
+            ("+ health", True, True, False, False),
+            ("+ profile, scene at 50 Hz", True, True, True, False),
+            ("+ server (every channel subscribed)", True, True, True, True)):
+        decoder, loaded = build_stages([], "ecocar")
+        pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,
+                            recorder=Recorder(io.BytesIO()) if record else None,
+                            server=_EveryoneWants() if serve else None,  # type: ignore[arg-type]
+                            health=new_health_monitor(decoder, loaded) if health else None)
+        pipeline.advertise(BUSES)
+        start = time.thread_time()
+        for frame in frames:
+            pipeline.process(frame)
+        pipeline.finish()
+        cost = (time.thread_time() - start) / frames_count * 1e6
+        print(f"  {label:40s} {cost:6.2f} µs/frame  ({cost * 12_000 / 1e4:5.1f} % of one core "
+              "at 12,000 frames/s)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds of traffic (60)")
@@ -842,7 +906,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "default is 5 ms)")
     parser.add_argument("--client", nargs=2, metavar=("URL", "OUT"), help=argparse.SUPPRESS)
     parser.add_argument("--readers", type=int, default=3, help=argparse.SUPPRESS)
+    parser.add_argument("--stages", type=int, metavar="FRAMES", default=0,
+                        help="instead: the pipeline alone in one thread, µs per frame as the "
+                        "stages are added (e.g. --stages 120000)")
     args = parser.parse_args(argv)
+    if args.stages:
+        stage_costs(args.stages)
+        return 0
     if args.client:
         asyncio.run(run_clients(args.client[0], args.client[1], args.readers,
                                 args.stalled_topics))
