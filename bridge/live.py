@@ -398,14 +398,16 @@ class Live:
                 reader.stop()
             for reader in self.readers:
                 reader.join(2.0)
-            while True:  # what the readers had read before they stopped is recorded too
+            rest: list[list[Frame]] = []  # what the readers had read before they stopped
+            while True:
                 try:
                     item = q.get_nowait()
                 except queue.Empty:
                     break
                 if isinstance(item, list):
-                    for frame in item:
-                        process(frame)
+                    rest.append(item)
+            for frame in merge_batches(rest) if rest else ():
+                process(frame)
             pipeline.finish()
             if self.recorder is not None:
                 self.recorder.finish()
