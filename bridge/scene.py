@@ -128,17 +128,20 @@ def lane_entities(lanes: LaneModel, t_ns: int) -> list[SceneEntity]:
 
 
 def object_entities(objects: Iterable[ObjectObservation], kind: SensorKind, group: str,
-                    t_ns: int, lifetime_s: float) -> list[SceneEntity]:
-    """Detections (radar blue, camera white) or tracks (red, labelled), with class labels."""
+                    t_ns: int, lifetime_s: float,
+                    lead: ObjectObservation | None = None) -> list[SceneEntity]:
+    """Detections (radar blue, camera white) or tracks (red, labelled), with class labels.
+
+    The track that is ``lead`` keeps its sphere; its label is the lead vehicle's (one label,
+    not two drawn over each other).
+    """
     out = []
     for o in sorted(objects, key=lambda o: o.object_id):
         e = entity(t_ns, f"{group}-{o.object_id}", lifetime_s)
         if kind is SensorKind.FUSION:
             e.spheres.append(sphere(o.x, o.y, 0.5, TRACK_SIZE, TRACK_COLOR))
-            label = f"TrackID: {o.object_id}\nx: {o.x:.2f}\ny: {o.y:.2f}"
-            if o.object_class in CLASS_LABELS:
-                label += f"\n{CLASS_LABELS[o.object_class]}"
-            e.texts.append(text(o.x, o.y, 1.6, label))
+            if o is not lead:
+                e.texts.append(text(o.x, o.y, 1.6, track_label(o)))
         else:
             rgba = RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR
             e.spheres.append(sphere(o.x, o.y, 0.5, DETECTION_SIZE, rgba))
@@ -153,8 +156,16 @@ def object_entities(objects: Iterable[ObjectObservation], kind: SensorKind, grou
     return out
 
 
-def lead_entities(lead: ObjectObservation | None, t_ns: int,
-                  lifetime_s: float) -> list[SceneEntity]:
+def track_label(o: ObjectObservation) -> str:
+    label = f"TrackID: {o.object_id}\nx: {o.x:.2f}\ny: {o.y:.2f}"
+    if o.object_class in CLASS_LABELS:
+        label += f"\n{CLASS_LABELS[o.object_class]}"
+    return label
+
+
+def lead_entities(lead: ObjectObservation | None, t_ns: int, lifetime_s: float,
+                  track: ObjectObservation | None = None) -> list[SceneEntity]:
+    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``."""
     if lead is None:
         return []
     e = entity(t_ns, "lead", lifetime_s)
@@ -162,8 +173,12 @@ def lead_entities(lead: ObjectObservation | None, t_ns: int,
     e.cubes.append(CubePrimitive(pose=pose(lead.x + length / 2, lead.y, height / 2),
                                  size=Vector3(x=length, y=width, z=height),
                                  color=color(LEAD_COLOR)))
-    e.texts.append(text(lead.x, lead.y, height + 1.4,
-                        f"Lead Vehicle\nx: {lead.x:.2f}\ny: {lead.y:.2f}"))
+    label = f"Lead Vehicle\nx: {lead.x:.2f}\ny: {lead.y:.2f}"
+    if track is not None:
+        label += f"\nTrackID: {track.object_id}"
+        if track.object_class in CLASS_LABELS:
+            label += f"\n{CLASS_LABELS[track.object_class]}"
+    e.texts.append(text(lead.x, lead.y, height + 1.4, label))
     return [e]
 
 
@@ -221,10 +236,12 @@ def scene_entities(world: World, lanes: LaneModel, check: MioCheck,
         "ego": ego_entities(profile, t_ns),
         "lanes": lane_entities(lanes, t_ns),
     }
+    # The lead that is a track is labelled once, on the lead box.
+    lead_track = check.expected if check.ok and check.lead is not None else None
     for name, group in profile.groups.items():
         out[name] = object_entities(world.objects[name].values(), group.sensor.kind, name, t_ns,
-                                    group.lifetime_s)
+                                    group.lifetime_s, lead_track)
     if profile.lead is not None:
-        out["lead"] = lead_entities(check.lead, t_ns, profile.lead.lifetime_s)
+        out["lead"] = lead_entities(check.lead, t_ns, profile.lead.lifetime_s, lead_track)
         out["mio"] = mio_entities(check, t_ns, profile.lead.lifetime_s)
     return out

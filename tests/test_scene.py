@@ -152,6 +152,26 @@ def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: 
     assert left.points[99].y == pytest.approx(1.8 - 0.0005 * 99**2)
 
 
+def test_the_lead_track_is_labelled_once_on_the_lead_box(
+        db: cantools.database.can.Database, profile: Profile) -> None:
+    """Two labels at one place are unreadable: the lead's track gives its id to the lead label."""
+    drive = Drive(db, profile)
+    drive.send(0, "EgoMotion", VehicleSpeed=90.0)
+    lanes(drive, 1)
+    drive.send(2, "FusionTrack0", TrackID=7, PosX=30.0, PosY=0.5, Class=1, Status=2)
+    drive.send(3, "FusionTrack1", TrackID=9, PosX=60.0, PosY=5.0, Class=1, Status=2)
+    drive.send(4, "LeadVehicle", Valid=1, TrackID=7, PosX=30.5, PosY=0.5)
+    drive.send(50, "EgoMotion", VehicleSpeed=90.0)
+
+    (mio,) = drive.scene("mio")
+    assert mio.entities == []  # the lead is the closest in-lane track
+    (tracks,) = drive.scene("tracks")
+    assert [(e.id, len(e.spheres), [t.text for t in e.texts]) for e in tracks.entities] == [
+        ("tracks-7", 1, []), ("tracks-9", 1, ["TrackID: 9\nx: 60.00\ny: 5.00\ncar"])]
+    (lead,) = drive.scene("lead")
+    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.50\ny: 0.50\nTrackID: 7\ncar"
+
+
 def test_every_visible_field_is_set(db: cantools.database.can.Database, profile: Profile) -> None:
     """Foxglove draws protobuf defaults as nothing: alpha, sizes, font, thickness must be set."""
     drive = Drive(db, profile)
