@@ -104,7 +104,7 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
             start_ns = None
             if summary is not None and summary.statistics is not None and start_s:
                 start_ns = summary.statistics.message_start_time + round(start_s * NS)
-            for schema, channel, message in reader.iter_messages(start_time=start_ns,
+            for schema, channel, message in reader.iter_messages(starting_at=start_ns,
                                                                  log_time_order=True):
                 yield (channel.topic, schema.name if schema else "", channel.message_encoding,
                        schema.data if schema else b"", message.data, message.log_time)
