@@ -11,6 +11,7 @@ import struct
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -19,7 +20,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.server import LiveServer, ServerError, wait_for
+from bridge.server import ClientStats, LiveServer, ServerError, _Client, wait_for
 
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
 
@@ -181,3 +182,18 @@ def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> No
         assert wait_for(lambda: any(s.dropped > 0 for s in server.client_stats()))
         stalled_stats = max(server.client_stats(), key=lambda s: s.dropped)
         assert stalled_stats.dropped > 0 and stalled_stats.sent < rate * seconds
+
+
+def test_a_message_queued_before_an_unsubscribe_is_not_sent() -> None:
+    """A viewer that unsubscribed gets nothing more of that channel, even what was queued."""
+    state = SimpleNamespace(subscriptions_by_channel={3: 1, 4: 2})
+    queued = _Client(state, ClientStats("viewer"), limit=10)
+    for t in range(3):
+        queued.put((3, t, b"radar"))
+        queued.put((4, t, b"lanes"))
+    # foxglove-websocket swaps in a new mapping at every (un)subscribe
+    state.subscriptions_by_channel = {4: 2}
+    frames = queued._next_frames(limit=64)
+    headers = [struct.unpack_from("<BIQ", f.data) for f in frames]
+    assert headers == [(1, 2, 0), (1, 2, 1), (1, 2, 2)]  # subscription 2 only, in order
+    assert all(f.data.endswith(b"lanes") for f in frames) and not queued.queue
