@@ -4,7 +4,6 @@ bus loss survived, recordings split into complete parts, slow viewers hurting no
 from __future__ import annotations
 
 import asyncio
-import itertools
 import json
 import os
 import re
@@ -210,7 +209,7 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
         live.start()
         runner = threading.Thread(target=live.run)
         runner.start()
-        scene_times: list[float] = []
+        scenes: list[bytes] = []
 
         async def viewers() -> int:
             proto = [websockets.Subprotocol("foxglove.websocket.v1")]
@@ -241,7 +240,7 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
                             try:
                                 data = await asyncio.wait_for(viewer.recv(), 0.002)
                                 if isinstance(data, bytes):
-                                    scene_times.append(time.monotonic())
+                                    scenes.append(data)
                             except asyncio.TimeoutError:
                                 pass
                         bus.send(can.Message(arbitration_id=frame.arbitration_id,
@@ -256,11 +255,10 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
         runner.join(10)
     (drive,) = tmp_path.glob("*.mcap")
     assert frames_recorded(drive) == sent
-    gaps = [b - a for a, b in itertools.pairwise(scene_times)]
-    # the scene at 50 Hz reached the reading viewer without stalls (tolerant of a busy machine)
-    assert len(scene_times) > 0.7 * 50 * 3
-    assert sorted(gaps)[int(0.99 * len(gaps))] < 0.25
-    assert any(s.dropped > 0 for s in server.client_stats())  # the stalled one lost its own
+    # The reading viewer kept getting the scene and lost nothing; the stalled one lost its own.
+    assert len(scenes) > 0.7 * 50 * 3
+    assert sorted(s.dropped for s in server.client_stats())[0] == 0
+    assert max(s.dropped for s in server.client_stats()) > 0
 
 
 def test_the_buses_batches_are_processed_in_time_order() -> None:
