@@ -84,6 +84,7 @@ class _Client:
     control: collections.deque[Any] = field(default_factory=collections.deque)
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     task: asyncio.Task[None] | None = None
+    idle: bool = False  # the sender task waits for messages (past the handshake)
 
     def __post_init__(self) -> None:
         self.queue = collections.deque(maxlen=self.limit)  # a full one drops its oldest
@@ -112,23 +113,47 @@ class _Client:
         control, queue = self.control, self.queue
         try:
             while True:
+                self.idle = True
                 await self.ready.wait()
+                self.idle = False
                 self.ready.clear()
                 while control or queue:
                     await connection.ensure_open()
-                    frames = self._next_frames(_FAIR_SHARE)
-                    if frames:
-                        # Several messages, one write: each still its own WebSocket message,
-                        # framed by websockets itself; drain() keeps its flow control.
-                        connection.transport.write(b"".join(
-                            frame.serialize(mask=False, extensions=connection.extensions)
-                            for frame in frames))
-                        self.stats.sent += len(frames)
-                        await connection.drain()
+                    self._write(self._next_frames(_FAIR_SHARE))
+                    await connection.drain()  # websockets' flow control
                     # Let the loop take in new messages and serve the other clients.
                     await asyncio.sleep(0)
         except Exception:  # the connection closed; foxglove-websocket forgets the client
             return
+        finally:
+            self.idle = False
+
+    def write_now(self) -> None:
+        """Send what is queued in this turn of the loop, while the socket takes it at once.
+
+        A scene reaches an idle client without waiting for its sender task's turn: every turn
+        of the loop is a trip through the selector, which gives up the GIL, and getting it back
+        from a busy pipeline can take a switch interval (5 ms). A client that is behind (its
+        socket buffer full) is left to its sender task and websockets' flow control.
+        """
+        if not self.idle:
+            return
+        connection = self.state.connection
+        while ((self.control or self.queue) and connection.open
+               and connection.transport.get_write_buffer_size() < _WRITE_NOW_BYTES):
+            self._write(self._next_frames(_FAIR_SHARE))
+        if not self.control and not self.queue:
+            self.ready.clear()  # nothing left for the sender task
+
+    def _write(self, frames: list[WebSocketFrame]) -> None:
+        """Several messages, one write: each still its own WebSocket message, framed by
+        websockets itself."""
+        if frames:
+            connection = self.state.connection
+            connection.transport.write(b"".join(
+                frame.serialize(mask=False, extensions=connection.extensions)
+                for frame in frames))
+            self.stats.sent += len(frames)
 
     def _next_frames(self, limit: int) -> list[WebSocketFrame]:
         """Up to ``limit`` queued messages as WebSocket frames, control messages first."""
@@ -232,8 +257,7 @@ class LiveServer:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         try:  # bind here, so that a taken port is an error now and port 0 gets its number
-            family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
-            sock = socket.create_server((self.host, self.requested_port), family=family)
+            sock = _listening_socket(self.host, self.requested_port)
         except OSError as exc:
             self._error = exc
             self._ready.set()
@@ -374,13 +398,37 @@ class LiveServer:
                 frame = _TIME_HEADER.pack(_TIME, item[1])
                 for client in clients:
                     client.put_control(frame)
+        for client in clients:
+            client.write_now()
 
 
 #: Messages one client's sender writes at once before letting the others have a turn.
 _FAIR_SHARE = 64
+#: A client whose socket buffer holds less than this gets its messages written at once
+#: (websockets' own default write limit).
+_WRITE_NOW_BYTES = 2**16
 
 _HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
 _TIME_HEADER = struct.Struct("<BQ")
+
+
+def _listening_socket(host: str, port: int) -> socket.socket:
+    """A TCP listening socket whose connections send at once.
+
+    Made with protocol ``IPPROTO_TCP`` (``socket.create_server`` leaves it 0): asyncio turns
+    Nagle's algorithm off (TCP_NODELAY) only for such sockets. With Nagle on, the last part of a
+    scene waited in the kernel for the viewer's delayed ACK, and arrived with the next scene.
+    """
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen()
+    except OSError:
+        sock.close()
+        raise
+    return sock
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 0.01) -> bool:

@@ -95,6 +95,24 @@ def test_the_protocol_from_hello_to_unsubscribe() -> None:
         asyncio.run(session())
 
 
+def test_messages_leave_at_once_without_nagle() -> None:
+    """With Nagle's algorithm on, the end of a scene waited for the viewer's delayed ACK and
+    came with the next scene (a scene period late): the server's sockets set TCP_NODELAY."""
+    with LiveServer(port=0) as server:
+
+        def connections() -> list[Any]:
+            return list(server._server._clients) if server._server is not None else []
+
+        async def session() -> list[int]:
+            async with client(server) as ws:
+                await next_json(ws, "serverInfo")
+                assert await asyncio.to_thread(wait_for, lambda: len(connections()) == 1)
+                return [state.connection.transport.get_extra_info("socket").getsockopt(
+                    socket.IPPROTO_TCP, socket.TCP_NODELAY) for state in connections()]
+
+        assert asyncio.run(session()) == [1]
+
+
 def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
     with LiveServer(port=0) as server:
 
