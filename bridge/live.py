@@ -209,8 +209,10 @@ class DriveRecorder:
     """One MCAP per drive in ``folder``, split into complete parts by size or duration.
 
     Behaves as the pipeline's recorder. :meth:`tick` (called often) flushes the current chunk to
-    disk at least every ``flush_interval`` seconds, so a power cut loses about that much; a file
-    cut that way is salvaged with ``tankviz recover``.
+    disk every ``flush_interval`` seconds, so a power cut loses about that much; a file cut that
+    way is salvaged with ``tankviz recover``. A due flush waits for the next scene to be written
+    (at most ``flush_wait_s`` more): writing a busy second's chunk takes ~10 ms, and just after
+    a scene it delays no scene.
     """
 
     folder: Path
@@ -218,6 +220,8 @@ class DriveRecorder:
     split_size: int | None = None
     split_duration_s: float | None = None
     flush_interval_s: float = 1.0
+    flush_wait_s: float = 0.1
+    clock: Callable[[], float] = time.monotonic
     files: list[Path] = field(default_factory=list)
     gaps: list[Gap] = field(default_factory=list)
     frames: int = 0
@@ -226,6 +230,7 @@ class DriveRecorder:
     _start_ns: int = 0
     _part_start: float = 0.0
     _last_flush: float = 0.0
+    _emitted: bool = False  # a scene (or other pipeline output) was written since the last tick
 
     def __post_init__(self) -> None:
         try:
@@ -251,7 +256,7 @@ class DriveRecorder:
             raise OutputError(path, f"cannot record: {exc.strerror or exc}") from None
         self.files.append(path)
         self._recorder = Recorder(self._stream)
-        self._part_start = self._last_flush = time.monotonic()
+        self._part_start = self._last_flush = self.clock()
 
     def _close(self) -> None:
         if self._recorder is None:
@@ -276,18 +281,22 @@ class DriveRecorder:
     def write_payload(self, topic: str, message_class: Any, payload: bytes,
                       timestamp_ns: int) -> None:
         self.recorder.write_payload(topic, message_class, payload, timestamp_ns)
+        self._emitted = True
 
     def tick(self) -> None:
         """Flush to disk when due; start the next part when this one is big or long enough."""
         if self._recorder is None:
             return
-        now = time.monotonic()
+        now = self.clock()
+        emitted, self._emitted = self._emitted, False
+        since = now - self._last_flush
         if ((self.split_size is not None and self._stream.tell() >= self.split_size)
                 or (self.split_duration_s is not None
                     and now - self._part_start >= self.split_duration_s)):
             self._close()
             self._open(time.time_ns())
-        elif now - self._last_flush >= self.flush_interval_s:
+        elif since >= self.flush_interval_s and (
+                emitted or since >= self.flush_interval_s + self.flush_wait_s):
             self._recorder.flush()
             self._last_flush = now
 

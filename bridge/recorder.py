@@ -8,11 +8,12 @@ way mcap_protobuf builds them. Chunks are zstd-compressed.
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import os
 import struct
+import sys
 import time
+from array import array
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any, Protocol
@@ -48,14 +49,28 @@ _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, se
 
 
 class _MessageIndex(MessageIndex):
-    """mcap's MessageIndex, written with one ``struct.pack`` instead of two calls per entry."""
+    """mcap's MessageIndex, its (log time, offset) pairs kept flat in an ``array('Q')``.
+
+    A chunk of a busy second holds ~25,000 messages: as tuples in lists they cost ~5 ms to
+    pack and ~2 ms to free when the chunk is written, all at once, in the pipeline's thread.
+    """
+
+    def __init__(self, channel_id: int) -> None:
+        super().__init__(channel_id, [])
+        self.entries = array("Q")  # log time, offset, log time, offset, ...
 
     def write(self, stream: Any) -> None:
-        records = self.records
+        entries = self.entries
+        if sys.byteorder != "little":
+            entries = array("Q", entries)
+            entries.byteswap()
         stream.start_record(Opcode.MESSAGE_INDEX)
-        stream.write(struct.pack(f"<HI{2 * len(records)}Q", self.channel_id, 16 * len(records),
-                                 *itertools.chain.from_iterable(records)))
+        stream.write(_INDEX_HEADER.pack(self.channel_id, 8 * len(entries)))
+        stream.write(entries.tobytes())
         stream.finish_record()
+
+
+_INDEX_HEADER = struct.Struct("<HI")  # channel id, byte length of the entries
 
 
 class FastWriter(McapWriter):
@@ -115,9 +130,11 @@ class FastWriter(McapWriter):
             chunk.message_end_time = log_time
         index = chunk.message_indices.get(channel_id)
         if index is None:
-            index = chunk.message_indices[channel_id] = _MessageIndex(channel_id, [])
+            index = chunk.message_indices[channel_id] = _MessageIndex(channel_id)
         buffer = chunk.record_writer._buffer
-        index.records.append((log_time, buffer.tell()))
+        entries = index.entries
+        entries.append(log_time)
+        entries.append(buffer.tell())
         chunk.num_messages += 1
         buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence,
                                           log_time, publish_time))

@@ -19,12 +19,13 @@ import can
 import pytest
 import websockets
 from conftest import ECOCAR_DBC
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.convert import build_stages
 from bridge.frame import Frame
-from bridge.live import BusSpec, Live, drive_name, merge_batches
+from bridge.live import BusSpec, DriveRecorder, Live, drive_name, merge_batches
 from bridge.server import LiveServer, wait_for
 from bridge.simulate import simulate
 
@@ -308,3 +309,29 @@ def test_live_refuses_nonsense(tmp_path: Path) -> None:
                                      "NAME=INTERFACE:CHANNEL[@BITRATE]")
     nothing = run_cli("live", "--bus", "a=virtual:x", "--no-record", "--no-server", cwd=tmp_path)
     assert nothing.stderr.strip() == "error: --no-record and --no-server: nothing would be done"
+
+
+def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> None:
+    """Writing a second's chunk takes ~10 ms: right after a scene, it delays no scene."""
+    now = [100.0]
+    drive = DriveRecorder(tmp_path, lambda recorder, extra: None, flush_interval_s=1.0,
+                          flush_wait_s=0.1, clock=lambda: now[0])
+    frame = Frame(1, "can0", 0x100, b"\x01\x02", False, False, False, False, False, False, 2)
+
+    def on_disk() -> int:
+        drive.write_frame(frame)
+        drive.tick()
+        return drive.files[0].stat().st_size
+
+    written = on_disk()  # the header only: the chunk is being built
+    now[0] += 1.05  # due, but no scene yet
+    assert on_disk() == written
+    drive.write_payload("/scene/ego", SceneUpdate, b"", 2)
+    drive.tick()  # a scene was written: flush now
+    assert drive.files[0].stat().st_size > written
+    written = drive.files[0].stat().st_size
+    now[0] += 1.05
+    assert on_disk() == written
+    now[0] += 0.06  # no scene for 1.11 s: flush anyway
+    assert on_disk() > written
+    drive.finish()
