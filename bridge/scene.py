@@ -84,13 +84,11 @@ _stamp = lru_cache(maxsize=4)(timestamp)
 _lifetime = lru_cache(maxsize=16)(duration)
 
 
-@lru_cache(maxsize=64)
-def _color(rgba: RGBA) -> Color:
-    return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
-
-
 def color(rgba: RGBA) -> Color:
     return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+_color = lru_cache(maxsize=64)(color)
 
 
 def pose(x: float, y: float, z: float) -> Pose:
