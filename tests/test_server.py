@@ -215,3 +215,23 @@ def test_a_message_queued_before_an_unsubscribe_is_not_sent() -> None:
     headers = [struct.unpack_from("<BIQ", f.data) for f in frames]
     assert headers == [(1, 2, 0), (1, 2, 1), (1, 2, 2)]  # subscription 2 only, in order
     assert all(f.data.endswith(b"lanes") for f in frames) and not queued.queue
+
+
+def test_an_idle_viewer_gets_its_messages_at_once_unless_its_socket_is_full() -> None:
+    """write_now sends without another turn of the loop, but leaves a backed-up viewer to its
+    sender task and websockets' flow control."""
+    written: list[bytes] = []
+    buffered = [0]
+    transport = SimpleNamespace(write=written.append, get_write_buffer_size=lambda: buffered[0])
+    connection = SimpleNamespace(open=True, transport=transport, extensions=[])
+    viewer = _Client(SimpleNamespace(connection=connection, subscriptions_by_channel={3: 1}),
+                     ClientStats("viewer"), limit=10)
+    viewer.idle = True
+    buffered[0] = 2**16  # the socket holds 64 KiB not yet sent: the viewer is behind
+    viewer.put((3, 0, b"scene"))
+    viewer.write_now()
+    assert written == [] and len(viewer.queue) == 1 and viewer.ready.is_set()
+    buffered[0] = 0
+    viewer.write_now()
+    assert len(written) == 1 and written[0].endswith(b"scene") and not viewer.queue
+    assert viewer.stats.sent == 1 and not viewer.ready.is_set()
