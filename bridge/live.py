@@ -1,17 +1,17 @@
 """``tankviz live``: CAN buses in, Foxglove live, every drive recorded.
 
-Each bus is read by its own thread (python-can's own bus creation: any interface, several at
-once). When a bus fails (adapter unplugged, interface down) its thread says so, retries with
-backoff and says when it is back; the pipeline keeps running, viewers get a ``foxglove.Log`` on
-``/log``, and the recording marks the gap. The pipeline thread turns frames into the recording
-(never dropping one) and the live scene (never waiting for a viewer).
+The pipeline thread reads every bus (python-can's own bus creation: any interface, several at
+once) a few times per scene period, just after each scene tick and between, and turns the frames
+into the recording (never dropping one) and the live scene (never waiting for a viewer). Each
+bus has a thread that opens it: when the bus fails (adapter unplugged, interface down) it says
+so, retries with backoff and says when it is back; the pipeline keeps running, viewers get a
+``foxglove.Log`` on ``/log``, and the recording marks the gap.
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
-import math
 import operator
 import queue
 import re
@@ -93,80 +93,107 @@ class BusEvent:
     reason: str = ""
 
 
-class BusReader(threading.Thread):
-    """Reads one bus into ``out`` until stopped; reopens it with backoff when it fails."""
+class BusLink:
+    """One bus: opened (and reopened after a failure, with backoff) by a thread of its own, and
+    read without waiting by the pipeline's thread (:meth:`poll`).
 
-    def __init__(self, spec: BusSpec, out: queue.SimpleQueue[Any], *,
+    The pipeline reads every bus at once a few times per scene period, so a scene tick sees the
+    frames of all buses before it, and no thread wakes up for each frame. Opening is what may
+    block (an adapter that is being plugged in), so only the opener thread ever waits for it;
+    it sleeps while the bus is up. Bus failures and returns are put on ``events``.
+    """
+
+    def __init__(self, spec: BusSpec, events: queue.SimpleQueue[BusEvent], *,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
                  backoff: tuple[float, float] = (0.2, 5.0)) -> None:
-        super().__init__(name=f"tankviz-bus-{spec.name}", daemon=True)
         self.spec = spec
-        self.out = out
+        self.events = events
         self.open_bus = open_bus
         self.backoff = backoff
         self.stopping = threading.Event()
         #: set once the bus was opened, or failed to open, for the first time
         self.tried = threading.Event()
         self.frames = 0
+        self._bus: can.BusABC | None = None  # the open bus, handed over by the opener
+        self._reopen = threading.Event()  # the opener is wanted
+        self._reopen.set()
+        self._down = False
+        self._opener = threading.Thread(target=self._open_loop, daemon=True,
+                                        name=f"tankviz-bus-{spec.name}")
+
+    def start(self) -> None:
+        if not self._opener.is_alive():
+            self._opener.start()
 
     def stop(self) -> None:
+        """Stops the opener; the bus stays readable until :meth:`close`."""
         self.stopping.set()
+        self._reopen.set()
+        self._opener.join(2.0)
 
-    def _frame(self, message: can.Message) -> Frame:
-        return Frame(
-            to_ns(message.timestamp), self.spec.name, message.arbitration_id,
-            bytes(message.data), message.is_extended_id, message.is_fd, message.is_error_frame,
-            message.is_remote_frame, message.bitrate_switch, message.error_state_indicator,
-            message.dlc)
+    def close(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            with contextlib.suppress(Exception):  # a broken adapter may fail to close
+                bus.shutdown()
 
-    def _read_batch(self, bus: can.BusABC, first: can.Message) -> None:
-        """``first`` and what the interface has already received, as one batch (a list of
-        frames: the pipeline is woken once for all of them)."""
-        batch = [self._frame(first)]
-        try:
-            while len(batch) < _BATCH and (message := bus.recv(0)) is not None:
-                batch.append(self._frame(message))
-        finally:  # the bus may fail halfway: what was read is kept
-            self.frames += len(batch)
-            self.out.put(batch)
-
-    def run(self) -> None:
-        name, out = self.spec.name, self.out
+    def _open_loop(self) -> None:
         delay = self.backoff[0]
-        down = False
         while not self.stopping.is_set():
-            bus: can.BusABC | None = None
+            self._reopen.wait()
+            if self.stopping.is_set():
+                break
             try:
                 try:
                     bus = self.open_bus(self.spec)
                 finally:
                     self.tried.set()
-                if down:
-                    out.put(BusEvent(name, True, time.time_ns()))
-                    down = False
-                delay = self.backoff[0]
-                while not self.stopping.is_set():
-                    message = bus.recv(0.1)
-                    if message is not None:
-                        self._read_batch(bus, message)
-                        # Let frames gather: a batch every few ms, not a wake-up per frame.
-                        time.sleep(READ_PAUSE_S)
-                # Stopping: keep what the interface has already received (a bounded while, as a
-                # busy bus never runs dry).
-                until = time.monotonic() + 0.25
-                while time.monotonic() < until and (message := bus.recv(0)) is not None:
-                    self._read_batch(bus, message)
             except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
-                if not down:
-                    out.put(BusEvent(name, False, time.time_ns(),
-                                     f"{type(exc).__name__}: {exc}".strip()))
-                    down = True
+                self._failed(exc)
                 self.stopping.wait(delay)
                 delay = min(delay * 2, self.backoff[1])
-            finally:
-                if bus is not None:
-                    with contextlib.suppress(Exception):  # a broken adapter may fail to close
-                        bus.shutdown()
+                continue
+            delay = self.backoff[0]
+            self._reopen.clear()
+            if self._down:
+                self._down = False
+                self.events.put(BusEvent(self.spec.name, True, time.time_ns()))
+            self._bus = bus
+            if self.stopping.is_set():
+                self.close()
+
+    def _failed(self, exc: Exception) -> None:
+        if not self._down:
+            self._down = True
+            self.events.put(BusEvent(self.spec.name, False, time.time_ns(),
+                                     f"{type(exc).__name__}: {exc}".strip()))
+
+    def poll(self, limit: int = 100_000) -> list[Frame]:
+        """What the interface has received by now (at most ``limit`` frames), never waiting.
+
+        When the bus fails, the frames read before are returned and the opener takes over.
+        """
+        bus = self._bus
+        if bus is None:
+            return []
+        frames: list[Frame] = []
+        name, to_frame = self.spec.name, _frame
+        try:
+            while len(frames) < limit and (message := bus.recv(0)) is not None:
+                frames.append(to_frame(name, message))
+        except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
+            self.close()
+            self._failed(exc)
+            self._reopen.set()
+        self.frames += len(frames)
+        return frames
+
+
+def _frame(bus: str, message: can.Message) -> Frame:
+    return Frame(
+        to_ns(message.timestamp), bus, message.arbitration_id, bytes(message.data),
+        message.is_extended_id, message.is_fd, message.is_error_frame, message.is_remote_frame,
+        message.bitrate_switch, message.error_state_indicator, message.dlc)
 
 
 _timestamp = operator.itemgetter(0)  # of a Frame
@@ -183,11 +210,66 @@ def merge_batches(batches: list[list[Frame]]) -> list[Frame]:
     return frames
 
 
-#: Most frames a reader hands over at once.
-_BATCH = 256
-#: A reader's pause after each batch (s): at most this much later in the scene, and the
-#: interface buffers what comes meanwhile (a socketcan socket holds thousands of frames).
-READ_PAUSE_S = 0.002
+
+
+NS = 1_000_000_000
+
+
+class ReadSchedule:
+    """When the live pipeline reads the buses: just after each scene tick, and twice between.
+
+    Scene ticks are multiples of the scene period in log time (the frames' timestamps). The read
+    ``after_tick_ns`` after a tick takes in every frame stamped before it, so the scene is
+    computed at once; the read ``before_tick_ns`` before the next tick leaves little for that
+    one; one more halfway keeps a busy bus's backlog short. Frames are read in the same thread
+    that processes them, so nothing wakes up for every frame.
+
+    Log time is wall time plus an offset that the frames tell (:meth:`saw`): a frame is read
+    after it was stamped, so the newest frame's stamp minus the time of reading is at most the
+    offset, and the largest is close to it (0 for buses stamped with the wall clock, such as
+    socketcan and virtual; something else for an adapter's own clock). A larger one counts at
+    once, a smaller one (a clock that drifts) once a second.
+    """
+
+    def __init__(self, period_ns: int, *, after_tick_ns: int = 500_000,
+                 before_tick_ns: int = 2_500_000) -> None:
+        self.period_ns = period_ns
+        self.after_tick_ns = min(after_tick_ns, period_ns // 4)
+        self.phases = sorted({self.after_tick_ns, period_ns // 2,
+                              max(period_ns - before_tick_ns, period_ns * 3 // 4)})
+        self.offset_ns: int | None = None  # log time - wall time, once a frame was seen
+        self._best: int | None = None
+        self._window_end = 0
+
+    def saw(self, newest_ns: int, now_ns: int) -> None:
+        """The newest frame of a read (log time) and when it was read (wall time)."""
+        if now_ns >= self._window_end:
+            if self._best is not None:
+                self.offset_ns = self._best  # the last second's, also if less (a drifting clock)
+            self._best = None
+            self._window_end = now_ns + NS
+        lead = newest_ns - now_ns
+        if self._best is None or lead > self._best:
+            self._best = lead
+        if self.offset_ns is None or lead > self.offset_ns:
+            self.offset_ns = lead  # a better estimate counts at once
+
+    def log_time(self, now_ns: int) -> int | None:
+        """Log time now, minus the time frames may take to be read: every frame stamped
+        before this has been read (None before the first frame)."""
+        if self.offset_ns is None:
+            return None
+        return now_ns + self.offset_ns - self.after_tick_ns
+
+    def next_read_ns(self, now_ns: int) -> int:
+        """The wall time of the next read after ``now_ns``."""
+        offset = self.offset_ns or 0
+        log_now = now_ns + offset
+        tick = log_now - log_now % self.period_ns
+        for phase in self.phases:
+            if tick + phase > log_now:
+                return tick + phase - offset
+        return tick + self.period_ns + self.phases[0] - offset
 
 
 def drive_name(start_ns: int, part: int) -> str:
@@ -318,7 +400,7 @@ class LiveReport:
 
 
 class Live:
-    """The live pipeline: bus readers, the pipeline thread's loop, recorder and server."""
+    """The live pipeline: the buses, the pipeline thread's loop, recorder and server."""
 
     def __init__(self, buses: Sequence[BusSpec], decoder: Decoder, *,
                  profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
@@ -335,8 +417,8 @@ class Live:
         self.scene_rate = scene_rate
         self.server = server
         self.say = say
-        self.queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self.readers = [BusReader(spec, self.queue, open_bus=open_bus) for spec in buses]
+        self.events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
+        self.links = [BusLink(spec, self.events, open_bus=open_bus) for spec in buses]
         self.recorder = (DriveRecorder(drives, self._describe, split_size, split_duration_s)
                          if drives is not None else None)
         self.health = new_health_monitor(
@@ -356,12 +438,16 @@ class Live:
         self.stopping.set()
 
     def start(self, timeout: float = 5.0) -> None:
-        """Open the buses (each in its reader thread); returns once each was tried."""
-        for reader in self.readers:
-            if not reader.is_alive():
-                reader.start()
-        for reader in self.readers:
-            reader.tried.wait(timeout)
+        """Open the buses (each by its opener thread); returns once each was tried."""
+        for link in self.links:
+            link.start()
+        for link in self.links:
+            link.tried.wait(timeout)
+
+    def _poll(self) -> list[Frame]:
+        """Every bus's new frames, in time order."""
+        polled = [frames for link in self.links if (frames := link.poll())]
+        return merge_batches(polled) if polled else []
 
     def run(self) -> LiveReport:
         """Until :meth:`stop`: read, record, serve. Files are finished cleanly on the way out."""
@@ -369,54 +455,42 @@ class Live:
         # What is loaded by now (databases, profile, schemas) lives as long as the process: out
         # of the collector's way, or every full collection walks it (a 15-30 ms pause each).
         gc.freeze()
-        pipeline, q = self.pipeline, self.queue
+        pipeline, events = self.pipeline, self.events
         process = pipeline.process
-        last_frame_ns: int | None = None
-        last_frame_at = time.monotonic()
-        period = 1.0 / self.scene_rate
+        schedule = ReadSchedule(round(NS / self.scene_rate))
         try:
             while not self.stopping.is_set():
-                try:
-                    item = q.get(timeout=period / 2)
-                except queue.Empty:
-                    item = None
-                batches: list[list[Frame]] = []
-                while item is not None:
-                    if isinstance(item, list):  # a reader's batch of frames
-                        batches.append(item)
-                    else:
-                        self._bus_event(item)
+                pause = schedule.next_read_ns(time.time_ns()) - time.time_ns()
+                if pause > 0:
+                    time.sleep(pause / NS)
+                while True:
                     try:
-                        item = q.get_nowait()
+                        self._bus_event(events.get_nowait())
                     except queue.Empty:
-                        item = None
-                if batches:
-                    frames = merge_batches(batches)
+                        break
+                frames = self._poll()
+                if frames:
+                    schedule.saw(frames[-1].timestamp_ns, time.time_ns())
                     for frame in frames:
                         process(frame)
-                    last_frame_ns, last_frame_at = frames[-1].timestamp_ns, time.monotonic()
-                if last_frame_ns is not None:
-                    # No frame for a while (a silent bus): the scene goes on in log time.
-                    idle = time.monotonic() - last_frame_at
-                    if idle > period:
-                        pipeline.advance(last_frame_ns + math.floor(idle * 1e9))
+                # Every frame stamped before this was read: the scenes due go out now, whether
+                # or not a later frame came (a quiet or silent bus).
+                log_now = schedule.log_time(time.time_ns())
+                if log_now is not None:
+                    pipeline.advance(log_now)
                 if self.recorder is not None:
                     self.recorder.tick()
         finally:
-            for reader in self.readers:
-                reader.stop()
-            for reader in self.readers:
-                reader.join(2.0)
-            rest: list[list[Frame]] = []  # what the readers had read before they stopped
-            while True:
-                try:
-                    item = q.get_nowait()
-                except queue.Empty:
-                    break
-                if isinstance(item, list):
-                    rest.append(item)
-            for frame in merge_batches(rest) if rest else ():
-                process(frame)
+            for link in self.links:
+                link.stop()
+            # What the interfaces have already received (a bounded while: a busy bus never
+            # runs dry).
+            until = time.monotonic() + 0.25
+            while time.monotonic() < until and (frames := self._poll()):
+                for frame in frames:
+                    process(frame)
+            for link in self.links:
+                link.close()
             pipeline.finish()
             if self.recorder is not None:
                 self.recorder.finish()

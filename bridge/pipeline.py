@@ -123,7 +123,9 @@ class Pipeline:
     def emit(self, outputs: Iterable[Output]) -> None:
         """Scene, perception and other messages to every sink."""
         recorder, server = self.recorder, self.server
+        emitted = False
         for out in outputs:
+            emitted = True
             cls = type(out.message)
             payload = out.message.SerializeToString()
             if recorder is not None:
@@ -132,7 +134,7 @@ class Pipeline:
                 server.publish(self._server_channel(server, out.topic, cls.DESCRIPTOR.full_name,
                                                     lambda cls=cls: _fds(cls)),
                                out.t_ns, payload)
-        if server is not None:
+        if server is not None and emitted:
             server.flush()
 
     def _serve_frame(self, server: LiveServer, frame: Frame, payload: bytes | None) -> None:

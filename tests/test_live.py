@@ -4,6 +4,7 @@ bus loss survived, recordings split into complete parts, slow viewers hurting no
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import os
 import re
@@ -25,7 +26,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.convert import build_stages
 from bridge.frame import Frame
-from bridge.live import BusSpec, DriveRecorder, Live, drive_name, merge_batches
+from bridge.live import BusSpec, DriveRecorder, Live, ReadSchedule, drive_name, merge_batches
 from bridge.server import LiveServer, wait_for
 from bridge.simulate import simulate
 
@@ -108,16 +109,22 @@ def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
 
 
 class FlakyBus(can.BusABC):
-    """A bus that delivers a numbered frame every millisecond and breaks when told."""
+    """A bus that receives a numbered frame every millisecond and breaks when told."""
 
     def __init__(self, source: FlakySource) -> None:
         self.source = source
+        self.next_at = time.monotonic()
         super().__init__(channel="flaky")
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        time.sleep(0.001)
         if self.source.broken.is_set():
             raise can.CanOperationError("adapter unplugged")
+        wait = self.next_at - time.monotonic()
+        if wait > (timeout or 0.0):
+            time.sleep(timeout or 0.0)
+            return None, False
+        time.sleep(max(wait, 0.0))
+        self.next_at += 0.001
         self.source.sent += 1
         return can.Message(timestamp=time.time(), arbitration_id=0x100,
                            data=self.source.sent.to_bytes(8, "little")), False
@@ -263,8 +270,8 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
 
 
 def test_the_buses_batches_are_processed_in_time_order() -> None:
-    """Each reader hands over a batch; frames of several buses are merged by time (equal times
-    keep their order), so a scene tick comes after every earlier frame that had arrived."""
+    """Each bus's new frames are read as a batch; batches of several buses are merged by time
+    (equal times keep their order), so a scene tick comes after every earlier frame read."""
     radar = [Frame(t, "radar", 0x100, b"") for t in (10, 20, 30, 40)]
     camera = [Frame(t, "camera", 0x200, b"") for t in (15, 20, 35)]
     merged = merge_batches([radar, camera])
@@ -272,6 +279,72 @@ def test_the_buses_batches_are_processed_in_time_order() -> None:
         (10, "radar"), (15, "camera"), (20, "radar"), (20, "camera"), (30, "radar"),
         (35, "camera"), (40, "radar")]
     assert merge_batches([radar]) is radar
+
+
+MS = 1_000_000
+
+
+def test_the_buses_are_read_just_after_each_scene_tick_and_twice_between() -> None:
+    schedule = ReadSchedule(20 * MS)  # 50 Hz
+    tick = 1_767_268_800 * NS  # a scene tick: log time is a multiple of the period
+    schedule.saw(tick - 3 * MS, tick - 3 * MS)  # a bus stamped with the wall clock
+    reads = []
+    now = tick
+    for _ in range(4):
+        now = schedule.next_read_ns(now)
+        reads.append((now - tick) / MS)
+    # 0.5 ms after the tick (the scene goes out at once), halfway, 2.5 ms before the next tick
+    assert reads == [0.5, 10.0, 17.5, 20.5]
+    assert schedule.log_time(tick + MS) == tick + MS // 2  # what every read frame is before
+
+
+def test_the_read_schedule_follows_a_bus_stamped_by_its_own_clock() -> None:
+    schedule = ReadSchedule(20 * MS)
+    assert schedule.log_time(123) is None  # no frame yet: no log time
+    wall0 = 1_767_268_800 * NS + 7 * MS
+    clock0 = 3_600 * NS  # the adapter's clock at wall0: an hour since it was plugged in
+
+    def read(wall: int, delay: int) -> None:  # the newest frame was stamped `delay` before
+        schedule.saw(clock0 + (wall - wall0) - delay, wall)
+
+    read(wall0, 900_000)
+    assert schedule.offset_ns == clock0 - wall0 - 900_000  # a first estimate at once
+    read(wall0 + 5 * MS, 200_000)
+    assert schedule.offset_ns == clock0 - wall0 - 200_000  # a better one at once
+    read(wall0 + 10 * MS, 600_000)
+    assert schedule.offset_ns == clock0 - wall0 - 200_000
+    # The adapter's clock slows down by 1 ms: a second later the offset follows it.
+    read(wall0 + NS, MS + 300_000)
+    read(wall0 + NS + 5 * MS, MS + 400_000)
+    read(wall0 + 2 * NS, MS + 500_000)
+    assert schedule.offset_ns == clock0 - wall0 - MS - 300_000
+    # The next read comes 0.5 ms after a tick of the bus's own time.
+    read_at = schedule.next_read_ns(wall0 + NS)
+    assert (read_at + schedule.offset_ns) % (20 * MS) == MS // 2
+
+
+def test_the_scene_goes_on_when_the_buses_fall_silent(tmp_path: Path) -> None:
+    decoder, profile = build_stages([], "ecocar")
+    channel = f"silent-{os.getpid()}"
+    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
+                drives=tmp_path, scene_rate=50)
+    live.start()
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        for frame in simulate(duration_s=0.1):
+            bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                                 is_fd=frame.is_fd, dlc=frame.dlc))
+        last_sent = time.time_ns()
+        time.sleep(1.0)  # the car goes quiet
+        live.stop()
+        runner.join(10)
+    (drive,) = tmp_path.glob("*.mcap")
+    with drive.open("rb") as f:
+        scenes = [m.log_time for _, c, m in make_reader(f).iter_messages(topics=["/scene/ego"])]
+    after = [t for t in scenes if t > last_sent]
+    assert len(after) >= 40  # the silent second still has its scenes, at 50 Hz of log time
+    assert all(b - a == 20 * MS for a, b in itertools.pairwise(after))
 
 
 def test_print_systemd_unit(capsys: pytest.CaptureFixture[str]) -> None:

@@ -38,18 +38,19 @@ CPU (time.thread_time() measured inside each sender thread around its send loop)
 script's main thread (the harness: it sleeps and samples backlogs every 50 ms)``, over the window
 from just before the senders start until everything is processed and passed on (above), divided
 by that wall time: % of one core. The clients' process is not included. A cross-check sums
-``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (bus readers, pipeline,
+``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (pipeline, bus openers,
 server) over the same window; the per-thread breakdown is printed. The senders share the GIL
 with the bridge: their CPU is subtracted, their contention for the GIL is not (a real CAN
 adapter costs the bridge no GIL), so latency here is somewhat pessimistic.
 
 Latency. "From a frame's timestamp to a client receiving the scene that contains it." The scene
 tick at log time T (the WebSocket message timestamp; ticks are multiples of 20 ms at 50 Hz) is
-emitted by the pipeline while processing the first frame stamped >= T, and contains exactly the
-frames processed before it. The recorder writes frames and scenes in that same processing order,
-so reading the drive's MCAP in file order tells, for every frame, the scene that contains it: the
-first ``/scene/ego`` written after it (a frame that reached the pipeline after a newer frame from
-another bus lands in the next scene, and is counted so). A reading client has received scene T
+emitted by the pipeline when it processes the first frame stamped >= T (or at its read of the
+buses just after T, if none came), and contains exactly the frames processed before it. The
+recorder writes frames and scenes in that same processing order, so reading the drive's MCAP in
+file order tells, for every frame, the scene that contains it: the first ``/scene/ego`` written
+after it (a frame stamped before T but read after scene T went out lands in the next scene,
+and is counted so). A reading client has received scene T
 when it has as many ``/scene/*`` messages stamped T as the drive recorded: the arrival of the last
 one (wall clock, in the client process; the same clock as the frame stamps). Then per frame and
 reading client::
@@ -66,7 +67,7 @@ computing tick T, has computed it, and has serialised, recorded and handed it to
 the network to the client. The first 0.5 s (warm-up) and the last 0.1 s of sending (the last
 scene is emitted by the idle timer once the buses go quiet) are left out of the latency figures.
 While the car drives, the harness samples every 50 ms how far the pipeline is behind (wall clock
-minus the newest frame processed) and the backlogs of the pipeline queue and the server inbox.
+minus the newest frame processed) and the backlog of the server inbox.
 
 RSS. ``ru_maxrss`` of this process (bridge + senders + the prepared traffic), taken before the
 drive is read back; the RSS before the bridge started is printed for comparison.
@@ -616,14 +617,12 @@ def run(args: argparse.Namespace) -> None:
     go.set()
     # While the car drives, the harness samples how far behind the pipeline and the server are.
     lag_ms: list[float] = []
-    backlog: list[int] = []
     inbox: list[int] = []
     while any(s.thread is not None and s.thread.is_alive() for s in senders):
         time.sleep(0.05)
         last = live.pipeline.last_ns
         if last is not None:
             lag_ms.append((time.time_ns() - last) / MS)
-        backlog.append(live.queue.qsize())
         inbox.append(len(server._inbox))
     for sender in senders:
         assert sender.thread is not None
@@ -740,7 +739,7 @@ def run(args: argparse.Namespace) -> None:
             for i, ms in enumerate((start - tick, computed - start, emitted - computed,
                                     at - emitted)):
                 parts[i].append(ms / MS)
-    row("    where: tick → pipeline at the first later frame",
+    row("    where: tick → the pipeline starts the scene",
         f"{percentile(parts[0], 0.5):.1f} / {percentile(parts[0], 0.99):.1f} / "
         f"{max(parts[0], default=float('nan')):.1f} ms")
     row("    where: the scene is computed (perception tick)",
@@ -755,8 +754,7 @@ def run(args: argparse.Namespace) -> None:
     row("pipeline lag (now - newest frame processed) p50 / p99 / max",
         f"{percentile(lag_ms, 0.5):.1f} / {percentile(lag_ms, 0.99):.1f} / "
         f"{max(lag_ms, default=float('nan')):.1f} ms")
-    row("backlog max: pipeline queue / server inbox",
-        f"{max(backlog, default=0):,} frames / {max(inbox, default=0):,} messages")
+    row("backlog max: server inbox", f"{max(inbox, default=0):,} messages")
     full = [d for g, d in gc_pauses if g == 2]
     row("garbage collections: all / full (gen 2), longest pause",
         f"{len(gc_pauses):,} / {len(full)}, {1e3 * max((d for _, d in gc_pauses), default=0):.1f}"
