@@ -176,8 +176,17 @@ def frame_payload(frame: Frame) -> bytes:
             error_state_indicator=frame.error_state_indicator, error=frame.is_error,
             remote=frame.is_remote, dlc=frame.dlc).SerializeToString()
     # Serialized protobuf messages concatenate into their merge, and data is the last field, so
-    # this is byte for byte what serializing the whole CanFrame gives.
-    return head + bytes(CanFrame(data=frame.data).SerializeToString())
+    # this is byte for byte what serializing the whole CanFrame gives: its tag, its length (one
+    # byte up to 127: every CAN and CAN FD payload) and the bytes; nothing when empty.
+    data = frame.data
+    n = len(data)
+    if n < 128:
+        return head + _DATA_FIELD[n] + data if n else head
+    return head + bytes(CanFrame(data=data).SerializeToString())
+
+
+#: CanFrame's ``data`` field (11, length-delimited) with each length up to 127.
+_DATA_FIELD = [bytes((11 << 3 | 2, n)) for n in range(128)]
 
 
 class FrameSink(Protocol):

@@ -44,10 +44,11 @@ def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:
     recorder = Recorder(recorder_out)
     expected = []
     for n, flags in enumerate(itertools.product([False, True], repeat=6)):
-        for length in (0, 1, 8, 12, 64):
+        for length in (0, 1, 8, 12, 64, 127, 128, 300):  # longer than CAN: other sources
             ext, fd, err, rtr, brs, esi = flags
             frame = Frame(n * 100 + length, "radar", 0x1ABCDEF if ext else 0x7FF,
-                          bytes(range(length)), ext, fd, err, rtr, brs, esi, length)
+                          bytes(i % 256 for i in range(length)), ext, fd, err, rtr, brs, esi,
+                          length)
             recorder.write_frame(frame)
             expected.append(CanFrame(bus="radar", id=frame.arbitration_id, extended=ext, fd=fd,
                                      error=err, remote=rtr, bitrate_switch=brs,
