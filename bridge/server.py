@@ -32,7 +32,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from foxglove_websocket.server import FoxgloveServer, FoxgloveServerListener
 from foxglove_websocket.types import ChannelId
@@ -89,11 +89,12 @@ class _Client:
     def __post_init__(self) -> None:
         self.queue = collections.deque(maxlen=self.limit)  # a full one drops its oldest
 
-    def put(self, item: tuple[Any, ...]) -> None:
+    def put(self, items: list[tuple[Any, ...]]) -> None:
+        """Queue messages; a full queue drops its oldest (counted)."""
         queue = self.queue
-        if len(queue) == self.limit:
-            self.stats.dropped += 1
-        queue.append(item)
+        before = len(queue)
+        queue.extend(items)
+        self.stats.dropped += before + len(items) - len(queue)
         self.ready.set()
 
     def put_control(self, frame: Any) -> None:
@@ -208,7 +209,7 @@ class LiveServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._stop: asyncio.Event | None = None
-        self._inbox: collections.deque[tuple[Any, ...]] = collections.deque()
+        self._inbox: collections.deque[tuple[int, int, bytes] | _Control] = collections.deque()
         self._wake_pending = False
         self._lock = threading.Lock()
         self._channels: dict[str, int] = {}
@@ -309,7 +310,7 @@ class LiveServer:
             self._next_channel += 1
         text = (base64.b64encode(schema).decode("ascii") if schema_encoding == "protobuf"
                 else schema.decode("utf-8", errors="replace"))
-        self._post(("channel", {
+        self._post(_Control("channel", {
             "id": channel_id, "topic": topic, "encoding": encoding, "schemaName": schema_name,
             "schema": text, "schemaEncoding": schema_encoding}))
         return channel_id
@@ -327,7 +328,7 @@ class LiveServer:
         """Send a serialized message to the channel's subscribers; never blocks. It leaves
         within :data:`DRAIN_INTERVAL_S`, or at once after :meth:`flush`."""
         if channel_id in self._wanted:
-            self._inbox.append(("message", (channel_id, t_ns, payload)))
+            self._inbox.append((channel_id, t_ns, payload))
 
     def flush(self) -> None:
         """Have what was published so far sent now (e.g. after a scene)."""
@@ -336,13 +337,13 @@ class LiveServer:
 
     def broadcast_time(self, t_ns: int) -> None:
         """The protocol's server time, so viewers follow log time (replay)."""
-        self._post(("time", t_ns))
+        self._post(_Control("time", t_ns))
 
     def client_stats(self) -> list[ClientStats]:
         """Every client connected now and every one that left."""
         return [c.stats for c in list(self._clients.values())] + self.finished
 
-    def _post(self, item: tuple[Any, ...]) -> None:
+    def _post(self, item: _Control) -> None:
         self._inbox.append(item)
         self._wake()
 
@@ -378,28 +379,46 @@ class LiveServer:
         self._sync_clients()
         clients = list(self._clients.values())
         inbox = self._inbox
+        # Each client's share of this drain, handed over at once; who subscribed to a channel is
+        # looked up once per channel and drain (a stalled viewer of every raw frame is a deque
+        # extend, not a call per message).
+        shares: dict[int, list[tuple[Any, ...]]] = {}  # by client
+        targets: dict[int, list[list[tuple[Any, ...]]]] = {}  # by channel: its clients' shares
         while inbox:
             item = inbox.popleft()
-            kind = item[0]
-            if kind == "message":
-                message = item[1]
-                channel_id = message[0]
-                for client in clients:
-                    if channel_id in client.state.subscriptions_by_channel:
-                        client.put(message)
-            elif kind == "channel":
-                channel = item[1]
-                server._channels[ChannelId(channel["id"])] = channel
-                text = json.dumps({"op": "advertise", "channels": [channel]},
-                                  separators=(",", ":"))
-                for client in clients:
-                    client.put_control(text)
-            elif kind == "time":
-                frame = _TIME_HEADER.pack(_TIME, item[1])
-                for client in clients:
-                    client.put_control(frame)
+            if isinstance(item, _Control):
+                if item.kind == "channel":
+                    channel = item.value
+                    server._channels[ChannelId(channel["id"])] = channel
+                    text = json.dumps({"op": "advertise", "channels": [channel]},
+                                      separators=(",", ":"))
+                    for client in clients:
+                        client.put_control(text)
+                else:  # the time
+                    frame = _TIME_HEADER.pack(_TIME, item.value)
+                    for client in clients:
+                        client.put_control(frame)
+                continue
+            channel_id = item[0]  # a message: (channel, time, payload)
+            channel_shares = targets.get(channel_id)
+            if channel_shares is None:
+                channel_shares = targets[channel_id] = [
+                    shares.setdefault(id(client), []) for client in clients
+                    if channel_id in client.state.subscriptions_by_channel]
+            for share in channel_shares:
+                share.append(item)
+        for client in clients:
+            if id(client) in shares:
+                client.put(shares[id(client)])
         for client in clients:
             client.write_now()
+
+
+class _Control(NamedTuple):
+    """An inbox item for every client (a message is a plain ``(channel, time, payload)``)."""
+
+    kind: str  # "channel" (advertise it) or "time" (the server time)
+    value: Any
 
 
 #: Messages one client's sender writes at once before letting the others have a turn.

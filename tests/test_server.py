@@ -202,13 +202,22 @@ def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> No
         assert stalled_stats.dropped > 0 and stalled_stats.sent < rate * seconds
 
 
+def test_a_full_queue_drops_its_oldest_and_counts_them() -> None:
+    viewer = _Client(SimpleNamespace(subscriptions_by_channel={3: 1}), ClientStats("viewer"),
+                     limit=3)
+    viewer.put([(3, 0, b"a"), (3, 1, b"b")])
+    assert viewer.stats.dropped == 0
+    viewer.put([(3, t, b"c") for t in range(2, 6)])
+    assert [t for _, t, _ in viewer.queue] == [3, 4, 5]  # the newest three
+    assert viewer.stats.dropped == 3 and viewer.ready.is_set()
+
+
 def test_a_message_queued_before_an_unsubscribe_is_not_sent() -> None:
     """A viewer that unsubscribed gets nothing more of that channel, even what was queued."""
     state = SimpleNamespace(subscriptions_by_channel={3: 1, 4: 2})
     queued = _Client(state, ClientStats("viewer"), limit=10)
     for t in range(3):
-        queued.put((3, t, b"radar"))
-        queued.put((4, t, b"lanes"))
+        queued.put([(3, t, b"radar"), (4, t, b"lanes")])
     # foxglove-websocket swaps in a new mapping at every (un)subscribe
     state.subscriptions_by_channel = {4: 2}
     frames = queued._next_frames(limit=64)
@@ -228,7 +237,7 @@ def test_an_idle_viewer_gets_its_messages_at_once_unless_its_socket_is_full() ->
                      ClientStats("viewer"), limit=10)
     viewer.idle = True
     buffered[0] = 2**16  # the socket holds 64 KiB not yet sent: the viewer is behind
-    viewer.put((3, 0, b"scene"))
+    viewer.put([(3, 0, b"scene")])
     viewer.write_now()
     assert written == [] and len(viewer.queue) == 1 and viewer.ready.is_set()
     buffered[0] = 0
