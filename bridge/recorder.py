@@ -77,10 +77,12 @@ class FastWriter(McapWriter):
     """mcap's Writer, with a faster ``add_message`` for the per-frame hot path.
 
     mcap's own ``add_message`` spends about 3 µs per message building a record object and
-    writing it field by field; a drive writes two messages per frame. This one appends the same
-    record bytes to the same chunk builder with one ``struct.pack`` and keeps the same statistics
-    and message indexes, so mcap still writes chunks, indexes and the summary. It relies on
-    mcap's internals, so it checks for them and falls back to mcap's method if they change;
+    writing it field by field, and updating the chunk's and the file's statistics; a drive writes
+    two messages per frame. This one appends the same record bytes to the same chunk builder
+    with one ``struct.pack`` and notes (log time, offset) in the chunk's message index; the
+    statistics (message counts, first and last times) are worked out from those indexes just
+    before mcap finishes each chunk. mcap still writes chunks, indexes and the summary. It relies
+    on mcap's internals, so it checks for them and falls back to mcap's method if they change;
     tests/test_recorder.py checks that both give byte-identical files.
     """
 
@@ -90,20 +92,52 @@ class FastWriter(McapWriter):
         self._statistics: Any = getattr(self, private + "statistics", None)
         self._chunk: Any = getattr(self, private + "chunk_builder", None)
         self._chunk_size: Any = getattr(self, private + "chunk_size", None)
-        self._finalize: Any = getattr(self, private + "maybe_finalize_chunk", None)
-        self._finalize_now: Any = getattr(self, private + "finalize_chunk", None)
+        self._finalize_chunk: Any = getattr(self, private + "finalize_chunk", None)
         self._output = output
         self._fast = (
-            None not in (self._statistics, self._chunk, self._chunk_size, self._finalize)
+            None not in (self._statistics, self._chunk, self._chunk_size, self._finalize_chunk)
             and hasattr(self._statistics, "channel_message_counts")
             and hasattr(getattr(self._chunk, "record_writer", None), "_buffer")
             and hasattr(self._chunk, "message_indices")
         )
+        if self._fast:
+            # Every way mcap finishes a chunk (by size, flush, finish, a new channel) calls this
+            # attribute: the chunk's statistics are settled first.
+            setattr(self, private + "finalize_chunk", self._settle_and_finalize)
+
+    def _settle_and_finalize(self) -> None:
+        """The chunk's and the file's statistics from the chunk's message indexes, then mcap
+        finishes the chunk."""
+        chunk, stats = self._chunk, self._statistics
+        counts = stats.channel_message_counts
+        for channel_id, index in chunk.message_indices.items():
+            if not isinstance(index, _MessageIndex):  # written by mcap's own add_message
+                continue
+            entries = index.entries
+            n = len(entries) // 2
+            if not n:
+                continue
+            times = entries[::2]
+            first, last = min(times), max(times)
+            if chunk.num_messages == 0 or first < chunk.message_start_time:
+                chunk.message_start_time = first
+            if last > chunk.message_end_time:
+                chunk.message_end_time = last
+            if stats.message_count == 0 or first < stats.message_start_time:
+                stats.message_start_time = first
+            if last > stats.message_end_time:
+                stats.message_end_time = last
+            counts[channel_id] += n
+            chunk.num_messages += n
+            stats.message_count += n
+        self._finalize_chunk()
 
     def flush(self) -> None:
         """Close the chunk being built and push everything written so far to the disk."""
-        if self._finalize_now is not None:
-            self._finalize_now()
+        if self._fast:
+            self._settle_and_finalize()
+        elif self._finalize_chunk is not None:
+            self._finalize_chunk()
         self._output.flush()
         fileno = getattr(self._output, "fileno", None)
         if fileno is not None:
@@ -115,19 +149,7 @@ class FastWriter(McapWriter):
         if not self._fast:
             super().add_message(channel_id, log_time, data, publish_time, sequence)
             return
-        stats = self._statistics
-        if stats.message_count == 0 or log_time < stats.message_start_time:
-            stats.message_start_time = log_time
-        if log_time > stats.message_end_time:
-            stats.message_end_time = log_time
-        stats.channel_message_counts[channel_id] += 1
-        stats.message_count += 1
-
         chunk = self._chunk
-        if chunk.num_messages == 0 or log_time < chunk.message_start_time:
-            chunk.message_start_time = log_time
-        if log_time > chunk.message_end_time:
-            chunk.message_end_time = log_time
         index = chunk.message_indices.get(channel_id)
         if index is None:
             index = chunk.message_indices[channel_id] = _MessageIndex(channel_id)
@@ -135,12 +157,11 @@ class FastWriter(McapWriter):
         entries = index.entries
         entries.append(log_time)
         entries.append(buffer.tell())
-        chunk.num_messages += 1
         buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence,
                                           log_time, publish_time))
         buffer.write(data)
         if buffer.tell() > self._chunk_size:
-            self._finalize()
+            self._settle_and_finalize()
 
 
 @contextlib.contextmanager

@@ -26,6 +26,10 @@ def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
     for i in range(3000):  # several chunks, times a little out of order, sizes varying
         t = 1_000_000 + i * 1000 + rng.randint(-3000, 3000)
         writer.add_message(rng.choice(channels), t, rng.randbytes(rng.randint(0, 80)), t + 5, i)
+        if i == 1000:  # a chunk closed early, as a drive's flush every second does
+            writer.flush()
+        if i == 2000:  # a channel that comes later, into a chunk that is nearly full
+            channels.append(writer.register_channel("/late", "protobuf", schema))
     writer.add_metadata("m", {"k": "v"})
     writer.finish()
     return out.getvalue()
