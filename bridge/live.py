@@ -113,7 +113,6 @@ class BusLink:
         self.stopping = threading.Event()
         #: set once the bus was opened, or failed to open, for the first time
         self.tried = threading.Event()
-        self.frames = 0
         self._bus: can.BusABC | None = None  # the open bus, handed over by the opener
         self._reopen = threading.Event()  # the opener is wanted
         self._reopen.set()
@@ -129,7 +128,8 @@ class BusLink:
         """Stops the opener; the bus stays readable until :meth:`close`."""
         self.stopping.set()
         self._reopen.set()
-        self._opener.join(2.0)
+        if self._opener.is_alive():
+            self._opener.join(2.0)
 
     def close(self) -> None:
         bus, self._bus = self._bus, None
@@ -185,7 +185,6 @@ class BusLink:
             self.close()
             self._failed(exc)
             self._reopen.set()
-        self.frames += len(frames)
         return frames
 
 
@@ -208,8 +207,6 @@ def merge_batches(batches: list[list[Frame]]) -> list[Frame]:
     frames = [frame for batch in batches for frame in batch]
     frames.sort(key=_timestamp)  # stable, and fast on runs already in order
     return frames
-
-
 
 
 NS = 1_000_000_000
