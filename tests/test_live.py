@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import can
 import pytest
@@ -55,6 +56,20 @@ def start_demo(tmp_path: Path, *extra: str) -> subprocess.Popen[str]:
         if line.startswith("Ctrl+C"):
             return process
     raise AssertionError(f"demo did not start: {process.wait()}")
+
+
+def run_live_on_virtual_bus(name: str, tmp_path: Path, **options: Any
+                            ) -> tuple[Live, threading.Thread, str]:
+    """``tankviz live`` (ecocar profile) on a fresh virtual bus, running in a thread; returns it,
+    the thread and the bus channel to send on."""
+    decoder, profile = build_stages([], "ecocar")
+    channel = f"{name}-{os.getpid()}"
+    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
+                drives=tmp_path, **options)
+    live.start()  # the bus is open before anything is sent on it
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    return live, runner, channel
 
 
 def test_bus_specs_name_interface_channel_and_bitrate() -> None:
@@ -178,13 +193,7 @@ def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Pa
 
 
 def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
-    decoder, profile = build_stages([], "ecocar")
-    channel = f"split-{os.getpid()}"
-    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
-                drives=tmp_path, split_duration_s=0.7)
-    live.start()
-    runner = threading.Thread(target=live.run)
-    runner.start()
+    live, runner, channel = run_live_on_virtual_bus("split", tmp_path, split_duration_s=0.7)
     sent = 0
     with can.Bus(interface="virtual", channel=channel) as bus:
         for frame in simulate(duration_s=2.0):
@@ -209,14 +218,9 @@ def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
 
 def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
     """One viewer never reads, another gets the scene at the scene rate, every frame is kept."""
-    decoder, profile = build_stages([], "ecocar")
-    channel = f"stall-{os.getpid()}"
     with LiveServer(port=0, queue_limit=50) as server:
-        live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
-                    drives=tmp_path, server=server, scene_rate=50)
-        live.start()
-        runner = threading.Thread(target=live.run)
-        runner.start()
+        live, runner, channel = run_live_on_virtual_bus("stall", tmp_path, server=server,
+                                                        scene_rate=50)
         scenes: list[bytes] = []
 
         async def viewers() -> int:
@@ -324,13 +328,7 @@ def test_the_read_schedule_follows_a_bus_stamped_by_its_own_clock() -> None:
 
 
 def test_the_scene_goes_on_when_the_buses_fall_silent(tmp_path: Path) -> None:
-    decoder, profile = build_stages([], "ecocar")
-    channel = f"silent-{os.getpid()}"
-    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
-                drives=tmp_path, scene_rate=50)
-    live.start()
-    runner = threading.Thread(target=live.run)
-    runner.start()
+    live, runner, channel = run_live_on_virtual_bus("silent", tmp_path, scene_rate=50)
     with can.Bus(interface="virtual", channel=channel) as bus:
         for frame in simulate(duration_s=0.1):
             bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
