@@ -13,6 +13,17 @@ from bridge.resources import data_dir
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 ECOCAR_DBC = data_dir() / "ecocar.dbc"
+
+
+def summary_counts(path: Path) -> dict[str, int]:
+    """Messages per topic of an MCAP file, as the Python mcap library reads its summary."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    return {summary.channels[i].topic: n
+            for i, n in summary.statistics.channel_message_counts.items()}
 T0 = 1_700_000_000.0  # an absolute start time, in python-can's float seconds
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import summary_counts
 
 from bridge.simulate import DEFAULT_START_NS, TIMELINE
 
@@ -393,17 +394,6 @@ def test_live_demo_with_foxglove_ws_protocol_client() -> None:
     assert channels["/can/can0/frames"]["schemaName"] == "tankviz.CanFrame"
 
 
-def mcap_counts(path: Path) -> dict[str, int]:
-    """Messages per topic as the Python mcap library reads the summary."""
-    from mcap.reader import make_reader
-
-    with path.open("rb") as stream:
-        summary = make_reader(stream).get_summary()
-    assert summary is not None and summary.statistics is not None
-    return {summary.channels[cid].topic: n
-            for cid, n in summary.statistics.channel_message_counts.items()}
-
-
 def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:
     """@mcap/core reads what tankviz records (simulate, and the live recorder of demo): summary,
     statistics, chunk and message indexes agree with every record in the file, every message
@@ -423,5 +413,5 @@ def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:
         assert found["chunks"] > 0 and found["compression"] == ["zstd"]
         assert found["decodeErrors"] == 0
         assert "tankviz" in found["metadata"] and "ecocar.dbc" in found["attachments"]
-        assert found["topics"] == mcap_counts(path)
+        assert found["topics"] == summary_counts(path)
         assert found["messagesRead"] == int(found["messageCount"]) > 0

@@ -20,7 +20,7 @@ from typing import Any
 import can
 import pytest
 import websockets
-from conftest import ECOCAR_DBC
+from conftest import ECOCAR_DBC, summary_counts
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -32,14 +32,6 @@ from bridge.server import LiveServer, wait_for
 from bridge.simulate import simulate
 
 NS = 1_000_000_000
-
-
-def summary_counts(path: Path) -> dict[str, int]:
-    with path.open("rb") as f:
-        summary = make_reader(f).get_summary()
-    assert summary is not None and summary.statistics is not None
-    return {summary.channels[i].topic: n
-            for i, n in summary.statistics.channel_message_counts.items()}
 
 
 def frames_recorded(path: Path) -> int:
