@@ -136,9 +136,8 @@ class Perception:
         world.expire(t_ns)
         lanes = self.lanes = world.lane_model(t_ns)
         check = world.mio_check(lanes)
-        out = [Output(scene_topic(category), scene.update(scene_topic(category), entities, t_ns,
-                                                          self.scene_state), t_ns)
-               for category, entities in scene.scene_entities(world, lanes, check, t_ns).items()]
+        out = [Output(scene_topic(category), update, t_ns) for category, update
+               in scene.scene_updates(world, lanes, check, t_ns, self.scene_state).items()]
         out.append(Output(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
         for name, group in profile.groups.items():
             out.append(Output(objects_topic(name), semantic.objects(

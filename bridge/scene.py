@@ -16,6 +16,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any, TypeAlias
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -31,11 +32,12 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.duration_pb2 import Duration
+from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from bridge.observe import ObjectObservation
-from bridge.profile import ObjectClass, Profile, SensorKind
-from bridge.topics import VEHICLE_FRAME
+from bridge.profile import ObjectClass, Profile, SensorKind, Vehicle
+from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world import LaneModel, MioCheck, World
 
 NS = 1_000_000_000
@@ -76,9 +78,12 @@ def duration(seconds: float) -> Duration:
     return Duration(seconds=ns // NS, nanos=ns % NS)
 
 
-# Building a scene is ~50 entities a tick, 50 times a second. Constant parts are made once and
-# copied in (CopyFrom); primitives are added in place rather than built apart and copied:
-# 2.4x faster than nested constructors. The cached messages are never changed, only copied.
+# Building a scene is ~20 entities and 400 lane points a tick, 50 times a second. The category
+# builders add their entities in place to a SceneUpdate's ``entities`` (no copy into it). An
+# entity starts as a copy of a cached template of all that does not change from tick to tick
+# (frame, lifetime, sizes, colours, class label, metadata); then only its id, time, positions
+# and label are set: 2x faster than building each one. Cached messages are only ever copied.
+Entities: TypeAlias = RepeatedCompositeFieldContainer[SceneEntity]
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 _stamp = lru_cache(maxsize=4)(timestamp)
 _lifetime = lru_cache(maxsize=16)(duration)
@@ -119,6 +124,14 @@ def entity(t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
     return e
 
 
+def add_entity(into: Entities, t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
+    """:func:`entity`, made in place as the next of ``into``."""
+    e: SceneEntity = into.add(frame_id=VEHICLE_FRAME, id=entity_id, frame_locked=True)
+    e.timestamp.CopyFrom(_stamp(t_ns))
+    e.lifetime.CopyFrom(_lifetime(lifetime_s))
+    return e
+
+
 def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: RGBA) -> None:
     ball = e.spheres.add()
     set_pose(ball.pose, x, y, z)
@@ -127,61 +140,109 @@ def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: 
     ball.color.CopyFrom(_color(rgba))
 
 
-def ego_entities(profile: Profile, t_ns: int) -> list[SceneEntity]:
-    v = profile.vehicle
-    e = entity(t_ns, "ego", 0.0)
+def _template(entity_id: str, lifetime_s: float) -> SceneEntity:
+    e = entity(0, entity_id, lifetime_s)
+    e.ClearField("timestamp")
+    return e
+
+
+def _place(primitive: Any, x: float, y: float) -> None:
+    position = primitive.pose.position
+    position.x, position.y = x, y
+
+
+@lru_cache(maxsize=4)
+def _ego_template(v: Vehicle) -> SceneEntity:
+    e = _template("ego", 0.0)
     e.cubes.append(CubePrimitive(pose=pose(0.0, 0.0, v.height_m / 2),
                                  size=Vector3(x=v.length_m, y=v.width_m, z=v.height_m),
                                  color=color(EGO_COLOR)))
-    return [e]
+    return e
 
 
-def lane_entities(lanes: LaneModel, t_ns: int) -> list[SceneEntity]:
-    out = []
+def ego_entities(into: Entities, profile: Profile, t_ns: int) -> None:
+    e = into.add()
+    e.MergeFrom(_ego_template(profile.vehicle))
+    e.timestamp.CopyFrom(_stamp(t_ns))
+
+
+@lru_cache(maxsize=64)
+def _lane_template(n: int, rgba: RGBA, source: str) -> SceneEntity:
+    """A lane line's entity with ``n`` points at x = y = 0. Never changed, only copied."""
+    e = _template("", 0.0)
+    primitive = e.lines.add(type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
+                            thickness=LANE_THICKNESS, scale_invariant=False, color=color(rgba))
+    add = primitive.points.add
+    for _ in range(n):
+        add(z=0.05)
+    e.metadata.add(key="source", value=source)
+    return e
+
+
+def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
+    stamp = _stamp(t_ns)
     for line in lanes.lines:
         if lanes.source == "steering":
             rgba = STEERING_LANE_COLOR
         else:
             rgba = NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
-        e = entity(t_ns, f"lane-{line.name}", 0.0)
-        primitive = e.lines.add(type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
-                                thickness=LANE_THICKNESS, scale_invariant=False,
-                                color=color(rgba))
-        add = primitive.points.add  # in place: twice as fast as making Point3s to copy
-        for x, y in line.points:
-            add(x=x, y=y, z=0.05)
-        e.metadata.add(key="source", value=lanes.source)
-        out.append(e)
-    return out
+        e = into.add()
+        e.MergeFrom(_lane_template(len(line.points), rgba, lanes.source))
+        e.id = f"lane-{line.name}"
+        e.timestamp.CopyFrom(stamp)
+        # 100 points a line: setting them in the template's points is 1.6x faster than adding
+        for point, (x, y) in zip(e.lines[0].points, line.points, strict=True):
+            point.x, point.y = x, y
 
 
-def object_entities(objects: Iterable[ObjectObservation], kind: SensorKind, group: str,
-                    t_ns: int, lifetime_s: float,
-                    lead: ObjectObservation | None = None) -> list[SceneEntity]:
+@lru_cache(maxsize=256)
+def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
+                     labelled: bool) -> SceneEntity:
+    """What every object entity of this kind and class shares; its sphere, label and pedestrian
+    cylinder stand at x = y = 0. Never changed, only copied."""
+    e = _template("", lifetime_s)
+    if kind is SensorKind.FUSION:
+        add_sphere(e, 0.0, 0.0, 0.5, TRACK_SIZE, TRACK_COLOR)
+        if labelled:
+            add_text(e, 0.0, 0.0, 1.6, "")
+    else:
+        add_sphere(e, 0.0, 0.0, 0.5, DETECTION_SIZE,
+                   RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR)
+        if labelled:
+            add_text(e, 0.0, 0.0, 1.1, CLASS_LABELS[object_class])
+    if object_class is ObjectClass.PEDESTRIAN:
+        e.cylinders.append(CylinderPrimitive(
+            pose=pose(0.0, 0.0, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
+            top_scale=1.0, color=color(PEDESTRIAN_COLOR)))
+    e.metadata.add(key="class", value=object_class.value)
+    return e
+
+
+def object_entities(into: Entities, objects: Iterable[ObjectObservation], kind: SensorKind,
+                    group: str, t_ns: int, lifetime_s: float,
+                    lead: ObjectObservation | None = None) -> None:
     """Detections (radar blue, camera white) or tracks (red, labelled), with class labels.
 
     The track that is ``lead`` keeps its sphere; its label is the lead vehicle's (one label,
     not two drawn over each other).
     """
-    out = []
+    stamp = _stamp(t_ns)
+    track = kind is SensorKind.FUSION
     for o in sorted(objects, key=lambda o: o.object_id):
-        e = entity(t_ns, f"{group}-{o.object_id}", lifetime_s)
-        if kind is SensorKind.FUSION:
-            add_sphere(e, o.x, o.y, 0.5, TRACK_SIZE, TRACK_COLOR)
-            if o is not lead:
-                add_text(e, o.x, o.y, 1.6, track_label(o))
-        else:
-            rgba = RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR
-            add_sphere(e, o.x, o.y, 0.5, DETECTION_SIZE, rgba)
-            if o.object_class in CLASS_LABELS:
-                add_text(e, o.x, o.y, 1.1, CLASS_LABELS[o.object_class])
+        labelled = o is not lead if track else o.object_class in CLASS_LABELS
+        e = into.add()
+        e.MergeFrom(_object_template(kind, lifetime_s, o.object_class, labelled))
+        e.id = f"{group}-{o.object_id}"
+        e.timestamp.CopyFrom(stamp)
+        x, y = o.x, o.y
+        _place(e.spheres[0], x, y)
+        if labelled:
+            label = e.texts[0]
+            _place(label, x, y)
+            if track:
+                label.text = track_label(o)
         if o.object_class is ObjectClass.PEDESTRIAN:
-            e.cylinders.append(CylinderPrimitive(
-                pose=pose(o.x, o.y, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
-                top_scale=1.0, color=color(PEDESTRIAN_COLOR)))
-        e.metadata.add(key="class", value=o.object_class.value)
-        out.append(e)
-    return out
+            _place(e.cylinders[0], x, y)
 
 
 def track_label(o: ObjectObservation) -> str:
@@ -191,30 +252,42 @@ def track_label(o: ObjectObservation) -> str:
     return label
 
 
-def lead_entities(lead: ObjectObservation | None, t_ns: int, lifetime_s: float,
-                  track: ObjectObservation | None = None) -> list[SceneEntity]:
-    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``."""
-    if lead is None:
-        return []
-    e = entity(t_ns, "lead", lifetime_s)
+@lru_cache(maxsize=16)
+def _lead_template(lifetime_s: float) -> SceneEntity:
+    """The lead box at x = y = 0 with an empty label. Never changed, only copied."""
+    e = _template("lead", lifetime_s)
     length, width, height = LEAD_BOX
-    e.cubes.append(CubePrimitive(pose=pose(lead.x + length / 2, lead.y, height / 2),
+    e.cubes.append(CubePrimitive(pose=pose(length / 2, 0.0, height / 2),
                                  size=Vector3(x=length, y=width, z=height),
                                  color=color(LEAD_COLOR)))
+    add_text(e, 0.0, 0.0, height + 1.4, "")
+    return e
+
+
+def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
+                  lifetime_s: float, track: ObjectObservation | None = None) -> None:
+    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``."""
+    if lead is None:
+        return
+    e = into.add()
+    e.MergeFrom(_lead_template(lifetime_s))
+    e.timestamp.CopyFrom(_stamp(t_ns))
+    _place(e.cubes[0], lead.x + LEAD_BOX[0] / 2, lead.y)
     label = f"Lead Vehicle\nx: {lead.x:.2f}\ny: {lead.y:.2f}"
     if track is not None:
         label += f"\nTrackID: {track.object_id}"
         if track.object_class in CLASS_LABELS:
             label += f"\n{CLASS_LABELS[track.object_class]}"
-    add_text(e, lead.x, lead.y, height + 1.4, label)
-    return [e]
+    text = e.texts[0]
+    text.text = label
+    _place(text, lead.x, lead.y)
 
 
-def mio_entities(check: MioCheck, t_ns: int, lifetime_s: float) -> list[SceneEntity]:
+def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) -> None:
     """Nothing when the lead is the closest in-lane track; otherwise a ring and the reason."""
     if check.ok:
-        return []
-    e = entity(t_ns, "mio-check", lifetime_s)
+        return
+    e = add_entity(into, t_ns, "mio-check", lifetime_s)
     target = check.expected or check.lead
     if target is not None:
         e.cylinders.append(CylinderPrimitive(
@@ -223,7 +296,6 @@ def mio_entities(check: MioCheck, t_ns: int, lifetime_s: float) -> list[SceneEnt
         add_text(e, target.x, target.y, 3.2, f"MIO CHECK: {check.reason}")
     else:
         add_text(e, 5.0, 0.0, 3.2, f"MIO CHECK: {check.reason}")
-    return [e]
 
 
 def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
@@ -245,31 +317,44 @@ class SceneState:
     sent: dict[str, set[str]]
 
 
-def update(topic: str, entities: list[SceneEntity], t_ns: int, state: SceneState) -> SceneUpdate:
+def update(topic: str, entities: Iterable[SceneEntity], t_ns: int,
+           state: SceneState) -> SceneUpdate:
     """A SceneUpdate of ``entities`` that also deletes what was sent before and is gone now."""
-    ids = {e.id for e in entities}
+    return with_deletions(topic, SceneUpdate(entities=entities), t_ns, state)
+
+
+def with_deletions(topic: str, scene_update: SceneUpdate, t_ns: int,
+                   state: SceneState) -> SceneUpdate:
+    """``scene_update`` with deletions of what was sent on ``topic`` before and is gone now."""
+    ids = {e.id for e in scene_update.entities}
     gone = sorted(state.sent.get(topic, set()) - ids)
     state.sent[topic] = ids
-    return SceneUpdate(
-        deletions=[SceneEntityDeletion(timestamp=timestamp(t_ns),
-                                       type=SceneEntityDeletion.MATCHING_ID, id=i) for i in gone],
-        entities=entities)
+    if gone:
+        stamp = timestamp(t_ns)
+        scene_update.deletions.extend(
+            SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.MATCHING_ID, id=i)
+            for i in gone)
+    return scene_update
 
 
-def scene_entities(world: World, lanes: LaneModel, check: MioCheck,
-                   t_ns: int) -> dict[str, list[SceneEntity]]:
-    """Every category's entities at ``t_ns`` (category -> entities)."""
+def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
+                  state: SceneState) -> dict[str, SceneUpdate]:
+    """Every category's SceneUpdate at ``t_ns`` (category -> update)."""
     profile = world.profile
-    out: dict[str, list[SceneEntity]] = {
-        "ego": ego_entities(profile, t_ns),
-        "lanes": lane_entities(lanes, t_ns),
-    }
+    out: dict[str, SceneUpdate] = {}
+
+    def category(name: str) -> Entities:
+        out[name] = SceneUpdate()
+        return out[name].entities
+
+    ego_entities(category("ego"), profile, t_ns)
+    lane_entities(category("lanes"), lanes, t_ns)
     # The lead that is a track is labelled once, on the lead box.
     lead_track = check.expected if check.ok and check.lead is not None else None
     for name, group in profile.groups.items():
-        out[name] = object_entities(world.objects[name].values(), group.sensor.kind, name, t_ns,
-                                    group.lifetime_s, lead_track)
+        object_entities(category(name), world.objects[name].values(), group.sensor.kind, name,
+                        t_ns, group.lifetime_s, lead_track)
     if profile.lead is not None:
-        out["lead"] = lead_entities(check.lead, t_ns, profile.lead.lifetime_s, lead_track)
-        out["mio"] = mio_entities(check, t_ns, profile.lead.lifetime_s)
-    return out
+        lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s, lead_track)
+        mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
+    return {name: with_deletions(scene_topic(name), u, t_ns, state) for name, u in out.items()}
