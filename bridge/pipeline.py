@@ -121,21 +121,20 @@ class Pipeline:
             self.emit(self.health.finish(self.last_ns))
 
     def emit(self, outputs: Iterable[Output]) -> None:
-        """Scene, perception and other messages to every sink."""
+        """Scene, perception and other messages to every sink: the live server first (viewers
+        wait for them; the recorder does not)."""
         recorder, server = self.recorder, self.server
-        emitted = False
-        for out in outputs:
-            emitted = True
-            cls = type(out.message)
-            payload = out.message.SerializeToString()
-            if recorder is not None:
-                recorder.write_payload(out.topic, cls, payload, out.t_ns)
-            if server is not None:
+        serialized = [(out, type(out.message), out.message.SerializeToString())
+                      for out in outputs]
+        if server is not None and serialized:
+            for out, cls, payload in serialized:
                 server.publish(self._server_channel(server, out.topic, cls.DESCRIPTOR.full_name,
                                                     lambda cls=cls: _fds(cls)),
                                out.t_ns, payload)
-        if server is not None and emitted:
             server.flush()
+        if recorder is not None:
+            for out, cls, payload in serialized:
+                recorder.write_payload(out.topic, cls, payload, out.t_ns)
 
     def _serve_frame(self, server: LiveServer, frame: Frame, payload: bytes | None) -> None:
         channel = self._frame_channels.get(frame.bus)

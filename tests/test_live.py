@@ -28,6 +28,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from bridge.convert import build_stages
 from bridge.frame import Frame
 from bridge.live import BusSpec, DriveRecorder, Live, ReadSchedule, drive_name, merge_batches
+from bridge.pipeline import Pipeline
 from bridge.server import LiveServer, wait_for
 from bridge.simulate import simulate
 
@@ -206,6 +207,47 @@ def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
             reader = make_reader(f)
             assert {a.name for a in reader.iter_attachments()} == {"ecocar.dbc",
                                                                    "profile-ecocar.toml"}
+
+
+def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it() -> None:
+    """Viewers wait for each scene; the recorder does not: the server gets a tick's messages
+    (and is told to send them) before the recorder writes them."""
+    events: list[tuple[str, str]] = []
+
+    class Server:
+        def channel_for_schema(self, topic: str, schema_name: str, schema: bytes) -> str:
+            return topic
+
+        def wanted(self, channel: str) -> bool:
+            return channel.startswith("/scene/")
+
+        def publish(self, channel: str, t_ns: int, payload: bytes) -> None:
+            events.append(("served", channel))
+
+        def flush(self) -> None:
+            events.append(("flushed", ""))
+
+    class Sink:
+        def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
+            pass
+
+        def write_decoded(self, timestamp_ns: int, decoded: Any) -> None:
+            pass
+
+        def write_payload(self, topic: str, message_class: Any, payload: bytes,
+                          timestamp_ns: int) -> None:
+            events.append(("recorded", topic))
+
+    decoder, profile = build_stages([], "ecocar")
+    pipeline = Pipeline(decoder, profile=profile, recorder=Sink(),
+                        server=Server())  # type: ignore[arg-type]
+    for frame in simulate(duration_s=0.2):
+        pipeline.process(frame)
+    ego = [i for i, event in enumerate(events) if event[1] == "/scene/ego"]
+    assert len(ego) >= 2 * 3  # three ticks at least
+    assert [events[i][0] for i in ego] == ["served", "recorded"] * (len(ego) // 2)
+    for served, recorded in zip(ego[::2], ego[1::2], strict=True):
+        assert ("flushed", "") in events[served:recorded]
 
 
 def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
