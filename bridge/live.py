@@ -475,6 +475,8 @@ class Live:
                 log_now = schedule.log_time(time.time_ns())
                 if log_now is not None:
                     pipeline.advance(log_now)
+                if self.server is not None:
+                    self.server.flush()  # raw frames and signals for who subscribed to them
                 if self.recorder is not None:
                     self.recorder.tick()
         finally:

@@ -35,6 +35,8 @@ class Clock:
 
     speed: float
     stopping: threading.Event
+    #: called before each wait (to send what was published meanwhile)
+    before_waiting: Callable[[], None] = lambda: None
     _origin_ns: int | None = None
     _origin_wall: float = 0.0
 
@@ -49,6 +51,7 @@ class Clock:
         due = self._origin_wall + (log_ns - self._origin_ns) / NS / self.speed
         delay = due - time.monotonic()
         if delay > 0:
+            self.before_waiting()
             return not self.stopping.wait(delay)
         return not self.stopping.is_set()
 
@@ -74,7 +77,7 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
     stopping = stopping or threading.Event()
     sent, loops = 0, 0
     while not stopping.is_set():
-        clock = Clock(speed, stopping)
+        clock = Clock(speed, stopping, server.flush)
         last_time_ns = 0
         for topic, schema_name, encoding, schema, data, log_ns in _mcap_messages(path, start_s):
             if not clock.wait(log_ns):
@@ -87,6 +90,7 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
                 schema_encoding="protobuf" if encoding == "protobuf" else "jsonschema")
             server.publish(channel, log_ns, data)
             sent += 1
+        server.flush()
         loops += 1
         if on_loop is not None:
             on_loop(loops)
@@ -126,7 +130,7 @@ def replay_log(paths: list[Path], decoder: Decoder, server: LiveServer, *,
         sources = [LogSource(p) for p in paths]
         pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, server=server,
                             health=new_health_monitor(decoder, profile))
-        clock = Clock(speed, stopping)
+        clock = Clock(speed, stopping, server.flush)
         first_ns: int | None = None
         last_time_ns = 0
         for frame in merge(sources):

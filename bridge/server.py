@@ -2,9 +2,11 @@
 
 The server runs its asyncio loop in its own thread. The pipeline hands it messages with
 :meth:`LiveServer.publish`, which never blocks and costs next to nothing: it appends to an inbox
-that the loop empties every :data:`DRAIN_INTERVAL_S`, or at once after :meth:`LiveServer.flush`
-(the pipeline flushes after each scene). Waking the loop for every message would cost a system
-call each and hand the GIL back and forth thousands of times a second.
+that the loop empties at once after :meth:`LiveServer.flush` (the pipeline flushes after each
+scene and each read of the buses, replay before it waits), and at least every
+:data:`DRAIN_INTERVAL_S`. Waking the loop for every message would cost a system call each and
+hand the GIL back and forth thousands of times a second; waking it on a short timer costs
+hundreds of idle wake-ups a second.
 
 foxglove-websocket sends to its clients one after another and awaits each, so a stalled client
 would hold up everyone; instead every client gets its own bounded queue and sender task here. A
@@ -46,8 +48,9 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 #: Messages waiting per client before its oldest are dropped (about 2 s of a busy scene).
 DEFAULT_QUEUE_LIMIT = 2000
-#: How often the loop takes in published messages without being asked to (s).
-DRAIN_INTERVAL_S = 0.005
+#: How often the loop takes in published messages without being asked to (s): a safety net,
+#: publishers flush.
+DRAIN_INTERVAL_S = 0.1
 
 _MESSAGE_DATA = 0x01
 _TIME = 0x02
@@ -211,6 +214,7 @@ class LiveServer:
         self._stop: asyncio.Event | None = None
         self._inbox: collections.deque[tuple[int, int, bytes] | _Control] = collections.deque()
         self._wake_pending = False
+        self._timer: asyncio.TimerHandle | None = None
         self._lock = threading.Lock()
         self._channels: dict[str, int] = {}
         self._next_channel = 0
@@ -279,11 +283,10 @@ class LiveServer:
         sockets = opened.sockets or []
         self.port = sockets[0].getsockname()[1] if sockets else self.requested_port
         self._ready.set()
-        while not self._stop.is_set():
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._stop.wait(), DRAIN_INTERVAL_S)
-            if self._inbox:
-                self._drain()
+        self._drain_now_and_then()
+        await self._stop.wait()
+        if self._timer is not None:
+            self._timer.cancel()
         for client in self._clients.values():
             if client.task is not None:
                 client.task.cancel()
@@ -325,13 +328,14 @@ class LiveServer:
         return sum(channel_id in c.subscriptions_by_channel for c in clients)
 
     def publish(self, channel_id: int, t_ns: int, payload: bytes) -> None:
-        """Send a serialized message to the channel's subscribers; never blocks. It leaves
-        within :data:`DRAIN_INTERVAL_S`, or at once after :meth:`flush`."""
+        """Send a serialized message to the channel's subscribers; never blocks. It leaves at
+        once after :meth:`flush`, at the latest after :data:`DRAIN_INTERVAL_S`."""
         if channel_id in self._wanted:
             self._inbox.append((channel_id, t_ns, payload))
 
     def flush(self) -> None:
-        """Have what was published so far sent now (e.g. after a scene)."""
+        """Have what was published so far sent now (call it after a scene, and before waiting
+        for more to publish); costs nothing when nothing was published."""
         if self._inbox:
             self._wake()
 
@@ -370,6 +374,13 @@ class LiveServer:
                                                     if address else "?"), self.queue_limit)
                 client.task = asyncio.get_running_loop().create_task(client.run())
                 self._clients[key] = client
+
+    def _drain_now_and_then(self) -> None:
+        """The safety net: whatever was published and not flushed, every DRAIN_INTERVAL_S."""
+        if self._inbox:
+            self._drain()
+        self._timer = asyncio.get_running_loop().call_later(DRAIN_INTERVAL_S,
+                                                            self._drain_now_and_then)
 
     def _drain(self) -> None:
         self._wake_pending = False

@@ -113,6 +113,30 @@ def test_messages_leave_at_once_without_nagle() -> None:
         assert asyncio.run(session()) == [1]
 
 
+def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Publishers flush (after a scene, before they wait): what they published leaves at once,
+    not at the next DRAIN_INTERVAL_S (the safety net for what nobody flushed, which the protocol
+    test above relies on)."""
+    monkeypatch.setattr("bridge.server.DRAIN_INTERVAL_S", 3600.0)  # no safety net in this test
+    with LiveServer(port=0) as server:
+        scene = server.channel("/scene/ego", SceneUpdate)
+
+        async def session() -> tuple[int, int]:
+            async with client(server) as ws:
+                channel = (await next_json(ws, "advertise"))["channels"][0]["id"]
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 1, "channelId": channel}]}))
+                assert await asyncio.to_thread(wait_for, lambda: server.wanted(scene))
+                server.publish(scene, 1, b"")
+                server.publish(scene, 2, b"")
+                server.flush()
+                first = struct.unpack_from("<BIQ", await next_binary(ws))[2]
+                second = struct.unpack_from("<BIQ", await next_binary(ws))[2]
+                return first, second
+
+        assert asyncio.run(session()) == (1, 2)
+
+
 def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
     with LiveServer(port=0) as server:
 
