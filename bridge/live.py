@@ -351,11 +351,11 @@ class DriveRecorder:
 
     # the recorder interface, for the pipeline
     def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
-        self.recorder.write_frame(frame, payload)
+        (self._recorder or self.recorder).write_frame(frame, payload)
         self.frames += 1
 
     def write_decoded(self, timestamp_ns: int, decoded: Any) -> None:
-        self.recorder.write_decoded(timestamp_ns, decoded)
+        (self._recorder or self.recorder).write_decoded(timestamp_ns, decoded)
 
     def write_payload(self, topic: str, message_class: Any, payload: bytes,
                       timestamp_ns: int) -> None:

@@ -17,7 +17,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__, scene
-from bridge.decode import DatabaseFile, Decoder
+from bridge.decode import DatabaseFile, Decoder, MessageCodec
 from bridge.frame import Frame
 from bridge.health import HealthMonitor, alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
@@ -45,10 +45,13 @@ class Pipeline:
                            if profile is not None else None)
         self.health = health
         self._wanted = self.perception.messages if self.perception is not None else frozenset()
+        #: whether perception takes a codec's messages (filled as they come)
+        self._fed: dict[MessageCodec, bool] = {}
         self._next_tick: int | float = (float("-inf") if self.perception is not None
                                         or health is not None else float("inf"))
         self._server_channels: dict[str, int] = {}
         self._frame_channels: dict[str, int] = {}
+        self._codec_channels: dict[MessageCodec, int] = {}
         self.frames = 0
         self.last_ns: int | None = None
 
@@ -70,15 +73,20 @@ class Pipeline:
         if decoded is not None:
             if recorder is not None:
                 recorder.write_decoded(t, decoded)
+            codec = decoded.codec
             if server is not None:
-                channel = self._server_channel(server, decoded.codec.topic,
-                                               decoded.codec.schema.full_name,
-                                               decoded.codec.schema.file_descriptor_set)
+                channel = self._codec_channels.get(codec)
+                if channel is None:
+                    channel = self._codec_channels[codec] = self._server_channel(
+                        server, codec.topic, codec.schema.full_name,
+                        codec.schema.file_descriptor_set)
                 if server.wanted(channel):
                     server.publish(channel, t, decoded.payload)
-            name = decoded.codec.message.name
-            if name in self._wanted and self.perception is not None:
-                self.perception.feed(name, decoded.signals, t)
+            fed = self._fed.get(codec)
+            if fed is None:
+                fed = self._fed[codec] = codec.message.name in self._wanted
+            if fed and self.perception is not None:
+                self.perception.feed(codec.message.name, decoded.signals, t)
         self.frames += 1
         self.last_ns = t
 

@@ -154,13 +154,15 @@ class FastWriter(McapWriter):
         if index is None:
             index = chunk.message_indices[channel_id] = _MessageIndex(channel_id)
         buffer = chunk.record_writer._buffer
+        offset = buffer.tell()
         entries = index.entries
         entries.append(log_time)
-        entries.append(buffer.tell())
-        buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence,
+        entries.append(offset)
+        n = len(data)
+        buffer.write(_MESSAGE_HEADER.pack(Opcode.MESSAGE, 22 + n, channel_id, sequence,
                                           log_time, publish_time))
         buffer.write(data)
-        if buffer.tell() > self._chunk_size:
+        if offset + _MESSAGE_HEADER.size + n > self._chunk_size:
             self._settle_and_finalize()
 
 
