@@ -225,7 +225,8 @@ class ReadSchedule:
     after it was stamped, so the newest frame's stamp minus the time of reading is at most the
     offset, and the largest is close to it (0 for buses stamped with the wall clock, such as
     socketcan and virtual; something else for an adapter's own clock). A larger one counts at
-    once, a smaller one (a clock that drifts) once a second.
+    once, a smaller one (a clock that drifts) once a second, from the next read on: the read
+    made just after a tick must still see that tick due.
     """
 
     def __init__(self, period_ns: int, *, after_tick_ns: int = 500_000,
@@ -237,12 +238,13 @@ class ReadSchedule:
         self.offset_ns: int | None = None  # log time - wall time, once a frame was seen
         self._best: int | None = None
         self._window_end = 0
+        self._next_offset: int | None = None  # the last second's best, from the next read on
 
     def saw(self, newest_ns: int, now_ns: int) -> None:
         """The newest frame of a read (log time) and when it was read (wall time)."""
         if now_ns >= self._window_end:
             if self._best is not None:
-                self.offset_ns = self._best  # the last second's, also if less (a drifting clock)
+                self._next_offset = self._best  # also if less (a drifting clock)
             self._best = None
             self._window_end = now_ns + NS
         lead = newest_ns - now_ns
@@ -260,6 +262,11 @@ class ReadSchedule:
 
     def next_read_ns(self, now_ns: int) -> int:
         """The wall time of the next read after ``now_ns``."""
+        if self._next_offset is not None:
+            best = self._best  # of this second so far
+            self.offset_ns = (self._next_offset if best is None
+                              else max(self._next_offset, best))
+            self._next_offset = None
         offset = self.offset_ns or 0
         log_now = now_ns + offset
         tick = log_now - log_now % self.period_ns
@@ -457,8 +464,8 @@ class Live:
         schedule = ReadSchedule(round(NS / self.scene_rate))
         try:
             while not self.stopping.is_set():
-                pause = schedule.next_read_ns(time.time_ns()) - time.time_ns()
-                if pause > 0:
+                read_at = schedule.next_read_ns(time.time_ns())
+                while (pause := read_at - time.time_ns()) > 0:  # sleep may end a hair early
                     time.sleep(pause / NS)
                 while True:
                     try:

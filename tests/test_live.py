@@ -351,14 +351,32 @@ def test_the_read_schedule_follows_a_bus_stamped_by_its_own_clock() -> None:
     assert schedule.offset_ns == clock0 - wall0 - 200_000  # a better one at once
     read(wall0 + 10 * MS, 600_000)
     assert schedule.offset_ns == clock0 - wall0 - 200_000
-    # The adapter's clock slows down by 1 ms: a second later the offset follows it.
+    # The adapter's clock slows down by 1 ms: a second later the offset follows it, from the
+    # next read on (this read's log time stays what scheduled it).
     read(wall0 + NS, MS + 300_000)
     read(wall0 + NS + 5 * MS, MS + 400_000)
     read(wall0 + 2 * NS, MS + 500_000)
+    assert schedule.offset_ns == clock0 - wall0 - 200_000
+    read_at = schedule.next_read_ns(wall0 + 2 * NS)
     assert schedule.offset_ns == clock0 - wall0 - MS - 300_000
     # The next read comes 0.5 ms after a tick of the bus's own time.
-    read_at = schedule.next_read_ns(wall0 + NS)
     assert (read_at + schedule.offset_ns) % (20 * MS) == MS // 2
+
+
+def test_the_read_after_a_tick_sees_it_due_when_the_offset_gets_smaller() -> None:
+    """Once a second the offset is re-learned and may come out a few µs smaller (frames read a
+    little later than before): the read scheduled just after a tick must still start the scene,
+    not leave it to the next read half a period later."""
+    schedule = ReadSchedule(20 * MS)
+    tick = 1_767_268_800 * NS
+    schedule.saw(tick - 2 * NS - 10_000, tick - 2 * NS)  # frames read 10 µs after stamped
+    schedule.saw(tick - NS - 50_000, tick - NS)  # for the next second: 50 µs
+    read_at = schedule.next_read_ns(tick - MS)
+    assert read_at == tick + MS // 2 + 10_000  # 0.5 ms after the tick, as the offset says
+    schedule.saw(read_at - 50_000, read_at)  # a new second: the offset is learned again
+    assert schedule.log_time(read_at) == tick  # the scene at `tick` is due now
+    schedule.next_read_ns(read_at)
+    assert schedule.offset_ns == -50_000  # the new offset counts from the next read
 
 
 def test_the_scene_goes_on_when_the_buses_fall_silent(tmp_path: Path) -> None:
