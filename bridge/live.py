@@ -239,6 +239,7 @@ class ReadSchedule:
         self._best: int | None = None
         self._window_end = 0
         self._next_offset: int | None = None  # the last second's best, from the next read on
+        self._last_read_ns: int | None = None  # when the last read began
 
     def saw(self, newest_ns: int, now_ns: int) -> None:
         """The newest frame of a read (log time) and when it was read (wall time)."""
@@ -260,8 +261,16 @@ class ReadSchedule:
             return None
         return now_ns + self.offset_ns - self.after_tick_ns
 
+    def reading(self, now_ns: int) -> None:
+        """A read begins (wall time)."""
+        self._last_read_ns = now_ns
+
     def next_read_ns(self, now_ns: int) -> int:
-        """The wall time of the next read after ``now_ns``."""
+        """The wall time of the next read: the first after the last read began, so a read that
+        ran past the next one's time is followed at once, never by skipping it (the read after a
+        tick starts that scene); before any read, the first after ``now_ns``."""
+        if self._last_read_ns is not None:
+            now_ns = self._last_read_ns
         if self._next_offset is not None:
             best = self._best  # of this second so far
             self.offset_ns = (self._next_offset if best is None
@@ -467,6 +476,7 @@ class Live:
                 read_at = schedule.next_read_ns(time.time_ns())
                 while (pause := read_at - time.time_ns()) > 0:  # sleep may end a hair early
                     time.sleep(pause / NS)
+                schedule.reading(time.time_ns())
                 while True:
                     try:
                         self._bus_event(events.get_nowait())

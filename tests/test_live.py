@@ -330,9 +330,14 @@ def test_the_buses_are_read_just_after_each_scene_tick_and_twice_between() -> No
     now = tick
     for _ in range(4):
         now = schedule.next_read_ns(now)
+        schedule.reading(now)
         reads.append((now - tick) / MS)
     # 0.5 ms after the tick (the scene goes out at once), halfway, 2.5 ms before the next tick
     assert reads == [0.5, 10.0, 17.5, 20.5]
+    # A read that runs past the next one's time (here the one after the tick at 40 ms): that
+    # one comes at once, it is not skipped.
+    schedule.reading(tick + 37_500_000)
+    assert schedule.next_read_ns(tick + 41 * MS) == tick + 40 * MS + MS // 2
     assert schedule.log_time(tick + MS) == tick + MS // 2  # what every read frame is before
 
 
