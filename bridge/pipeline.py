@@ -66,7 +66,13 @@ class Pipeline:
             payload = frame_payload(frame)
             recorder.write_frame(frame, payload)
         if server is not None:
-            self._serve_frame(server, frame, payload)
+            channel = self._frame_channels.get(frame.bus)
+            if channel is None:
+                channel = self._frame_channel(server, frame.bus)
+            if payload is not None:
+                server.publish(channel, t, payload)  # (sent only to who subscribed)
+            elif server.wanted(channel):
+                server.publish(channel, t, frame_payload(frame))
         decoded = self.decoder.decode(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
@@ -80,8 +86,7 @@ class Pipeline:
                     channel = self._codec_channels[codec] = self._server_channel(
                         server, codec.topic, codec.schema.full_name,
                         codec.schema.file_descriptor_set)
-                if server.wanted(channel):
-                    server.publish(channel, t, decoded.payload)
+                server.publish(channel, t, decoded.payload)
             fed = self._fed.get(codec)
             if fed is None:
                 fed = self._fed[codec] = codec.message.name in self._wanted
@@ -144,13 +149,10 @@ class Pipeline:
             for out, cls, payload in serialized:
                 recorder.write_payload(out.topic, cls, payload, out.t_ns)
 
-    def _serve_frame(self, server: LiveServer, frame: Frame, payload: bytes | None) -> None:
-        channel = self._frame_channels.get(frame.bus)
-        if channel is None:
-            channel = self._frame_channels[frame.bus] = self._server_channel(
-                server, frames_topic(frame.bus), "tankviz.CanFrame", lambda: _fds(CanFrame))
-        if server.wanted(channel):
-            server.publish(channel, frame.timestamp_ns, payload or frame_payload(frame))
+    def _frame_channel(self, server: LiveServer, bus: str) -> int:
+        channel = self._frame_channels[bus] = self._server_channel(
+            server, frames_topic(bus), "tankviz.CanFrame", lambda: _fds(CanFrame))
+        return channel
 
     def _server_channel(self, server: LiveServer, topic: str, schema_name: str,
                         schema: Any) -> int:

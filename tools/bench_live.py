@@ -500,7 +500,6 @@ PROFILE_PARTS = (
     ("decode (cantools, protobuf)", "decode.py", "decode"),
     ("record raw frames", "live.py", "write_frame"),
     ("record decoded messages", "live.py", "write_decoded"),
-    ("raw frames to the server (CanFrame)", "pipeline.py", "_serve_frame"),
     ("publish to the server", "server.py", "publish"),
     ("recorder tick (flush)", "live.py", "tick"),
 )
