@@ -39,7 +39,13 @@ script's main thread (the harness: it sleeps and samples backlogs every 50 ms)``
 from just before the senders start until everything is processed and passed on (above), divided
 by that wall time: % of one core. The clients' process is not included. A cross-check sums
 ``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (pipeline, bus openers,
-server) over the same window; the per-thread breakdown is printed. The senders share the GIL
+server) over the same window; the per-thread breakdown is printed. The reference, measured in
+the same run just before the bridge starts: the same pipeline alone in one thread, without
+buses, threads or clients (the best of three passes over 24,000 frames of the same traffic), as
+% of one core at the benchmark's frame rate. How fast this machine is varies from hour to hour
+(the same code has measured 34 % and 45 %); the ratio bridge / reference tells what live adds
+to the work itself (reading the buses, serving, waking up 150 times a second) on the machine
+as it was. The senders share the GIL
 with the bridge: their CPU is subtracted, their contention for the GIL is not (a real CAN
 adapter costs the bridge no GIL), so latency here is somewhat pessimistic.
 
@@ -111,6 +117,7 @@ SCENE_RATE = 50.0
 WARMUP_S = 0.5
 TAIL_S = 0.1
 CPU_TARGET = 35.0
+REFERENCE_FRAMES = 24_000
 LATENCY_MARGIN_MS = 5.0
 SUBPROTOCOL = "foxglove.websocket.v1"
 _HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
@@ -538,6 +545,11 @@ def run(args: argparse.Namespace) -> None:
                                   for b, m in messages.items())
           + f" (prepared in {time.perf_counter() - t:.1f} s)")
 
+    # The reference, measured now on this machine as it is: the same work without live.
+    sample = pipeline_frames(messages, REFERENCE_FRAMES)
+    reference_us = min(pipeline_cost(sample) for _ in range(3))
+    reference_pct = reference_us * len(BUSES) * args.rate / 1e4
+    del sample
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
     # view, so that the bridge's full collections cost what they would cost without it.
     gc.freeze()
@@ -706,6 +718,8 @@ def run(args: argparse.Namespace) -> None:
     row("bridge CPU (process - senders - harness)", f"{bridge_pct:.1f} % of one core",
         f"< {CPU_TARGET:g} %", bridge_pct < CPU_TARGET)
     row("  cross-check: bridge threads (/proc)", f"{100 * bridge_threads / wall:.1f} %")
+    row("  reference: the pipeline alone, same run", f"{reference_pct:.1f} % ({reference_us:.1f} "
+        f"µs/frame); bridge / reference = {bridge_pct / reference_pct:.2f}")
     row("  senders (subtracted)", f"{100 * sender_cpu / wall:.1f} %")
     target_ms = period_ms + LATENCY_MARGIN_MS
     hist = analysis.frame_latency
@@ -842,24 +856,47 @@ class _EveryoneWants:
         pass
 
 
-def stage_costs(frames_count: int) -> None:
-    """The pipeline alone in this thread, no other thread: µs per frame as stages are added."""
-    import io
-
-    from bridge.convert import build_stages
+def pipeline_frames(messages: dict[str, list[Any]], count: int) -> list[Any]:
+    """``count`` frames of the traffic as the pipeline gets them: the buses in turn, 12,000
+    frames/s of log time."""
     from bridge.frame import Frame
-    from bridge.pipeline import Pipeline, new_health_monitor
-    from bridge.recorder import Recorder
 
-    messages = traffic(60.0)
     frames = []
     t = 1_767_268_800_000_000_000
-    for i in range(frames_count):  # the buses in turn, 12,000 frames/s of log time
+    for i in range(count):
         bus = BUSES[i % 3]
         m = messages[bus][(i // 3) % len(messages[bus])]
         t += NS // 12_000
         frames.append(Frame(t, bus, m.arbitration_id, bytes(m.data), m.is_extended_id,
                             m.is_fd, False, False, m.bitrate_switch, False, m.dlc))
+    return frames
+
+
+def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True,
+                  profile: bool = True, serve: bool = True) -> float:
+    """µs per frame of the pipeline alone in this thread (thread CPU time)."""
+    import io
+
+    from bridge.convert import build_stages
+    from bridge.pipeline import Pipeline, new_health_monitor
+    from bridge.recorder import Recorder
+
+    decoder, loaded = build_stages([], "ecocar")
+    pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,
+                        recorder=Recorder(io.BytesIO()) if record else None,
+                        server=_EveryoneWants() if serve else None,  # type: ignore[arg-type]
+                        health=new_health_monitor(decoder, loaded) if health else None)
+    pipeline.advertise(BUSES)
+    start = time.thread_time()
+    for frame in frames:
+        pipeline.process(frame)
+    pipeline.finish()
+    return (time.thread_time() - start) / len(frames) * 1e6
+
+
+def stage_costs(frames_count: int) -> None:
+    """The pipeline alone in this thread, no other thread: µs per frame as stages are added."""
+    frames = pipeline_frames(traffic(60.0), frames_count)
     gc.freeze()
     print(f"pipeline alone, one thread, {frames_count:,} frames of the benchmark's traffic:")
     for label, record, health, profile, serve in (
@@ -868,17 +905,7 @@ def stage_costs(frames_count: int) -> None:
             ("+ health", True, True, False, False),
             ("+ profile, scene at 50 Hz", True, True, True, False),
             ("+ server (every channel subscribed)", True, True, True, True)):
-        decoder, loaded = build_stages([], "ecocar")
-        pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,
-                            recorder=Recorder(io.BytesIO()) if record else None,
-                            server=_EveryoneWants() if serve else None,  # type: ignore[arg-type]
-                            health=new_health_monitor(decoder, loaded) if health else None)
-        pipeline.advertise(BUSES)
-        start = time.thread_time()
-        for frame in frames:
-            pipeline.process(frame)
-        pipeline.finish()
-        cost = (time.thread_time() - start) / frames_count * 1e6
+        cost = pipeline_cost(frames, record=record, health=health, profile=profile, serve=serve)
         print(f"  {label:40s} {cost:6.2f} µs/frame  ({cost * 12_000 / 1e4:5.1f} % of one core "
               "at 12,000 frames/s)")
 
