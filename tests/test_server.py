@@ -20,7 +20,14 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.server import ClientStats, LiveServer, ServerError, _Client, wait_for
+from bridge.server import (
+    SEND_BUFFER_BYTES,
+    ClientStats,
+    LiveServer,
+    ServerError,
+    _Client,
+    wait_for,
+)
 
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
 
@@ -111,6 +118,22 @@ def test_messages_leave_at_once_without_nagle() -> None:
                     socket.IPPROTO_TCP, socket.TCP_NODELAY) for state in connections()]
 
         assert asyncio.run(session()) == [1]
+
+
+def test_a_viewers_kernel_send_buffer_is_bounded() -> None:
+    """A viewer that stops reading is seen to stall after SEND_BUFFER_BYTES, not after the
+    4 MB Linux lets a send buffer grow to (tens of thousands of messages written for nobody)."""
+    with LiveServer(port=0) as server:
+
+        async def session() -> list[int]:
+            async with client(server) as ws:
+                await next_json(ws, "serverInfo")
+                assert await asyncio.to_thread(wait_for, lambda: bool(server._server._clients))
+                return [state.connection.transport.get_extra_info("socket").getsockopt(
+                    socket.SOL_SOCKET, socket.SO_SNDBUF) for state in server._server._clients]
+
+        (size,) = asyncio.run(session())
+        assert size <= 2 * SEND_BUFFER_BYTES  # (the kernel doubles it for its bookkeeping)
 
 
 def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
