@@ -40,8 +40,9 @@ from just before the senders start until everything is processed and passed on (
 by that wall time: % of one core. The clients' process is not included. A cross-check sums
 ``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (pipeline, bus openers,
 server) over the same window; the per-thread breakdown is printed. The reference, measured in
-the same run just before the bridge starts: the same pipeline alone in one thread, without
-buses, threads or clients (the best of three passes over 24,000 frames of the same traffic), as
+the same run just before the bridge starts (in a process of its own): the same pipeline alone in
+one thread, without buses, threads or clients (the best of three passes over 24,000 frames of
+the same traffic), as
 % of one core at the benchmark's frame rate. How fast this machine is varies from hour to hour
 (the same code has measured 34 % and 45 %); the ratio bridge / reference tells what live adds
 to the work itself (reading the buses, serving, waking up 150 times a second) on the machine
@@ -545,11 +546,13 @@ def run(args: argparse.Namespace) -> None:
                                   for b, m in messages.items())
           + f" (prepared in {time.perf_counter() - t:.1f} s)")
 
-    # The reference, measured now on this machine as it is: the same work without live.
-    sample = pipeline_frames(messages, REFERENCE_FRAMES)
-    reference_us = min(pipeline_cost(sample) for _ in range(3))
+    # The reference, measured now on this machine as it is: the same work without live (in a
+    # process of its own, so that its memory is not this one's).
+    reference_us = float(subprocess.run(
+        [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
+         str(args.traffic_s)], check=True,
+        capture_output=True, text=True).stdout)
     reference_pct = reference_us * len(BUSES) * args.rate / 1e4
-    del sample
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
     # view, so that the bridge's full collections cost what they would cost without it.
     gc.freeze()
@@ -933,7 +936,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--stages", type=int, metavar="FRAMES", default=0,
                         help="instead: the pipeline alone in one thread, µs per frame as the "
                         "stages are added (e.g. --stages 120000)")
+    parser.add_argument("--reference", type=int, metavar="FRAMES", default=0,
+                        help=argparse.SUPPRESS)  # (the reference, in its own process)
     args = parser.parse_args(argv)
+    if args.reference:
+        frames = pipeline_frames(traffic(args.traffic_s), args.reference)
+        gc.freeze()
+        print(min(pipeline_cost(frames) for _ in range(3)))
+        return 0
     if args.stages:
         stage_costs(args.stages)
         return 0
