@@ -124,14 +124,6 @@ def entity(t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
     return e
 
 
-def add_entity(into: Entities, t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
-    """:func:`entity`, made in place as the next of ``into``."""
-    e: SceneEntity = into.add(frame_id=VEHICLE_FRAME, id=entity_id, frame_locked=True)
-    e.timestamp.CopyFrom(_stamp(t_ns))
-    e.lifetime.CopyFrom(_lifetime(lifetime_s))
-    return e
-
-
 def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: RGBA) -> None:
     ball = e.spheres.add()
     set_pose(ball.pose, x, y, z)
@@ -287,7 +279,7 @@ def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) 
     """Nothing when the lead is the closest in-lane track; otherwise a ring and the reason."""
     if check.ok:
         return
-    e = add_entity(into, t_ns, "mio-check", lifetime_s)
+    e = entity(t_ns, "mio-check", lifetime_s)
     target = check.expected or check.lead
     if target is not None:
         e.cylinders.append(CylinderPrimitive(
@@ -296,6 +288,7 @@ def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) 
         add_text(e, target.x, target.y, 3.2, f"MIO CHECK: {check.reason}")
     else:
         add_text(e, 5.0, 0.0, 3.2, f"MIO CHECK: {check.reason}")
+    into.append(e)  # (rare: a copy costs nothing here)
 
 
 def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
