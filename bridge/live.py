@@ -265,6 +265,15 @@ class ReadSchedule:
         """A read begins (wall time)."""
         self._last_read_ns = now_ns
 
+    def wait(self, clock: Callable[[], int] = time.time_ns,
+             sleep: Callable[[float], None] = time.sleep) -> None:
+        """Sleep until the next read is due (again, if a sleep ends a hair early), then note
+        that it begins."""
+        read_at = self.next_read_ns(clock())
+        while (pause := read_at - clock()) > 0:
+            sleep(pause / NS)
+        self.reading(clock())
+
     def next_read_ns(self, now_ns: int) -> int:
         """The wall time of the next read: the first after the last read began, so a read that
         ran past the next one's time is followed at once, never by skipping it (the read after a
@@ -473,10 +482,7 @@ class Live:
         schedule = ReadSchedule(round(NS / self.scene_rate))
         try:
             while not self.stopping.is_set():
-                read_at = schedule.next_read_ns(time.time_ns())
-                while (pause := read_at - time.time_ns()) > 0:  # sleep may end a hair early
-                    time.sleep(pause / NS)
-                schedule.reading(time.time_ns())
+                schedule.wait()
                 while True:
                     try:
                         self._bus_event(events.get_nowait())

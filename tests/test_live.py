@@ -338,6 +338,18 @@ def test_the_buses_are_read_just_after_each_scene_tick_and_twice_between() -> No
     # one comes at once, it is not skipped.
     schedule.reading(tick + 37_500_000)
     assert schedule.next_read_ns(tick + 41 * MS) == tick + 40 * MS + MS // 2
+    now = [tick + 41 * MS]
+    slept: list[float] = []
+    schedule.wait(clock=lambda: now[0], sleep=slept.append)
+    assert slept == []  # at once
+    # A sleep that ends early is slept again.
+
+    def short_sleep(seconds: float) -> None:  # the first sleep ends 1 µs early
+        slept.append(seconds)
+        now[0] += round(seconds * NS) - (1_000 if len(slept) == 1 else 0)
+
+    schedule.wait(clock=lambda: now[0], sleep=short_sleep)
+    assert now[0] >= tick + 50 * MS and len(slept) == 2  # the halfway read, at its time
     assert schedule.log_time(tick + MS) == tick + MS // 2  # what every read frame is before
 
 
