@@ -42,13 +42,12 @@ by that wall time: % of one core. The clients' process is not included. A cross-
 server) over the same window; the per-thread breakdown is printed. The reference, measured in
 the same run just before the bridge starts (in a process of its own): the same pipeline alone in
 one thread, without buses, threads or clients (the best of three passes over 24,000 frames of
-the same traffic), as
-% of one core at the benchmark's frame rate. How fast this machine is varies from hour to hour
-(the same code has measured 34 % and 45 %); the ratio bridge / reference tells what live adds
-to the work itself (reading the buses, serving, waking up 150 times a second) on the machine
-as it was. The senders share the GIL
-with the bridge: their CPU is subtracted, their contention for the GIL is not (a real CAN
-adapter costs the bridge no GIL), so latency here is somewhat pessimistic.
+the same traffic at the same rate), as % of one core. How fast this machine is varies from hour
+to hour (the same code has measured 34 % and 45 %); the ratio bridge / reference tells what live
+adds to the work itself (reading the buses, serving, waking up 150 times a second) on the
+machine as it was. The senders share the GIL with the bridge: their CPU is subtracted, their
+contention for the GIL is not (a real CAN adapter costs the bridge no GIL), so latency here is
+somewhat pessimistic.
 
 Latency. "From a frame's timestamp to a client receiving the scene that contains it." The scene
 tick at log time T (the WebSocket message timestamp; ticks are multiples of 20 ms at 50 Hz) is
@@ -550,7 +549,7 @@ def run(args: argparse.Namespace) -> None:
     # process of its own, so that its memory is not this one's).
     reference_us = float(subprocess.run(
         [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
-         str(args.traffic_s)], check=True,
+         str(args.traffic_s), "--rate", str(args.rate)], check=True,
         capture_output=True, text=True).stdout)
     reference_pct = reference_us * len(BUSES) * args.rate / 1e4
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
@@ -859,17 +858,19 @@ class _EveryoneWants:
         pass
 
 
-def pipeline_frames(messages: dict[str, list[Any]], count: int) -> list[Any]:
-    """``count`` frames of the traffic as the pipeline gets them: the buses in turn, 12,000
-    frames/s of log time."""
+def pipeline_frames(messages: dict[str, list[Any]], count: int,
+                    frames_per_s: float = 12_000) -> list[Any]:
+    """``count`` frames of the traffic as the pipeline gets them: the buses in turn, at
+    ``frames_per_s`` (all buses) of log time."""
     from bridge.frame import Frame
 
     frames = []
     t = 1_767_268_800_000_000_000
+    step = round(NS / frames_per_s)
     for i in range(count):
-        bus = BUSES[i % 3]
-        m = messages[bus][(i // 3) % len(messages[bus])]
-        t += NS // 12_000
+        bus = BUSES[i % len(BUSES)]
+        m = messages[bus][(i // len(BUSES)) % len(messages[bus])]
+        t += step
         frames.append(Frame(t, bus, m.arbitration_id, bytes(m.data), m.is_extended_id,
                             m.is_fd, False, False, m.bitrate_switch, False, m.dlc))
     return frames
@@ -940,7 +941,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=argparse.SUPPRESS)  # (the reference, in its own process)
     args = parser.parse_args(argv)
     if args.reference:
-        frames = pipeline_frames(traffic(args.traffic_s), args.reference)
+        frames = pipeline_frames(traffic(args.traffic_s), args.reference,
+                                 len(BUSES) * args.rate)
         gc.freeze()
         print(min(pipeline_cost(frames) for _ in range(3)))
         return 0
