@@ -20,7 +20,9 @@
 //     "indicators": {"Indicator!radar.silent": {"label": "OK", "color": "#1e8e3e"}, …},
 //                                        Indicator panels showing that label, and that colour
 //                                        on most of their coloured box (read from the pixels)
-//     "ocr": ["Lead Vehicle", "TrackID"],  words to read in the 3D labels (needs tesseract)
+//     "ocr": ["Lead\\s*Vehicle", "x[:;]\\s*\\d+"],  regular expressions to match in the text
+//                                        of the 3D labels (OCR with tesseract: screenshots are
+//                                        read until each was matched, at most ten)
 //     "screenshot": "/abs/out.png"
 //   }]
 // }
@@ -451,12 +453,12 @@ async function runShot(ctx, base, shot, plan) {
     mark(seen ? "seen" : "timeout");
     result.failures = last?.failures ?? ["nothing checked"];
 
-    // Labels: OCR of a few screenshots until every wanted word was read.
+    // Labels: OCR of screenshots until every wanted pattern was matched in what was read.
     let ocr;
     if (shot.ocr?.length && scene) {
       const wanted = shot.ocr;
       const readText = [];
-      for (let attempt = 0; attempt < 6; attempt++) {
+      for (let attempt = 0; attempt < 10; attempt++) {
         const info = await panelInfo(page, scene.panel);
         const image = attempt === 0 ? last.image : decodePng(await page.screenshot({ type: "png" }));
         const read = ocrLabels(image, info.region);
@@ -466,9 +468,8 @@ async function runShot(ctx, base, shot, plan) {
         }
         readText.push(read.text);
         const all = readText.join("\n");
-        const squash = (t) => t.toLowerCase().replace(/[^a-z0-9]/g, "");
-        const found = wanted.filter((w) => squash(all).includes(squash(w)));
-        ocr = { available: true, wanted, found, text: all.slice(0, 4000), attempts: attempt + 1 };
+        const found = wanted.filter((pattern) => new RegExp(pattern).test(all));
+        ocr = { available: true, wanted, found, text: all.slice(0, 6000), attempts: attempt + 1 };
         if (found.length === wanted.length) {
           break;
         }
