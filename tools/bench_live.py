@@ -42,12 +42,16 @@ by that wall time: % of one core. The clients' process is not included. A cross-
 server) over the same window; the per-thread breakdown is printed. The reference, measured in
 the same run just before the bridge starts (in a process of its own): the same pipeline alone in
 one thread, without buses, threads or clients (the best of three passes over 24,000 frames of
-the same traffic at the same rate), as % of one core. How fast this machine is varies from hour
-to hour (the same code has measured 34 % and 45 %); the ratio bridge / reference tells what live
-adds to the work itself (reading the buses, serving, waking up 150 times a second) on the
-machine as it was. The senders share the GIL with the bridge: their CPU is subtracted, their
-contention for the GIL is not (a real CAN adapter costs the bridge no GIL), so latency here is
-somewhat pessimistic.
+the same traffic at the same rate), as % of one core; and the same pipeline paced as live reads
+(in real time, the frames stamped by then taken three times per scene period by live's own
+ReadSchedule, sleeping between: the best of three passes). How fast this machine is varies
+from hour to hour (the same code has measured 34 % and 45 %); the ratio bridge / reference tells
+what live adds to the work itself on the machine as it was, and bridge / paced what it adds
+beyond doing that work in 150 short bursts a second (reading the buses, the server thread, the
+senders' GIL), which this machine charges more for than for the same work done at once. The
+senders share the GIL with the bridge: their CPU is subtracted, their contention for the GIL is
+not (a real CAN adapter costs the bridge no GIL), so CPU and latency here are somewhat
+pessimistic.
 
 Latency. "From a frame's timestamp to a client receiving the scene that contains it." The scene
 tick at log time T (the WebSocket message timestamp; ticks are multiples of 20 ms at 50 Hz) is
@@ -547,11 +551,12 @@ def run(args: argparse.Namespace) -> None:
 
     # The reference, measured now on this machine as it is: the same work without live (in a
     # process of its own, so that its memory is not this one's).
-    reference_us = float(subprocess.run(
+    reference_us, paced_us = map(float, subprocess.run(
         [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
          str(args.traffic_s), "--rate", str(args.rate)], check=True,
-        capture_output=True, text=True).stdout)
+        capture_output=True, text=True).stdout.split())
     reference_pct = reference_us * len(BUSES) * args.rate / 1e4
+    paced_pct = paced_us * len(BUSES) * args.rate / 1e4
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
     # view, so that the bridge's full collections cost what they would cost without it.
     gc.freeze()
@@ -722,6 +727,8 @@ def run(args: argparse.Namespace) -> None:
     row("  cross-check: bridge threads (/proc)", f"{100 * bridge_threads / wall:.1f} %")
     row("  reference: the pipeline alone, same run", f"{reference_pct:.1f} % ({reference_us:.1f} "
         f"µs/frame); bridge / reference = {bridge_pct / reference_pct:.2f}")
+    row("  reference paced as live reads, same run", f"{paced_pct:.1f} % ({paced_us:.1f} "
+        f"µs/frame); bridge / paced = {bridge_pct / paced_pct:.2f}")
     row("  senders (subtracted)", f"{100 * sender_cpu / wall:.1f} %")
     target_ms = period_ms + LATENCY_MARGIN_MS
     hist = analysis.frame_latency
@@ -877,11 +884,14 @@ def pipeline_frames(messages: dict[str, list[Any]], count: int,
 
 
 def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True,
-                  profile: bool = True, serve: bool = True) -> float:
-    """µs per frame of the pipeline alone in this thread (thread CPU time)."""
+                  profile: bool = True, serve: bool = True, paced: bool = False) -> float:
+    """µs per frame of the pipeline alone in this thread (thread CPU time): at once, or
+    ``paced``: in real time, read as the live loop reads (:class:`bridge.live.ReadSchedule`:
+    the frames stamped by then, three times per scene period, sleeping between)."""
     import io
 
     from bridge.convert import build_stages
+    from bridge.live import ReadSchedule
     from bridge.pipeline import Pipeline, new_health_monitor
     from bridge.recorder import Recorder
 
@@ -892,8 +902,21 @@ def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True
                         health=new_health_monitor(decoder, loaded) if health else None)
     pipeline.advertise(BUSES)
     start = time.thread_time()
-    for frame in frames:
-        pipeline.process(frame)
+    if not paced:
+        for frame in frames:
+            pipeline.process(frame)
+    else:
+        schedule = ReadSchedule(round(NS / SCENE_RATE))
+        offset = frames[0].timestamp_ns - time.time_ns()  # log time - wall time
+        schedule.saw(frames[0].timestamp_ns, frames[0].timestamp_ns - offset)
+        i = 0
+        while i < len(frames):
+            schedule.wait()
+            now = time.time_ns()
+            while i < len(frames) and frames[i].timestamp_ns <= now + offset:  # arrived
+                pipeline.process(frames[i])
+                i += 1
+            pipeline.advance(schedule.log_time(now) or 0)
     pipeline.finish()
     return (time.thread_time() - start) / len(frames) * 1e6
 
@@ -944,7 +967,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         frames = pipeline_frames(traffic(args.traffic_s), args.reference,
                                  len(BUSES) * args.rate)
         gc.freeze()
-        print(min(pipeline_cost(frames) for _ in range(3)))
+        print(min(pipeline_cost(frames) for _ in range(3)),
+              min(pipeline_cost(frames, paced=True) for _ in range(3)))
         return 0
     if args.stages:
         stage_costs(args.stages)
