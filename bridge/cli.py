@@ -23,7 +23,7 @@ EXIT_INTERRUPTED = 130
 
 def _dbc_option(text: str) -> str:
     """``--dbc [BUS=]PATH``, where PATH may also name a bundled database (``ecocar``)."""
-    from bridge.decode import parse_dbc_option
+    from bridge.decode.decoder import parse_dbc_option
     from bridge.resources import bundled_database
 
     bus, path = parse_dbc_option(text)
@@ -33,8 +33,8 @@ def _dbc_option(text: str) -> str:
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
-    from bridge.convert import convert
-    from bridge.progress import ProgressBar
+    from bridge.apps.convert import convert
+    from bridge.apps.progress import ProgressBar
     from bridge.resources import data_dir
 
     inputs: list[Path] = list(args.inputs)
@@ -78,7 +78,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from bridge.inspection import format_summary, summarize_file
+    from bridge.apps.inspect import format_summary, summarize_file
 
     for path in args.files:
         print(format_summary(str(path), summarize_file(path)))
@@ -133,13 +133,13 @@ def _add_run_for(parser: argparse.ArgumentParser) -> None:
 
 
 def _stages(args: argparse.Namespace) -> tuple[Any, Any]:
-    from bridge.convert import build_stages
+    from bridge.apps.convert import build_stages
 
     return build_stages([_dbc_option(text) for text in args.dbc or []], args.profile)
 
 
 def _server(args: argparse.Namespace, *, server_time: bool = False) -> Any:
-    from bridge.server import LiveServer
+    from bridge.sinks.websocket import LiveServer
 
     server = LiveServer(host=args.host, port=args.port, server_time=server_time)
     server.start()
@@ -158,7 +158,7 @@ def _run_live(args: argparse.Namespace, buses: list[Any], *, start_feed: Any = N
     """Live on ``buses``; ``start_feed``/``stop_feed`` run a frame source beside it (demo)."""
     import threading
 
-    from bridge.live import Live, install_stop_signals
+    from bridge.apps.live import Live, install_stop_signals
 
     decoder, profile = _stages(args)
     if args.no_record and args.no_server:
@@ -204,7 +204,7 @@ def _run_live(args: argparse.Namespace, buses: list[Any], *, start_feed: Any = N
 
 
 def _cmd_live(args: argparse.Namespace) -> int:
-    from bridge.live import BusSpec
+    from bridge.apps.live import BusSpec
 
     if args.print_systemd_unit:
         print(systemd_unit(args.argv))
@@ -243,8 +243,8 @@ def systemd_unit(argv: Sequence[str]) -> str:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from bridge.demo import DEMO_CHANNEL, SimulatedCar
-    from bridge.live import BusSpec
+    from bridge.apps.live import BusSpec
+    from bridge.sim.car import DEMO_CHANNEL, SimulatedCar
 
     car = SimulatedCar(seed=args.seed, scenario_s=args.scenario)
 
@@ -262,16 +262,16 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from bridge.convert import check_output
-    from bridge.simulate import simulate
+    from bridge.apps.convert import check_output
+    from bridge.sim.drive import simulate
 
     output: Path = args.output
     check_output(output, force=args.force)
     frames = simulate(duration_s=args.duration, seed=args.seed)
     if output.suffix.lower() == ".mcap":
-        from bridge.convert import build_stages
-        from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
-        from bridge.recorder import Recorder, atomic_output
+        from bridge.apps.convert import build_stages
+        from bridge.pipeline.pipeline import Pipeline, describe_drive, new_health_monitor
+        from bridge.sinks.mcap import Recorder, atomic_output
 
         decoder, profile = build_stages([], "ecocar")
         with atomic_output(output) as stream:
@@ -289,7 +289,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         import can
 
-        from bridge.source import supported_suffixes
+        from bridge.io.logs import supported_suffixes
 
         if not any(str(output).lower().endswith(s) for s in supported_suffixes()):
             raise BridgeError(f"{output}: unknown log format; write .blf, .asc, .log, .trc, "
@@ -310,8 +310,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_replay(args: argparse.Namespace) -> int:
     import threading
 
-    from bridge.live import install_stop_signals
-    from bridge.replay import replay_log, replay_mcap
+    from bridge.apps.live import install_stop_signals
+    from bridge.apps.replay import replay_log, replay_mcap
 
     stopping = threading.Event()
     mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
@@ -342,8 +342,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    from bridge.progress import ProgressBar
-    from bridge.recover import format_report, recover_file
+    from bridge.apps.progress import ProgressBar
+    from bridge.apps.recover import format_report, recover_file
 
     bar = ProgressBar(sys.stderr, unit="messages") if not args.quiet else None
     try:
@@ -357,7 +357,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 
 def _cmd_layouts(args: argparse.Namespace) -> int:
-    from bridge.layouts import export_layouts, format_listing, select_layouts
+    from bridge.apps.layouts import export_layouts, format_listing, select_layouts
 
     if args.export is None:
         print(format_listing(select_layouts(args.names)))

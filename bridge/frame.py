@@ -10,7 +10,7 @@ class Frame(NamedTuple):
 
     ``timestamp_ns`` is integer nanoseconds (since the Unix epoch for logs and buses with absolute
     time, since the log's own start otherwise). Float seconds from python-can are converted once,
-    at the source (:func:`bridge.source.to_ns`).
+    at the source (:func:`bridge.io.logs.to_ns`).
     """
 
     timestamp_ns: int

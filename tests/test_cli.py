@@ -11,8 +11,8 @@ import cantools
 import pytest
 from conftest import ECOCAR_DBC, T0, WriteLog, message
 
+from bridge.apps.progress import ProgressBar
 from bridge.cli import main
-from bridge.progress import ProgressBar
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

@@ -16,10 +16,10 @@ from conftest import ECOCAR_DBC, T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.convert import build_decoder, convert, record_drive
+from bridge.apps.convert import build_decoder, convert, record_drive
+from bridge.apps.inspect import format_summary, summarize, summarize_file
 from bridge.errors import InputError, OutputError
-from bridge.inspection import format_summary, summarize, summarize_file
-from bridge.source import LogSource
+from bridge.io.logs import LogSource
 
 
 def drive(db: cantools.database.can.Database) -> list[can.Message]:

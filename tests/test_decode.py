@@ -9,10 +9,10 @@ import pytest
 from conftest import ECOCAR_DBC
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from bridge.decode import Decoder, load_database, parse_dbc_option
+from bridge.decode.decoder import Decoder, load_database, parse_dbc_option
+from bridge.decode.proto_schema import MessageSchema
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import Frame
-from bridge.schema import MessageSchema
 
 ECOCAR = load_database(ECOCAR_DBC)
 

@@ -21,11 +21,10 @@ import os
 from pathlib import Path
 
 import can
-import pytest
 from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 
-from bridge.convert import convert
+from bridge.apps.convert import convert
 from bridge.resources import data_dir
 
 GOLDEN = Path(__file__).resolve().parent / "golden" / "drive_hashes.json"

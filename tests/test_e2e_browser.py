@@ -32,7 +32,7 @@ from typing import Any
 import pytest
 from conftest import summary_counts
 
-from bridge.simulate import DEFAULT_START_NS, TIMELINE
+from bridge.sim.drive import DEFAULT_START_NS, TIMELINE
 
 pytestmark = pytest.mark.browser
 
@@ -376,7 +376,7 @@ def conformance(*args: str, timeout: float = 120) -> dict[str, Any]:
 def test_live_demo_with_foxglove_ws_protocol_client() -> None:
     """@foxglove/ws-protocol's FoxgloveClient subscribes to every channel of `tankviz demo`,
     parses every schema (base64 FileDescriptorSet) and decodes every message with protobufjs."""
-    from bridge.layouts import bundled_produced
+    from bridge.apps.layouts import bundled_produced
 
     demo, url = start_tankviz("demo", "--port", "0", "--no-record")
     try:

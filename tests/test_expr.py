@@ -13,7 +13,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from bridge.errors import BridgeError
-from bridge.expr import MAX_DEPTH, MAX_LENGTH, Expression, ExpressionError, parse
+from bridge.profile.expr import MAX_DEPTH, MAX_LENGTH, Expression, ExpressionError, parse
 
 VALUES: dict[str, float] = {
     "Valid": 1, "ProbExist": 85, "LongDist": 120.5, "LatDist": -3.5, "Class": 0, "Status": 2,

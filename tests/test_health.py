@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.convert import build_stages
-from bridge.decode import Decoder
+from bridge.apps.convert import build_stages
+from bridge.decode.decoder import Decoder
 from bridge.errors import UsageError
 from bridge.frame import Frame
-from bridge.health import (
+from bridge.health.monitor import (
     HEALTH_TOPIC,
     AlarmInfo,
     AlarmKind,
@@ -33,10 +33,10 @@ from bridge.health import (
     frame_bits,
 )
 from bridge.pb.health_pb2 import Health
-from bridge.perception import Output, Perception
-from bridge.profile import Profile
+from bridge.pipeline.perception import Output, Perception
+from bridge.profile.model import Profile
 from bridge.resources import data_dir
-from bridge.simulate import (
+from bridge.sim.drive import (
     DEFAULT_START_NS,
     FAULT_ONSET_S,
     FAULT_RECOVERY_S,

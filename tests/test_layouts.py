@@ -13,11 +13,8 @@ from typing import Any
 import pytest
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from bridge.convert import build_stages
-from bridge.errors import BridgeError
-from bridge.frame import Frame
-from bridge.health import HealthMonitor
-from bridge.layouts import (
+from bridge.apps.convert import build_stages
+from bridge.apps.layouts import (
     LAYOUT_KEYS,
     Produced,
     bundled_layouts,
@@ -32,8 +29,11 @@ from bridge.layouts import (
     resolve_path,
     select_layouts,
 )
+from bridge.errors import BridgeError
+from bridge.frame import Frame
+from bridge.health.monitor import HealthMonitor
 from bridge.pb.perception_pb2 import EgoState, LeadVehicle, PerceivedObjects
-from bridge.perception import Perception
+from bridge.pipeline.perception import Perception
 from bridge.resources import layouts_dir
 from bridge.topics import (
     EGO_TOPIC,

@@ -25,12 +25,12 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.convert import build_stages
+from bridge.apps.convert import build_stages
+from bridge.apps.live import BusSpec, DriveRecorder, Live, ReadSchedule, drive_name, merge_batches
 from bridge.frame import Frame
-from bridge.live import BusSpec, DriveRecorder, Live, ReadSchedule, drive_name, merge_batches
-from bridge.pipeline import Pipeline
-from bridge.server import LiveServer, wait_for
-from bridge.simulate import simulate
+from bridge.pipeline.pipeline import Pipeline
+from bridge.sim.drive import simulate
+from bridge.sinks.websocket import LiveServer, wait_for
 
 NS = 1_000_000_000
 
@@ -98,7 +98,7 @@ def test_sigterm_finishes_a_valid_drive_with_every_frame_the_car_sent(tmp_path: 
 
 
 def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
-    from bridge.recover import recover_file
+    from bridge.apps.recover import recover_file
 
     demo = start_demo(tmp_path)
     time.sleep(4.0)

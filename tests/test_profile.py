@@ -20,8 +20,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from bridge.errors import BridgeError
-from bridge.observe import LaneObservation, ObjectObservation, Observer
-from bridge.profile import (
+from bridge.profile.model import (
     FamilyMember,
     LaneLine,
     Mount,
@@ -37,6 +36,7 @@ from bridge.profile import (
     read_profile_databases,
 )
 from bridge.resources import data_dir
+from bridge.world.observe import LaneObservation, ObjectObservation, Observer
 
 Database = cantools.database.can.Database
 

@@ -27,10 +27,10 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.decode import DatabaseFile, Decoded, Decoder, load_database
+from bridge.decode.decoder import DatabaseFile, Decoded, Decoder, load_database
+from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
 from bridge.resources import data_dir
-from bridge.schema import MessageSchema
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 PUBLIC_DBCS = ("tesla_radar_bosch", "gm_global_a_object", "ESR")

@@ -26,10 +26,10 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.convert import build_stages, convert
+from bridge.apps.convert import build_stages, convert
 from bridge.pb.perception_pb2 import ObjectClass
-from bridge.perception import Perception
-from bridge.profile import Profile
+from bridge.pipeline.perception import Perception
+from bridge.profile.model import Profile
 from bridge.topics import EGO_TOPIC, LANES_TOPIC, LEAD_TOPIC, objects_topic, scene_topic
 
 PROFILES = Path(__file__).resolve().parent / "profiles"

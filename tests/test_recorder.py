@@ -11,7 +11,7 @@ from mcap.writer import Writer as McapWriter
 
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.recorder import FastWriter, Recorder
+from bridge.sinks.mcap import FastWriter, Recorder
 
 
 def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:

@@ -23,11 +23,11 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
+from bridge.apps.inspect import summarize_file
+from bridge.apps.recover import METADATA_NAME, RecoverReport, format_report, recover, recover_file
 from bridge.errors import InputError, OutputError
 from bridge.frame import Frame
-from bridge.inspection import summarize_file
-from bridge.recorder import Recorder
-from bridge.recover import METADATA_NAME, RecoverReport, format_report, recover, recover_file
+from bridge.sinks.mcap import Recorder
 
 T0 = 1_700_000_000_000_000_000
 DBC = b'VERSION ""\n\nBU_: ECU\n\nBO_ 256 Speed: 8 ECU\n SG_ V : 0|16@1+ (0.01,0) [0|655] "" ECU\n'

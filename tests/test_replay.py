@@ -14,12 +14,12 @@ import can
 import pytest
 import websockets
 
+from bridge.apps.convert import build_stages
+from bridge.apps.replay import replay_log, replay_mcap
 from bridge.cli import main
-from bridge.convert import build_stages
 from bridge.errors import UsageError
-from bridge.replay import replay_log, replay_mcap
-from bridge.server import LiveServer
-from bridge.simulate import simulate
+from bridge.sim.drive import simulate
+from bridge.sinks.websocket import LiveServer
 
 NS = 1_000_000_000
 PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]

@@ -22,9 +22,9 @@ from google.protobuf import json_format
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.observe import polar_to_cartesian, to_vehicle
-from bridge.perception import Output, Perception
-from bridge.profile import Mount, Profile, Sensor, SensorKind, load_profile
+from bridge.pipeline.perception import Output, Perception
+from bridge.profile.model import Mount, Profile, Sensor, SensorKind, load_profile
+from bridge.world.observe import polar_to_cartesian, to_vehicle
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 REGENERATE = os.environ.get("TANKVIZ_REGENERATE_GOLDENS") == "1"
@@ -397,8 +397,8 @@ def test_observing_at_the_tick_gives_the_world_observing_each_message_gives(
         profile: Profile, sequence: list[tuple[int, str, dict[str, float]]]) -> None:
     """Perception notes messages and observes them at the tick, one observation per object;
     the world it ticks with is the one observing every message on arrival makes."""
-    from bridge.observe import Observer
-    from bridge.world import World
+    from bridge.world.model import World
+    from bridge.world.observe import Observer
 
     perception = Perception(profile, scene_rate=50)
     perception.advance(T0)

@@ -20,7 +20,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.server import (
+from bridge.sinks.websocket import (
     SEND_BUFFER_BYTES,
     ClientStats,
     LiveServer,
@@ -140,7 +140,7 @@ def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """Publishers flush (after a scene, before they wait): what they published leaves at once,
     not at the next DRAIN_INTERVAL_S (the safety net for what nobody flushed, which the protocol
     test above relies on)."""
-    monkeypatch.setattr("bridge.server.DRAIN_INTERVAL_S", 3600.0)  # no safety net in this test
+    monkeypatch.setattr("bridge.sinks.websocket.DRAIN_INTERVAL_S", 3600.0)  # no safety net
     with LiveServer(port=0) as server:
         scene = server.channel("/scene/ego", SceneUpdate)
 

@@ -19,7 +19,8 @@ import pytest
 from cantools.database.namedsignalvalue import NamedSignalValue
 
 from bridge.frame import Frame
-from bridge.simulate import (
+from bridge.io.logs import LogSource
+from bridge.sim.drive import (
     BABBLE_PERIOD_US,
     DEFAULT_START_NS,
     FAULT_ONSET_S,
@@ -34,7 +35,6 @@ from bridge.simulate import (
     load_ecocar,
     simulate,
 )
-from bridge.source import LogSource
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_LOG = ROOT / "bridge" / "data" / "ecocar_sample.blf"

@@ -7,7 +7,8 @@ In one run, for two log lengths (default 1,000,000 and 2,000,000 frames), it tim
 (b) a naive reference converter in this process: LogReader → cantools ``decode_message`` →
     ``mcap_protobuf.writer.Writer`` (zstd), writing the same raw (``/can/<bus>/frames``,
     :class:`bridge.pb.can_frame_pb2.CanFrame`) and decoded (``/can/<bus>/<Message>``, the very
-    protobuf types tankviz generates, from :class:`bridge.schema.MessageSchema`) topics,
+    protobuf types tankviz generates, from
+    :class:`bridge.decode.proto_schema.MessageSchema`) topics,
 (c) ``tankviz convert`` in a subprocess, timed from outside (interpreter start-up included), with
     the peak RSS of that process alone (``os.wait4``),
 
@@ -67,7 +68,7 @@ import cantools
 from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
-from bridge.decode import load_database
+from bridge.decode.decoder import load_database
 from bridge.resources import data_dir
 
 #: Bumped whenever the generated traffic changes, so cached logs are not reused.
@@ -650,8 +651,8 @@ def naive_convert(path: Path, output: Path) -> Run:
     from google.protobuf import descriptor_pool
     from mcap_protobuf.writer import Writer
 
+    from bridge.decode.proto_schema import MessageSchema
     from bridge.pb.can_frame_pb2 import CanFrame
-    from bridge.schema import MessageSchema
 
     started = time.perf_counter()
     db = cantools.database.load_file(str(ECOCAR_DBC), strict=False)
@@ -712,7 +713,7 @@ def tankviz_convert(path: Path, output: Path, frames: int) -> Run:
 def startup_seconds() -> float:
     """Interpreter start-up plus importing what ``convert`` imports, part of (c)'s time."""
     started = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import bridge.cli, bridge.convert"], check=True)
+    subprocess.run([sys.executable, "-c", "import bridge.cli, bridge.apps.convert"], check=True)
     return time.perf_counter() - started
 
 

@@ -3,11 +3,11 @@
 
 Three python-can ``virtual`` buses (``radar``, ``camera``, ``chassis``) each carry 4,000 frames/s
 for ``--duration`` seconds (default 60, ``--quick``: 10) into the live bridge
-(:class:`bridge.live.Live` + :class:`bridge.server.LiveServer`, the bundled ecocar profile, scene
-at 50 Hz, drives recorded into a temporary folder), while four ``foxglove.websocket.v1`` clients
-watch: three subscribe to every ``/scene/*`` topic and read everything, one subscribes to every
-channel (raw frames and decoded signals included) and then never reads
-(``transport.pause_reading()``). It prints one table (metric, value, target, ok?), a
+(:class:`bridge.apps.live.Live` + :class:`bridge.sinks.websocket.LiveServer`, the bundled ecocar
+profile, scene at 50 Hz, drives recorded into a temporary folder), while four
+``foxglove.websocket.v1`` clients watch: three subscribe to every ``/scene/*`` topic and read
+everything, one subscribes to every channel (raw frames and decoded signals included) and then never
+reads (``transport.pause_reading()``). It prints one table (metric, value, target, ok?), a
 ``TARGET MISSED: ...`` line for each missed target, and exits 0 regardless: this is a report.
 
 Processes. python-can's ``virtual`` interface only connects buses inside one process, so the
@@ -16,7 +16,7 @@ a separate process (this script with ``--client``), so their CPU is not counted.
 other processes used during the run is printed too (``/proc/<pid>/stat``): other processes on a
 small machine distort every figure here, latency most.
 
-Traffic. The payloads are the simulated ecocar drive (:func:`bridge.simulate.simulate`, every
+Traffic. The payloads are the simulated ecocar drive (:func:`bridge.sim.drive.simulate`, every
 payload encoded with the bundled DBC), split by sensor: ``radar`` carries RadarObj*/RadarHeader/
 RadarStatus, ``camera`` CamObstacle*/CamLane*, ``chassis`` everything else (fusion tracks, lead
 vehicle, ego motion, steering, driver inputs, position, diagnostics). Each sender cycles through
@@ -207,7 +207,7 @@ def traffic(duration_s: float) -> dict[str, list[Any]]:
     """The simulated ecocar drive's frames as python-can messages, split by sensor bus."""
     import can
 
-    from bridge.simulate import load_ecocar, simulate
+    from bridge.sim.drive import load_ecocar, simulate
 
     db = load_ecocar()
     names = {m.frame_id: m.name for m in db.messages}
@@ -535,9 +535,9 @@ def print_profile_summary(stats: Any) -> None:
 def run(args: argparse.Namespace) -> None:
     import can  # noqa: F401  (imported before the CPU window)
 
-    from bridge.convert import build_stages
-    from bridge.live import BusSpec, Live
-    from bridge.server import LiveServer, wait_for
+    from bridge.apps.convert import build_stages
+    from bridge.apps.live import BusSpec, Live
+    from bridge.sinks.websocket import LiveServer, wait_for
 
     duration = 10.0 if args.quick else args.duration
     period_ms = 1000 / SCENE_RATE
@@ -886,14 +886,14 @@ def pipeline_frames(messages: dict[str, list[Any]], count: int,
 def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True,
                   profile: bool = True, serve: bool = True, paced: bool = False) -> float:
     """µs per frame of the pipeline alone in this thread (thread CPU time): at once, or
-    ``paced``: in real time, read as the live loop reads (:class:`bridge.live.ReadSchedule`:
+    ``paced``: in real time, read as the live loop reads (:class:`bridge.apps.live.ReadSchedule`:
     the frames stamped by then, three times per scene period, sleeping between)."""
     import io
 
-    from bridge.convert import build_stages
-    from bridge.live import ReadSchedule
-    from bridge.pipeline import Pipeline, new_health_monitor
-    from bridge.recorder import Recorder
+    from bridge.apps.convert import build_stages
+    from bridge.apps.live import ReadSchedule
+    from bridge.pipeline.pipeline import Pipeline, new_health_monitor
+    from bridge.sinks.mcap import Recorder
 
     decoder, loaded = build_stages([], "ecocar")
     pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,

@@ -13,7 +13,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from bridge.errors import InputError
-from bridge.recorder import METADATA_NAME
+from bridge.sinks.mcap import METADATA_NAME
 
 
 @dataclass

@@ -61,21 +61,21 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.Point3_pb2 import Point3
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
-from bridge.decode import Decoded, Decoder, MessageCodec
+from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.errors import UsageError
 from bridge.frame import Frame
-from bridge.observe import LEAD_GROUP, ObjectObservation
 from bridge.pb import health_pb2
-from bridge.perception import Output
-from bridge.profile import ObjectClass, Profile, Sensor, SensorKind
-from bridge.scene import RGBA, color, entity, pose, text, timestamp
+from bridge.pipeline.perception import Output
+from bridge.profile.model import ObjectClass, Profile, Sensor, SensorKind
+from bridge.scene.entities import RGBA, color, entity, pose, text, timestamp
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC
-from bridge.world import LaneModel, World
+from bridge.world.model import LaneModel, World
+from bridge.world.observe import LEAD_GROUP, ObjectObservation
 
 NS = 1_000_000_000
 _NEVER = -(1 << 62)  # a time before everything
 _UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
-_EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as bridge.decode does)
+_EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
 
 # ---------------------------------------------------------------------------------------------
 # Bits on the wire

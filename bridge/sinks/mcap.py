@@ -26,7 +26,7 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
-from bridge.decode import Decoded, MessageCodec
+from bridge.decode.decoder import Decoded, MessageCodec
 from bridge.errors import OutputError
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame

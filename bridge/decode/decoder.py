@@ -20,9 +20,9 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 from google.protobuf import descriptor_pool
 
+from bridge.decode.proto_schema import MessageSchema, identifier
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import Frame
-from bridge.schema import MessageSchema, identifier
 from bridge.topics import message_topic
 
 #: Key bit that tells a 29-bit id from an 11-bit one with the same number.

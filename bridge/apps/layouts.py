@@ -291,13 +291,13 @@ def descriptor_of(schema_name: str, file_descriptor_set: bytes) -> Any:
 def produced(decoder: Any, profile: Any, buses: Iterable[str] = ("can0",)) -> Produced:
     """What the bridge advertises live (and records) with this decoder and profile on ``buses``.
 
-    The live pipeline's own announcement (:meth:`~bridge.pipeline.Pipeline.advertise`) is
+    The live pipeline's own announcement (:meth:`~bridge.pipeline.pipeline.Pipeline.advertise`) is
     recorded, and each topic's descriptor is built from the FileDescriptorSet it is advertised
     with: the scene, perception and health topics, /log, and per bus the raw frames and every
     message its databases define. Frames: the vehicle frame and the profile's sensors. Sample:
     the pipeline's own health monitor's ``/health`` (:func:`health_sample`).
     """
-    from bridge.pipeline import Pipeline, new_health_monitor
+    from bridge.pipeline.pipeline import Pipeline, new_health_monitor
 
     buses = list(buses)
     announcements = _Announcements()
@@ -315,9 +315,9 @@ def produced(decoder: Any, profile: Any, buses: Iterable[str] = ("can0",)) -> Pr
 
 
 def health_sample(monitor: Any, buses: Iterable[str]) -> Any:
-    """The ``/health`` message a new :class:`~bridge.health.HealthMonitor` publishes once each of
-    ``buses`` has carried a frame: every bus, message family, sensor pair and alarm it reports
-    (bus alarms appear with their bus). ``monitor`` is used up."""
+    """The ``/health`` message a new :class:`~bridge.health.monitor.HealthMonitor` publishes
+    once each of ``buses`` has carried a frame: every bus, message family, sensor pair and alarm
+    it reports (bus alarms appear with their bus). ``monitor`` is used up."""
     from bridge.frame import Frame
 
     for bus in buses:
@@ -330,7 +330,7 @@ def health_sample(monitor: Any, buses: Iterable[str]) -> Any:
 
 def bundled_produced(profile: str = "ecocar", buses: Iterable[str] = ("can0",)) -> Produced:
     """What the bundled profile produces (the simulated car and ``tankviz demo`` use bus can0)."""
-    from bridge.convert import build_stages
+    from bridge.apps.convert import build_stages
 
     decoder, loaded = build_stages([], profile)
     return produced(decoder, loaded, buses)

@@ -35,10 +35,10 @@ from google.protobuf.duration_pb2 import Duration
 from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from bridge.observe import ObjectObservation
-from bridge.profile import ObjectClass, Profile, SensorKind, Vehicle
+from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.topics import VEHICLE_FRAME, scene_topic
-from bridge.world import LaneModel, MioCheck, World
+from bridge.world.model import LaneModel, MioCheck, World
+from bridge.world.observe import ObjectObservation
 
 NS = 1_000_000_000
 

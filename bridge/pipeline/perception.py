@@ -23,11 +23,11 @@ from typing import Any, NamedTuple
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from bridge import scene, semantic
 from bridge.errors import UsageError
-from bridge.observe import Observer
 from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObjects
-from bridge.profile import Profile
+from bridge.profile.model import Profile
+from bridge.scene import entities as scene
+from bridge.scene import semantic
 from bridge.topics import (
     EGO_TOPIC,
     LANES_TOPIC,
@@ -36,7 +36,8 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
-from bridge.world import LaneModel, World
+from bridge.world.model import LaneModel, World
+from bridge.world.observe import Observer
 
 NS = 1_000_000_000
 DEFAULT_SCENE_RATE = 20.0

@@ -5,7 +5,7 @@ The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
 SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs) and every
 database file as an attachment, so a drive can be decoded again from the MCAP alone.
 
-A conversion that fails leaves no output file (:func:`bridge.recorder.atomic_output`).
+A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`).
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from bridge.decode import DatabaseFile, Decoder, load_database, parse_dbc_option
+from bridge.decode.decoder import DatabaseFile, Decoder, load_database, parse_dbc_option
 from bridge.errors import OutputError
-from bridge.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
-from bridge.profile import Profile, load_profile, read_profile_databases, resolve_profile
-from bridge.recorder import Recorder, atomic_output
-from bridge.source import LogSource, SourceIssue, merge
+from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline.pipeline import Pipeline, describe_drive, new_health_monitor
+from bridge.profile.model import Profile, load_profile, read_profile_databases, resolve_profile
+from bridge.sinks.mcap import Recorder, atomic_output
 
 #: How many source issues are kept in the metadata (all are counted).
 MAX_ISSUES_RECORDED = 1000

@@ -72,8 +72,8 @@ from zstandard import ZstdError
 
 from bridge import __version__
 from bridge.errors import InputError, OutputError
-from bridge.recorder import FastWriter as Writer  # mcap's Writer, faster add_message
-from bridge.recorder import atomic_output
+from bridge.sinks.mcap import FastWriter as Writer  # mcap's Writer, faster add_message
+from bridge.sinks.mcap import atomic_output
 
 #: Name of the metadata record that says what was recovered.
 METADATA_NAME = "tankviz.recover"
@@ -579,7 +579,7 @@ def recover_file(broken: Path | str, fixed: Path | str, *, force: bool = False,
                  progress: Progress | None = None) -> RecoverReport:
     """Recover the MCAP file ``broken`` into ``fixed``, which is refused if it exists (unless
     ``force``) or is ``broken`` itself; a failed recovery leaves no output file."""
-    from bridge.convert import check_output  # imports the decoder: only when a file is written
+    from bridge.apps.convert import check_output  # imports the decoder: only when a file is written
 
     broken, fixed = Path(broken), Path(fixed)
     if not broken.exists():

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
-from bridge.observe import ObjectObservation
 from bridge.pb.perception_pb2 import (
     EgoState,
     LaneLine,
@@ -15,11 +14,12 @@ from bridge.pb.perception_pb2 import (
     PerceivedObject,
     PerceivedObjects,
 )
-from bridge.profile import ObjectClass as Kind
-from bridge.profile import Profile
-from bridge.scene import timestamp
+from bridge.profile.model import ObjectClass as Kind
+from bridge.profile.model import Profile
+from bridge.scene.entities import timestamp
 from bridge.topics import VEHICLE_FRAME
-from bridge.world import LaneModel, MioCheck, World, steering_curvature
+from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
+from bridge.world.observe import ObjectObservation
 
 NS = 1_000_000_000
 

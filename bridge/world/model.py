@@ -13,14 +13,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from bridge.observe import (
+from bridge.profile.model import LaneSpec, Profile, Sensor
+from bridge.world.observe import (
     LEAD_GROUP,
     EgoObservation,
     LaneObservation,
     ObjectObservation,
     Observation,
 )
-from bridge.profile import LaneSpec, Profile, Sensor
 
 NS = 1_000_000_000
 

@@ -27,7 +27,7 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
 from bridge.errors import BridgeError
-from bridge.expr import Expression, ExpressionError, parse
+from bridge.profile.expr import Expression, ExpressionError, parse
 from bridge.resources import data_dir
 from bridge.topics import VEHICLE_FRAME
 

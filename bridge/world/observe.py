@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bridge.profile import (
+from bridge.profile.model import (
     FamilyMember,
     LaneLine,
     ObjectClass,

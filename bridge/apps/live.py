@@ -26,16 +26,16 @@ from typing import Any
 import can
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode import Decoder
+from bridge.decode.decoder import Decoder
 from bridge.errors import OutputError, UsageError
 from bridge.frame import Frame
-from bridge.perception import DEFAULT_SCENE_RATE, Output
-from bridge.pipeline import Pipeline, describe_drive, new_health_monitor
-from bridge.profile import Profile
-from bridge.recorder import Recorder
-from bridge.scene import timestamp
-from bridge.server import LiveServer
-from bridge.source import to_ns
+from bridge.io.logs import to_ns
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Output
+from bridge.pipeline.pipeline import Pipeline, describe_drive, new_health_monitor
+from bridge.profile.model import Profile
+from bridge.scene.entities import timestamp
+from bridge.sinks.mcap import Recorder
+from bridge.sinks.websocket import LiveServer
 from bridge.topics import LOG_TOPIC
 
 _BUS = re.compile(r"^(?P<name>[A-Za-z_][A-Za-z0-9_.-]*)(=(?P<interface>[A-Za-z0-9_]+):"

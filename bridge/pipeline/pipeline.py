@@ -16,15 +16,16 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge import __version__, scene
-from bridge.decode import DatabaseFile, Decoder, MessageCodec
+from bridge import __version__
+from bridge.decode.decoder import DatabaseFile, Decoder, MessageCodec
 from bridge.frame import Frame
-from bridge.health import HealthMonitor, alarm_entities, fov_entities
+from bridge.health.monitor import HealthMonitor, alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.perception import DEFAULT_SCENE_RATE, Output, Perception
-from bridge.profile import Profile
-from bridge.recorder import FrameSink, Recorder, frame_payload
-from bridge.server import LiveServer
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Output, Perception
+from bridge.profile.model import Profile
+from bridge.scene import entities as scene
+from bridge.sinks.mcap import FrameSink, Recorder, frame_payload
+from bridge.sinks.websocket import LiveServer
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, frames_topic, scene_topic
 
 INF = float("inf")

@@ -1,0 +1,1 @@
+"""One module per tankviz command, each with its parser beside its handler."""

@@ -1,0 +1,1 @@
+"""Frames to signals: cantools per bus, and the protobuf schema of every DBC message."""

@@ -1,0 +1,1 @@
+"""Where frames come from: CAN logs (python-can's readers, chosen by suffix) and live buses."""

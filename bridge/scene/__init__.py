@@ -1,0 +1,1 @@
+"""The world drawn: foxglove.SceneUpdate entities per category, and the semantic topics."""
