@@ -1,8 +1,30 @@
-"""The one CAN frame type that flows through the bridge."""
+"""The one CAN frame type that flows through the bridge, and its time base.
+
+Log time is integer nanoseconds: since the Unix epoch for logs and buses with absolute time, since
+the log's own start otherwise. :data:`NS` is one second of it; :func:`to_ns` converts python-can's
+float seconds (once, at the source); :func:`format_time` prints it for people.
+"""
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
 from typing import NamedTuple
+
+#: Nanoseconds per second: the unit of every time in the bridge.
+NS = 1_000_000_000
+
+
+def to_ns(seconds: float) -> int:
+    """python-can's float seconds to integer nanoseconds, rounded to the microsecond."""
+    return round(seconds * 1_000_000) * 1000
+
+
+def format_time(ns: int) -> str:
+    """A log time for people: UTC with milliseconds when absolute (after 1973), else seconds
+    since the log's start, marked relative."""
+    if ns >= 10**17:
+        return datetime.fromtimestamp(ns / NS, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return f"{ns / NS:.3f} s (relative)"
 
 
 class Frame(NamedTuple):
@@ -10,7 +32,7 @@ class Frame(NamedTuple):
 
     ``timestamp_ns`` is integer nanoseconds (since the Unix epoch for logs and buses with absolute
     time, since the log's own start otherwise). Float seconds from python-can are converted once,
-    at the source (:func:`bridge.io.logs.to_ns`).
+    at the source (:func:`to_ns`).
     """
 
     timestamp_ns: int

@@ -6,6 +6,16 @@ Code, layouts and docs use these; tests check layouts against this module, not a
 from __future__ import annotations
 
 import re
+from typing import Any, NamedTuple
+
+
+class TopicMessage(NamedTuple):
+    """A message for the sinks: its topic, the protobuf message, its log time."""
+
+    topic: str
+    message: Any
+    t_ns: int
+
 
 #: The vehicle frame (x forward, y left, z up) in which the whole scene is drawn.
 VEHICLE_FRAME = "vehicle"

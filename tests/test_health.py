@@ -33,7 +33,7 @@ from bridge.health.monitor import (
     frame_bits,
 )
 from bridge.pb.health_pb2 import Health
-from bridge.pipeline.perception import Output, Perception
+from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
 from bridge.resources import data_dir
 from bridge.sim.drive import (
@@ -44,7 +44,7 @@ from bridge.sim.drive import (
     load_ecocar,
     simulate,
 )
-from bridge.topics import LOG_TOPIC
+from bridge.topics import LOG_TOPIC, TopicMessage
 
 NS = 1_000_000_000
 BITRATE = 1_000_000
@@ -55,7 +55,7 @@ SETTINGS = HealthSettings()
 @dataclass
 class Drive:
     monitor: HealthMonitor
-    outputs: list[Output]
+    outputs: list[TopicMessage]
 
     def events(self) -> list[tuple[str, str, float]]:
         """(alarm id, "raised" or "cleared", seconds since the start of the drive)."""
@@ -75,7 +75,7 @@ def run(frames: Iterable[Frame], decoder: Decoder, profile: Profile | None, *,
         data_bitrates: dict[str, int] | None = None) -> Drive:
     perception = Perception(profile) if profile is not None else None
     monitor = HealthMonitor(profile, decoder, bitrates=bitrates, data_bitrates=data_bitrates)
-    outputs: list[Output] = []
+    outputs: list[TopicMessage] = []
     last = 0
     for frame in frames:
         t = frame.timestamp_ns

@@ -22,8 +22,9 @@ from google.protobuf import json_format
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.pipeline.perception import Output, Perception
+from bridge.pipeline.perception import Perception
 from bridge.profile.model import Mount, Profile, Sensor, SensorKind, load_profile
+from bridge.topics import TopicMessage
 from bridge.world.observe import polar_to_cartesian, to_vehicle
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
@@ -49,7 +50,7 @@ class Drive:
                  rate: float = 20.0) -> None:
         self.db = db
         self.perception = Perception(profile, scene_rate=rate)
-        self.outputs: list[Output] = []
+        self.outputs: list[TopicMessage] = []
         self.perception.advance(T0)  # the drive starts at T0: first scene at T0 + 50 ms
 
     def send(self, t_ms: float, name: str, **values: float) -> None:
@@ -344,7 +345,7 @@ def test_any_decoded_values_give_finite_unique_entities(
     perception = Perception(profile)
     perception.advance(T0)
     t = T0
-    outputs: list[Output] = []
+    outputs: list[TopicMessage] = []
     for index, values, dt_ms in frames:
         t += dt_ms * MS
         outputs += perception.advance(t)

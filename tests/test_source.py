@@ -11,8 +11,8 @@ import pytest
 from conftest import T0, WriteLog
 
 from bridge.errors import InputError
-from bridge.frame import Frame
-from bridge.io.logs import LogSource, bus_name, merge, supported_suffixes, to_ns
+from bridge.frame import Frame, to_ns
+from bridge.io.logs import LogSource, bus_name, merge, supported_suffixes
 
 
 def classic(i: int, channel: object = 0, t: float | None = None) -> can.Message:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from collections import Counter
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Any
 
@@ -13,6 +12,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from bridge.errors import InputError
+from bridge.frame import format_time
 from bridge.sinks.mcap import METADATA_NAME
 
 
@@ -84,12 +84,6 @@ def summarize_file(path: Path | str) -> DriveSummary:
         raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
 
 
-def _time(ns: int) -> str:
-    if ns >= 10**17:  # after 1973: an absolute time
-        return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
-    return f"{ns / 1e9:.3f} s (relative)"
-
-
 def _json(text: str) -> Any:
     try:
         return json.loads(text)
@@ -102,8 +96,8 @@ def format_summary(path: str, s: DriveSummary) -> str:
     lines = [
         f"file:      {path}",
         f"duration:  {s.duration_s:.3f} s",
-        f"start:     {_time(s.start_ns)}",
-        f"end:       {_time(s.end_ns)}",
+        f"start:     {format_time(s.start_ns)}",
+        f"end:       {format_time(s.end_ns)}",
         f"messages:  {s.messages:,}",
         "",
         f"topics ({len(s.topics)}):",
@@ -138,7 +132,7 @@ def format_summary(path: str, s: DriveSummary) -> str:
             lines.append(f"    {k}: {text}")
         alarms = _json(ours.get("alarms", "[]"))
         lines += ["", f"alarms ({sum(a['event'] == 'raised' for a in alarms)} raised):"]
-        lines += [f"  {_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: {a['message']}"
+        lines += [f"  {format_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: {a['message']}"
                   for a in alarms[:50]]
         if len(alarms) > 50:
             lines.append(f"  … {len(alarms) - 50} more in the metadata")

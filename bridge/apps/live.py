@@ -28,15 +28,14 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.decode.decoder import Decoder
 from bridge.errors import OutputError, UsageError
-from bridge.frame import Frame
-from bridge.io.logs import to_ns
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Output
+from bridge.frame import NS, Frame, to_ns
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.pipeline import Pipeline, describe_drive, new_health_monitor
 from bridge.profile.model import Profile
 from bridge.scene.entities import timestamp
 from bridge.sinks.mcap import Recorder
 from bridge.sinks.websocket import LiveServer
-from bridge.topics import LOG_TOPIC
+from bridge.topics import LOG_TOPIC, TopicMessage
 
 _BUS = re.compile(r"^(?P<name>[A-Za-z_][A-Za-z0-9_.-]*)(=(?P<interface>[A-Za-z0-9_]+):"
                   r"(?P<channel>[^@]+)(@(?P<bitrate>\d+))?)?$")
@@ -209,7 +208,6 @@ def merge_batches(batches: list[list[Frame]]) -> list[Frame]:
     return frames
 
 
-NS = 1_000_000_000
 
 
 class ReadSchedule:
@@ -408,8 +406,8 @@ class DriveRecorder:
         self._close()
 
 
-def log_message(t_ns: int, level: Any, text: str) -> Output:
-    return Output(LOG_TOPIC, Log(timestamp=timestamp(t_ns), level=level, message=text,
+def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
+    return TopicMessage(LOG_TOPIC, Log(timestamp=timestamp(t_ns), level=level, message=text,
                                  name="tankviz"), t_ns)
 
 

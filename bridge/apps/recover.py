@@ -72,6 +72,7 @@ from zstandard import ZstdError
 
 from bridge import __version__
 from bridge.errors import InputError, OutputError
+from bridge.frame import format_time
 from bridge.sinks.mcap import FastWriter as Writer  # mcap's Writer, faster add_message
 from bridge.sinks.mcap import atomic_output
 
@@ -248,12 +249,6 @@ def _attachment_crc_ok(a: Attachment, stored: bytes) -> bool:
     return zlib.crc32(a.data, computed) == crc
 
 
-def _time(ns: int) -> str:
-    if ns >= 10**17:  # after 1973: an absolute time
-        return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
-    return f"{ns / 1e9:.3f} s"
-
-
 class _Salvage:
     """One recovery: reads records from ``source``, writes what they hold with ``writer``."""
 
@@ -373,8 +368,8 @@ class _Salvage:
             try:
                 inner = breakup_chunk(record, validate_crc=True)
             except _DAMAGE as exc:
-                when = (f"log time {_time(record.message_start_time)} to "
-                        f"{_time(record.message_end_time)}")
+                when = (f"log time {format_time(record.message_start_time)} to "
+                        f"{format_time(record.message_end_time)}")
                 self.skip(at, f"chunk ({when})", _describe(exc))
                 return
             for r in inner:
@@ -603,8 +598,8 @@ def format_report(report: RecoverReport, broken_path: Path | str, fixed_path: Pa
     topics = len(r.per_topic)
     if r.messages and r.first_ns is not None and r.last_ns is not None:
         lines = [f"recovered {r.messages:,} messages in {topics} topic{'s' * (topics != 1)} "
-                 f"spanning {r.duration_s:.3f} s (from {_time(r.first_ns)} to "
-                 f"{_time(r.last_ns)})"]
+                 f"spanning {r.duration_s:.3f} s (from {format_time(r.first_ns)} to "
+                 f"{format_time(r.last_ns)})"]
     else:
         lines = ["recovered no messages"]
     width = max((len(t) for t in r.per_topic), default=0)

@@ -18,13 +18,13 @@ from mcap.reader import make_reader
 
 from bridge.decode.decoder import Decoder
 from bridge.errors import InputError, UsageError
+from bridge.frame import NS
 from bridge.io.logs import LogSource, merge
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.pipeline import Pipeline, new_health_monitor
 from bridge.profile.model import Profile
 from bridge.sinks.websocket import LiveServer
 
-NS = 1_000_000_000
 #: Server time is published at least this often (ns of log time).
 TIME_EVERY_NS = 50_000_000
 

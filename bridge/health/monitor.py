@@ -63,16 +63,14 @@ from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.errors import UsageError
-from bridge.frame import Frame
+from bridge.frame import NS, Frame
 from bridge.pb import health_pb2
-from bridge.pipeline.perception import Output
 from bridge.profile.model import ObjectClass, Profile, Sensor, SensorKind
 from bridge.scene.entities import RGBA, color, entity, pose, text, timestamp
-from bridge.topics import HEALTH_TOPIC, LOG_TOPIC
+from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import LEAD_GROUP, ObjectObservation
 
-NS = 1_000_000_000
 _NEVER = -(1 << 62)  # a time before everything
 _UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
 _EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
@@ -751,7 +749,7 @@ class HealthMonitor:
 
     # --- checks ---------------------------------------------------------------------------
 
-    def advance(self, t_ns: int) -> list[Output]:
+    def advance(self, t_ns: int) -> list[TopicMessage]:
         """The checks due before log time ``t_ns`` (call it before each frame's
         :meth:`on_frame`, and with the clock when no frame comes); cheap unless one is due."""
         if t_ns < self.next_tick_ns:
@@ -763,7 +761,7 @@ class HealthMonitor:
             return []
         tick = int(self.next_tick_ns)
         due = (t_ns - tick) // self.period_ns + 1
-        out: list[Output] = []
+        out: list[TopicMessage] = []
         limit = 600  # a gap of more than a minute: the first minute, then the latest tick
         for _ in range(min(due, limit)):
             out += self.tick(tick)
@@ -775,11 +773,11 @@ class HealthMonitor:
         self.next_tick_ns = tick
         return out
 
-    def finish(self, t_ns: int) -> list[Output]:
+    def finish(self, t_ns: int) -> list[TopicMessage]:
         """The checks still due at the end of the drive (log time ``t_ns``)."""
         return self.advance(t_ns + 1) if self.next_tick_ns != float("-inf") else []
 
-    def tick(self, t_ns: int) -> list[Output]:
+    def tick(self, t_ns: int) -> list[TopicMessage]:
         """Check everything at log time ``t_ns``: alarm events as ``/log`` messages, and the
         ``/health`` message when one is due."""
         if self.first_ns is None:
@@ -787,16 +785,16 @@ class HealthMonitor:
         self.last_tick_ns = t_ns
         self._snapshot(t_ns)
         self._learn(t_ns)
-        out: list[Output] = []
+        out: list[TopicMessage] = []
         buses = self._bus_figures(t_ns)
         families = self._family_figures(t_ns)
         self._update_bias(t_ns)
         events = self._check(t_ns, buses, families)
         for alarm, event in events:
-            out.append(Output(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
+            out.append(TopicMessage(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
         if self._next_publish_ns is None or t_ns >= self._next_publish_ns:
             self._next_publish_ns = (t_ns // self.publish_ns + 1) * self.publish_ns
-            out.append(Output(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
+            out.append(TopicMessage(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
         return out
 
     def event_records(self) -> list[dict[str, Any]]:

@@ -44,11 +44,6 @@ def supported_suffixes() -> list[str]:
     return plain + [f"{s}.gz" for s in plain if s not in {".db", ".mf4"}]
 
 
-def to_ns(seconds: float) -> int:
-    """python-can's float seconds to integer nanoseconds, rounded to the microsecond."""
-    return round(seconds * 1_000_000) * 1000
-
-
 def bus_name(channel: Any) -> str:
     """The bus name of a python-can channel: ``can<N>`` for numbered channels, else the name."""
     if channel is None or channel == "":

@@ -18,12 +18,13 @@ observing a message many times per tick, and an object once per message of its f
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, NamedTuple
+from typing import Any
 
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bridge.errors import UsageError
+from bridge.frame import NS
 from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObjects
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
@@ -33,23 +34,17 @@ from bridge.topics import (
     LANES_TOPIC,
     LEAD_TOPIC,
     TF_TOPIC,
+    TopicMessage,
     objects_topic,
     scene_topic,
 )
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import Observer
 
-NS = 1_000_000_000
 DEFAULT_SCENE_RATE = 20.0
 MAX_SCENE_RATE = 50.0
 
 
-class Output(NamedTuple):
-    """A message for the sinks: topic, protobuf message, log time."""
-
-    topic: str
-    message: Any
-    t_ns: int
 
 
 def check_scene_rate(rate: float) -> float:
@@ -111,7 +106,7 @@ class Perception:
                 apply(observation)
             pending.clear()
 
-    def advance(self, t_ns: int) -> list[Output]:
+    def advance(self, t_ns: int) -> list[TopicMessage]:
         """The scenes due before log time ``t_ns`` (none most of the time)."""
         if not self._started:
             self._started = True
@@ -125,11 +120,11 @@ class Perception:
         self.next_tick_ns = tick + self.period_ns
         return self.tick(tick)
 
-    def finish(self, t_ns: int) -> list[Output]:
+    def finish(self, t_ns: int) -> list[TopicMessage]:
         """The scenes still due at the end of the drive (log time ``t_ns``)."""
         return self.advance(t_ns + 1) if self._started else []
 
-    def tick(self, t_ns: int) -> list[Output]:
+    def tick(self, t_ns: int) -> list[TopicMessage]:
         """Scene, semantic topics and frames at log time ``t_ns``."""
         self.ticks += 1
         self.observe_pending()
@@ -137,15 +132,15 @@ class Perception:
         world.expire(t_ns)
         lanes = self.lanes = world.lane_model(t_ns)
         check = world.mio_check(lanes)
-        out = [Output(scene_topic(category), update, t_ns) for category, update
+        out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state).items()]
-        out.append(Output(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
+        out.append(TopicMessage(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
         for name, group in profile.groups.items():
-            out.append(Output(objects_topic(name), semantic.objects(
+            out.append(TopicMessage(objects_topic(name), semantic.objects(
                 name, group.sensor.name, world.objects[name].values(), t_ns), t_ns))
         if profile.lead is not None:
-            out.append(Output(LEAD_TOPIC, semantic.lead(check, t_ns), t_ns))
+            out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns), t_ns))
         if profile.lanes is not None:
-            out.append(Output(LANES_TOPIC, semantic.lanes(lanes, t_ns), t_ns))
-        out.append(Output(EGO_TOPIC, semantic.ego(world, profile, t_ns), t_ns))
+            out.append(TopicMessage(LANES_TOPIC, semantic.lanes(lanes, t_ns), t_ns))
+        out.append(TopicMessage(EGO_TOPIC, semantic.ego(world, profile, t_ns), t_ns))
         return out

@@ -21,12 +21,12 @@ from bridge.decode.decoder import DatabaseFile, Decoder, MessageCodec
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor, alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Output, Perception
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.sinks.mcap import FrameSink, Recorder, frame_payload
 from bridge.sinks.websocket import LiveServer
-from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, frames_topic, scene_topic
+from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
 
 INF = float("inf")
 
@@ -100,7 +100,7 @@ class Pipeline:
         """Emit the scenes and health checks due before log time ``t_ns`` (also when no frame
         comes)."""
         perception, health = self.perception, self.health
-        outputs: list[Output] = []
+        outputs: list[TopicMessage] = []
         if perception is not None:
             outputs = perception.advance(t_ns)
             if outputs and health is not None:
@@ -111,7 +111,8 @@ class Pipeline:
         self._next_tick = min(perception.next_tick_ns if perception is not None else INF,
                               health.next_tick_ns if health is not None else INF)
 
-    def _health_scene(self, perception: Perception, health: HealthMonitor, t_ns: int) -> Output:
+    def _health_scene(self, perception: Perception, health: HealthMonitor,
+                      t_ns: int) -> TopicMessage:
         """The health checks look at the world of this scene tick; the scene shows the alarms
         beside the ego and each sensor's field of view (red when alarmed)."""
         assert self.profile is not None
@@ -119,7 +120,8 @@ class Pipeline:
         alarms = health.active_alarms()
         entities = alarm_entities(alarms, t_ns) + fov_entities(self.profile, alarms, t_ns)
         topic = scene_topic(HEALTH_CATEGORY)
-        return Output(topic, scene.update(topic, entities, t_ns, perception.scene_state), t_ns)
+        update = scene.update(topic, entities, t_ns, perception.scene_state)
+        return TopicMessage(topic, update, t_ns)
 
     def finish(self) -> None:
         """Emit what is still due at the end of the drive."""
@@ -134,7 +136,7 @@ class Pipeline:
         if self.health is not None:
             self.emit(self.health.finish(self.last_ns))
 
-    def emit(self, outputs: Iterable[Output]) -> None:
+    def emit(self, outputs: Iterable[TopicMessage]) -> None:
         """Scene, perception and other messages to every sink: the live server first (viewers
         wait for them; the recorder does not)."""
         recorder, server = self.recorder, self.server

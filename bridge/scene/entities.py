@@ -35,12 +35,11 @@ from google.protobuf.duration_pb2 import Duration
 from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from bridge.frame import NS
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneModel, MioCheck, World
 from bridge.world.observe import ObjectObservation
-
-NS = 1_000_000_000
 
 RGBA = tuple[float, float, float, float]
 EGO_COLOR: RGBA = (0.72, 0.42, 0.16, 1.0)  # orange-brown

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+from bridge.frame import NS
 from bridge.pb.perception_pb2 import (
     EgoState,
     LaneLine,
@@ -20,8 +21,6 @@ from bridge.scene.entities import timestamp
 from bridge.topics import VEHICLE_FRAME
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
 from bridge.world.observe import ObjectObservation
-
-NS = 1_000_000_000
 
 _CLASSES = {
     Kind.UNKNOWN: ObjectClass.OBJECT_CLASS_UNKNOWN,

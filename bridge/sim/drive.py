@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import cantools
 
-from bridge.frame import Frame
+from bridge.frame import NS, Frame
 from bridge.resources import data_dir
 
 #: The default absolute start time: 2026-01-01T12:00:00Z in integer nanoseconds since the epoch.
@@ -92,7 +92,6 @@ CLASS_UNKNOWN, CLASS_FOUR_WHEEL, CLASS_TWO_WHEEL, CLASS_PEDESTRIAN, CLASS_STATIO
 _CAM_VEHICLE, _CAM_TRUCK, _CAM_BIKE, _CAM_PEDESTRIAN, _CAM_BICYCLE = 0, 1, 2, 3, 4
 _CAM_NONE = -1
 
-_NS = 1_000_000_000
 _US = 1_000
 _MS = 1_000_000
 
@@ -111,8 +110,8 @@ class Episode:
 
     def window_ns(self, duration_s: float, start_ns: int = DEFAULT_START_NS) -> tuple[int, int]:
         """Absolute integer-nanosecond timestamps: ``begin <= timestamp_ns < end``."""
-        return (start_ns + round(self.start * duration_s * _NS),
-                start_ns + round(self.end * duration_s * _NS))
+        return (start_ns + round(self.start * duration_s * NS),
+                start_ns + round(self.end * duration_s * NS))
 
     def contains(self, timestamp_ns: int, duration_s: float,
                  start_ns: int = DEFAULT_START_NS) -> bool:
@@ -176,7 +175,7 @@ class Scenario:
         """The fault as absolute timestamps ``(onset, recovery)``, or None without a fault."""
         if self.onset_s is None or self.recovery_s is None:
             return None
-        return start_ns + round(self.onset_s * _NS), start_ns + round(self.recovery_s * _NS)
+        return start_ns + round(self.onset_s * NS), start_ns + round(self.recovery_s * NS)
 
 
 def _fault(name: str, description: str) -> Scenario:
@@ -429,7 +428,7 @@ class _World:
     def at(self, tick_ns: int) -> _Snapshot:
         snap = self._cache.get(tick_ns)
         if snap is None:
-            snap = self._compute(tick_ns / _NS)
+            snap = self._compute(tick_ns / NS)
             if len(self._cache) > 16:
                 del self._cache[next(iter(self._cache))]
             self._cache[tick_ns] = snap
@@ -616,7 +615,7 @@ def _ego_motion(run: _Run) -> Iterator[Frame]:
             ts = run.start_ns  # the run starts with this frame, exactly at start_ns
         if ts >= run.end_ns:
             return
-        e = sc.ego(tick / _NS)
+        e = sc.ego(tick / NS)
         values: dict[str, float] = {
             "VehicleSpeed": e.v * 3.6 + rng.gauss(0, 0.03),
             "YawRate": math.degrees(e.v * e.kappa) + rng.gauss(0, 0.03),
@@ -642,7 +641,7 @@ def _steering(run: _Run) -> Iterator[Frame]:
     for tick, ts in run.ticks(rng, 10, (1000, 4000)):
         if ts >= run.end_ns:
             return
-        t = tick / _NS
+        t = tick / NS
         e = sc.ego(t)
         angle = steering_wheel_angle_deg(e.kappa)
         rate = (steering_wheel_angle_deg(sc.ego(t + 0.01).kappa) - angle) / 0.01
@@ -666,7 +665,7 @@ def _driver_inputs(run: _Run) -> Iterator[Frame]:
     for tick, ts in run.ticks(rng, 20, (4000, 9000)):
         if ts >= run.end_ns:
             return
-        e = sc.ego(tick / _NS)
+        e = sc.ego(tick / NS)
         pressure = max(0.0, -e.a) * 12.0
         values: dict[str, float] = {
             "Gear": 3,  # D
@@ -700,7 +699,7 @@ def _ego_position(run: _Run) -> Iterator[Frame]:
     for tick, ts in run.ticks(rng, 100, (30_000, 60_000)):
         if ts >= run.end_ns:
             return
-        e = sc.ego(tick / _NS)
+        e = sc.ego(tick / NS)
         mid = (last_s + e.s) / 2  # heading of a sine-curvature road at the step's midpoint
         heading = _ORIGIN_HEADING - k_w * (math.cos(sc.omega * (mid + ROAD_PHASE_M))
                                            - math.cos(sc.omega * ROAD_PHASE_M))
@@ -882,7 +881,7 @@ def _radar_status(run: _Run) -> Iterator[Frame]:
             return
         if dropout[0] <= ts < dropout[1]:
             continue
-        t = tick / _NS
+        t = tick / NS
         bias = MISALIGNMENT_DEG if misaligned[0] <= ts < misaligned[1] else 0.0
         restarting = dropout[1] <= ts < dropout[1] + 300 * _MS
         values: dict[str, float] = {
@@ -1128,7 +1127,7 @@ def _diagnostics(run: _Run) -> Iterator[Frame]:
     for k, (tick, ts) in enumerate(run.ticks(rng, 1000, (200_000, 400_000))):
         if ts >= run.end_ns:
             return
-        t = tick / _NS
+        t = tick / NS
         page, source = k % 4, (k // 4) % 4
         values: dict[str, float] = {"DiagPage": page, "DiagSource": source, "Counter": counter}
         if page == 0:
@@ -1199,7 +1198,7 @@ def simulate(*, duration_s: float, seed: int = 0, start_ns: int = DEFAULT_START_
     db = database if database is not None else _default_database()
     codecs = {name: _Codec(db, name) for name in _MESSAGES}
     run = _Run(_World(duration_s), _Out(bus), seed, start_ns,
-               start_ns + round(duration_s * _NS), duration_s, codecs,
+               start_ns + round(duration_s * NS), duration_s, codecs,
                _faults(SCENARIOS[scenario], duration_s, start_ns))
     families = [family(run) for family in _FAMILIES]
     if scenario == "babbling":

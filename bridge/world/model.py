@@ -13,6 +13,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from bridge.frame import NS
 from bridge.profile.model import LaneSpec, Profile, Sensor
 from bridge.world.observe import (
     LEAD_GROUP,
@@ -21,8 +22,6 @@ from bridge.world.observe import (
     ObjectObservation,
     Observation,
 )
-
-NS = 1_000_000_000
 
 
 def polynomial(c: Sequence[float], x: float) -> float:
