@@ -20,7 +20,10 @@ from cantools.database.namedsignalvalue import NamedSignalValue
 
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
-from bridge.sim.drive import (
+from bridge.sim.drive import simulate
+from bridge.sim.ego import STEERING_RATIO, WHEELBASE_M
+from bridge.sim.frames import load_ecocar
+from bridge.sim.scenario import (
     BABBLE_PERIOD_US,
     DEFAULT_START_NS,
     FAULT_ONSET_S,
@@ -28,12 +31,8 @@ from bridge.sim.drive import (
     MISALIGNMENT_DEG,
     RADAR_SLOW_EVERY,
     SCENARIOS,
-    STEERING_RATIO,
     TIMELINE,
-    WHEELBASE_M,
     Episode,
-    load_ecocar,
-    simulate,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,0 +1,209 @@
+"""Frames on the bus: the DBC encoding, counters and checksums, and the timing of every family.
+
+Every payload is encoded with cantools against the bundled DBC (:func:`load_ecocar`), or the
+database given to ``simulate``, which must have the ecocar messages: a :class:`Codec` for a
+message it lacks is a ``ValueError`` naming the message.
+
+- :class:`Codec`: one DBC message. Values are clamped to each signal's ``[minimum, maximum]``
+  before encoding (an out-of-range measurement saturates, it never fails); its rolling counter
+  wraps at ``2 ** length`` of its ``Counter`` signal (``counter_mod``, 1 without one).
+- :func:`checksum`: ``Checksum`` = (byte0 + ... + byte6) & 0xFF, as the DBC comments say.
+- :class:`Out`: the frames of one bus: standard (11-bit) ids, never error or remote frames; a
+  CAN-FD message of the DBC is sent as CAN-FD with bit rate switch; ``dlc`` is the payload length.
+- :class:`Slots`: stable slot assignment: an object keeps its slot (its message of a numbered
+  series, e.g. ``RadarObj7_A``) while it stays in the list. :class:`Ids`: track ids 1..255, stable
+  per object while it is tracked, reused only after a full turn.
+- :class:`Run`: what the message families of one run share. Timing: each message family sends at
+  its DBC cycle time (``ticks``: the nominal measurement tick ``k * cycle``, and the transmit time
+  = start + the family's small phase offset, drawn once + the tick + a little timing jitter), the
+  frames of one cycle back to back, 130 to 169 microseconds apart (``burst``). Offsets are whole
+  microseconds, so every timestamp is ``start_ns`` plus whole microseconds. Randomness:
+  ``rng(family)`` is seeded with the run's seed and the family's name, so the same seed gives
+  byte-identical frames, and the seed changes noise, jitter, phases, counter start values and the
+  spurious radar detections (family ``ghosts``), never the scenario itself.
+"""
+
+from __future__ import annotations
+
+import functools
+import random
+from collections.abc import Hashable, Iterator
+from dataclasses import dataclass
+
+import cantools
+
+from bridge.frame import Frame
+from bridge.resources import data_dir
+from bridge.sim.scenario import Faults
+from bridge.sim.sensors import Snapshots
+
+#: Nanoseconds per microsecond and per millisecond.
+US = 1_000
+MS = 1_000_000
+
+
+def load_ecocar() -> cantools.database.can.Database:
+    """The bundled ecocar DBC (``data_dir()/"ecocar.dbc"``), freshly loaded."""
+    path = data_dir() / "ecocar.dbc"
+    database = cantools.database.load_file(path)
+    if not isinstance(database, cantools.database.can.Database):
+        raise TypeError(f"{path} is not a CAN database")
+    return database
+
+
+@functools.lru_cache(maxsize=1)
+def default_database() -> cantools.database.can.Database:
+    """The bundled ecocar DBC, loaded once: what ``simulate`` encodes with by default."""
+    return load_ecocar()
+
+
+# ---------------------------------------------------------------------------------------------
+# Encoding
+# ---------------------------------------------------------------------------------------------
+
+
+class Codec:
+    """One DBC message: clamps values to the signal ranges, encodes, remembers its counter."""
+
+    __slots__ = ("counter_mod", "fd", "frame_id", "limits", "message")
+
+    def __init__(self, database: cantools.database.can.Database, name: str) -> None:
+        try:
+            self.message = database.get_message_by_name(name)
+        except KeyError:
+            raise ValueError(f"the database has no message {name!r}, which the simulator "
+                             "needs (simulate() drives the ecocar DBC)") from None
+        self.frame_id: int = self.message.frame_id
+        self.fd: bool = bool(self.message.is_fd)
+        self.limits = tuple((s.name, s.minimum, s.maximum) for s in self.message.signals
+                            if s.minimum is not None and s.maximum is not None)
+        counter = next((s for s in self.message.signals if s.name == "Counter"), None)
+        self.counter_mod = 2 ** counter.length if counter is not None else 1
+
+    def encode(self, values: dict[str, float]) -> bytes:
+        for name, lo, hi in self.limits:
+            value = values.get(name)
+            if value is not None:
+                if value < lo:
+                    values[name] = lo
+                elif value > hi:
+                    values[name] = hi
+        data: bytes = self.message.encode(values, strict=False)
+        return data
+
+
+class Out:
+    """Builds frames for one bus."""
+
+    def __init__(self, bus: str) -> None:
+        self.bus = bus
+
+    def frame(self, ts: int, codec: Codec, data: bytes) -> Frame:
+        return Frame(ts, self.bus, codec.frame_id, data, False, codec.fd, False, False, codec.fd,
+                     False, len(data))
+
+
+def checksum(codec: Codec, values: dict[str, float]) -> bytes:
+    """Encode with ``Checksum`` = (byte0 + ... + byte6) & 0xFF, as the DBC comments say."""
+    values["Checksum"] = 0
+    first = codec.encode(values)
+    values["Checksum"] = sum(first[:7]) & 0xFF
+    return codec.encode(values)
+
+
+class Slots:
+    """Stable slot assignment: an object keeps its slot while it stays in the list."""
+
+    def __init__(self, size: int) -> None:
+        self.owner: list[Hashable | None] = [None] * size
+        self.where: dict[Hashable, int] = {}
+
+    def assign(self, keys: list[Hashable]) -> list[Hashable | None]:
+        """``keys`` in priority order (those beyond the slot count are left out)."""
+        keep = set(keys[: len(self.owner)])
+        for key in [k for k in self.where if k not in keep]:
+            self.owner[self.where.pop(key)] = None
+        free = (i for i, o in enumerate(self.owner) if o is None)
+        for key in keys[: len(self.owner)]:
+            if key not in self.where:
+                slot = next(free)
+                self.where[key] = slot
+                self.owner[slot] = key
+        return self.owner
+
+    def clear(self) -> None:
+        self.owner = [None] * len(self.owner)
+        self.where.clear()
+
+
+class Ids:
+    """Track ids 1..255, stable per object while it is tracked, reused only after a full turn."""
+
+    def __init__(self, first: int) -> None:
+        self.next = first
+        self.ids: dict[Hashable, int] = {}
+
+    def get(self, key: Hashable) -> int:
+        found = self.ids.get(key)
+        if found is None:
+            used = set(self.ids.values())
+            while self.next in used:
+                self.next = self.next % 255 + 1
+            found = self.ids[key] = self.next
+            self.next = self.next % 255 + 1
+        return found
+
+    def retain(self, keys: set[Hashable]) -> None:
+        for key in [k for k in self.ids if k not in keys]:
+            del self.ids[key]
+
+
+# ---------------------------------------------------------------------------------------------
+# One run: what the message families share (timing, randomness, codecs, faults)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Run:
+    """One run as its message families see it: the world's snapshots, the bus, the seed, the
+    run's time span, the codecs, the fault windows, and the object count of the radar's latest
+    cycle (for RadarStatus)."""
+
+    world: Snapshots
+    out: Out
+    seed: int
+    start_ns: int
+    end_ns: int
+    duration_s: float
+    codecs: dict[str, Codec]
+    faults: Faults
+    radar_object_count: int = 0  # of the radar's latest cycle, for RadarStatus
+
+    def codec(self, name: str) -> Codec:
+        return self.codecs[name]
+
+    def rng(self, family: str) -> random.Random:
+        return random.Random(f"tankviz-simulate:{self.seed}:{family}")
+
+    def ticks(self, rng: random.Random, cycle_ms: int, phase_us: tuple[int, int],
+              jitter_us: int = 200) -> Iterator[tuple[int, int]]:
+        """``(tick_ns, transmit_ns)`` per cycle: the nominal measurement time since the start of
+        the run, and the absolute transmit time (phase + jitter, whole microseconds)."""
+        phase = rng.randrange(*phase_us) * US
+        cycle = cycle_ms * MS
+        k = 0
+        while True:
+            tick = k * cycle
+            if tick >= self.end_ns - self.start_ns:
+                return
+            yield tick, self.start_ns + phase + tick + rng.randrange(jitter_us) * US
+            k += 1
+
+    @staticmethod
+    def burst(rng: random.Random, ts: int, count: int) -> list[int]:
+        """Transmit times of ``count`` back-to-back frames starting at ``ts``."""
+        times = [ts]
+        for _ in range(count - 1):
+            ts += (130 + rng.randrange(40)) * US
+            times.append(ts)
+        return times
