@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from bridge.errors import BridgeError
+from bridge.profile.loader import load_profile, read_profile_databases
 from bridge.profile.model import (
     FamilyMember,
     LaneLine,
@@ -32,8 +33,6 @@ from bridge.profile.model import (
     SignalRef,
     Vehicle,
     expand,
-    load_profile,
-    read_profile_databases,
 )
 from bridge.resources import data_dir
 from bridge.world.observe import LaneObservation, ObjectObservation, Observer

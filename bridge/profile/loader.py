@@ -1,0 +1,574 @@
+"""Reading and checking a vehicle profile: a TOML file that declares what the DBC signals of one
+car mean, read into a :class:`~bridge.profile.model.Profile` and checked on load.
+
+A team with another car writes a profile, not Python. The format is documented in README.md
+("Vehicle profiles"); bridge/data/ecocar.toml is a complete example.
+
+:func:`resolve_profile` takes the path of a profile file or the name of a bundled profile
+(``ecocar`` is bridge/data/ecocar.toml: :func:`bundled_profile`). :func:`load_profile` reads it
+and checks every key, type, value, message and signal name (against the loaded databases);
+:func:`read_profile_databases` reads only the databases the profile names (``[profile]
+databases``: files beside the profile, else bundled ones), so that they can be loaded first.
+
+Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
+value of the wrong type or out of range, a message or signal not in the databases) raises
+:class:`~bridge.profile.model.ProfileError` naming the profile file, the key (for an error in
+one), the bad name and, when some are close, the closest existing names.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from cantools.database.can.database import Database
+from cantools.database.can.message import Message as DbcMessage
+
+from bridge.profile.expr import ExpressionError, parse
+from bridge.profile.model import (
+    _INDEX,
+    EgoSpec,
+    FamilyMember,
+    LaneLine,
+    LaneSpec,
+    LeadSpec,
+    Mount,
+    ObjectClass,
+    ObjectGroup,
+    Profile,
+    ProfileError,
+    Rule,
+    Sensor,
+    SensorKind,
+    SignalRef,
+    Vehicle,
+    expand,
+)
+from bridge.resources import data_dir
+from bridge.topics import VEHICLE_FRAME
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+#: Scene categories that are not object groups (a group gets /scene/<name>).
+_RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "mio"}
+_TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
+_CLASS_NAMES = {c.value: c for c in ObjectClass}
+_LANE_NAMES = ("left", "right", "next_left", "next_right")
+
+
+def bundled_profile(name: str) -> Path | None:
+    """The bundled profile called ``name`` (``ecocar``), if there is one."""
+    candidate = data_dir() / f"{name}.toml"
+    return candidate if "/" not in name and candidate.is_file() else None
+
+
+def resolve_profile(name_or_path: str | Path) -> Path:
+    """A profile path from a path or the name of a bundled profile."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    bundled = bundled_profile(str(name_or_path))
+    if bundled is not None:
+        return bundled
+    known = sorted(p.stem for p in data_dir().glob("*.toml"))
+    raise ProfileError(path, "", f"no such profile file, and no bundled profile of that name "
+                       f"(bundled: {', '.join(known) or 'none'})")
+
+
+def read_profile_databases(path: Path) -> dict[str, tuple[Path, ...]]:
+    """The databases a profile names (``[profile] databases``), without loading anything else."""
+    return _Loader(path, _read_toml(path), []).databases()
+
+
+def load_profile(name_or_path: str | Path, databases: Iterable[Database]) -> Profile:
+    """Load and check a profile against the databases its messages must come from."""
+    path = resolve_profile(name_or_path)
+    return _Loader(path, _read_toml(path), list(databases)).profile()
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with path.open("rb") as f:
+            doc: dict[str, Any] = tomllib.load(f)
+            return doc
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(path, "", f"not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ProfileError(path, "", f"not valid TOML: not UTF-8 text (byte "
+                           f"0x{exc.object[exc.start]:02x} at position {exc.start})") from None
+    except OSError as exc:
+        raise ProfileError(path, "", f"cannot read: {exc.strerror or exc}") from None
+
+
+def _closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
+    """``; closest: …`` naming likely meant names; with ``or_all``, else every name."""
+    choices = list(choices)
+    matches = difflib.get_close_matches(word, choices, n=3, cutoff=0.75)
+    if matches:
+        return f"; closest: {', '.join(matches)}"
+    if or_all and choices:
+        return f"; there are: {', '.join(sorted(choices))}"
+    return ""
+
+
+class _Loader:
+    """Reads one parsed TOML document into a :class:`Profile`, checking as it goes."""
+
+    def __init__(self, path: Path, doc: dict[str, Any], databases: list[Database]) -> None:
+        self.path = path
+        self.doc = doc
+        self.messages: dict[str, DbcMessage] = {}
+        for db in databases:
+            for m in db.messages:
+                self.messages.setdefault(m.name, m)
+
+    def fail(self, key: str, reason: str) -> ProfileError:
+        return ProfileError(self.path, key, reason)
+
+    # generic checks
+
+    def table(self, value: Any, key: str, allowed: set[str],
+              required: Sequence[str] = ()) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected a table, got {_type_name(value)}")
+        for name in value:
+            if name not in allowed:
+                raise self.fail(f"{key}.{name}" if key else name,
+                                f"unknown key{_closest(name, allowed)} "
+                                f"(allowed: {', '.join(sorted(allowed))})")
+        for name in required:
+            if name not in value:
+                raise self.fail(key, f"missing required key '{name}'")
+        return value
+
+    def section(self, value: Any, key: str) -> dict[str, Any]:
+        """A table whose keys are names the user chooses (sensors, groups, classes)."""
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected a table, got {_type_name(value)}")
+        return value
+
+    def number(self, table: Mapping[str, Any], key: str, name: str, default: float | None = None,
+               *, positive: bool = False, non_negative: bool = False) -> float:
+        value = table.get(name, default)
+        full = f"{key}.{name}"
+        if value is None:
+            raise self.fail(key, f"missing required key '{name}'")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(full, f"expected a number, got {_type_name(value)}")
+        try:
+            finite = math.isfinite(value)
+        except OverflowError:  # an integer too large for a float
+            finite = False
+        if not finite:
+            text = str(value)
+            if len(text) > 20:
+                text = f"{text[:20]}… ({len(text.lstrip('-'))} digits)"
+            raise self.fail(full, f"must be finite, got {text}")
+        if positive and value <= 0:
+            raise self.fail(full, f"must be greater than 0, got {value}")
+        if non_negative and value < 0:
+            raise self.fail(full, f"must not be negative, got {value}")
+        return float(value)
+
+    def string(self, table: Mapping[str, Any], key: str, name: str, default: str | None = None,
+               choices: Sequence[str] | None = None) -> str:
+        value = table.get(name, default)
+        full = f"{key}.{name}"
+        if value is None:
+            raise self.fail(key, f"missing required key '{name}'")
+        if not isinstance(value, str):
+            raise self.fail(full, f"expected a string, got {_type_name(value)}")
+        if choices is not None and value not in choices:
+            raise self.fail(full, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def message(self, name: str, key: str) -> DbcMessage:
+        m = self.messages.get(name)
+        if m is None:
+            raise self.fail(key, f"no message {name!r} in the databases"
+                            f"{_closest(name, self.messages)}")
+        return m
+
+    def rule(self, table: Mapping[str, Any], key: str, messages: Sequence[DbcMessage],
+             index: int | None = None) -> Rule | None:
+        """The validity rule, ``{i}`` in it replaced by ``index``; every name it reads checked
+        against ``messages`` (plain names must be in exactly one of them)."""
+        text = table.get("valid")
+        if text is None:
+            return None
+        if not isinstance(text, str):
+            raise self.fail(f"{key}.valid", f"expected a rule (string), got {_type_name(text)}")
+        if index is not None:
+            text = expand(text, index)
+        try:
+            expression = parse(text)
+        except ExpressionError as exc:
+            raise self.fail(f"{key}.valid", str(exc)) from None
+        where = ", ".join(m.name for m in messages)
+        qualified = []
+        for name in sorted(expression.names):
+            message_name, _, signal_name = name.rpartition(".")
+            candidates = [m for m in messages if m.name == message_name] if message_name else \
+                list(messages)
+            if message_name and not candidates:
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, but "
+                                f"{message_name!r} is not one of {where}")
+            owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
+            if not owners:
+                known = {s.name for m in candidates for s in m.signals}
+                named = message_name or where
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is not a "
+                                f"signal of {named}{_closest(signal_name, known)}")
+            if len(owners) > 1:
+                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is in "
+                                f"{owners[0].name} and {owners[1].name}: write Message.Signal")
+            if message_name:
+                qualified.append((name, message_name, signal_name))
+        return Rule(expression, tuple(qualified))
+
+    def signal(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> SignalRef:
+        """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
+        scale, offset = 1.0, 0.0
+        if isinstance(value, dict):
+            spec = self.table(value, key, {"signal", "scale", "offset"}, required=["signal"])
+            scale = self.number(spec, key, "scale", 1.0)
+            offset = self.number(spec, key, "offset", 0.0)
+            value = spec["signal"]
+            key = f"{key}.signal"
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"expected a signal name, got {_type_name(value)}")
+        message_name, _, signal_name = value.rpartition(".")
+        candidates = list(messages)
+        if message_name:
+            candidates = [m for m in messages if m.name == message_name]
+            if not candidates:
+                if messages:
+                    names = [m.name for m in messages]
+                    raise self.fail(key, f"message {message_name!r} is not one of "
+                                    f"{', '.join(names)}{_closest(message_name, names)}")
+                candidates = [self.message(message_name, key)]
+        owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
+        if not owners:
+            known = {s.name for m in candidates for s in m.signals}
+            where = ", ".join(m.name for m in candidates)
+            raise self.fail(key, f"no signal {signal_name!r} in {where}"
+                            f"{_closest(signal_name, known)}")
+        if len(owners) > 1:
+            raise self.fail(key, f"signal {signal_name!r} is in {owners[0].name} and "
+                            f"{owners[1].name}: write Message.Signal")
+        return SignalRef(owners[0].name, signal_name, scale, offset)
+
+    # sections
+
+    def databases(self) -> dict[str, tuple[Path, ...]]:
+        section = self.table(self.doc.get("profile", {}), "profile",
+                             {"name", "description", "databases"})
+        value = section.get("databases", [])
+        if value == [] or value == {}:
+            return {}
+        by_bus: dict[str, Any] = value if isinstance(value, dict) else {"*": value}
+        out: dict[str, tuple[Path, ...]] = {}
+        for bus, files in by_bus.items():
+            key = "profile.databases" + (f".{bus}" if isinstance(value, dict) else "")
+            if isinstance(files, str):
+                files = [files]
+            if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+                raise self.fail(key, f"expected a list of database files, got {_type_name(files)}")
+            paths = []
+            for f in files:
+                candidate = (self.path.parent / f)
+                if not candidate.is_file():
+                    candidate = data_dir() / f
+                if not candidate.is_file():
+                    raise self.fail(key, f"no database file {f!r} beside the profile or bundled")
+                paths.append(candidate)
+            out[bus] = tuple(paths)
+        return out
+
+    def profile(self) -> Profile:
+        doc = self.table(self.doc, "", _TOP_KEYS)
+        meta = self.table(doc.get("profile", {}), "profile", {"name", "description", "databases"})
+        name = self.string(meta, "profile", "name", self.path.stem)
+        self.string(meta, "profile", "description", "")
+        vehicle = self.vehicle(doc.get("vehicle", {}))
+        sensors_doc = self.section(doc.get("sensors", {}), "sensors")
+        if VEHICLE_FRAME in sensors_doc:
+            raise self.fail(f"sensors.{VEHICLE_FRAME}", f"'{VEHICLE_FRAME}' is the vehicle frame; "
+                            "name the sensor otherwise")
+        sensors = {n: self.sensor(n, v) for n, v in sensors_doc.items()}
+        objects_doc = self.section(doc.get("objects", {}), "objects")
+        for n in objects_doc:
+            if n in _RESERVED_GROUPS:
+                raise self.fail(f"objects.{n}", f"'{n}' is taken by /scene/{n}; not one of "
+                                f"{', '.join(sorted(_RESERVED_GROUPS))}")
+        groups = {n: self.group(f"objects.{n}", n, v, sensors) for n, v in objects_doc.items()}
+        lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
+        lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
+        ego = self.ego(doc.get("ego", {}))
+        bitrates, data_bitrates = self.buses(doc.get("buses", {}))
+        return Profile(name, self.path, vehicle, sensors, groups, lead, lanes, ego,
+                       self.databases(), bitrates, data_bitrates)
+
+    def buses(self, value: Any) -> tuple[dict[str, int], dict[str, int]]:
+        """``[buses.NAME] bitrate = …, data_bitrate = …``: for the bus load in /health."""
+        bitrates: dict[str, int] = {}
+        data_bitrates: dict[str, int] = {}
+        for bus, spec in self.section(value, "buses").items():
+            key = f"buses.{bus}"
+            t = self.table(spec, key, {"bitrate", "data_bitrate"}, required=["bitrate"])
+            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True))
+            if "data_bitrate" in t:
+                data_bitrates[bus] = round(self.number(t, key, "data_bitrate", positive=True))
+        return bitrates, data_bitrates
+
+    def vehicle(self, value: Any) -> Vehicle:
+        t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",
+                                          "height"})
+        d = Vehicle()
+        return Vehicle(
+            self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True),
+            self.number(t, "vehicle", "steering_ratio", d.steering_ratio, positive=True),
+            self.number(t, "vehicle", "length", d.length_m, positive=True),
+            self.number(t, "vehicle", "width", d.width_m, positive=True),
+            self.number(t, "vehicle", "height", d.height_m, positive=True),
+        )
+
+    def sensor(self, name: str, value: Any) -> Sensor:
+        key = f"sensors.{name}"
+        t = self.table(value, key, {"kind", "mount", "lateral", "coordinates", "angle_unit",
+                                    "distance_scale", "fov"}, required=["kind"])
+        kind = SensorKind(self.string(t, key, "kind", choices=[k.value for k in SensorKind]))
+        mount_doc = self.table(t.get("mount", {}), f"{key}.mount", {"x", "y", "z", "yaw"})
+        mount = Mount(*(self.number(mount_doc, f"{key}.mount", axis, 0.0)
+                        for axis in ("x", "y", "z", "yaw")))
+        fov_doc = self.table(t.get("fov", {}), f"{key}.fov", {"range", "azimuth"})
+        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True)
+                     if "range" in fov_doc else None)
+        fov_azimuth = (self.number(fov_doc, f"{key}.fov", "azimuth", positive=True)
+                       if "azimuth" in fov_doc else None)
+        if fov_azimuth is not None and fov_azimuth > 180:
+            raise self.fail(f"{key}.fov.azimuth",
+                            f"is a half angle: at most 180, got {fov_azimuth}")
+        return Sensor(
+            name, kind, mount,
+            self.string(t, key, "lateral", "left", ["left", "right"]),
+            self.string(t, key, "coordinates", "cartesian", ["cartesian", "polar"]),
+            self.string(t, key, "angle_unit", "deg", ["deg", "rad"]),
+            self.number(t, key, "distance_scale", 1.0, positive=True),
+            fov_range, fov_azimuth,
+        )
+
+    def sensor_of(self, t: Mapping[str, Any], key: str, sensors: Mapping[str, Sensor]) -> Sensor:
+        name = self.string(t, key, "sensor")
+        if name not in sensors:
+            raise self.fail(f"{key}.sensor", f"no sensor {name!r} in [sensors]"
+                            f"{_closest(name, sensors, or_all=True)}")
+        return sensors[name]
+
+    def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
+              *, lifetime: float = 0.1) -> ObjectGroup:
+        fields = {"x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id"}
+        t = self.table(value, key, {"sensor", "messages", "index", "classes", "valid",
+                                    "lifetime"} | fields, required=["sensor", "messages"])
+        sensor = self.sensor_of(t, key, sensors)
+        templates = t["messages"]
+        if isinstance(templates, str):
+            templates = [templates]
+        if (not isinstance(templates, list) or not templates
+                or not all(isinstance(m, str) and m for m in templates)):
+            raise self.fail(f"{key}.messages", "expected a non-empty list of message names "
+                            "(templates with {i} for an indexed family)")
+        for n, template in enumerate(templates):
+            if template in templates[:n]:
+                raise self.fail(f"{key}.messages", f"{template!r} is named twice")
+        members: dict[str, FamilyMember] = {}
+        #: the messages of each object (index), in template order
+        instances: dict[int | None, list[DbcMessage]] = {}
+        if "index" in t:
+            index = t["index"]
+            if (not isinstance(index, list) or len(index) != 2
+                    or not all(isinstance(i, int) and not isinstance(i, bool) for i in index)):
+                raise self.fail(f"{key}.index", "expected [first, last] object indices, e.g. "
+                                "[0, 31]")
+            first, last = index
+            if first < 0:
+                raise self.fail(f"{key}.index", f"indices cannot be negative, got "
+                                f"[{first}, {last}]")
+            if last < first:
+                raise self.fail(f"{key}.index", f"empty family: [{first}, {last}]")
+            for template in templates:
+                wide = re.search(r"\{i:0?(\d{3,})d\}", template)
+                if wide:
+                    raise self.fail(f"{key}.messages", f"{template!r}: the width of {{i:0Nd}} is "
+                                    f"at most 2 digits, got {wide.group(1)}")
+                if not _INDEX.search(template):
+                    raise self.fail(f"{key}.messages", f"{template!r} has no {{i}} for the index")
+                for i in range(first, last + 1):
+                    m = self.message(expand(template, i), f"{key}.messages")
+                    members[m.name] = FamilyMember(template, i)
+                    instances.setdefault(i, []).append(m)
+        else:
+            if "id" not in t:
+                raise self.fail(key, "without 'index' each frame carries one object: name the "
+                                "signal that says which with 'id'")
+            if len(templates) != 1:
+                raise self.fail(f"{key}.messages", "without 'index' the family is one message "
+                                "carrying one object per frame")
+            if _INDEX.search(templates[0]):
+                raise self.fail(f"{key}.messages", f"{templates[0]!r} has {{i}} but there is no "
+                                "'index' range")
+            m = self.message(templates[0], f"{key}.messages")
+            members[m.name] = FamilyMember(templates[0], None)
+            instances[None] = [m]
+
+        def ref(name: str) -> SignalRef | None:
+            """A signal of every object of the family ({i} in names is each object's index)."""
+            if name not in t:
+                return None
+            value = t[name]
+            text = value.get("signal") if isinstance(value, dict) else value
+            found: SignalRef | None = None
+            for i, messages in instances.items():
+                filled = value
+                if i is not None and isinstance(value, str):
+                    filled = expand(value, i)
+                elif i is not None and isinstance(value, dict) and isinstance(text, str):
+                    filled = {**value, "signal": expand(text, i)}
+                r = self.signal(filled, f"{key}.{name}", messages)
+                found = found or r
+            assert found is not None and isinstance(text, str)
+            # Kept as templates: each object reads its own message and signal.
+            return SignalRef(members[found.message].template, text.rpartition(".")[2],
+                             found.scale, found.offset)
+
+        if sensor.coordinates == "polar":
+            if "x" in t or "y" in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is polar: use range and azimuth, "
+                                "not x and y")
+            if "range" not in t or "azimuth" not in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is polar: name 'range' and "
+                                "'azimuth'")
+        else:
+            if "range" in t or "azimuth" in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is cartesian: use x and y (or set "
+                                "coordinates = \"polar\" on the sensor)")
+            if "x" not in t or "y" not in t:
+                raise self.fail(key, f"sensor {sensor.name!r} is cartesian: name 'x' and 'y'")
+        classes: dict[int, ObjectClass] = {}
+        if "classes" in t:
+            if "class" not in t:
+                raise self.fail(f"{key}.classes", "given without a 'class' signal")
+            table = self.section(t["classes"], f"{key}.classes")
+            for raw, label in table.items():
+                if not isinstance(label, str):
+                    raise self.fail(f"{key}.classes.{raw}", f"expected a class name (string), "
+                                    f"got {_type_name(label)}")
+                if not re.fullmatch(r"-?\d+", raw):
+                    raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
+                                    "(integers)")
+                if label not in _CLASS_NAMES:
+                    raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
+                                    f"{', '.join(_CLASS_NAMES)}")
+                classes[int(raw)] = _CLASS_NAMES[label]
+        rules: dict[int | None, Rule] = {}  # per object: a rule may name signals with {i}
+        for object_index, messages in instances.items():
+            rule = self.rule(t, key, messages, object_index)
+            if rule is not None:
+                rules[object_index] = rule
+        return ObjectGroup(
+            name, sensor, tuple(templates), members,
+            ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
+            ref("probability"), ref("class"), classes, ref("id"), rules,
+            self.number(t, key, "lifetime", lifetime, non_negative=True),
+        )
+
+    def lead(self, value: Any, sensors: Mapping[str, Sensor]) -> LeadSpec:
+        key = "lead"
+        if isinstance(value, dict) and "source" in value:
+            self.string(value, key, "source", choices=["message", "tracks"])
+        if isinstance(value, dict) and value.get("source") == "tracks":
+            t = self.table(value, key, {"source", "lifetime"})
+            return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3,
+                                                        non_negative=True))
+        if isinstance(value, dict):
+            value = {k: v for k, v in value.items() if k != "source"}
+        group = self.group(key, "lead", value, sensors, lifetime=0.3)
+        return LeadSpec("message", group, group.lifetime_s)
+
+    def lanes(self, value: Any, sensors: Mapping[str, Sensor]) -> LaneSpec:
+        key = "lanes"
+        t = self.table(value, key, {"sensor", "stale_after", "length", "fallback", *_LANE_NAMES},
+                       required=["sensor"])
+        sensor = self.sensor_of(t, key, sensors)
+        lines = {}
+        for name in _LANE_NAMES:
+            if name not in t:
+                continue
+            lk = f"{key}.{name}"
+            lt = self.table(t[name], lk, {"message", "c0", "c1", "c2", "c3", "valid"},
+                            required=["message", "c0"])
+            message = self.message(self.string(lt, lk, "message"), f"{lk}.message")
+
+            def coefficient(c: str, lt: dict[str, Any] = lt, lk: str = lk,
+                            message: DbcMessage = message) -> SignalRef | None:
+                return self.signal(lt[c], f"{lk}.{c}", [message]) if c in lt else None
+
+            c0 = coefficient("c0")
+            assert c0 is not None
+            lines[name] = LaneLine(name, message.name, c0, coefficient("c1"), coefficient("c2"),
+                                   coefficient("c3"),
+                                   self.rule(lt, lk, [message]))
+        if "left" not in lines or "right" not in lines:
+            raise self.fail(key, "needs at least [lanes.left] and [lanes.right]")
+        fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
+        return LaneSpec(
+            sensor, lines,
+            self.number(t, key, "stale_after", 0.5, positive=True),
+            self.number(t, key, "length", 100.0, positive=True),
+            self.number(fallback, f"{key}.fallback", "left", 1.8),
+            self.number(fallback, f"{key}.fallback", "right", -1.8),
+        )
+
+    def ego(self, value: Any) -> EgoSpec:
+        t = self.table(value, "ego", {"speed", "yaw_rate", "steering_wheel_angle"})
+
+        def ref(name: str) -> SignalRef | None:
+            if name not in t:
+                return None
+            raw, key = t[name], f"ego.{name}"
+            text = raw
+            if isinstance(raw, dict):
+                text = self.table(raw, key, {"signal", "scale", "offset"},
+                                  required=["signal"])["signal"]
+                key = f"{key}.signal"
+            if not isinstance(text, str):
+                raise self.fail(key, f"expected Message.Signal, got {_type_name(text)}")
+            message_name, _, signal_name = text.rpartition(".")
+            if not message_name or not signal_name:
+                raise self.fail(key, f"write Message.Signal, got {text!r}")
+            return self.signal(raw, f"ego.{name}", [self.message(message_name, key)])
+
+        return EgoSpec(ref("speed"), ref("yaw_rate"), ref("steering_wheel_angle"))
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, int | float):
+        return f"a number ({value})"
+    if isinstance(value, str):
+        return f"a string ({value!r})"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a table"
+    return type(value).__name__
