@@ -1,19 +1,22 @@
-"""Health: sensor and CAN bus diagnostics, computed in log time for live, convert and replay alike.
+"""The health monitor: sensor and CAN bus diagnostics, computed in log time for live, convert and
+replay alike.
 
 The seed's team found a radar knocked out of alignment only because the blue spheres were missing;
 :class:`HealthMonitor` says so itself. It watches
 
 - every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
-  included, over the bitrate; no bitrate, no load), error frames, unknown ids, decode errors,
-  gaps (no traffic for longer than ``gap_factor`` x the bus's shortest cycle time), and the
-  busiest id (babbling);
+  included, :func:`bridge.health.wire.frame_bits`, over the bitrate, the data phase of CAN FD
+  frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
+  but no data bitrate), error frames, unknown ids, decode errors, gaps (no traffic for longer
+  than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
 - every message family of the profile (object groups such as radar, camera and tracks; the lead
   vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
   ``GenMsgCycleTime``, or learned over the first seconds), actual rate, age of the newest frame,
   valid objects;
 
 and raises alarms with hysteresis (a condition must hold for ``raise_after_s`` to raise an alarm,
-and be gone for ``clear_after_s`` to clear it):
+and be gone for ``clear_after_s`` to clear it: :class:`bridge.health.alarms.Alarm`; thresholds
+and times are :class:`bridge.health.alarms.HealthSettings`):
 
 =========================  ===================================================================
 ``<sensor>.silent``        no frame of one of the sensor's families for ``gap_factor`` x its
@@ -39,34 +42,31 @@ is.
 Time is log time (frame timestamps) throughout: :meth:`HealthMonitor.advance` evaluates on a grid
 of ``eval_hz`` ticks, catching up the ticks of a gap in the log (so a bus that went silent raises
 its alarm at the right log time even in a conversion, where nothing arrives during the gap). It
-returns ``/health`` (:data:`HEALTH_TOPIC`, ``tankviz.Health``) at ``publish_hz`` and
-``foxglove.Log`` messages on ``/log`` when an alarm is raised or cleared.
+returns ``/health`` (:data:`~bridge.topics.HEALTH_TOPIC`, ``tankviz.Health``) at ``publish_hz``
+and ``foxglove.Log`` messages on ``/log`` when an alarm is raised or cleared.
 
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations
 and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonitor.on_world`).
+:meth:`HealthMonitor.active_alarms` gives the active alarms to the scene overlay
+(:mod:`bridge.health.overlay`).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections import Counter, deque
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields
-from enum import Enum
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
-from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.Log_pb2 import Log
-from foxglove_schemas_protobuf.Point3_pb2 import Point3
-from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
-from bridge.errors import UsageError
-from bridge.frame import NS, Frame
+from bridge.frame import NS, Frame, timestamp
+from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings
+from bridge.health.wire import frame_bits
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile, Sensor, SensorKind
-from bridge.scene.entities import RGBA, color, entity, pose, text, timestamp
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import LEAD_GROUP, ObjectObservation
@@ -74,345 +74,6 @@ from bridge.world.observe import LEAD_GROUP, ObjectObservation
 _NEVER = -(1 << 62)  # a time before everything
 _UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
 _EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
-
-# ---------------------------------------------------------------------------------------------
-# Bits on the wire
-# ---------------------------------------------------------------------------------------------
-
-#: An error frame: error flag (6), the other nodes' error flags (up to 6), delimiter (8), IFS (3).
-ERROR_FRAME_BITS = 23
-#: After the CRC, at the nominal bitrate: CRC delimiter, ACK slot, ACK delimiter, EOF (7), IFS (3).
-_TAIL_BITS = 13
-#: Expected stuff bits in the 15 CRC bits of a classic frame: random bits get one stuff bit in
-#: about 30 (a Markov chain over the run length: P(run of 4 continues) = (1/8) / 1.875 / 2).
-_CRC15_STUFF = 15 / 30
-#: CAN FD payload lengths; a payload between two is padded up to the next with this byte.
-_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
-_FD_PADDING = 0xCC
-
-
-def _fd_length(n: int) -> tuple[int, int]:
-    """The DLC code and the length on the wire of an ``n``-byte CAN FD payload."""
-    for code, length in enumerate(_FD_LENGTHS):
-        if n <= length:
-            return code, length
-    return 15, 64
-
-
-def _stuff(value: int, nbits: int, state: int) -> tuple[int, int]:
-    """Stuff bits inserted into ``nbits`` bits of ``value`` (MSB first), and the state after.
-
-    The state is ``polarity * 4 + (run - 1)``: the wire's last bit and how many equal bits end
-    the wire (1-4; at 5 a complementary stuff bit is inserted, which starts a run of 1 itself).
-    """
-    polarity, run = state >> 2, (state & 3) + 1
-    stuffed = 0
-    for i in range(nbits - 1, -1, -1):
-        bit = (value >> i) & 1
-        if bit == polarity:
-            run += 1
-        else:
-            polarity, run = bit, 1
-        if run == 5:
-            stuffed += 1
-            polarity, run = polarity ^ 1, 1
-    return stuffed, polarity * 4 + run - 1
-
-
-#: The state before SOF: any run of recessive bits (SOF, dominant, always starts a new run).
-_IDLE = 4
-#: Per (state, byte): stuff bits << 3 | state after, for the data field.
-_STUFF_TABLE = [0] * (8 * 256)
-for _state in range(8):
-    for _byte in range(256):
-        _n, _after = _stuff(_byte, 8, _state)
-        _STUFF_TABLE[_byte << 3 | _state] = _n << 3 | _after
-
-
-class _Header:
-    """What comes before the data of one kind of frame: its bits (stuff bits included) in the
-    arbitration phase and in the data phase (CAN FD with bit rate switch), the stuffing state
-    after it, and the bits after the data in both phases."""
-
-    __slots__ = ("arbitration", "data_phase", "length", "padding", "recent", "state",
-                 "tail_arbitration", "tail_data")
-
-    def __init__(self, arbitration_id: int, extended: bool, fd: bool, remote: bool,
-                 brs: bool, esi: bool, n: int) -> None:
-        fields_: list[tuple[int, int]] = [(0, 1)]  # SOF
-        if extended:  # base id, SRR, IDE, id extension
-            fields_ += [(arbitration_id >> 18 & 0x7FF, 11), (1, 1), (1, 1),
-                        (arbitration_id & 0x3FFFF, 18)]
-        else:
-            fields_.append((arbitration_id & 0x7FF, 11))
-        data_fields: list[tuple[int, int]] = []
-        if fd:
-            code, self.length = _fd_length(n)
-            fields_.append((0, 1))  # RRS
-            if not extended:
-                fields_.append((0, 1))  # IDE
-            fields_ += [(1, 1), (0, 1)]  # FDF, res
-            tail = [(esi, 1), (code, 4)]
-            if brs:
-                fields_.append((1, 1))
-                data_fields = tail
-            else:
-                fields_ += [(0, 1), *tail]
-            crc = 17 if self.length <= 16 else 21
-            # stuff count (3 bits + parity), CRC, a fixed stuff bit before and every 4 bits
-            crc_bits = 4 + crc + (4 + crc + 3) // 4
-        else:
-            self.length = 0 if remote else min(n, 8)
-            code = min(n, 15) if remote else self.length
-            fields_.append((int(remote), 1))  # RTR
-            fields_ += [(0, 1), (0, 1)]  # IDE and r0, or r1 and r0 (extended)
-            fields_.append((code, 4))
-            crc_bits = 0
-        state = _IDLE
-        self.arbitration = 0.0
-        for value, nbits in fields_:
-            stuffed, state = _stuff(value, nbits, state)
-            self.arbitration += nbits + stuffed
-        self.data_phase = 0.0
-        for value, nbits in data_fields:
-            stuffed, state = _stuff(value, nbits, state)
-            self.data_phase += nbits + stuffed
-        self.state = state
-        self.padding = max(0, self.length - n)
-        #: the bits of recent payloads (counters and signals repeat: most payloads come back)
-        self.recent: dict[bytes, tuple[float, float]] = {}
-        if fd:
-            self.tail_data, self.tail_arbitration = float(crc_bits), float(_TAIL_BITS)
-        else:
-            self.tail_data, self.tail_arbitration = 0.0, 15 + _CRC15_STUFF + _TAIL_BITS
-        if fd and not brs:  # everything at the nominal bitrate
-            self.arbitration += self.data_phase
-            self.data_phase = 0.0
-            self.tail_arbitration += self.tail_data
-            self.tail_data = 0.0
-
-
-_HEADERS: dict[tuple[int, bool, bool, bool, bool, bool, int], _Header] = {}
-
-
-def frame_bits(frame: Frame) -> tuple[float, float]:
-    """The frame's bits on the wire: ``(arbitration phase, data phase)``.
-
-    Every field from SOF to the end of the interframe space counts, with the stuff bits: exact
-    for everything up to the end of the data field, and the expected 0.5 stuff bits for the
-    15-bit CRC of a classic frame (CAN FD's CRC field has fixed stuff bits: exact). The data
-    phase, sent at the data bitrate, is from the bit rate switch (BRS) to the CRC delimiter of a
-    CAN FD frame with BRS; it is 0 for every other frame. A CAN FD payload between two lengths is
-    padded to the next (with 0xCC); an error frame counts :data:`ERROR_FRAME_BITS`.
-    """
-    _, _, arbitration_id, data, extended, fd, error, remote, brs, esi, dlc = frame
-    if error:
-        return float(ERROR_FRAME_BITS), 0.0
-    n = len(data)
-    key = (arbitration_id, extended, fd, remote, brs, esi, dlc if remote else n)
-    header = _HEADERS.get(key)
-    if header is None:
-        if len(_HEADERS) > 65536:
-            _HEADERS.clear()
-        header = _HEADERS[key] = _Header(*key)
-    bits = header.recent.get(data)
-    if bits is None:
-        bits = _bits(header, data, n)
-        if len(header.recent) >= _RECENT_PAYLOADS:
-            header.recent.clear()
-        header.recent[data] = bits
-    return bits
-
-
-#: Payloads remembered per kind of frame by :func:`frame_bits`.
-_RECENT_PAYLOADS = 256
-
-
-def _bits(header: _Header, data: bytes, n: int) -> tuple[float, float]:
-    state = header.state
-    stuffed = 0
-    table = _STUFF_TABLE
-    for byte in data if n == header.length else data[:header.length]:
-        entry = table[byte << 3 | state]
-        stuffed += entry >> 3
-        state = entry & 7
-    for _ in range(header.padding):
-        entry = table[_FD_PADDING << 3 | state]
-        stuffed += entry >> 3
-        state = entry & 7
-    payload = 8 * header.length + stuffed
-    if header.data_phase:
-        return (header.arbitration + header.tail_arbitration,
-                header.data_phase + payload + header.tail_data)
-    return header.arbitration + payload + header.tail_arbitration, 0.0
-
-
-def estimate_frame_bits(frame: Frame, *, bitrate: int | None = None,
-                        data_bitrate: int | None = None) -> float:
-    """Estimated bits one frame takes on the wire, stuff bits included (see :func:`frame_bits`).
-
-    In nominal bit times: given both bitrates, each data-phase bit of a CAN FD frame with bit
-    rate switch counts ``bitrate / data_bitrate``; otherwise every bit counts 1 (the plain
-    number of bits on the wire).
-    """
-    arbitration, data_phase = frame_bits(frame)
-    if data_phase and bitrate and data_bitrate:
-        return arbitration + data_phase * bitrate / data_bitrate
-    return arbitration + data_phase
-
-
-# ---------------------------------------------------------------------------------------------
-# Settings and alarms
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class HealthSettings:
-    """Thresholds and timing of the health checks (every time in seconds of log time)."""
-
-    #: Rates and counts are over this window.
-    window_s: float = 1.0
-    #: /health messages per second (1-2 Hz is plenty to plot).
-    publish_hz: float = 1.0
-    #: Checks per second (alarms are raised and cleared on this grid).
-    eval_hz: float = 10.0
-    #: A condition raises its alarm once it has held this long ...
-    raise_after_s: float = 1.0
-    #: ... and clears it once it has been gone this long.
-    clear_after_s: float = 2.0
-    #: A family below this fraction of its expected rate is too slow ...
-    rate_threshold: float = 0.5
-    #: ... measured over this window (or five of the family's cycles, if longer): shorter than
-    #: ``window_s`` so that a slow sensor is caught within two seconds.
-    rate_window_s: float = 0.5
-    #: No frame for this many expected periods is a gap (a silent sensor or bus).
-    gap_factor: float = 5.0
-    #: Families (and buses) without a cycle time in the databases learn their rate over this
-    #: long after their first frame; families never seen are silent after this long.
-    learning_s: float = 3.0
-    #: Radar-camera association: nearest neighbours at most this far apart (m) ...
-    bias_gate_m: float = 2.5
-    #: ... at least this far from the first sensor (near objects make wild angles) ...
-    bias_min_range_m: float = 10.0
-    #: ... over this window: a mean lateral offset beyond this (m) ...
-    bias_lateral_m: float = 1.0
-    #: ... or a mean angular offset beyond this (degrees) means a misaligned sensor ...
-    bias_angle_deg: float = 1.5
-    #: ... once at least this many pairs were matched in the window.
-    bias_min_matches: int = 8
-    bias_window_s: float = 0.5
-    #: Camera lanes lost (steering fallback) this long raise ``lanes.lost``.
-    lane_loss_s: float = 1.0
-    #: Babbling: an id at more than this many times its database rate ...
-    babble_factor: float = 10.0
-    #: ... or, without a cycle time, more than this share of its bus's frames ...
-    babble_share: float = 0.5
-    #: ... and at least this many frames per second.
-    babble_min_hz: float = 200.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise UsageError(f"health setting {f.name}={value!r}: must be a positive number")
-        if self.rate_threshold >= 1 or self.babble_share > 1:
-            raise UsageError("health settings: rate_threshold must be below 1 and "
-                             "babble_share at most 1")
-
-
-class AlarmKind(str, Enum):
-    """What an alarm is about; the value is the last part of its id."""
-
-    SENSOR_SILENT = "silent"
-    RATE_LOW = "rate"
-    NO_OBJECTS = "blind"
-    MISALIGNED = "misaligned"
-    LANES_LOST = "lost"
-    BUS_SILENT = "bus_silent"
-    BABBLING = "babbling"
-
-
-_PB_KINDS = {
-    AlarmKind.SENSOR_SILENT: health_pb2.ALARM_KIND_SENSOR_SILENT,
-    AlarmKind.RATE_LOW: health_pb2.ALARM_KIND_RATE_LOW,
-    AlarmKind.NO_OBJECTS: health_pb2.ALARM_KIND_NO_OBJECTS,
-    AlarmKind.MISALIGNED: health_pb2.ALARM_KIND_MISALIGNED,
-    AlarmKind.LANES_LOST: health_pb2.ALARM_KIND_LANES_LOST,
-    AlarmKind.BUS_SILENT: health_pb2.ALARM_KIND_BUS_SILENT,
-    AlarmKind.BABBLING: health_pb2.ALARM_KIND_BABBLING,
-}
-
-
-@dataclass(frozen=True)
-class AlarmInfo:
-    """An active alarm, for the scene overlay."""
-
-    id: str
-    kind: AlarmKind
-    #: the sensor, sensor pair, "lanes" or bus it is about
-    subject: str
-    message: str
-    #: log time it was raised
-    since_ns: int
-    #: the profile sensors it concerns (their field-of-view outlines turn red)
-    sensors: tuple[str, ...]
-
-
-class _Alarm:
-    """One alarm and its hysteresis."""
-
-    def __init__(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
-                 raise_ns: int, clear_ns: int) -> None:
-        self.id = alarm_id
-        self.kind = kind
-        self.subject = subject
-        self.sensors = tuple(sensors)
-        self.raise_ns = raise_ns
-        self.clear_ns = clear_ns
-        self.active = False
-        self.since_ns: int | None = None
-        self.holding_since: int | None = None
-        self.gone_since: int | None = None
-        self.message = ""
-        self.raised = 0
-
-    def update(self, t_ns: int, holds: bool, message: str = "") -> str | None:
-        """Feed the condition at ``t_ns``; returns "raised" or "cleared" when that happens."""
-        if holds:
-            self.gone_since = None
-            self.message = message
-            if self.holding_since is None:
-                self.holding_since = t_ns
-            if not self.active and t_ns - self.holding_since >= self.raise_ns:
-                self.active, self.since_ns = True, t_ns
-                self.raised += 1
-                return "raised"
-            return None
-        self.holding_since = None
-        if self.active:
-            if self.gone_since is None:
-                self.gone_since = t_ns
-            if t_ns - self.gone_since >= self.clear_ns:
-                self.active, self.since_ns = False, t_ns
-                return "cleared"
-        return None
-
-    def info(self) -> AlarmInfo:
-        return AlarmInfo(self.id, self.kind, self.subject, self.message, self.since_ns or 0,
-                         self.sensors)
-
-    def to_pb(self) -> health_pb2.Alarm:
-        msg = health_pb2.Alarm(id=self.id, kind=_PB_KINDS[self.kind], subject=self.subject,
-                               message=self.message, active=self.active,
-                               raised_count=self.raised)
-        if self.since_ns is not None:
-            msg.since.CopyFrom(timestamp(self.since_ns))
-        return msg
-
-
-# ---------------------------------------------------------------------------------------------
-# What is watched
-# ---------------------------------------------------------------------------------------------
 
 
 class _Bus:
@@ -555,7 +216,7 @@ class HealthMonitor:
             p.name: (0, 0.0, 0.0) for p in self._pairs}
         self._lane_source: str | None = None
         self._world_ns: int | None = None
-        self._alarms: dict[str, _Alarm] = {}
+        self._alarms: dict[str, Alarm] = {}
         #: the busiest id of each bus in the last window
         self._top_keys: dict[str, int] = {}
         for family in self.families:
@@ -622,10 +283,10 @@ class HealthMonitor:
                 and family.sensor.kind is not SensorKind.FUSION and _has_fov(family.sensor))
 
     def _alarm(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
-               raise_ns: int | None = None) -> _Alarm:
+               raise_ns: int | None = None) -> Alarm:
         alarm = self._alarms.get(alarm_id)
         if alarm is None:
-            alarm = self._alarms[alarm_id] = _Alarm(
+            alarm = self._alarms[alarm_id] = Alarm(
                 alarm_id, kind, subject, sensors,
                 self._raise_ns if raise_ns is None else raise_ns, self._clear_ns)
         return alarm
@@ -920,7 +581,7 @@ class HealthMonitor:
                 else (0, 0.0, 0.0))
 
     def _check(self, t_ns: int, buses: Mapping[str, health_pb2.BusHealth],
-               families: Mapping[str, health_pb2.FamilyHealth]) -> list[tuple[_Alarm, str]]:
+               families: Mapping[str, health_pb2.FamilyHealth]) -> list[tuple[Alarm, str]]:
         s = self.settings
         conditions: dict[str, list[str]] = {}  # alarm id -> why (empty: does not hold)
 
@@ -1009,7 +670,7 @@ class HealthMonitor:
                 self.events.append((alarm.id, event, t_ns, alarm.message))
         return events
 
-    def _log(self, alarm: _Alarm, event: str, t_ns: int) -> Log:
+    def _log(self, alarm: Alarm, event: str, t_ns: int) -> Log:
         if event == "raised":
             level, words = Log.WARNING, f"ALARM {alarm.id}: {alarm.message}"
         else:
@@ -1078,78 +739,4 @@ def associate(a_objects: Iterable[ObjectObservation], b_objects: Iterable[Object
         (ax, ay), (bx, by) = a_points[i], b_points[j]
         angle = math.degrees(math.atan2(ay - my, ax - mx) - math.atan2(by - my, bx - mx))
         out.append((ay - by, (angle + 180.0) % 360.0 - 180.0))
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# The scene: alarm overlay and field-of-view outlines
-# ---------------------------------------------------------------------------------------------
-
-ALARM_COLOR: RGBA = (1.0, 0.15, 0.1, 1.0)  # signal red
-FOV_COLOR: RGBA = (0.75, 0.75, 0.75, 0.25)  # dim grey
-FOV_ALARM_COLOR: RGBA = (1.0, 0.1, 0.1, 0.9)
-ALARM_FONT_SIZE = 18.0
-FOV_THICKNESS = 0.05  # m
-FOV_ALARM_THICKNESS = 0.15
-
-
-def alarm_entities(alarms: Sequence[AlarmInfo], t_ns: int, *, x: float = 0.0, y: float = 0.0,
-                   z: float = 3.0, lifetime_s: float = 0.0) -> list[SceneEntity]:
-    """A red text above the ego listing the active alarms (nothing when there are none)."""
-    if not alarms:
-        return []
-    e = entity(t_ns, "health-alarms", lifetime_s)
-    lines = [f"HEALTH: {len(alarms)} ALARM{'S' if len(alarms) > 1 else ''}"]
-    lines += [f"{a.id}: {a.message}" for a in alarms]
-    label = text(x, y, z, "\n".join(lines))
-    label.font_size = ALARM_FONT_SIZE
-    label.color.CopyFrom(color(ALARM_COLOR))
-    e.texts.append(label)
-    e.metadata.add(key="alarms", value=",".join(a.id for a in alarms))
-    return [e]
-
-
-@functools.lru_cache(maxsize=64)
-def _fov_outline(sensor: Sensor, alarmed: bool, arc_points: int) -> LinePrimitive:
-    """A sensor's field of view on the ground (made once: the scene draws it at every tick)."""
-    assert sensor.fov_range is not None and sensor.fov_azimuth_deg is not None
-    half = math.radians(sensor.fov_azimuth_deg)
-    yaw = math.radians(sensor.mount.yaw_deg)
-    mx, my, r = sensor.mount.x, sensor.mount.y, sensor.fov_range
-    points = [(mx, my)]
-    for k in range(arc_points + 1):
-        angle = yaw - half + 2 * half * k / arc_points
-        points.append((mx + r * math.cos(angle), my + r * math.sin(angle)))
-    points.append((mx, my))
-    return LinePrimitive(
-        type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
-        thickness=FOV_ALARM_THICKNESS if alarmed else FOV_THICKNESS, scale_invariant=False,
-        color=color(FOV_ALARM_COLOR if alarmed else FOV_COLOR),
-        points=[Point3(x=px, y=py, z=0.03) for px, py in points])
-
-
-def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
-                 lifetime_s: float = 0.0, arc_points: int = 24) -> list[SceneEntity]:
-    """Each sensor's field of view (from the profile) as an outline on the ground: dim when
-    healthy, red and labelled when an active alarm concerns the sensor."""
-    alarmed: dict[str, list[str]] = {}
-    for a in alarms:
-        for name in a.sensors:
-            alarmed.setdefault(name, []).append(a.id)
-    out = []
-    for sensor in profile.sensors.values():
-        if sensor.fov_range is None or sensor.fov_azimuth_deg is None:
-            continue
-        ids = alarmed.get(sensor.name)
-        e = entity(t_ns, f"fov-{sensor.name}", lifetime_s)
-        e.lines.add().CopyFrom(_fov_outline(sensor, bool(ids), arc_points))
-        if ids:
-            yaw = math.radians(sensor.mount.yaw_deg)
-            mx, my, far = sensor.mount.x, sensor.mount.y, min(sensor.fov_range, 30.0)
-            label = text(mx + far * math.cos(yaw), my + far * math.sin(yaw), 1.5,
-                         f"{sensor.name}: {', '.join(ids)}")
-            label.color.CopyFrom(color(ALARM_COLOR))
-            e.texts.append(label)
-        e.metadata.add(key="state", value="alarm" if ids else "ok")
-        out.append(e)
     return out

@@ -1,0 +1,97 @@
+"""The health alarms in the scene, drawn with :mod:`bridge.scene.entities` in the vehicle frame.
+
+Both take the active alarms as :class:`~bridge.health.alarms.AlarmInfo` (what
+:meth:`bridge.health.monitor.HealthMonitor.active_alarms` returns), not the monitor:
+
+- :func:`alarm_entities`: a red text above the ego (entity ``health-alarms``) listing the active
+  alarms, ``HEALTH: <n> ALARM(S)`` and then ``<id>: <message>`` for each; nothing when there are
+  none;
+- :func:`fov_entities`: each sensor's field of view from the profile (every sensor with both a
+  range and an azimuth) as an outline on the ground (entity ``fov-<sensor>``): thin and dim grey
+  when healthy, thick, red and labelled with the alarm ids when an active alarm concerns the
+  sensor (:attr:`~bridge.health.alarms.AlarmInfo.sensors`). An outline is made once per sensor,
+  state and number of arc points: the scene draws it at every tick.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+from foxglove_schemas_protobuf.Point3_pb2 import Point3
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+
+from bridge.health.alarms import AlarmInfo
+from bridge.profile.model import Profile, Sensor
+from bridge.scene.entities import RGBA, color, entity, pose, text
+
+ALARM_COLOR: RGBA = (1.0, 0.15, 0.1, 1.0)  # signal red
+FOV_COLOR: RGBA = (0.75, 0.75, 0.75, 0.25)  # dim grey
+FOV_ALARM_COLOR: RGBA = (1.0, 0.1, 0.1, 0.9)
+ALARM_FONT_SIZE = 18.0
+FOV_THICKNESS = 0.05  # m
+FOV_ALARM_THICKNESS = 0.15
+
+
+def alarm_entities(alarms: Sequence[AlarmInfo], t_ns: int, *, x: float = 0.0, y: float = 0.0,
+                   z: float = 3.0, lifetime_s: float = 0.0) -> list[SceneEntity]:
+    """A red text above the ego listing the active alarms (nothing when there are none)."""
+    if not alarms:
+        return []
+    e = entity(t_ns, "health-alarms", lifetime_s)
+    lines = [f"HEALTH: {len(alarms)} ALARM{'S' if len(alarms) > 1 else ''}"]
+    lines += [f"{a.id}: {a.message}" for a in alarms]
+    label = text(x, y, z, "\n".join(lines))
+    label.font_size = ALARM_FONT_SIZE
+    label.color.CopyFrom(color(ALARM_COLOR))
+    e.texts.append(label)
+    e.metadata.add(key="alarms", value=",".join(a.id for a in alarms))
+    return [e]
+
+
+@functools.lru_cache(maxsize=64)
+def _fov_outline(sensor: Sensor, alarmed: bool, arc_points: int) -> LinePrimitive:
+    """A sensor's field of view on the ground (made once: the scene draws it at every tick)."""
+    assert sensor.fov_range is not None and sensor.fov_azimuth_deg is not None
+    half = math.radians(sensor.fov_azimuth_deg)
+    yaw = math.radians(sensor.mount.yaw_deg)
+    mx, my, r = sensor.mount.x, sensor.mount.y, sensor.fov_range
+    points = [(mx, my)]
+    for k in range(arc_points + 1):
+        angle = yaw - half + 2 * half * k / arc_points
+        points.append((mx + r * math.cos(angle), my + r * math.sin(angle)))
+    points.append((mx, my))
+    return LinePrimitive(
+        type=LinePrimitive.LINE_STRIP, pose=pose(0, 0, 0),
+        thickness=FOV_ALARM_THICKNESS if alarmed else FOV_THICKNESS, scale_invariant=False,
+        color=color(FOV_ALARM_COLOR if alarmed else FOV_COLOR),
+        points=[Point3(x=px, y=py, z=0.03) for px, py in points])
+
+
+def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
+                 lifetime_s: float = 0.0, arc_points: int = 24) -> list[SceneEntity]:
+    """Each sensor's field of view (from the profile) as an outline on the ground: dim when
+    healthy, red and labelled when an active alarm concerns the sensor."""
+    alarmed: dict[str, list[str]] = {}
+    for a in alarms:
+        for name in a.sensors:
+            alarmed.setdefault(name, []).append(a.id)
+    out = []
+    for sensor in profile.sensors.values():
+        if sensor.fov_range is None or sensor.fov_azimuth_deg is None:
+            continue
+        ids = alarmed.get(sensor.name)
+        e = entity(t_ns, f"fov-{sensor.name}", lifetime_s)
+        e.lines.add().CopyFrom(_fov_outline(sensor, bool(ids), arc_points))
+        if ids:
+            yaw = math.radians(sensor.mount.yaw_deg)
+            mx, my, far = sensor.mount.x, sensor.mount.y, min(sensor.fov_range, 30.0)
+            label = text(mx + far * math.cos(yaw), my + far * math.sin(yaw), 1.5,
+                         f"{sensor.name}: {', '.join(ids)}")
+            label.color.CopyFrom(color(ALARM_COLOR))
+            e.texts.append(label)
+        e.metadata.add(key="state", value="alarm" if ids else "ok")
+        out.append(e)
+    return out
