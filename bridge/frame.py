@@ -2,13 +2,16 @@
 
 Log time is integer nanoseconds: since the Unix epoch for logs and buses with absolute time, since
 the log's own start otherwise. :data:`NS` is one second of it; :func:`to_ns` converts python-can's
-float seconds (once, at the source); :func:`format_time` prints it for people.
+float seconds (once, at the source); :func:`timestamp` makes it the stamp of a protobuf message,
+and :func:`format_time` prints it for people.
 """
 
 from __future__ import annotations
 
 from datetime import datetime, timezone
 from typing import NamedTuple
+
+from google.protobuf.timestamp_pb2 import Timestamp
 
 #: Nanoseconds per second: the unit of every time in the bridge.
 NS = 1_000_000_000
@@ -17,6 +20,11 @@ NS = 1_000_000_000
 def to_ns(seconds: float) -> int:
     """python-can's float seconds to integer nanoseconds, rounded to the microsecond."""
     return round(seconds * 1_000_000) * 1000
+
+
+def timestamp(t_ns: int) -> Timestamp:
+    """A log time as a protobuf Timestamp (the stamp of every message tankviz makes)."""
+    return Timestamp(seconds=t_ns // NS, nanos=t_ns % NS)
 
 
 def format_time(ns: int) -> str:

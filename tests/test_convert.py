@@ -16,10 +16,11 @@ from conftest import ECOCAR_DBC, T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import build_decoder, convert, record_drive
+from bridge.apps.convert import convert, record_drive
 from bridge.apps.inspect import format_summary, summarize, summarize_file
 from bridge.errors import InputError, OutputError
 from bridge.io.logs import LogSource
+from bridge.pipeline.drive import build_decoder
 
 
 def drive(db: cantools.database.can.Database) -> list[can.Message]:

@@ -3,7 +3,9 @@ recovery, and stays quiet on a clean drive; bus load comes from bit-exact frame 
 
 Every drive goes through the loop the pipeline runs: before each frame the scene ticks that are
 due (their world goes to the monitor's object checks) and the monitor's own checks, then the
-frame is decoded, observed and counted.
+frame is decoded, observed and counted. What the monitor never sees is left out: a scene tick
+brings the world up to date but builds no scene or semantic message, and the ecocar databases and
+profile are loaded once (each drive gets a decoder of its own).
 """
 
 from __future__ import annotations
@@ -17,34 +19,22 @@ from pathlib import Path
 import pytest
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.apps.convert import build_stages
-from bridge.decode.decoder import Decoder
+from bridge.decode.decoder import DatabaseFile, Decoder
 from bridge.errors import UsageError
 from bridge.frame import Frame
-from bridge.health.monitor import (
-    HEALTH_TOPIC,
-    AlarmInfo,
-    AlarmKind,
-    HealthMonitor,
-    HealthSettings,
-    alarm_entities,
-    estimate_frame_bits,
-    fov_entities,
-    frame_bits,
-)
+from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings
+from bridge.health.monitor import HealthMonitor
+from bridge.health.overlay import alarm_entities, fov_entities
+from bridge.health.wire import estimate_frame_bits, frame_bits
 from bridge.pb.health_pb2 import Health
+from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
 from bridge.resources import data_dir
-from bridge.sim.drive import (
-    DEFAULT_START_NS,
-    FAULT_ONSET_S,
-    FAULT_RECOVERY_S,
-    SCENARIOS,
-    load_ecocar,
-    simulate,
-)
-from bridge.topics import LOG_TOPIC, TopicMessage
+from bridge.sim.drive import simulate
+from bridge.sim.frames import load_ecocar
+from bridge.sim.scenario import DEFAULT_START_NS, FAULT_ONSET_S, FAULT_RECOVERY_S, SCENARIOS
+from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 
 NS = 1_000_000_000
 BITRATE = 1_000_000
@@ -70,19 +60,32 @@ class Drive:
         return next(h for t, h in self.health() if t >= seconds)
 
 
+class HealthPerception(Perception):
+    """The perception stage as far as the health checks look: each scene tick brings the world up
+    to the tick as :meth:`Perception.tick` does (:meth:`Perception.update_world`) and hands it
+    to the monitor as the pipeline does, but builds none of the scene and semantic messages,
+    which the monitor never sees (they were half the time of a tick)."""
+
+    def __init__(self, profile: Profile, monitor: HealthMonitor) -> None:
+        super().__init__(profile)
+        self.monitor = monitor
+
+    def tick(self, t_ns: int) -> list[TopicMessage]:
+        self.monitor.on_world(t_ns, self.world, self.update_world(t_ns))
+        return []
+
+
 def run(frames: Iterable[Frame], decoder: Decoder, profile: Profile | None, *,
         bitrates: dict[str, int] | None = None,
         data_bitrates: dict[str, int] | None = None) -> Drive:
-    perception = Perception(profile) if profile is not None else None
     monitor = HealthMonitor(profile, decoder, bitrates=bitrates, data_bitrates=data_bitrates)
+    perception = HealthPerception(profile, monitor) if profile is not None else None
     outputs: list[TopicMessage] = []
     last = 0
     for frame in frames:
         t = frame.timestamp_ns
         if perception is not None:
-            scene = perception.advance(t)
-            if scene:
-                monitor.on_world(scene[0].t_ns, perception.world)
+            perception.advance(t)
         outputs += monitor.advance(t)
         decoded = decoder.decode(frame)
         if decoded is not None and perception is not None:
@@ -94,11 +97,23 @@ def run(frames: Iterable[Frame], decoder: Decoder, profile: Profile | None, *,
 
 
 @functools.cache
+def ecocar() -> tuple[dict[str | None, list[DatabaseFile]], Profile]:
+    """The ecocar databases by bus (None: every bus) and profile, loaded once."""
+    decoder, profile = load_stages([], "ecocar")
+    assert profile is not None
+    databases: dict[str | None, list[DatabaseFile]] = {}
+    for f in decoder.files:
+        for bus in decoder.buses_for(f):
+            databases.setdefault(None if bus == "*" else bus, []).append(f)
+    return databases, profile
+
+
+@functools.cache
 def drive(scenario: str) -> Drive:
     """A simulated scenario of its own length, ecocar profile, a 1 Mbit/s bus (2 Mbit/s FD)."""
-    decoder, profile = build_stages([], "ecocar")
+    databases, profile = ecocar()
     frames = simulate(duration_s=SCENARIOS[scenario].duration_s, scenario=scenario)
-    return run(frames, decoder, profile, bitrates={"can0": BITRATE},
+    return run(frames, Decoder(databases), profile, bitrates={"can0": BITRATE},
                data_bitrates={"can0": DATA_BITRATE})
 
 
@@ -203,7 +218,7 @@ def test_without_cycle_times_in_the_dbc_the_rates_are_learned(tmp_path: Path) ->
                          if not line.startswith('BA_ "GenMsgCycleTime"'))
     dbc = tmp_path / "ecocar.dbc"
     dbc.write_text(stripped)
-    decoder, profile = build_stages([str(dbc)], "ecocar")
+    decoder, profile = load_stages([str(dbc)], "ecocar")
     dropout = run(simulate(duration_s=14.0, scenario="radar_dropout"), decoder, profile)
     radar = next(f for f in dropout.health_at(FAULT_ONSET_S - 1).families if f.name == "radar")
     assert radar.expected_source == "learned"
@@ -388,7 +403,7 @@ def test_an_unknown_id_flooding_a_bus_is_babbling() -> None:
 
 
 def test_error_frames_unknown_ids_and_bad_payloads_are_counted_per_bus() -> None:
-    decoder, profile = build_stages([], "ecocar")
+    decoder, profile = load_stages([], "ecocar")
     ecocar = load_ecocar()
     diag = ecocar.get_message_by_name("SensorDiag")
     frames = []
@@ -406,7 +421,7 @@ def test_error_frames_unknown_ids_and_bad_payloads_are_counted_per_bus() -> None
 
 
 def test_active_alarms_show_above_the_ego_and_turn_their_sensor_outline_red() -> None:
-    _, profile = build_stages([], "ecocar")
+    _, profile = load_stages([], "ecocar")
     assert profile is not None
     t = DEFAULT_START_NS
     alarm = AlarmInfo("radar.silent", AlarmKind.SENSOR_SILENT, "radar",

@@ -13,26 +13,18 @@ from typing import Any
 import pytest
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from bridge.apps.convert import build_stages
 from bridge.apps.layouts import (
-    LAYOUT_KEYS,
-    Produced,
     bundled_layouts,
-    check_format,
-    check_layout,
     export_layouts,
     format_listing,
     load_layout,
-    panel_type,
-    produced,
-    referenced_topics,
-    resolve_path,
     select_layouts,
 )
 from bridge.errors import BridgeError
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.pb.perception_pb2 import EgoState, LeadVehicle, PerceivedObjects
+from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.resources import layouts_dir
 from bridge.topics import (
@@ -46,6 +38,15 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
+from bridge.view.check import (
+    LAYOUT_KEYS,
+    check_format,
+    check_layout,
+    panel_type,
+    referenced_topics,
+)
+from bridge.view.paths import resolve_path
+from bridge.view.produced import Produced, produced
 
 LAYOUTS = layouts_dir()
 NAMES = ("tank-viz", "engineer", "can-debug")
@@ -57,7 +58,7 @@ OK_GREEN, ALARM_RED = "#1e8e3e", "#d93025"
 
 @pytest.fixture(scope="module")
 def stages() -> tuple[Any, Any]:
-    return build_stages([], "ecocar")
+    return load_stages([], "ecocar")
 
 
 @pytest.fixture(scope="module")

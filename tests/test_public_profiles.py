@@ -26,8 +26,9 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import build_stages, convert
+from bridge.apps.convert import convert
 from bridge.pb.perception_pb2 import ObjectClass
+from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
 from bridge.topics import EGO_TOPIC, LANES_TOPIC, LEAD_TOPIC, objects_topic, scene_topic
@@ -60,7 +61,7 @@ class Car:
 
 
 def load(dbc: Path, profile_path: Path) -> Car:
-    decoder, profile = build_stages([str(dbc)], profile_path)  # checks every name in the profile
+    decoder, profile = load_stages([str(dbc)], profile_path)  # checks every name in the profile
     assert profile is not None
     (database,) = decoder.files
     return Car(dbc, profile_path, database.db, profile)

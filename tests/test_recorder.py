@@ -6,12 +6,15 @@ import io
 import itertools
 import random
 
+import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer as McapWriter
 
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.sinks.mcap import FastWriter, Recorder
+
+FRAME = Frame(1_000, "can0", 0x100, b"\x01\x02", dlc=2)
 
 
 def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
@@ -62,3 +65,45 @@ def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:
     recorder_out.seek(0)
     got = [m.data for _, _, m in make_reader(recorder_out).iter_messages(log_time_order=False)]
     assert got == expected
+
+
+def test_a_topic_keeps_its_one_message_type() -> None:
+    """A second message type on a topic is refused, as mcap_protobuf's writer refuses it;
+    the first type goes on being written."""
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    out = io.BytesIO()
+    recorder = Recorder(out)
+    recorder.write("/scene/ego", SceneUpdate(), 1)
+    with pytest.raises(ValueError, match=r"'/scene/ego' has type foxglove\.SceneUpdate, cannot "
+                                         r"write a foxglove\.Log"):
+        recorder.write("/scene/ego", Log(message="hello"), 2)
+    with pytest.raises(ValueError, match=r"cannot write a foxglove\.Log"):
+        recorder.channel("/scene/ego", "foxglove.Log", b"")
+    recorder.write("/scene/ego", SceneUpdate(), 3)
+    recorder.finish()
+    out.seek(0)
+    schemas = {channel.topic: schema.name for schema, channel, _ in
+               make_reader(out).iter_messages()}
+    assert schemas == {"/scene/ego": "foxglove.SceneUpdate"}
+
+
+def test_a_recorder_describes_its_drive_once_just_before_it_is_finished() -> None:
+    """As a sink, the recorder has its drive described (attachments, metadata) when it is
+    finished, and only once."""
+    described: list[int] = []
+
+    def describe(recorder: Recorder) -> None:
+        described.append(recorder.messages)
+        recorder.add_metadata({"note": "described"}, name="test")
+
+    out = io.BytesIO()
+    recorder = Recorder(out, describe=describe)
+    recorder.on_frame(FRAME, b"")
+    assert described == []
+    recorder.finish()
+    recorder.finish()
+    assert described == [1]
+    out.seek(0)
+    assert [m.name for m in make_reader(out).iter_metadata()] == ["test"]

@@ -14,10 +14,10 @@ import can
 import pytest
 import websockets
 
-from bridge.apps.convert import build_stages
 from bridge.apps.replay import replay_log, replay_mcap
 from bridge.cli import main
 from bridge.errors import UsageError
+from bridge.pipeline.drive import load_stages
 from bridge.sim.drive import simulate
 from bridge.sinks.websocket import LiveServer
 
@@ -88,13 +88,13 @@ def test_a_can_log_goes_through_the_pipeline(tmp_path: Path) -> None:
             logger.on_message_received(can.Message(
                 timestamp=f.timestamp_ns / 1e9, arbitration_id=f.arbitration_id, data=f.data,
                 is_fd=f.is_fd, dlc=f.dlc, channel=0))
-    decoder, profile = build_stages([], "ecocar")
+    stages = load_stages([], "ecocar")
     with LiveServer(port=0, server_time=True) as server:
         loops: list[int] = []
 
         def run() -> None:
-            loops.append(replay_log([log], decoder, server, profile=profile, speed=5.0,
-                                    loop=True, stopping=stop).loops)
+            loops.append(replay_log([log], stages, server, speed=5.0, loop=True,
+                                    stopping=stop).loops)
 
         stop = threading.Event()
         threading.Timer(1.2, stop.set).start()

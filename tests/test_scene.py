@@ -23,7 +23,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.pipeline.perception import Perception
-from bridge.profile.model import Mount, Profile, Sensor, SensorKind, load_profile
+from bridge.profile.loader import load_profile
+from bridge.profile.model import Mount, Profile, Sensor, SensorKind
 from bridge.topics import TopicMessage
 from bridge.world.observe import polar_to_cartesian, to_vehicle
 

@@ -207,7 +207,8 @@ def traffic(duration_s: float) -> dict[str, list[Any]]:
     """The simulated ecocar drive's frames as python-can messages, split by sensor bus."""
     import can
 
-    from bridge.sim.drive import load_ecocar, simulate
+    from bridge.sim.drive import simulate
+    from bridge.sim.frames import load_ecocar
 
     db = load_ecocar()
     names = {m.frame_id: m.name for m in db.messages}
@@ -535,8 +536,9 @@ def print_profile_summary(stats: Any) -> None:
 def run(args: argparse.Namespace) -> None:
     import can  # noqa: F401  (imported before the CPU window)
 
-    from bridge.apps.convert import build_stages
-    from bridge.apps.live import BusSpec, Live
+    from bridge.apps.live import Live
+    from bridge.io.buses import BusSpec
+    from bridge.pipeline.drive import load_stages
     from bridge.sinks.websocket import LiveServer, wait_for
 
     duration = 10.0 if args.quick else args.duration
@@ -560,7 +562,7 @@ def run(args: argparse.Namespace) -> None:
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
     # view, so that the bridge's full collections cost what they would cost without it.
     gc.freeze()
-    decoder, profile = build_stages([], "ecocar")
+    ecocar = load_stages([], "ecocar")
     tmp = tempfile.TemporaryDirectory(prefix="tankviz-bench-live-")
     drives = Path(args.drives) if args.drives else Path(tmp.name)
     said: list[str] = []
@@ -569,7 +571,7 @@ def run(args: argparse.Namespace) -> None:
     server.start()
     pid = os.getpid()
     specs = [BusSpec(bus, "virtual", f"bench-live-{pid}-{bus}") for bus in BUSES]
-    live = Live(specs, decoder, profile=profile, scene_rate=SCENE_RATE, drives=drives,
+    live = Live(specs, ecocar, scene_rate=SCENE_RATE, drives=drives,
                 server=server, say=said.append)
     live.start()
     outcome: dict[str, Any] = {}
@@ -845,24 +847,30 @@ def run(args: argparse.Namespace) -> None:
     tmp.cleanup()
 
 
-class _EveryoneWants:
-    """A stand-in server for --stages: every channel has a subscriber; messages are counted."""
+def _everyone_wants() -> Any:
+    """A stand-in server for --stages: a sink whose every channel has a subscriber; messages
+    are counted."""
+    from bridge.sinks.base import Sink
 
-    def __init__(self) -> None:
-        self.channels: dict[str, int] = {}
-        self.published = 0
+    class EveryoneWants(Sink):
+        def __init__(self) -> None:
+            self.channels: dict[str, int] = {}
+            self.published = 0
 
-    def channel_for_schema(self, topic: str, *args: Any, **kwargs: Any) -> int:
-        return self.channels.setdefault(topic, len(self.channels))
+        def on_frame(self, frame: Any, payload: bytes, /) -> None:
+            self.channels.setdefault(frame.bus, len(self.channels))
+            self.published += 1
 
-    def wanted(self, channel_id: int) -> bool:
-        return True
+        def on_decoded(self, t_ns: int, decoded: Any, /) -> None:
+            self.channels.setdefault(decoded.codec.topic, len(self.channels))
+            self.published += 1
 
-    def publish(self, channel_id: int, t_ns: int, payload: bytes) -> None:
-        self.published += 1
+        def on_messages(self, messages: Any, /) -> None:
+            for m in messages:
+                self.channels.setdefault(m.topic, len(self.channels))
+            self.published += len(messages)
 
-    def flush(self) -> None:
-        pass
+    return EveryoneWants()
 
 
 def pipeline_frames(messages: dict[str, list[Any]], count: int,
@@ -886,19 +894,22 @@ def pipeline_frames(messages: dict[str, list[Any]], count: int,
 def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True,
                   profile: bool = True, serve: bool = True, paced: bool = False) -> float:
     """µs per frame of the pipeline alone in this thread (thread CPU time): at once, or
-    ``paced``: in real time, read as the live loop reads (:class:`bridge.apps.live.ReadSchedule`:
+    ``paced``: in real time, read as the live loop reads (:class:`bridge.io.buses.ReadSchedule`:
     the frames stamped by then, three times per scene period, sleeping between)."""
     import io
 
-    from bridge.apps.convert import build_stages
-    from bridge.apps.live import ReadSchedule
-    from bridge.pipeline.pipeline import Pipeline, new_health_monitor
+    from bridge.io.buses import ReadSchedule
+    from bridge.pipeline.drive import load_stages, new_health_monitor
+    from bridge.pipeline.pipeline import Pipeline
     from bridge.sinks.mcap import Recorder
 
-    decoder, loaded = build_stages([], "ecocar")
+    decoder, loaded = load_stages([], "ecocar")
+    # The stages one by one (--stages), so by hand here: the apps use bridge.pipeline.drive.
+    sinks = [_everyone_wants()] if serve else []
+    if record:
+        sinks.append(Recorder(io.BytesIO()))
     pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,
-                        recorder=Recorder(io.BytesIO()) if record else None,
-                        server=_EveryoneWants() if serve else None,  # type: ignore[arg-type]
+                        sinks=sinks,
                         health=new_health_monitor(decoder, loaded) if health else None)
     pipeline.advertise(BUSES)
     start = time.thread_time()

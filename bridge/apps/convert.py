@@ -10,21 +10,24 @@ A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_o
 
 from __future__ import annotations
 
-import gc
-import os
+import argparse
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from bridge.decode.decoder import DatabaseFile, Decoder, load_database, parse_dbc_option
-from bridge.errors import OutputError
+from bridge.apps.options import Subparsers, add_stage_options, dbc_option
+from bridge.apps.progress import ProgressBar
+from bridge.decode.decoder import Decoder
+from bridge.errors import BridgeError
 from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline.pipeline import Pipeline, describe_drive, new_health_monitor
-from bridge.profile.model import Profile, load_profile, read_profile_databases, resolve_profile
-from bridge.sinks.mcap import Recorder, atomic_output
+from bridge.profile.model import Profile
+from bridge.resources import data_dir
+from bridge.sinks.mcap import atomic_output, check_output
 
 #: How many source issues are kept in the metadata (all are counted).
 MAX_ISSUES_RECORDED = 1000
@@ -45,32 +48,6 @@ class ConvertReport:
     issues: list[SourceIssue] = field(default_factory=list)
 
 
-def build_decoder(dbc_options: Sequence[str]) -> Decoder:
-    """A decoder from ``[BUS=]PATH`` options; each file is loaded once even if named twice."""
-    loaded: dict[Path, DatabaseFile] = {}
-    by_bus: dict[str | None, list[DatabaseFile]] = {}
-    for option in dbc_options:
-        bus, path = parse_dbc_option(option)
-        key = path.resolve()
-        if key not in loaded:
-            loaded[key] = load_database(path)
-        by_bus.setdefault(bus, []).append(loaded[key])
-    return Decoder(by_bus)
-
-
-def build_stages(dbc_options: Sequence[str],
-                 profile: str | Path | None) -> tuple[Decoder, Profile | None]:
-    """The decoder and the profile; without --dbc options the profile's own databases are used."""
-    if profile is None:
-        return build_decoder(dbc_options), None
-    path = resolve_profile(profile)
-    if not dbc_options:
-        dbc_options = [str(p) if bus == "*" else f"{bus}={p}"
-                       for bus, paths in read_profile_databases(path).items() for p in paths]
-    decoder = build_decoder(dbc_options)
-    return decoder, load_profile(path, [f.db for f in decoder.files])
-
-
 def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
                  profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
                  progress: Progress | None = None, every: int = 16384) -> ConvertReport:
@@ -79,54 +56,29 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
     """
     started = time.perf_counter()
-    recorder = Recorder(output)
-    health = new_health_monitor(decoder, profile)
-    pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, recorder=recorder,
-                        health=health)
-    process = pipeline.process
+    drive = Drive(Stages(decoder, profile), scene_rate=scene_rate)
+    recorder = drive.record(output)
     total_bytes = sum(s.progress()[1] for s in sources)
-    frames = 0
-    # The hot loop makes millions of short-lived tuples and no reference cycles: the cyclic
-    # garbage collector would only walk the long-lived caches over and over (about 8 %).
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
-        for frame in merge(sources):
-            process(frame)
-            frames += 1
-            if progress is not None and frames % every == 0:
-                done = sum(s.progress()[0] for s in sources)
-                progress(frames, done / total_bytes if total_bytes else None)
-    finally:
-        if collecting:
-            gc.enable()
-    pipeline.finish()
+
+    def report_progress(frames: int) -> None:
+        assert progress is not None
+        done = sum(s.progress()[0] for s in sources)
+        progress(frames, done / total_bytes if total_bytes else None)
+
+    frames = drive.run(merge(sources), progress=report_progress if progress else None,
+                       every=every)
     if progress is not None:
         progress(frames, 1.0)
     issues = [i for s in sources for i in s.issues]
-    statistics = describe_drive(recorder, decoder, profile, scene_rate, {
+    drive.extra.update({
         "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
                     "backwards_jumps": s.backwards} for s in sources],
         "input_issues": {"count": len(issues),
                          "first": [str(i) for i in issues[:MAX_ISSUES_RECORDED]]},
-        "alarms": health.event_records(),
     })
-    recorder.finish()
+    drive.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
-                         statistics, issues)
-
-
-def check_output(path: Path, *, force: bool) -> None:
-    """Refuse an output that exists (unless ``force``) or that cannot be written."""
-    if path.is_dir():
-        raise OutputError(path, "is a directory")
-    if path.exists() and not force:
-        raise OutputError(path, "exists already; use --force to overwrite it")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(path, f"cannot write: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise OutputError(path, f"cannot write: folder {parent} is not writable")
+                         drive.statistics, issues)
 
 
 def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
@@ -136,10 +88,76 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
     """Convert log files into ``output``; everything is checked before the output is touched."""
     output = Path(output)
     check_output(output, force=force)
-    decoder, loaded_profile = build_stages(dbc_options, profile)
+    decoder, loaded_profile = load_stages(dbc_options, profile)
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
     with atomic_output(output) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
                               scene_rate=scene_rate, progress=progress)
     report.output = output
     return report
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser(
+        "convert", help="convert CAN logs into one decoded MCAP drive archive",
+        description="Convert CAN logs (any format python-can reads: .asc .blf .log .trc .csv "
+        ".db, their .gz, .mf4 with tankviz[mf4]) into one MCAP with every raw frame, every "
+        "decoded message, the statistics and the databases attached.")
+    parser.add_argument("inputs", nargs="*", type=Path, metavar="INPUT",
+                        help="log files; several are merged in time order")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="the MCAP to write")
+    add_stage_options(parser, profile_default=None)
+    parser.add_argument("--sample", action="store_true",
+                        help="also convert the bundled sample drive (with the ecocar profile)")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+    parser.add_argument("--strict", action="store_true",
+                        help="fail on the first unreadable line, damaged object or backwards "
+                        "time jump instead of skipping and reporting it")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    inputs: list[Path] = list(args.inputs)
+    dbcs = [dbc_option(text) for text in args.dbc or []]
+    profile = args.profile
+    if args.sample:
+        inputs.append(data_dir() / "ecocar_sample.blf")
+        profile = profile or "ecocar"
+    if not inputs:
+        raise BridgeError("convert: name at least one input log (or --sample)")
+    if not dbcs and profile is None:
+        print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
+    bar = ProgressBar(sys.stderr) if not args.quiet else None
+    try:
+        report = convert(inputs, args.output, dbcs, profile=profile, scene_rate=args.scene_rate,
+                         force=args.force, strict=args.strict, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(format_report(report))
+    return 0
+
+
+def format_report(report: ConvertReport) -> str:
+    """What a conversion wrote, decoded and skipped, for people."""
+    stats = report.statistics
+    rate = report.frames / report.seconds if report.seconds else 0.0
+    lines = [f"wrote {report.output}: {report.frames:,} frames, {report.messages:,} messages "
+             f"in {report.seconds:.1f} s ({rate:,.0f} frames/s)",
+             f"  decoded {sum(stats['decoded'].values()):,}, "
+             f"unknown ids {sum(stats['unknown_ids'].values()):,}, "
+             f"decode errors {sum(stats['decode_errors'].values()):,}, "
+             f"short frames {sum(stats['truncated'].values()):,}, "
+             f"error frames {sum(stats['error_frames'].values()):,}"]
+    for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors")):
+        top = sorted(stats[key].items(), key=lambda kv: -kv[1])[:8]
+        if top:
+            lines.append(f"  {title}: " + ", ".join(f"{k} ({n})" for k, n in top))
+    if report.issues:
+        lines.append(f"  skipped in the inputs: {len(report.issues)}")
+        lines += [f"    {issue}" for issue in report.issues[:10]]
+        if len(report.issues) > 10:
+            lines.append(f"    … {len(report.issues) - 10} more (tankviz inspect lists them)")
+    return "\n".join(lines)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections import Counter
 from dataclasses import dataclass, field
@@ -11,6 +12,7 @@ from typing import IO, Any
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
+from bridge.apps.options import Subparsers
 from bridge.errors import InputError
 from bridge.frame import format_time
 from bridge.sinks.mcap import METADATA_NAME
@@ -146,3 +148,17 @@ def format_summary(path: str, s: DriveSummary) -> str:
     lines += ["", f"attachments ({len(s.attachments)}):"]
     lines += [f"  {name}  {media}  {size:,} bytes" for name, media, size in s.attachments]
     return "\n".join(lines)
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser("inspect", help="show what a drive archive (MCAP) holds",
+                            description="Duration, start and end, topics with schemas and "
+                            "counts, metadata, attachments and decode statistics of MCAP files.")
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE.mcap")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    for path in args.files:
+        print(format_summary(str(path), summarize_file(path)))
+    return 0

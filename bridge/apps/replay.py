@@ -7,6 +7,7 @@ the server publishes its time (the protocol's ``time`` capability), so viewers f
 
 from __future__ import annotations
 
+import argparse
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -16,13 +17,19 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from bridge.decode.decoder import Decoder
+from bridge.apps import options
+from bridge.apps.options import (
+    Subparsers,
+    add_run_for,
+    add_server_options,
+    add_stage_options,
+    install_stop_signals,
+)
 from bridge.errors import InputError, UsageError
 from bridge.frame import NS
 from bridge.io.logs import LogSource, merge
+from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline.pipeline import Pipeline, new_health_monitor
-from bridge.profile.model import Profile
 from bridge.sinks.websocket import LiveServer
 
 #: Server time is published at least this often (ns of log time).
@@ -118,8 +125,8 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
         raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
 
 
-def replay_log(paths: list[Path], decoder: Decoder, server: LiveServer, *,
-               profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
+def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,
+               scene_rate: float = DEFAULT_SCENE_RATE,
                speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
                stopping: threading.Event | None = None) -> ReplayReport:
     """Run CAN logs through the pipeline in real time and serve what it makes."""
@@ -128,8 +135,8 @@ def replay_log(paths: list[Path], decoder: Decoder, server: LiveServer, *,
     frames, loops = 0, 0
     while not stopping.is_set():
         sources = [LogSource(p) for p in paths]
-        pipeline = Pipeline(decoder, profile=profile, scene_rate=scene_rate, server=server,
-                            health=new_health_monitor(decoder, profile))
+        drive = Drive(stages, [server], scene_rate=scene_rate)
+        process = drive.pipeline.process
         clock = Clock(speed, stopping, server.flush)
         first_ns: int | None = None
         last_time_ns = 0
@@ -144,10 +151,53 @@ def replay_log(paths: list[Path], decoder: Decoder, server: LiveServer, *,
             if t - last_time_ns >= TIME_EVERY_NS:
                 server.broadcast_time(t)
                 last_time_ns = t
-            pipeline.process(frame)
+            process(frame)
             frames += 1
-        pipeline.finish()
+        drive.finish()
         loops += 1
         if not loop:
             break
     return ReplayReport(frames, loops)
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser(
+        "replay", help="serve a recorded drive or CAN logs to Foxglove in real time",
+        description="Serve a recorded drive (MCAP) as recorded, or CAN logs decoded through the "
+        "pipeline, in real time; the server publishes log time so Foxglove follows it.")
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE")
+    parser.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
+    parser.add_argument("--loop", action="store_true", help="start again at the end")
+    parser.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
+                        help="skip this many seconds of the drive")
+    add_run_for(parser)
+    add_stage_options(parser, profile_default=None)
+    add_server_options(parser)
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    stopping = threading.Event()
+    mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
+    if mcap and len(args.files) > 1:
+        raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
+    stages = None if mcap else options.stages(args)
+    server = options.start_server(args, server_time=True)
+    install_stop_signals(stopping.set)
+    if args.run_for:
+        threading.Timer(args.run_for, stopping.set).start()
+    print(f"Foxglove: open connection {server.url} (Foxglove WebSocket)")
+    print(f"layout:   import {options.layout_hint()} (Layouts menu)", flush=True)
+    try:
+        if stages is None:
+            report = replay_mcap(mcap[0], server, speed=args.speed, loop=args.loop,
+                                 start_s=args.start, stopping=stopping)
+        else:
+            report = replay_log(list(args.files), stages, server, scene_rate=args.scene_rate,
+                                speed=args.speed, loop=args.loop, start_s=args.start,
+                                stopping=stopping)
+    finally:
+        server.stop()
+    print(f"replayed {report.messages:,} messages ({report.loops} pass"
+          f"{'es' if report.loops != 1 else ''})")
+    return 0

@@ -124,13 +124,19 @@ class Perception:
         """The scenes still due at the end of the drive (log time ``t_ns``)."""
         return self.advance(t_ns + 1) if self._started else []
 
-    def tick(self, t_ns: int) -> list[TopicMessage]:
-        """Scene, semantic topics and frames at log time ``t_ns``."""
+    def update_world(self, t_ns: int) -> LaneModel:
+        """The world brought up to the tick at log time ``t_ns``: the messages fed since the
+        last tick observed, stale objects expired; returns the tick's lane model."""
         self.ticks += 1
         self.observe_pending()
+        self.world.expire(t_ns)
+        lanes = self.lanes = self.world.lane_model(t_ns)
+        return lanes
+
+    def tick(self, t_ns: int) -> list[TopicMessage]:
+        """Scene, semantic topics and frames at log time ``t_ns``."""
+        lanes = self.update_world(t_ns)
         world, profile = self.world, self.profile
-        world.expire(t_ns)
-        lanes = self.lanes = world.lane_model(t_ns)
         check = world.mio_check(lanes)
         out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state).items()]

@@ -1,47 +1,48 @@
-"""The data path for one drive: frames → decode → perception → sinks (recorder, live server).
+"""The data path of one drive: frames → decode → perception and health → sinks.
 
-:class:`Pipeline` is what convert, live, demo and replay run for every frame. The recorder gets
-every raw frame and every decoded message; the live server gets the scene and perception topics
-always, and raw frames and decoded signals only while a client subscribes to them. Each message
-is serialized once for both sinks.
+:class:`Pipeline` is what every command runs for every frame (:class:`bridge.pipeline.drive.Drive`
+assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets every raw frame, every decoded
+message, and the scene, perception and health messages made at each tick, in the order the sinks
+were given (the live server first: viewers wait for a scene, the recorder does not). Each message
+is serialized once for all sinks; the live server itself sends raw frames and decoded signals only
+to viewers that subscribed to them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from datetime import datetime, timezone
+from collections.abc import Iterable
+from functools import partial
 from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge import __version__
-from bridge.decode.decoder import DatabaseFile, Decoder, MessageCodec
+from bridge.decode.decoder import Decoder, MessageCodec
 from bridge.frame import Frame
-from bridge.health.monitor import HealthMonitor, alarm_entities, fov_entities
+from bridge.health.monitor import HealthMonitor
+from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
-from bridge.sinks.mcap import FrameSink, Recorder, frame_payload
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.base import Channel, Serialized, Sink
+from bridge.sinks.mcap import frame_payload
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
 
 INF = float("inf")
 
 
 class Pipeline:
-    """Runs one drive's frames through decoding and perception into the sinks given."""
+    """Runs one drive's frames through decoding, perception and health into its sinks."""
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
-                 scene_rate: float = DEFAULT_SCENE_RATE, recorder: FrameSink | None = None,
-                 server: LiveServer | None = None, health: HealthMonitor | None = None) -> None:
+                 scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),
+                 health: HealthMonitor | None = None) -> None:
         self.decoder = decoder
         self.profile = profile
         self.scene_rate = scene_rate
-        self.recorder = recorder
-        self.server = server
+        self.sinks: list[Sink] = []
         self.perception = (Perception(profile, scene_rate=scene_rate)
                            if profile is not None else None)
         self.health = health
@@ -50,44 +51,33 @@ class Pipeline:
         self._fed: dict[MessageCodec, bool] = {}
         self._next_tick: int | float = (float("-inf") if self.perception is not None
                                         or health is not None else float("inf"))
-        self._server_channels: dict[str, int] = {}
-        self._frame_channels: dict[str, int] = {}
-        self._codec_channels: dict[MessageCodec, int] = {}
         self.frames = 0
         self.last_ns: int | None = None
+        for sink in sinks:
+            self.add_sink(sink)
+
+    def add_sink(self, sink: Sink) -> None:
+        """One more sink, after those there are (before the first frame)."""
+        self.sinks.append(sink)
+        self._on_frame = [s.on_frame for s in self.sinks]
+        self._on_decoded = [s.on_decoded for s in self.sinks]
 
     def process(self, frame: Frame) -> None:
         """One frame through every stage."""
         t = frame.timestamp_ns
         if t >= self._next_tick:
             self.advance(t)
-        recorder, server = self.recorder, self.server
-        payload = None
-        if recorder is not None:
+        if self.sinks:
             payload = frame_payload(frame)
-            recorder.write_frame(frame, payload)
-        if server is not None:
-            channel = self._frame_channels.get(frame.bus)
-            if channel is None:
-                channel = self._frame_channel(server, frame.bus)
-            if payload is not None:
-                server.publish(channel, t, payload)  # (sent only to who subscribed)
-            elif server.wanted(channel):
-                server.publish(channel, t, frame_payload(frame))
+            for on_frame in self._on_frame:
+                on_frame(frame, payload)
         decoded = self.decoder.decode(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
         if decoded is not None:
-            if recorder is not None:
-                recorder.write_decoded(t, decoded)
+            for on_decoded in self._on_decoded:
+                on_decoded(t, decoded)
             codec = decoded.codec
-            if server is not None:
-                channel = self._codec_channels.get(codec)
-                if channel is None:
-                    channel = self._codec_channels[codec] = self._server_channel(
-                        server, codec.topic, codec.schema.full_name,
-                        codec.schema.file_descriptor_set)
-                server.publish(channel, t, decoded.payload)
             fed = self._fed.get(codec)
             if fed is None:
                 fed = self._fed[codec] = codec.message.name in self._wanted
@@ -124,7 +114,7 @@ class Pipeline:
         return TopicMessage(topic, update, t_ns)
 
     def finish(self) -> None:
-        """Emit what is still due at the end of the drive."""
+        """Emit what is still due at the end of the drive (the sinks are not stopped)."""
         if self.last_ns is None:
             return
         if self.perception is not None:
@@ -137,107 +127,38 @@ class Pipeline:
             self.emit(self.health.finish(self.last_ns))
 
     def emit(self, outputs: Iterable[TopicMessage]) -> None:
-        """Scene, perception and other messages to every sink: the live server first (viewers
-        wait for them; the recorder does not)."""
-        recorder, server = self.recorder, self.server
-        serialized = [(out, type(out.message), out.message.SerializeToString())
-                      for out in outputs]
-        if server is not None and serialized:
-            for out, cls, payload in serialized:
-                server.publish(self._server_channel(server, out.topic, cls.DESCRIPTOR.full_name,
-                                                    lambda cls=cls: _fds(cls)),
-                               out.t_ns, payload)
-            server.flush()
-        if recorder is not None:
-            for out, cls, payload in serialized:
-                recorder.write_payload(out.topic, cls, payload, out.t_ns)
+        """Scene, perception and other messages to every sink, serialized once."""
+        serialized = [Serialized(out.topic, type(out.message), out.message.SerializeToString(),
+                                 out.t_ns) for out in outputs]
+        if serialized:
+            for sink in self.sinks:
+                sink.on_messages(serialized)
 
-    def _frame_channel(self, server: LiveServer, bus: str) -> int:
-        channel = self._frame_channels[bus] = self._server_channel(
-            server, frames_topic(bus), "tankviz.CanFrame", lambda: _fds(CanFrame))
-        return channel
-
-    def _server_channel(self, server: LiveServer, topic: str, schema_name: str,
-                        schema: Any) -> int:
-        channel = self._server_channels.get(topic)
-        if channel is None:
-            channel = self._server_channels[topic] = server.channel_for_schema(
-                topic, schema_name, schema())
-        return channel
-
-    def advertise(self, buses: Iterable[str]) -> None:
-        """Advertise every channel before any frame arrives (live): the scene and perception
-        topics, /log, and all that these buses can carry."""
-        server = self.server
-        if server is None:
-            return
+    def channels(self, buses: Iterable[str]) -> list[Channel]:
+        """Every channel this drive can carry on these buses: the scene and perception topics,
+        health, /log, and each bus's raw frames and decoded messages."""
         topics = self.perception.topics() if self.perception is not None else []
         if self.health is not None:
             topics += self.health.topics()
             if self.perception is not None:
                 topics.append((scene_topic(HEALTH_CATEGORY), SceneUpdate))
-        for topic, cls in [*topics, (LOG_TOPIC, Log)]:
-            self._server_channel(server, topic, cls.DESCRIPTOR.full_name,
-                                 lambda cls=cls: _fds(cls))
+        out = [Channel(topic, cls.DESCRIPTOR.full_name, partial(_fds, cls))
+               for topic, cls in [*topics, (LOG_TOPIC, Log)]]
         for bus in buses:
-            self._server_channel(server, frames_topic(bus), "tankviz.CanFrame",
-                                 lambda: _fds(CanFrame))
-            for codec in self.decoder.codecs_for(bus):
-                self._server_channel(server, codec.topic, codec.schema.full_name,
-                                     codec.schema.file_descriptor_set)
+            out.append(Channel(frames_topic(bus), CanFrame.DESCRIPTOR.full_name,
+                               partial(_fds, CanFrame)))
+            out += [Channel(codec.topic, codec.schema.full_name,
+                            codec.schema.file_descriptor_set)
+                    for codec in self.decoder.codecs_for(bus)]
+        return out
 
-
-def new_health_monitor(decoder: Decoder, profile: Profile | None,
-                       bitrates: Mapping[str, int] | None = None) -> HealthMonitor:
-    """The health monitor of a drive; bitrates given here override the profile's."""
-    rates = dict(profile.bitrates) if profile is not None else {}
-    rates.update(bitrates or {})
-    return HealthMonitor(profile, decoder, bitrates=rates,
-                         data_bitrates=profile.data_bitrates if profile is not None else None)
+    def advertise(self, buses: Iterable[str]) -> None:
+        """Tell every sink every channel before any frame arrives (live viewers then see every
+        topic at once)."""
+        channels = self.channels(buses)
+        for sink in self.sinks:
+            sink.advertise(channels)
 
 
 def _fds(cls: Any) -> bytes:
     return bytes(build_file_descriptor_set(cls).SerializeToString())
-
-
-def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
-    """Attachment name per database sha256: the file name, made unique where two collide."""
-    names: dict[str, str] = {}
-    for f in files:
-        name = f.path.name
-        if name in names.values():
-            name = f"{f.sha256[:8]}-{name}"
-        names.setdefault(f.sha256, name)
-    return names
-
-
-def describe_drive(recorder: Recorder, decoder: Decoder, profile: Profile | None,
-                   scene_rate: float, extra: dict[str, Any]) -> dict[str, Any]:
-    """Attach the databases and the profile, and write the ``tankviz`` metadata record.
-
-    Returns the decode statistics that went into it.
-    """
-    names = attachment_names(decoder.files)
-    for f in decoder.files:
-        recorder.add_attachment(names[f.sha256], f.content)
-    if profile is not None:
-        recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
-                                media="application/toml")
-    buses: dict[str, list[str]] = {}
-    for f in decoder.files:
-        for bus in decoder.buses_for(f):
-            buses.setdefault(bus, []).append(names[f.sha256])
-    statistics = decoder.stats.to_dict(decoder.codecs())
-    recorder.add_metadata({
-        "tankviz_version": __version__,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
-                     "scene_rate_hz": scene_rate} if profile is not None else None),
-        "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
-                       "path": str(f.path), "buses": decoder.buses_for(f)}
-                      for f in decoder.files],
-        "bus_databases": buses,
-        "statistics": statistics,
-        **extra,
-    })
-    return statistics

@@ -33,9 +33,8 @@ from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.duration_pb2 import Duration
 from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
-from google.protobuf.timestamp_pb2 import Timestamp
 
-from bridge.frame import NS
+from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneModel, MioCheck, World
@@ -66,10 +65,6 @@ CLASS_LABELS = {
     ObjectClass.PEDESTRIAN: "PEDESTRIAN",
     ObjectClass.STATIONARY: "stationary",
 }
-
-
-def timestamp(t_ns: int) -> Timestamp:
-    return Timestamp(seconds=t_ns // NS, nanos=t_ns % NS)
 
 
 def duration(seconds: float) -> Duration:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
-from bridge.frame import NS
+from bridge.frame import NS, timestamp
 from bridge.pb.perception_pb2 import (
     EgoState,
     LaneLine,
@@ -17,7 +17,6 @@ from bridge.pb.perception_pb2 import (
 )
 from bridge.profile.model import ObjectClass as Kind
 from bridge.profile.model import Profile
-from bridge.scene.entities import timestamp
 from bridge.topics import VEHICLE_FRAME
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
 from bridge.world.observe import ObjectObservation

@@ -14,9 +14,9 @@ import struct
 import sys
 import time
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, Any
 
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
@@ -30,6 +30,7 @@ from bridge.decode.decoder import Decoded, MessageCodec
 from bridge.errors import OutputError
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.sinks.base import Serialized, Sink
 from bridge.topics import frames_topic
 
 #: MCAP metadata record written by tankviz (see :func:`Recorder.add_metadata`).
@@ -183,6 +184,19 @@ def atomic_output(path: Path) -> Iterator[IO[bytes]]:
         raise
 
 
+def check_output(path: Path, *, force: bool) -> None:
+    """Refuse an output that exists (unless ``force``) or that cannot be written."""
+    if path.is_dir():
+        raise OutputError(path, "is a directory")
+    if path.exists() and not force:
+        raise OutputError(path, "exists already; use --force to overwrite it")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(path, f"cannot write: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(path, f"cannot write: folder {parent} is not writable")
+
+
 _FRAME_HEADS: dict[tuple[Any, ...], bytes] = {}
 
 
@@ -212,26 +226,29 @@ def frame_payload(frame: Frame) -> bytes:
 _DATA_FIELD = [bytes((11 << 3 | 2, n)) for n in range(128)]
 
 
-class FrameSink(Protocol):
-    """What the pipeline records into: a :class:`Recorder`, or a drive split into parts."""
-
-    def write_frame(self, frame: Frame, payload: bytes | None = None) -> None: ...
-
-    def write_decoded(self, timestamp_ns: int, decoded: Decoded) -> None: ...
-
-    def write_payload(self, topic: str, message_class: Any, payload: bytes,
-                      timestamp_ns: int) -> None: ...
+#: Called just before a recorder is finished, to attach and note what describes its drive.
+Describe = Callable[["Recorder"], None]
 
 
-class Recorder:
-    """Writes frames, decoded messages and any protobuf message into one MCAP stream."""
+class Recorder(Sink):
+    """Writes frames, decoded messages and any protobuf message into one MCAP stream.
+
+    As a :class:`~bridge.sinks.base.Sink` it records everything the pipeline hands it;
+    :meth:`finish` has ``describe`` add the drive's attachments and metadata first. A topic
+    carries one message type: a second one is refused (``ValueError``), as mcap_protobuf's
+    writer refuses it.
+    """
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
-                 compression: CompressionType = CompressionType.ZSTD) -> None:
+                 compression: CompressionType = CompressionType.ZSTD,
+                 describe: Describe | None = None) -> None:
         self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression)
         self._writer.start(profile="", library=f"tankviz {__version__}")
+        self.describe = describe
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
+        self._channel_schemas: dict[str, str] = {}
+        self._payload_channels: dict[str, tuple[int, Any]] = {}
         self._frame_channels: dict[str, int] = {}
         self._codec_channels: dict[MessageCodec, int] = {}
         self._frame_schema: int | None = None
@@ -246,13 +263,17 @@ class Recorder:
         return schema_id
 
     def channel(self, topic: str, schema_name: str, schema_data: bytes) -> int:
-        """The id of a protobuf channel, registered on first use."""
+        """The id of a protobuf channel, registered on first use; a topic has one schema."""
         channel_id = self._channels.get(topic)
         if channel_id is None:
             channel_id = self._writer.register_channel(
                 topic, MessageEncoding.Protobuf, self._schema(schema_name, schema_data)
             )
             self._channels[topic] = channel_id
+            self._channel_schemas[topic] = schema_name
+        elif self._channel_schemas[topic] != schema_name:
+            raise ValueError(f"topic {topic!r} has type {self._channel_schemas[topic]}, "
+                             f"cannot write a {schema_name}")
         return channel_id
 
     def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
@@ -283,12 +304,24 @@ class Recorder:
     def write_payload(self, topic: str, message_class: Any, payload: bytes,
                       timestamp_ns: int) -> None:
         """An already serialized protobuf message of ``message_class`` on its topic."""
-        channel_id = self._channels.get(topic)
-        if channel_id is None:
+        known = self._payload_channels.get(topic)
+        if known is not None and known[1] is message_class:
+            channel_id = known[0]
+        else:
             channel_id = self.channel(topic, message_class.DESCRIPTOR.full_name,
                                       build_file_descriptor_set(message_class).SerializeToString())
+            self._payload_channels[topic] = (channel_id, message_class)
         self._writer.add_message(channel_id, timestamp_ns, payload, timestamp_ns)
         self.messages += 1
+
+    # the Sink interface, for the pipeline
+    on_frame = write_frame
+    on_decoded = write_decoded
+
+    def on_messages(self, messages: Sequence[Serialized], /) -> None:
+        write = self.write_payload
+        for topic, message_class, payload, t_ns in messages:
+            write(topic, message_class, payload, t_ns)
 
     def flush(self) -> None:
         """Everything recorded so far onto the disk (the current chunk is closed early)."""
@@ -306,7 +339,10 @@ class Recorder:
                                     data)
 
     def finish(self) -> None:
-        """Write the summary and footer; the file is complete after this."""
+        """Describe the drive (if a ``describe`` was given), write the summary and footer; the
+        file is complete after this. Once: later calls do nothing."""
         if not self._finished:
             self._finished = True
+            if self.describe is not None:
+                self.describe(self)
             self._writer.finish()  # type: ignore[no-untyped-call]

@@ -32,7 +32,7 @@ import struct
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -42,7 +42,12 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from websockets.frames import Frame as WebSocketFrame
 from websockets.frames import Opcode
 
+from bridge.decode.decoder import Decoded, MessageCodec
 from bridge.errors import BridgeError
+from bridge.frame import Frame
+from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.sinks.base import Channel, Serialized, Sink
+from bridge.topics import frames_topic
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -192,9 +197,14 @@ class _Subscriptions(FoxgloveServerListener):  # type: ignore[misc]
         self.wanted.discard(channel_id)
 
 
-class LiveServer:
+class LiveServer(Sink):
     """A Foxglove WebSocket server in a thread of its own; every public method is thread-safe
-    and non-blocking apart from :meth:`start` and :meth:`stop`."""
+    and non-blocking apart from :meth:`start` and :meth:`stop`.
+
+    As the pipeline's :class:`~bridge.sinks.base.Sink` (called from one thread) it publishes
+    every frame, decoded message and made message on its topic's channel, and sends a batch of
+    made messages at once. It goes on serving when a drive is finished; :meth:`stop` stops it.
+    """
 
     def __init__(self, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
                  name: str = "tankviz", queue_limit: int = DEFAULT_QUEUE_LIMIT,
@@ -221,6 +231,9 @@ class LiveServer:
         self._wanted: set[int] = set()
         self._clients: dict[int, _Client] = {}
         self.finished: list[ClientStats] = []
+        # the pipeline's channels, looked up once per bus and codec
+        self._frame_channels: dict[str, int] = {}
+        self._codec_channels: dict[MessageCodec, int] = {}
 
     # --- life cycle -----------------------------------------------------------------------
 
@@ -338,6 +351,43 @@ class LiveServer:
         for more to publish); costs nothing when nothing was published."""
         if self._inbox:
             self._wake()
+
+    # --- the Sink interface, for the pipeline (its thread only) -------------------------------
+
+    def on_frame(self, frame: Frame, payload: bytes, /) -> None:
+        channel = self._frame_channels.get(frame.bus)
+        if channel is None:
+            channel = self._frame_channels[frame.bus] = self.channel(frames_topic(frame.bus),
+                                                                     CanFrame)
+        if channel in self._wanted:  # (publish, inlined: once per frame)
+            self._inbox.append((channel, frame.timestamp_ns, payload))
+
+    def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
+        codec = decoded.codec
+        channel = self._codec_channels.get(codec)
+        if channel is None:
+            channel = self._codec_channels[codec] = self.channel_for_schema(
+                codec.topic, codec.schema.full_name, codec.schema.file_descriptor_set())
+        if channel in self._wanted:
+            self._inbox.append((channel, t_ns, decoded.payload))
+
+    def on_messages(self, messages: Sequence[Serialized], /) -> None:
+        """Published and sent at once: viewers wait for a scene."""
+        channels = self._channels
+        for topic, message_class, payload, t_ns in messages:
+            channel = channels.get(topic)
+            if channel is None:
+                channel = self.channel(topic, message_class)
+            self.publish(channel, t_ns, payload)
+        self.flush()
+
+    def advertise(self, channels: Sequence[Channel], /) -> None:
+        for channel in channels:
+            if channel.topic not in self._channels:
+                self.channel_for_schema(channel.topic, channel.schema_name, channel.schema())
+
+    def finish(self) -> None:
+        self.flush()
 
     def broadcast_time(self, t_ns: int) -> None:
         """The protocol's server time, so viewers follow log time (replay)."""

@@ -1,0 +1,106 @@
+"""Command-line options that several commands share, and what they turn into.
+
+Settings come from the command line, else the environment (``TANKVIZ_*``), else a default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from bridge.decode.decoder import parse_dbc_option
+from bridge.pipeline.drive import Stages, load_stages
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.resources import bundled_database, layouts_dir
+from bridge.sinks.websocket import LiveServer
+
+if TYPE_CHECKING:
+    Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
+else:
+    Subparsers = Any
+
+
+def env(name: str, default: str) -> str:
+    """Settings: command line > environment (TANKVIZ_*) > default."""
+    return os.environ.get(f"TANKVIZ_{name}", default)
+
+
+def dbc_option(text: str) -> str:
+    """``--dbc [BUS=]PATH``, where PATH may also name a bundled database (``ecocar``)."""
+    bus, path = parse_dbc_option(text)
+    if not path.exists() and (bundled := bundled_database(str(path))) is not None:
+        return f"{bus}={bundled}" if bus else str(bundled)
+    return text
+
+
+def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str | None) -> None:
+    parser.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
+                        help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
+                        "without BUS=; repeatable; a bundled name such as 'ecocar' works too")
+    parser.add_argument("--profile", metavar="NAME|PATH", default=profile_default,
+                        help="vehicle profile (TOML) that says what the signals mean: adds the "
+                        "scene and perception topics; a bundled name such as 'ecocar' works too; "
+                        "without --dbc the profile's own databases are used"
+                        + (f" (default {profile_default})" if profile_default else ""))
+    parser.add_argument("--scene-rate", type=float, default=DEFAULT_SCENE_RATE, metavar="HZ",
+                        help=f"scene updates per second of log time (default "
+                        f"{DEFAULT_SCENE_RATE:g}, at most 50)")
+
+
+def stages(args: argparse.Namespace) -> Stages:
+    """The decoder and profile that ``--dbc`` and ``--profile`` name."""
+    return load_stages([dbc_option(text) for text in args.dbc or []], args.profile)
+
+
+def add_server_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", default=env("HOST", "127.0.0.1"),
+                        help="address to serve Foxglove on (default 127.0.0.1, env TANKVIZ_HOST; "
+                        "0.0.0.0 serves the car network: the protocol has no authentication)")
+    parser.add_argument("--port", type=int, default=int(env("PORT", "8765")),
+                        help="WebSocket port (default 8765, env TANKVIZ_PORT)")
+
+
+def start_server(args: argparse.Namespace, *, server_time: bool = False) -> LiveServer:
+    server = LiveServer(host=args.host, port=args.port, server_time=server_time)
+    server.start()
+    return server
+
+
+def add_record_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--drives", type=Path, default=Path(env("DRIVES", "drives")),
+                        help="folder for the recordings, one MCAP per drive named by its UTC "
+                        "start time (default ./drives, env TANKVIZ_DRIVES)")
+    parser.add_argument("--split-size", type=float, metavar="MB",
+                        help="start a new part when the current one reaches this size")
+    parser.add_argument("--split-duration", type=float, metavar="S",
+                        help="start a new part after this many seconds")
+    parser.add_argument("--no-record", action="store_true", help="view only: record nothing")
+    parser.add_argument("--no-server", action="store_true",
+                        help="record only: no WebSocket server, no display load")
+    add_run_for(parser)
+
+
+def add_run_for(parser: argparse.ArgumentParser) -> None:
+    default = env("RUN_FOR", "")
+    parser.add_argument("--for", dest="run_for", type=float, metavar="S",
+                        default=float(default) if default else None,
+                        help="stop by itself after this many seconds (env TANKVIZ_RUN_FOR)")
+
+
+def layout_hint() -> str:
+    """Where the Tank Viz layout to import is."""
+    layout = layouts_dir() / "tank-viz.json"
+    return str(layout) if layout.exists() else "(layouts/tank-viz.json)"
+
+
+def install_stop_signals(stop: Callable[[], None]) -> None:
+    """SIGINT and SIGTERM stop the live loop cleanly (files are finished)."""
+    def handler(signum: int, frame: object) -> None:
+        stop()
+
+    signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGINT, handler)

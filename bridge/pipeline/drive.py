@@ -1,0 +1,187 @@
+"""The one place a drive is assembled: stages from databases and a profile, a pipeline, sinks.
+
+Every command makes its drive here: ``convert`` and ``simulate`` record into a file, ``live``
+and ``demo`` serve viewers and record into a drives folder, ``replay`` serves viewers, the
+layout checks collect what a profile produces. None of them wires stages by hand.
+
+- :func:`load_stages`: the decoder (``--dbc [BUS=]PATH`` options; without any, the profile's own
+  databases) and the profile, every name in the profile checked against the databases.
+- :class:`Drive`: the health monitor and the :class:`~bridge.pipeline.pipeline.Pipeline` of one
+  drive, its sinks in the order they are added (add the live server first: viewers wait for a
+  scene, the recorder does not), :meth:`Drive.run` for frames, and :meth:`Drive.finish`, which
+  emits what is still due and finishes every sink.
+- :meth:`Drive.describe`: what makes a recorded drive self-contained: every database and the
+  profile as attachments, and the ``tankviz`` metadata record (version, profile, databases with
+  their SHA-256, bus → database map, decode statistics, the alarms raised, and what the command
+  adds in :attr:`Drive.extra`). A file sink made with :meth:`Drive.record` or
+  :meth:`Drive.record_parts` is described just before it is finished.
+"""
+
+from __future__ import annotations
+
+import gc
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import IO, Any, NamedTuple
+
+from bridge import __version__
+from bridge.decode.decoder import DatabaseFile, Decoder, load_database, parse_dbc_option
+from bridge.frame import Frame
+from bridge.health.monitor import HealthMonitor
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline.pipeline import Pipeline
+from bridge.profile.loader import load_profile, read_profile_databases, resolve_profile
+from bridge.profile.model import Profile
+from bridge.sinks.base import Sink
+from bridge.sinks.drives import DriveRecorder
+from bridge.sinks.mcap import Recorder
+
+
+class Stages(NamedTuple):
+    """What decodes a drive and says what its signals mean."""
+
+    decoder: Decoder
+    profile: Profile | None
+
+
+def build_decoder(dbc_options: Sequence[str]) -> Decoder:
+    """A decoder from ``[BUS=]PATH`` options; each file is loaded once even if named twice."""
+    loaded: dict[Path, DatabaseFile] = {}
+    by_bus: dict[str | None, list[DatabaseFile]] = {}
+    for option in dbc_options:
+        bus, path = parse_dbc_option(option)
+        key = path.resolve()
+        if key not in loaded:
+            loaded[key] = load_database(path)
+        by_bus.setdefault(bus, []).append(loaded[key])
+    return Decoder(by_bus)
+
+
+def load_stages(dbc_options: Sequence[str], profile: str | Path | None) -> Stages:
+    """The decoder and the profile; without --dbc options the profile's own databases are used."""
+    if profile is None:
+        return Stages(build_decoder(dbc_options), None)
+    path = resolve_profile(profile)
+    if not dbc_options:
+        dbc_options = [str(p) if bus == "*" else f"{bus}={p}"
+                       for bus, paths in read_profile_databases(path).items() for p in paths]
+    decoder = build_decoder(dbc_options)
+    return Stages(decoder, load_profile(path, [f.db for f in decoder.files]))
+
+
+def new_health_monitor(decoder: Decoder, profile: Profile | None,
+                       bitrates: Mapping[str, int] | None = None) -> HealthMonitor:
+    """The health monitor of a drive; bitrates given here override the profile's."""
+    rates = dict(profile.bitrates) if profile is not None else {}
+    rates.update(bitrates or {})
+    return HealthMonitor(profile, decoder, bitrates=rates,
+                         data_bitrates=profile.data_bitrates if profile is not None else None)
+
+
+def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
+    """Attachment name per database sha256: the file name, made unique where two collide."""
+    names: dict[str, str] = {}
+    for f in files:
+        name = f.path.name
+        if name in names.values():
+            name = f"{f.sha256[:8]}-{name}"
+        names.setdefault(f.sha256, name)
+    return names
+
+
+class Drive:
+    """One drive: stages, health monitor, pipeline and sinks."""
+
+    def __init__(self, stages: Stages, sinks: Iterable[Sink] = (), *,
+                 scene_rate: float = DEFAULT_SCENE_RATE,
+                 bitrates: Mapping[str, int] | None = None,
+                 extra: Mapping[str, Any] | None = None) -> None:
+        self.decoder, self.profile = stages
+        self.scene_rate = scene_rate
+        self.health = new_health_monitor(self.decoder, self.profile, bitrates)
+        self.pipeline = Pipeline(self.decoder, profile=self.profile, scene_rate=scene_rate,
+                                 sinks=sinks, health=self.health)
+        #: what the command adds to the metadata record (inputs, buses, the simulation)
+        self.extra: dict[str, Any] = dict(extra or {})
+        #: the decode statistics of the last description
+        self.statistics: dict[str, Any] = {}
+
+    @property
+    def frames(self) -> int:
+        return self.pipeline.frames
+
+    def add(self, sink: Sink) -> Sink:
+        """One more sink, after those there are (before the first frame)."""
+        self.pipeline.add_sink(sink)
+        return sink
+
+    def record(self, output: IO[bytes]) -> Recorder:
+        """Record the drive into the open binary ``output``, described when it is finished."""
+        recorder = Recorder(output, describe=self.describe)
+        self.add(recorder)
+        return recorder
+
+    def record_parts(self, folder: Path, *, split_size: int | None = None,
+                     split_duration_s: float | None = None) -> DriveRecorder:
+        """Record the drive into ``folder``, one MCAP per part, each described."""
+        recorder = DriveRecorder(folder, self.describe, split_size, split_duration_s)
+        self.add(recorder)
+        return recorder
+
+    def run(self, frames: Iterable[Frame], *, progress: Callable[[int], None] | None = None,
+            every: int = 16384) -> int:
+        """Every frame through the pipeline; ``progress`` is called with the count now and
+        then. Returns how many frames there were."""
+        process = self.pipeline.process
+        count = 0
+        # The hot loop makes millions of short-lived tuples and no reference cycles: the cyclic
+        # garbage collector would only walk the long-lived caches over and over (about 8 %).
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            for frame in frames:
+                process(frame)
+                count += 1
+                if progress is not None and count % every == 0:
+                    progress(count)
+        finally:
+            if collecting:
+                gc.enable()
+        return count
+
+    def finish(self) -> None:
+        """Emit what is still due and finish every sink (files are complete after this)."""
+        self.pipeline.finish()
+        for sink in self.pipeline.sinks:
+            sink.finish()
+
+    def describe(self, recorder: Recorder, part: Mapping[str, Any] | None = None) -> None:
+        """Attach the databases and the profile, and write the ``tankviz`` metadata record
+        (with :attr:`extra`, the alarms so far and ``part``'s own entries)."""
+        decoder, profile = self.decoder, self.profile
+        names = attachment_names(decoder.files)
+        for f in decoder.files:
+            recorder.add_attachment(names[f.sha256], f.content)
+        if profile is not None:
+            recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
+                                    media="application/toml")
+        buses: dict[str, list[str]] = {}
+        for f in decoder.files:
+            for bus in decoder.buses_for(f):
+                buses.setdefault(bus, []).append(names[f.sha256])
+        self.statistics = decoder.stats.to_dict(decoder.codecs())
+        recorder.add_metadata({
+            "tankviz_version": __version__,
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
+                         "scene_rate_hz": self.scene_rate} if profile is not None else None),
+            "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
+                           "path": str(f.path), "buses": decoder.buses_for(f)}
+                          for f in decoder.files],
+            "bus_databases": buses,
+            "statistics": self.statistics,
+            **self.extra,
+            "alarms": self.health.event_records(),
+            **(part or {}),
+        })

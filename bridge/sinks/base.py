@@ -1,0 +1,69 @@
+"""The one output interface of the pipeline: a :class:`Sink` (python-can's ``Listener`` is the
+model: the pipeline calls each sink in turn; a sink never calls back).
+
+A drive's sinks get, in log time order:
+
+- every raw frame with its serialized ``tankviz.CanFrame`` (serialized once, for all sinks);
+- every decoded message (its codec knows its topic and schema; its payload is serialized);
+- the messages the pipeline makes at one log time (a scene tick, a health tick, a log line), as
+  one batch of :class:`Serialized` messages, each serialized once for all sinks;
+- before any frame, on live: every :class:`Channel` the drive can carry, so viewers see the
+  topics at once (a file sink ignores this: its channels are written when first used);
+- at the end, :meth:`Sink.finish`: a file is complete after it; a live server sends what is
+  left and goes on serving (the next drive, a replay's next pass).
+
+The recorder (:class:`bridge.sinks.mcap.Recorder`), a drive split into parts
+(:class:`bridge.sinks.drives.DriveRecorder`) and the live server
+(:class:`bridge.sinks.websocket.LiveServer`) implement it, and so do test fakes. Subclass
+:class:`Sink` to inherit methods that do nothing; a sink must not block the pipeline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple, Protocol
+
+from bridge.decode.decoder import Decoded
+from bridge.frame import Frame
+
+
+class Serialized(NamedTuple):
+    """A message the pipeline made: topic, protobuf message class, serialized bytes, log time."""
+
+    topic: str
+    message_class: Any
+    payload: bytes
+    t_ns: int
+
+
+class Channel(NamedTuple):
+    """A topic a drive can carry, with its protobuf schema (a FileDescriptorSet, built only
+    when asked for)."""
+
+    topic: str
+    schema_name: str
+    schema: Callable[[], bytes]
+
+
+class Sink(Protocol):
+    """Where a drive's frames, decoded messages and made messages go."""
+
+    def on_frame(self, frame: Frame, payload: bytes, /) -> None:
+        """A raw frame; ``payload`` is its serialized ``tankviz.CanFrame``."""
+        return None
+
+    def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
+        """A decoded message at log time ``t_ns``."""
+        return None
+
+    def on_messages(self, messages: Sequence[Serialized], /) -> None:
+        """The messages made at one log time (scene, perception, health, log), in order."""
+        return None
+
+    def advertise(self, channels: Sequence[Channel], /) -> None:
+        """Every channel the drive can carry, before its first frame (live)."""
+        return None
+
+    def finish(self) -> None:
+        """The drive is over: a file is complete after this; a server sends what is left."""
+        return None

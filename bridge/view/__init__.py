@@ -1,0 +1,1 @@
+"""What Foxglove shows: the bundled layouts checked against what the bridge produces."""
