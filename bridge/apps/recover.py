@@ -40,17 +40,19 @@ renames it when the new MCAP is complete.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
 import struct
-import zlib
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, cast
 
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -71,10 +73,12 @@ from mcap.writer import CompressionType
 from zstandard import ZstdError
 
 from bridge import __version__
+from bridge.apps.options import Subparsers
+from bridge.apps.progress import ProgressBar
 from bridge.errors import InputError, OutputError
 from bridge.frame import format_time
 from bridge.sinks.mcap import FastWriter as Writer  # mcap's Writer, faster add_message
-from bridge.sinks.mcap import atomic_output
+from bridge.sinks.mcap import atomic_output, check_output
 
 #: Name of the metadata record that says what was recovered.
 METADATA_NAME = "tankviz.recover"
@@ -212,41 +216,45 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
+#: The records whose fields must take exactly their record's length: the data-section records
+#: tankviz copies, and the header and data end around them. (A message takes its length by
+#: construction: its data is what the length leaves; summary records are not checked.)
+_SIZED = (Chunk, Attachment, Metadata, Schema, Channel, Header, DataEnd)
+
+
+def _serialised(record: McapRecord) -> RecordBuilder:
+    """``record`` as mcap writes it: opcode, length and fields (an attachment's fields end with
+    the CRC that mcap computes over them)."""
+    builder = RecordBuilder()
+    record.write(builder)
+    return builder
+
+
 def _fields_size(record: McapRecord) -> int | None:
-    """How many bytes the fields of a data-section record take, as mcap writes them."""
-    def strings(*texts: str) -> int:
-        return sum(4 + len(text.encode()) for text in texts)
+    """How many bytes the fields of a data-section record take, as mcap writes them.
 
-    def pairs(values: dict[str, str]) -> int:
-        return 4 + sum(strings(k, v) for k, v in values.items())
-
-    if isinstance(record, Chunk):
-        return 36 + strings(record.compression) + len(record.data)
-    if isinstance(record, Attachment):
-        return 28 + strings(record.name, record.media_type) + len(record.data)
-    if isinstance(record, Metadata):
-        return strings(record.name) + pairs(record.metadata)
-    if isinstance(record, Schema):
-        return 6 + strings(record.name, record.encoding) + len(record.data)
-    if isinstance(record, Channel):
-        return 4 + strings(record.topic, record.message_encoding) + pairs(record.metadata)
-    if isinstance(record, Header):
-        return strings(record.profile, record.library)
-    if isinstance(record, DataEnd):
-        return 4
-    return None
+    mcap writes what its reader kept, so a record with something the reader drops is found
+    damaged: a metadata map (or a channel's) that holds a key twice keeps one value, and its
+    serialisation is shorter than the record's length.
+    """
+    if not isinstance(record, _SIZED):
+        return None
+    return _serialised(record).count - _RECORD_HEADER.size
 
 
 def _attachment_crc_ok(a: Attachment, stored: bytes) -> bool:
-    """Whether an attachment matches ``stored``, the CRC that ends its record (which mcap reads
-    but does not check)."""
-    name, media = a.name.encode(), a.media_type.encode()
+    """Whether an attachment matches ``stored``, the CRC that ends its record.
+
+    The CRC is the one mcap computes when it writes the attachment (over its fields, log time to
+    data). Two things mcap cannot give: the stored CRC (its reader reads it but neither checks
+    nor keeps it, so it is taken from the record's last 4 bytes as read), and that a stored 0
+    means "written without a CRC" (its writer always writes a computed CRC).
+    """
     crc = int.from_bytes(stored, "little")
     if crc == 0:  # written without a CRC
         return True
-    computed = zlib.crc32(struct.pack("<QQI", a.log_time, a.create_time, len(name)) + name
-                          + struct.pack("<I", len(media)) + media + struct.pack("<Q", len(a.data)))
-    return zlib.crc32(a.data, computed) == crc
+    written: bytes = _serialised(a).end()  # type: ignore[no-untyped-call]
+    return int.from_bytes(written[-4:], "little") == crc
 
 
 class _Salvage:
@@ -574,8 +582,6 @@ def recover_file(broken: Path | str, fixed: Path | str, *, force: bool = False,
                  progress: Progress | None = None) -> RecoverReport:
     """Recover the MCAP file ``broken`` into ``fixed``, which is refused if it exists (unless
     ``force``) or is ``broken`` itself; a failed recovery leaves no output file."""
-    from bridge.apps.convert import check_output  # imports the decoder: only when a file is written
-
     broken, fixed = Path(broken), Path(fixed)
     if not broken.exists():
         raise InputError(broken, "no such file")
@@ -625,3 +631,29 @@ def format_report(report: RecoverReport, broken_path: Path | str, fixed_path: Pa
     lines.append(f"wrote {fixed_path} (its {METADATA_NAME} metadata record says what was "
                  "recovered)")
     return "\n".join(lines)
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser(
+        "recover", help="salvage a drive (MCAP) cut short by a power loss or a crash",
+        description="Copy every complete record of an MCAP file that was cut short (power loss, "
+        "killed recorder) into a complete new MCAP, and say what was recovered and where and why "
+        "reading stopped. Damaged chunks (CRC mismatch) are skipped and reported.")
+    parser.add_argument("input", type=Path, metavar="BROKEN.mcap")
+    parser.add_argument("-o", "--output", type=Path, required=True, metavar="FIXED.mcap",
+                        help="the complete MCAP to write")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no report")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    bar = ProgressBar(sys.stderr, unit="messages") if not args.quiet else None
+    try:
+        report = recover_file(args.input, args.output, force=args.force, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(format_report(report, args.input, args.output))
+    return 0
