@@ -1,18 +1,49 @@
-"""Shared fixtures: bundled and public databases, and logs written with python-can's writers."""
+"""Shared fixtures: bundled and public databases, and logs written with python-can's writers;
+the tests' time budgets (TANKVIZ_TEST_TIMEOUT_SCALE) and hypothesis' CI profile."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import can
 import cantools
 import pytest
+from hypothesis import HealthCheck, settings
 
 from bridge.resources import data_dir
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
+#: Where the public DBCs come from, for the reason of every test skipped without them.
+SHARED_DBC_ORIGIN = ("they come from ../shared/data/dbc beside the project: public DBC files of "
+                     "comma.ai's opendbc (MIT), not part of this repository")
 ECOCAR_DBC = data_dir() / "ecocar.dbc"
+
+# Under CI (CI=true) no property test fails on hypothesis' per-example deadline or on slow data
+# generation: a loaded machine is slow, not wrong. The examples are the same on every run
+# (derandomize: a CI failure does not come and go), and a falsifying one is printed with the blob
+# that replays it (@reproduce_failure). Spelled out in full rather than relying on the "ci"
+# profile that recent hypothesis versions register themselves (not every version we accept does).
+settings.register_profile("ci", settings.get_profile("default"), deadline=None,
+                          derandomize=True, database=None, print_blob=True,
+                          suppress_health_check=[HealthCheck.too_slow])
+if os.environ.get("CI"):
+    settings.load_profile("ci")
+
+
+def timeout_scale() -> float:
+    """TANKVIZ_TEST_TIMEOUT_SCALE (default 1): a factor on the tests' time budgets, for a slow or
+    loaded machine. The budgets are what a wait for a condition may take at most; a condition
+    that holds ends its wait at once."""
+    raw = os.environ.get("TANKVIZ_TEST_TIMEOUT_SCALE", "").strip() or "1"
+    try:
+        scale = float(raw)
+    except ValueError:
+        scale = 0.0
+    if not scale > 0:
+        raise pytest.UsageError(f"TANKVIZ_TEST_TIMEOUT_SCALE={raw!r}: expected a number > 0")
+    return scale
 
 
 def summary_counts(path: Path) -> dict[str, int]:
@@ -24,6 +55,8 @@ def summary_counts(path: Path) -> dict[str, int]:
     assert summary is not None and summary.statistics is not None
     return {summary.channels[i].topic: n
             for i, n in summary.statistics.channel_message_counts.items()}
+
+
 T0 = 1_700_000_000.0  # an absolute start time, in python-can's float seconds
 
 
@@ -36,7 +69,7 @@ def ecocar() -> cantools.database.can.Database:
 def shared_dbc() -> Path:
     """The public DBCs beside the project (../shared); skipped where they are absent."""
     if not SHARED_DBC.is_dir():
-        pytest.skip(f"public DBCs not found at {SHARED_DBC} (../shared is absent)")
+        pytest.skip(f"public DBCs not found at {SHARED_DBC}: {SHARED_DBC_ORIGIN}")
     return SHARED_DBC
 
 

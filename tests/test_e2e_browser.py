@@ -13,26 +13,39 @@ except under CI (CI=true), where they fail: CI installs them.
 
 TANKVIZ_UPDATE_PREVIEWS=1 also writes the screenshots as the layouts' preview pictures
 (layouts/<name>.png). TANKVIZ_E2E_OUT=DIR keeps every screenshot and the driver's result there.
+
+Time: every wait is for a condition (the app started, the layout imported, its panels shown,
+everything expected on screen; a tankviz command serving), so a fast machine spends no time
+waiting; each has a generous budget (WAIT_S), scaled by TANKVIZ_TEST_TIMEOUT_SCALE on a very slow
+or loaded machine. The driver says what it is waiting for, and what is still missing, as it goes;
+a run with no sign of life for a whole budget is stopped and reported with what it was doing.
+The live sources (`tankviz demo`, `tankviz replay`) are started for each live shot when the
+browser is ready for it, so their timelines (the demo's first fault, the replay's dropout) run
+from the shot's start, however long the shots before it took.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import summary_counts
+from conftest import summary_counts, timeout_scale
 
-from bridge.sim.drive import DEFAULT_START_NS, TIMELINE
+from bridge.sim.scenario import DEFAULT_START_NS, TIMELINE
 
 pytestmark = pytest.mark.browser
 
@@ -54,6 +67,14 @@ LIVE_VIEW = ["ego", "greenLanes", "radar", "camera", "tracks", "lead"]
 #: ("TrackID;: 33", "TrackIB: 35"), and a label that another one overlaps is not readable at all:
 #: the driver reads screenshot after screenshot until every pattern was matched once.
 LABEL_PATTERNS = [r"Lead\s*Vehicle", r"TrackI[D0OB][:;.,]{0,2}\s*\d+", r"x[:;]\s*-?\d+[.,]\d\d"]
+#: The time budgets' factor (TANKVIZ_TEST_TIMEOUT_SCALE, default 1).
+SCALE = timeout_scale()
+#: The budget of each wait for a condition, in the driver (the app started, the layout imported,
+#: the panels shown, everything expected on screen) and here (a tankviz command serving). On an
+#: idle machine the longest of them takes about 25 s.
+WAIT_S = 120.0 * SCALE
+#: How often the driver logs what it is still waiting for.
+REPORT_S = 15.0
 
 
 def unavailable(reason: str) -> None:
@@ -79,37 +100,60 @@ def ensure_node_modules() -> None:
     if marker.exists() and all((BROWSER / "node_modules" / n).exists() for n in needed):
         return
     run = subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=BROWSER,
-                         capture_output=True, text=True, timeout=900, check=False)
+                         capture_output=True, text=True, timeout=900 * SCALE, check=False)
     if run.returncode != 0 or not marker.exists():
         unavailable(f"npm ci in {BROWSER} failed: {(run.stderr or run.stdout)[-800:]}")
 
 
-def start_tankviz(*args: str) -> tuple[subprocess.Popen[str], str]:
-    """Run a tankviz command that serves Foxglove; returns it and its WebSocket URL."""
+@dataclass
+class Tankviz:
+    """A tankviz command serving Foxglove: its process, WebSocket URL and output (read all along,
+    so that a chatty command never blocks on a full pipe)."""
+
+    args: tuple[str, ...]
+    process: subprocess.Popen[str]
+    url: str = ""
+    started: float = field(default_factory=time.monotonic)
+    output: list[str] = field(default_factory=list)
+
+
+def start_tankviz(*args: str) -> Tankviz:
+    """Run a tankviz command that serves Foxglove; returns once it printed its WebSocket URL."""
     process = subprocess.Popen([sys.executable, "-m", "bridge", *args], cwd=ROOT,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    assert process.stdout is not None
-    seen = []
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        line = process.stdout.readline()
-        if not line:
-            break
-        seen.append(line)
-        match = re.search(r"ws://[^\s:]+:(\d+)", line)
-        if match:
-            return process, f"ws://127.0.0.1:{match[1]}"
-    process.kill()
-    raise AssertionError(f"tankviz {' '.join(args)} printed no ws:// URL:\n{''.join(seen)}")
+    served = Tankviz(args, process)
+    found: queue.SimpleQueue[str | None] = queue.SimpleQueue()
 
+    def read() -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            served.output.append(line)
+            if not served.url and (match := re.search(r"ws://[^\s:]+:(\d+)", line)):
+                served.url = f"ws://127.0.0.1:{match[1]}"
+                found.put(served.url)
+        found.put(None)
 
-def stop(process: subprocess.Popen[str]) -> None:
-    process.terminate()
+    threading.Thread(target=read, daemon=True).start()
     try:
-        process.communicate(timeout=20)
+        url, waited_out = found.get(timeout=WAIT_S), False
+    except queue.Empty:
+        url, waited_out = None, True
+    if url is None:
+        stop(served)
+        state = (f"printed no ws:// URL within {WAIT_S:g} s" if waited_out
+                 else f"exited with status {process.returncode} before printing a ws:// URL")
+        raise AssertionError(f"tankviz {' '.join(args)} {state}:\n{''.join(served.output)}")
+    served.started = time.monotonic()
+    return served
+
+
+def stop(served: Tankviz) -> None:
+    served.process.terminate()
+    try:
+        served.process.wait(timeout=20 * SCALE)
     except subprocess.TimeoutExpired:
-        process.kill()
-        process.communicate()
+        served.process.kill()
+        served.process.wait()
 
 
 def drive_time(seconds: float) -> str:
@@ -151,9 +195,112 @@ def indicators(layout: str, active: set[str]) -> dict[str, dict[str, str]]:
     return out
 
 
+@dataclass
+class DriverRun:
+    """What a run of the browser driver did, shot by shot, however far it got."""
+
+    shots: dict[str, dict[str, Any]] = field(default_factory=dict)  # by name, as each ended
+    ended: dict[str, float] = field(default_factory=dict)  # when each shot's result came
+    served: dict[str, Tankviz] = field(default_factory=dict)  # each live shot's own source
+    result: dict[str, Any] | None = None  # the driver's last line: every shot
+    problem: str | None = None  # why the run did not finish, if it did not
+    log: list[str] = field(default_factory=list)  # the driver's progress (its stderr)
+
+
+def run_driver(plan: Path, sources: dict[str, list[str]], shots: int) -> DriverRun:
+    """Run the browser driver (e2e.mjs) on a plan: start the live source each live shot asks for
+    when it asks (and stop it when the shot's result comes), and stop the driver if it shows no
+    sign of life for longer than any of its waits may take (it logs every step, and what it is
+    waiting for every REPORT_S)."""
+    process = subprocess.Popen(["node", str(BROWSER / "e2e.mjs"), str(plan)], cwd=BROWSER,
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+    assert process.stdin is not None and process.stdout is not None
+    assert process.stderr is not None
+    lines: queue.SimpleQueue[tuple[str, str | None]] = queue.SimpleQueue()
+
+    def pump(name: str, stream: Any) -> None:
+        for line in stream:
+            lines.put((name, line.rstrip("\n")))
+        lines.put((name, None))
+
+    for name, stream in (("out", process.stdout), ("err", process.stderr)):
+        threading.Thread(target=pump, args=(name, stream), daemon=True).start()
+    run = DriverRun()
+    silent_s = WAIT_S + 60 * SCALE  # a wait, plus a screenshot or an OCR read after it
+    overall_s = (2 + 4 * shots) * WAIT_S  # a safety net only: every wait has its budget
+    began = alive = time.monotonic()
+    streams = {"out", "err"}
+    try:
+        while streams:
+            try:
+                name, line = lines.get(timeout=1.0)
+            except queue.Empty:
+                name, line = "", None
+            now = time.monotonic()
+            if name:
+                alive = now
+                if line is None:
+                    streams.discard(name)
+                elif name == "err":
+                    run.log.append(line)
+                elif line.startswith("{"):
+                    message = json.loads(line)
+                    if "start" in message:  # a live shot is ready for its source
+                        shot = message["shot"]
+                        try:
+                            run.served[shot] = start_tankviz(*sources[message["start"]])
+                            reply = {"ws": run.served[shot].url}
+                        except AssertionError as error:
+                            reply = {"error": str(error)[-2000:]}
+                        run.log.append(f"[test] {shot}: {message['start']} -> {reply}")
+                        try:
+                            process.stdin.write(json.dumps(reply) + "\n")
+                            process.stdin.flush()
+                        except OSError:
+                            pass  # the driver is gone: its end is reported below
+                        alive = time.monotonic()
+                    elif "shot" in message:
+                        shot = message["shot"]["name"]
+                        run.shots[shot], run.ended[shot] = message["shot"], now
+                        if shot in run.served:
+                            stop(run.served[shot])
+                    else:
+                        run.result = message
+                else:
+                    run.log.append(f"[stdout] {line}")
+            if now - alive > silent_s:
+                run.problem = f"the driver showed no sign of life for {silent_s:g} s"
+                break
+            if now - began > overall_s:
+                run.problem = f"the driver was still running after {overall_s:g} s"
+                break
+        if run.problem is None:
+            status = process.wait(timeout=60 * SCALE)
+            if status != 0 or run.result is None:
+                run.problem = f"the driver exited with status {status} and no result"
+    finally:
+        for served in run.served.values():
+            if served.process.poll() is None:
+                stop(served)
+        if process.poll() is None:
+            process.terminate()  # playwright closes chromium on SIGTERM
+            try:
+                process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+    if run.problem:
+        waiting = [line for line in run.log if "still waiting" in line][-3:]
+        run.problem += (f" (TANKVIZ_TEST_TIMEOUT_SCALE={SCALE:g}); shots ended: "
+                        f"{sorted(run.shots) or 'none'}; what it last waited for: "
+                        f"{waiting or 'nothing'}; its last lines:\n" + "\n".join(run.log[-30:]))
+    return run
+
+
 @pytest.fixture(scope="module")
 def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """One browser session for every shot (the whole run takes about a minute and a half)."""
+    """One browser session for every shot (about three minutes on an idle machine)."""
     browser = chromium()
     if browser is None:
         unavailable("chromium is not installed (apt-get install chromium)")
@@ -173,31 +320,34 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         f"the drive's /health at {radar_out_s} s (radar dropout {radar_begin}-{radar_end} s): "
         f"active {sorted(radar_alarms)}")
     radar_out = drive_time(radar_out_s)
-    demo_started = time.monotonic()
-    demo, url = start_tankviz("demo", "--port", "0", "--no-record", "--scenario",
-                              f"{DEMO_SCENARIO_S:g}")
-    # The drive served live by `tankviz replay` from just inside the camera dropout, slowly
-    # (0.05x: the dropout lasts over a minute and a half), so the browser is there before it ends.
-    replay, replay_url = start_tankviz("replay", str(drive), "--port", "0", "--start",
-                                       f"{begin + 0.2:.1f}", "--speed", "0.05")
+    # The live sources, each started for its shot when the browser is ready for it.
+    sources = {
+        "demo": ["demo", "--port", "0", "--no-record", "--scenario", f"{DEMO_SCENARIO_S:g}"],
+        # The drive served live by `tankviz replay` from just inside the camera dropout, slowly
+        # (0.05x: the dropout lasts over a minute and a half), so the browser is there before
+        # it ends.
+        "replay": ["replay", str(drive), "--port", "0", "--start", f"{begin + 0.2:.1f}",
+                   "--speed", "0.05"],
+    }
     plan = {
         "chromium": browser,
         "dataDir": str(out),
-        "timeoutMs": 60000,
+        "timeoutMs": round(WAIT_S * 1000),
+        "reportMs": round(REPORT_S * 1000),
         "viewport": {"width": 1600, "height": 1000},
         "shots": [
-            {"name": "tank-viz", "source": {"ws": url}, "via": "import",
+            {"name": "tank-viz", "source": {"serve": "demo"}, "via": "import",
              "layout": str(LAYOUTS / "tank-viz.json"),
              "scene": {"panel": "3D!tankviz", "expect": LIVE_VIEW},
              "ocr": LABEL_PATTERNS, "screenshot": str(out / "tank-viz.png")},
             # No fault in the demo before 40 % of its scenario: every alarm a green OK.
-            {"name": "engineer-live", "source": {"ws": url}, "via": "preload",
+            {"name": "engineer-live", "source": {"serve": "demo"}, "via": "preload",
              "layout": str(LAYOUTS / "engineer.json"),
              "scene": {"panel": "3D!engineer", "expect": ["ego", "greenLanes", "lead"]},
              "plots": True, "plotExtent": 0.3,
              "indicators": indicators("engineer.json", set()),
              "screenshot": str(out / "engineer-live.png")},
-            {"name": "replay", "source": {"ws": replay_url}, "via": "preload",
+            {"name": "replay", "source": {"serve": "replay"}, "via": "preload",
              "layout": str(LAYOUTS / "tank-viz.json"),
              "scene": {"panel": "3D!tankviz", "expect": ["ego", "magentaLanes", "lead"],
                        "absent": ["greenLanes"]},
@@ -229,30 +379,30 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     }
     (out / "plan.json").write_text(json.dumps(plan, indent=2), encoding="utf-8")
     started = time.monotonic()
-    try:
-        run = subprocess.run(["node", str(BROWSER / "e2e.mjs"), str(out / "plan.json")],
-                             cwd=BROWSER, capture_output=True, text=True, timeout=300,
-                             check=False)
-    finally:
-        stop(demo)
-        stop(replay)
+    run = run_driver(out / "plan.json", sources, len(plan["shots"]))
     wall = time.monotonic() - started
-    (out / "driver.log").write_text(run.stderr, encoding="utf-8")
-    lines = [line for line in run.stdout.splitlines() if line.startswith("{")]
-    assert run.returncode == 0 and lines, f"the browser driver failed:\n{run.stderr[-3000:]}"
-    result = json.loads(lines[-1])
+    (out / "driver.log").write_text("\n".join(run.log) + "\n", encoding="utf-8")
+    shots = run.shots
+    # How far into its own live source (started for it) each live shot ended, at most.
+    for name, served in run.served.items():
+        if name in shots:
+            shots[name]["servedSeconds"] = round(run.ended[name] - served.started, 1)
+    result = run.result or {"ok": False, "problem": run.problem, "shots": list(shots.values())}
     (out / "result.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
-    shots = {shot["name"]: shot for shot in result["shots"]}
-    # How far into the demo each shot ended, at most (the driver's time, shot by shot).
-    elapsed = started - demo_started
-    for shot in result["shots"]:
-        elapsed += shot["seconds"]
-        shot["demoSeconds"] = round(elapsed, 1)
     if os.environ.get("TANKVIZ_UPDATE_PREVIEWS"):
         for name in ("tank-viz", "engineer", "can-debug"):
-            if shots[name]["ok"]:
+            if shots.get(name, {}).get("ok"):
                 shutil.copyfile(out / f"{name}.png", LAYOUTS / f"{name}.png")
-    yield {"shots": shots, "out": out, "wall": wall, "result": result}
+    yield {"shots": shots, "planned": [shot["name"] for shot in plan["shots"]],
+           "problem": run.problem, "out": out, "wall": wall, "result": result}
+
+
+def shot_named(e2e: dict[str, Any], name: str) -> dict[str, Any]:
+    """A shot's result; fails with what the driver was doing if the run ended before it."""
+    shot: dict[str, Any] | None = e2e["shots"].get(name)
+    if shot is None:
+        pytest.fail(f"the browser driver did not get to the shot {name!r}: {e2e['problem']}")
+    return shot
 
 
 def explain(shot: dict[str, Any]) -> str:
@@ -262,7 +412,7 @@ def explain(shot: dict[str, Any]) -> str:
 
 def test_live_demo_in_foxglove_with_tank_viz(e2e: dict[str, Any]) -> None:
     """Live over the WebSocket, the layout imported from the Layouts menu: the Tank Viz look."""
-    shot = e2e["shots"]["tank-viz"]
+    shot = shot_named(e2e, "tank-viz")
     assert shot["ok"], explain(shot)
     assert all(shot["verdict"][k] for k in LIVE_VIEW), explain(shot)
     reading = shot["reading"]
@@ -276,7 +426,7 @@ def test_live_demo_in_foxglove_with_tank_viz(e2e: dict[str, Any]) -> None:
 
 
 def test_tank_viz_text_labels_are_readable(e2e: dict[str, Any]) -> None:
-    ocr = e2e["shots"]["tank-viz"].get("ocr")
+    ocr = shot_named(e2e, "tank-viz").get("ocr")
     if not ocr or not ocr.get("available"):
         unavailable("tesseract is not installed (apt-get install tesseract-ocr)")
     assert ocr["found"] == LABEL_PATTERNS, ocr["text"]
@@ -286,7 +436,7 @@ def test_tank_viz_text_labels_are_readable(e2e: dict[str, Any]) -> None:
 
 def test_replay_in_the_lane_dropout_shows_magenta_lanes(e2e: dict[str, Any]) -> None:
     """`tankviz replay` (server time, messages as recorded) in the camera lane dropout."""
-    shot = e2e["shots"]["replay"]
+    shot = shot_named(e2e, "replay")
     assert shot["ok"], explain(shot)
     assert shot["verdict"]["magentaLanes"] and not shot["verdict"]["greenLanes"]
     assert shot["reading"]["egoBottomCentre"]
@@ -294,7 +444,7 @@ def test_replay_in_the_lane_dropout_shows_magenta_lanes(e2e: dict[str, Any]) -> 
 
 def test_lane_dropout_shows_magenta_lanes(e2e: dict[str, Any]) -> None:
     """A recorded drive opened as a remote file (HTTP ranges) at a time in the camera dropout."""
-    shot = e2e["shots"]["dropout"]
+    shot = shot_named(e2e, "dropout")
     assert shot["ok"], explain(shot)
     assert shot["verdict"]["magentaLanes"] and not shot["verdict"]["greenLanes"]
     assert len(shot["reading"]["lanes"]["magenta"]) >= 2
@@ -304,7 +454,7 @@ ENGINEER_PLOTS = {"Plot!lead", "Plot!ego", "Plot!counts", "Plot!rates"}
 
 
 def test_engineer_layout_plots_and_raw_messages(e2e: dict[str, Any]) -> None:
-    shot = e2e["shots"]["engineer"]
+    shot = shot_named(e2e, "engineer")
     assert shot["ok"], explain(shot)
     assert set(shot["plots"]) == ENGINEER_PLOTS
     for plot in shot["plots"].values():
@@ -314,10 +464,10 @@ def test_engineer_layout_plots_and_raw_messages(e2e: dict[str, Any]) -> None:
 def test_engineer_indicators_live_without_alarms(e2e: dict[str, Any]) -> None:
     """`tankviz demo` live, before its first fault: every alarm's Indicator is a green OK, and
     the health plot (family rates from /health) has values."""
-    shot = e2e["shots"]["engineer-live"]
+    shot = shot_named(e2e, "engineer-live")
     first_fault_s = TIMELINE.lane_dropout.start * DEMO_SCENARIO_S
-    assert shot["ok"], (f"ended at most {shot['demoSeconds']} s into the demo (its first fault: "
-                        f"{first_fault_s:g} s)\n{explain(shot)}")
+    assert shot["ok"], (f"ended at most {shot.get('servedSeconds')} s into its demo (its first "
+                        f"fault: {first_fault_s:g} s)\n{explain(shot)}")
     shown = shot["indicators"]
     assert len(shown) == 14, sorted(shown)
     assert {i["label"] for i in shown.values()} == {"OK"}
@@ -329,7 +479,7 @@ def test_engineer_indicators_live_without_alarms(e2e: dict[str, Any]) -> None:
 def test_engineer_indicators_in_the_radar_dropout(e2e: dict[str, Any]) -> None:
     """The recorded drive opened in its radar dropout: radar.silent is red and says so, every
     other alarm is a green OK, the Log panel has the alarm and the rate plot the gap."""
-    shot = e2e["shots"]["engineer"]
+    shot = shot_named(e2e, "engineer")
     assert shot["ok"], explain(shot)
     shown = shot["indicators"]
     assert len(shown) == 14
@@ -342,7 +492,7 @@ def test_engineer_indicators_in_the_radar_dropout(e2e: dict[str, Any]) -> None:
 
 
 def test_can_debug_layout(e2e: dict[str, Any]) -> None:
-    shot = e2e["shots"]["can-debug"]
+    shot = shot_named(e2e, "can-debug")
     assert shot["ok"], explain(shot)
     assert len(shot["plots"]) == 7
     for plot in shot["plots"].values():
@@ -352,7 +502,8 @@ def test_can_debug_layout(e2e: dict[str, Any]) -> None:
 
 
 def test_no_errors_in_the_app(e2e: dict[str, Any]) -> None:
-    for shot in e2e["shots"].values():
+    for name in e2e["planned"]:
+        shot = shot_named(e2e, name)
         errors = [e for e in shot["errors"] if "WebGL" not in e]
         assert errors == [], f"{shot['name']}: {errors}"
 
@@ -360,7 +511,7 @@ def test_no_errors_in_the_app(e2e: dict[str, Any]) -> None:
 # --- conformance with Foxglove's client libraries (tools/conformance.mjs) -------------------------
 
 
-def conformance(*args: str, timeout: float = 120) -> dict[str, Any]:
+def conformance(*args: str, timeout: float = 120 * SCALE) -> dict[str, Any]:
     if shutil.which("node") is None:
         unavailable("node is not installed")
     ensure_node_modules()
@@ -376,11 +527,11 @@ def conformance(*args: str, timeout: float = 120) -> dict[str, Any]:
 def test_live_demo_with_foxglove_ws_protocol_client() -> None:
     """@foxglove/ws-protocol's FoxgloveClient subscribes to every channel of `tankviz demo`,
     parses every schema (base64 FileDescriptorSet) and decodes every message with protobufjs."""
-    from bridge.apps.layouts import bundled_produced
+    from bridge.view.produced import bundled_produced
 
-    demo, url = start_tankviz("demo", "--port", "0", "--no-record")
+    demo = start_tankviz("demo", "--port", "0", "--no-record")
     try:
-        found = conformance("live", url, "--seconds", "30")
+        found = conformance("live", demo.url, "--seconds", "30")
     finally:
         stop(demo)
     assert found["ok"], json.dumps({k: v for k, v in found.items() if k != "channels"})[:3000]
@@ -407,7 +558,7 @@ def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:
     drives = tmp_path / "drives"
     subprocess.run([sys.executable, "-m", "bridge", "demo", "--no-server", "--for", "4",
                     "--drives", str(drives)], cwd=ROOT, check=True, capture_output=True,
-                   timeout=120)
+                   timeout=120 * SCALE)
     recorded = sorted(drives.glob("*.mcap"))
     assert recorded, f"tankviz demo recorded nothing into {drives}"
     for path in [simulated, *recorded]:

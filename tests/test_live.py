@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +26,14 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import build_stages
-from bridge.apps.live import BusSpec, DriveRecorder, Live, ReadSchedule, drive_name, merge_batches
+from bridge.apps.live import Live
 from bridge.frame import Frame
-from bridge.pipeline.pipeline import Pipeline
+from bridge.io.buses import BusSpec, ReadSchedule, merge_batches
+from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
+from bridge.sinks.base import Serialized, Sink
+from bridge.sinks.drives import DriveRecorder, drive_name
+from bridge.sinks.mcap import frame_payload
 from bridge.sinks.websocket import LiveServer, wait_for
 
 NS = 1_000_000_000
@@ -55,9 +59,8 @@ def run_live_on_virtual_bus(name: str, tmp_path: Path, **options: Any
                             ) -> tuple[Live, threading.Thread, str]:
     """``tankviz live`` (ecocar profile) on a fresh virtual bus, running in a thread; returns it,
     the thread and the bus channel to send on."""
-    decoder, profile = build_stages([], "ecocar")
     channel = f"{name}-{os.getpid()}"
-    live = Live([BusSpec("can0", "virtual", channel)], decoder, profile=profile,
+    live = Live([BusSpec("can0", "virtual", channel)], load_stages([], "ecocar"),
                 drives=tmp_path, **options)
     live.start()  # the bus is open before anything is sent on it
     runner = threading.Thread(target=live.run)
@@ -156,9 +159,8 @@ class FlakySource:
 
 def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
     source = FlakySource()
-    decoder, profile = build_stages([str(ECOCAR_DBC)], "ecocar")
     said: list[str] = []
-    live = Live([BusSpec("chassis", "flaky", "x")], decoder, profile=profile,
+    live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
                 drives=tmp_path, open_bus=source.open, say=said.append)
     runner = threading.Thread(target=live.run)
     runner.start()
@@ -209,45 +211,28 @@ def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
                                                                    "profile-ecocar.toml"}
 
 
-def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it() -> None:
-    """Viewers wait for each scene; the recorder does not: the server gets a tick's messages
-    (and is told to send them) before the recorder writes them."""
+def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it(tmp_path: Path) -> None:
+    """Viewers wait for each scene; the recorder does not: live's server is its drive's first
+    sink, and every sink gets a tick's messages in the order the sinks were added."""
     events: list[tuple[str, str]] = []
 
-    class Server:
-        def channel_for_schema(self, topic: str, schema_name: str, schema: bytes) -> str:
-            return topic
+    class Viewers(Sink):
+        def on_messages(self, messages: Sequence[Serialized], /) -> None:
+            events.extend(("served", m.topic) for m in messages)
 
-        def wanted(self, channel: str) -> bool:
-            return channel.startswith("/scene/")
+    class Recorder(Sink):
+        def on_messages(self, messages: Sequence[Serialized], /) -> None:
+            events.extend(("recorded", m.topic) for m in messages)
 
-        def publish(self, channel: str, t_ns: int, payload: bytes) -> None:
-            events.append(("served", channel))
-
-        def flush(self) -> None:
-            events.append(("flushed", ""))
-
-    class Sink:
-        def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
-            pass
-
-        def write_decoded(self, timestamp_ns: int, decoded: Any) -> None:
-            pass
-
-        def write_payload(self, topic: str, message_class: Any, payload: bytes,
-                          timestamp_ns: int) -> None:
-            events.append(("recorded", topic))
-
-    decoder, profile = build_stages([], "ecocar")
-    pipeline = Pipeline(decoder, profile=profile, recorder=Sink(),
-                        server=Server())  # type: ignore[arg-type]
-    for frame in simulate(duration_s=0.2):
-        pipeline.process(frame)
-    ego = [i for i, event in enumerate(events) if event[1] == "/scene/ego"]
+    drive = Drive(load_stages([], "ecocar"), [Viewers(), Recorder()])
+    drive.run(simulate(duration_s=0.2))
+    ego = [event[0] for event in events if event[1] == "/scene/ego"]
     assert len(ego) >= 2 * 3  # three ticks at least
-    assert [events[i][0] for i in ego] == ["served", "recorded"] * (len(ego) // 2)
-    for served, recorded in zip(ego[::2], ego[1::2], strict=True):
-        assert ("flushed", "") in events[served:recorded]
+    assert ego == ["served", "recorded"] * (len(ego) // 2)
+    with LiveServer(port=0) as server:
+        live = Live([BusSpec("can0", "virtual", "order")], load_stages([], "ecocar"),
+                    drives=tmp_path, server=server)
+        assert live.pipeline.sinks == [server, live.recorder]
 
 
 def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
@@ -296,7 +281,8 @@ def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
             return sent
 
         sent = asyncio.run(viewers())
-        time.sleep(0.3)
+        # Stop once the pipeline has taken in every frame sent (not after a fixed pause).
+        wait_for(lambda: live.pipeline.frames >= sent, timeout=10.0)
         live.stop()
         runner.join(10)
     (drive,) = tmp_path.glob("*.mcap")
@@ -459,14 +445,14 @@ def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> No
     frame = Frame(1, "can0", 0x100, b"\x01\x02", False, False, False, False, False, False, 2)
 
     def on_disk() -> int:
-        drive.write_frame(frame)
+        drive.on_frame(frame, frame_payload(frame))
         drive.tick()
         return drive.files[0].stat().st_size
 
     written = on_disk()  # the header only: the chunk is being built
     now[0] += 1.05  # due, but no scene yet
     assert on_disk() == written
-    drive.write_payload("/scene/ego", SceneUpdate, b"", 2)
+    drive.on_messages([Serialized("/scene/ego", SceneUpdate, b"", 2)])
     drive.tick()  # a scene was written: flush now
     assert drive.files[0].stat().st_size > written
     written = drive.files[0].stat().st_size

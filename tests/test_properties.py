@@ -130,7 +130,9 @@ def subject(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFac
     else:
         path = SHARED_DBC / f"{name}.dbc"
     if not path.is_file():
-        pytest.skip(f"public DBC {path.name} not found in {SHARED_DBC} (../shared is absent)")
+        pytest.skip(f"public DBC {path.name} not found in {SHARED_DBC}: they come from "
+                    "../shared/data/dbc beside the project: public DBC files of comma.ai's "
+                    "opendbc (MIT), not part of this repository")
     return Subject(load_database(path))
 
 

@@ -235,6 +235,9 @@ def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> No
                     t0 = time.perf_counter()
                     server.publish(scene, i, payload)
                     worst_publish = max(worst_publish, time.perf_counter() - t0)
+                    # As the pipeline does after each scene: sent now, not at the drain timer's
+                    # next turn (which would pace the test at 10 messages a second, not 50).
+                    server.flush()
                     data = await next_binary(reader, timeout=1.0)
                     received.append(struct.unpack_from("<BIQ", data)[2])
                     await asyncio.sleep(max(0.0, started + (i + 1) / rate - time.monotonic()))
@@ -291,3 +294,36 @@ def test_an_idle_viewer_gets_its_messages_at_once_unless_its_socket_is_full() ->
     viewer.write_now()
     assert len(written) == 1 and written[0].endswith(b"scene") and not viewer.queue
     assert viewer.stats.sent == 1 and not viewer.ready.is_set()
+
+
+def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_only(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pipeline's messages of a tick leave at once (the server flushes them); raw frames
+    go only to who subscribed to their bus; what the pipeline advertises is advertised once."""
+    from bridge.frame import Frame
+    from bridge.sinks.base import Channel, Serialized
+
+    monkeypatch.setattr("bridge.sinks.websocket.DRAIN_INTERVAL_S", 3600.0)  # no safety net
+    frame = Frame(5, "radar", 0x100, b"\x01", dlc=1)
+    with LiveServer(port=0) as server:
+        server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b""),
+                          Channel("/can/radar/frames", "tankviz.CanFrame", lambda: b"")])
+        server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b"")])
+
+        async def session() -> tuple[list[str], list[int]]:
+            async with client(server) as ws:
+                channels = (await next_json(ws, "advertise"))["channels"]
+                ids = {c["topic"]: c["id"] for c in channels}
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": 1, "channelId": ids["/scene/ego"]}]}))
+                assert await asyncio.to_thread(wait_for,
+                                               lambda: server.wanted(ids["/scene/ego"]))
+                server.on_frame(frame, b"frame")  # nobody subscribed to the radar's frames
+                server.on_messages([Serialized("/scene/ego", SceneUpdate, b"", 7),
+                                    Serialized("/scene/ego", SceneUpdate, b"", 8)])
+                times = [struct.unpack_from("<BIQ", await next_binary(ws))[2] for _ in "ab"]
+                return [c["topic"] for c in channels], times
+
+        topics, times = asyncio.run(session())
+    assert sorted(topics) == ["/can/radar/frames", "/scene/ego"]
+    assert times == [7, 8]

@@ -3,14 +3,24 @@
 // drive (MCAP, remote-file source), with a layout applied through the app's own "Import layout"
 // button (its file picker is fed the layout file) or preloaded into its layout storage.
 //
-//   node tests/browser/e2e.mjs PLAN.json      (prints one JSON result line on stdout)
+//   node tests/browser/e2e.mjs PLAN.json      (prints a JSON line per shot, then the result, on stdout)
 //
 // PLAN: {
 //   "chromium": "/usr/bin/chromium", "viewport": {"width": 1600, "height": 1000},
-//   "dataDir": "/tmp/…" (served as /data/ for remote-file sources), "timeoutMs": 60000,
+//   "dataDir": "/tmp/…" (served as /data/ for remote-file sources),
+//   "timeoutMs": 120000,  the budget of each wait for a condition (the app started, the layout
+//                         imported, the panels shown, everything expected on screen); a wait
+//                         ends as soon as its condition holds, so it only costs time when
+//                         something is not ready
+//   "reportMs": 15000,    while waiting, what is still missing is logged this often (stderr)
 //   "shots": [{
 //     "name": "live",
-//     "source": {"ws": "ws://127.0.0.1:PORT"} | {"mcap": "drive.mcap", "time": "2026-01-01T12:00:09Z"},
+//     "source": {"ws": "ws://127.0.0.1:PORT"} | {"mcap": "drive.mcap", "time": "2026-01-01T12:00:09Z"}
+//               | {"serve": "demo"}   a live source started for this shot only, when the shot
+//                                     begins: the driver prints {"start": "demo", "shot": NAME}
+//                                     on stdout and reads {"ws": URL} (or {"error": TEXT}) from
+//                                     stdin (tests/test_e2e_browser.py answers, and stops that
+//                                     source when the shot's result line comes),
 //     "layout": "/abs/path/layouts/tank-viz.json", "via": "import" | "preload",
 //     "scene": {"panel": "3D!tankviz", "expect": ["ego", "greenLanes", …], "absent": [...]},
 //                                        (the 3D panel to read; keys of pixels.mjs verdict())
@@ -27,14 +37,16 @@
 //   }]
 // }
 // Result: {"ok", "seconds", "shots": [{"name", "ok", "failures", "verdict", "reading", "plots",
-// "indicators", "ocr", "steps", "errors", "seconds"}]}
+// "indicators", "ocr", "steps", "errors", "seconds"}]}; each shot's result is also printed on its
+// own line as it ends, {"shot": {...}}, so that a run cut short still tells what it did.
 // Every wait is for a condition, with the plan's timeout; a shot that times out is reported with
-// what was seen last (and its screenshot), not thrown.
+// what was not ready (the step, and what was seen last; its screenshot too), not thrown.
 
 import { spawnSync } from "node:child_process";
 import fs from "node:fs";
 import os from "node:os";
 import path from "node:path";
+import readline from "node:readline";
 
 import { chromium } from "playwright-core";
 
@@ -63,31 +75,86 @@ function log(...args) {
   console.error(`[e2e ${new Date().toISOString().slice(11, 23)}]`, ...args);
 }
 
-/** Poll `check` (async, returns a truthy value when done) until it is done or time is up. */
-async function until(check, timeoutMs, stepMs = 250) {
-  const deadline = Date.now() + timeoutMs;
+/** A wait for a condition that ran out of time: `message` says what was not ready (`summary`:
+ * which wait, and how long it waited). */
+class NotReady extends Error {
+  constructor(summary, detail) {
+    super(detail ? `${summary}: ${detail}` : summary);
+    this.summary = summary;
+  }
+}
+
+const seconds = (ms) => +(ms / 1000).toFixed(1);
+
+/**
+ * Poll `check` (async: returns a truthy value when done, else undefined) until it is done or
+ * `timeoutMs` is up; `missing()` says what is not there yet: logged every `reportMs` while
+ * waiting, and the message of the NotReady thrown when time is up.
+ */
+async function until(label, check, { timeoutMs, reportMs = 15000, stepMs = 250, missing = () => "" }) {
+  const started = Date.now();
+  let report = started + reportMs;
   for (;;) {
     const value = await check();
     if (value) {
       return value;
     }
-    if (Date.now() > deadline) {
-      return undefined;
+    const now = Date.now();
+    if (now - started > timeoutMs) {
+      throw new NotReady(`${label}: not ready after ${seconds(now - started)} s`, missing());
+    }
+    if (now >= report) {
+      log(label, `still waiting after ${seconds(now - started)} s: ${missing()}`);
+      report = now + reportMs;
     }
     await sleep(stepMs);
   }
 }
 
-function appUrl(base, shot) {
+/** Run one step of a shot; a playwright timeout in it says which step was not ready. */
+async function step(label, action) {
+  try {
+    return await action();
+  } catch (error) {
+    if (error instanceof NotReady || error?.name !== "TimeoutError") {
+      throw error;
+    }
+    throw new NotReady(`${label}: not ready: ${String(error.message).split("\n")[0]}`);
+  }
+}
+
+let replies;
+
+/** A live source started for this shot by whoever runs the driver (see PLAN "serve"). */
+async function serve(shot, timeoutMs) {
+  replies ??= readline.createInterface({ input: process.stdin })[Symbol.asyncIterator]();
+  process.stdout.write(`${JSON.stringify({ start: shot.source.serve, shot: shot.name })}\n`);
+  let timer;
+  const timeout = new Promise((resolve) => {
+    timer = setTimeout(() => resolve({ timedOut: true }), timeoutMs);
+  });
+  const reply = await Promise.race([replies.next(), timeout]);
+  clearTimeout(timer);
+  if (reply.timedOut || reply.done) {
+    throw new NotReady(`source ${shot.source.serve}: ${reply.done ? "stdin closed" : `no answer within ${seconds(timeoutMs)} s`}`);
+  }
+  const answer = JSON.parse(reply.value);
+  if (!answer.ws) {
+    throw new NotReady(`source ${shot.source.serve} did not start: ${answer.error}`);
+  }
+  return { ws: answer.ws };
+}
+
+function appUrl(base, shot, source) {
   const params = new URLSearchParams();
-  if (shot.source.ws) {
+  if (source.ws) {
     params.set("ds", "foxglove-websocket");
-    params.set("ds.url", shot.source.ws);
+    params.set("ds.url", source.ws);
   } else {
     params.set("ds", "remote-file");
-    params.set("ds.url", `${base}/data/${encodeURIComponent(shot.source.mcap)}`);
-    if (shot.source.time) {
-      params.set("time", shot.source.time);
+    params.set("ds.url", `${base}/data/${encodeURIComponent(source.mcap)}`);
+    if (source.time) {
+      params.set("time", source.time);
     }
   }
   if (shot.via === "preload") {
@@ -112,9 +179,11 @@ function initScript({ name, content }) {
 
 async function importLayout(page, timeoutMs) {
   const nav = page.locator('button[title="Layouts"]');
-  await nav.click({ timeout: timeoutMs });
-  await page.locator('button[aria-label="Import layout"]').click({ timeout: timeoutMs });
-  await page.waitForFunction(() => window.__tankvizPicked > 0, null, { timeout: timeoutMs });
+  await step("the Layouts button", () => nav.click({ timeout: timeoutMs }));
+  await step("the Import layout button", () =>
+    page.locator('button[aria-label="Import layout"]').click({ timeout: timeoutMs }));
+  await step("the layout file picker (window.showOpenFilePicker)", () =>
+    page.waitForFunction(() => window.__tankvizPicked > 0, null, { timeout: timeoutMs }));
 }
 
 /**
@@ -272,7 +341,7 @@ function maskOverlays(image, overlays) {
  * boxes, cut each out (white on black made black on white, scaled 3x), stack them in one image
  * and let tesseract read it as a block of lines.
  */
-function ocrLabels(image, region) {
+function ocrLabels(image, region, timeoutMs) {
   const probe = spawnSync("tesseract", ["--version"], { encoding: "utf8" });
   if (probe.error || probe.status !== 0) {
     return { available: false, text: "" };
@@ -313,7 +382,7 @@ function ocrLabels(image, region) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), "tankviz-ocr-"));
   const file = path.join(dir, "labels.png");
   fs.writeFileSync(file, encodePng({ width, height, data: out }));
-  const run = spawnSync("tesseract", [file, "stdout", "--psm", "6"], { encoding: "utf8", timeout: 60000 });
+  const run = spawnSync("tesseract", [file, "stdout", "--psm", "6"], { encoding: "utf8", timeout: timeoutMs });
   fs.rmSync(dir, { recursive: true, force: true });
   return { available: true, text: run.stdout ?? "", boxes: boxes.length,
     error: run.status === 0 ? undefined : run.stderr };
@@ -322,16 +391,19 @@ function ocrLabels(image, region) {
 async function closeSidebar(page, nav, timeoutMs) {
   // The left nav buttons toggle the sidebar: open the Layouts tab (if it is not) and close it.
   const importButton = page.locator('button[aria-label="Import layout"]');
-  if (!(await importButton.isVisible())) {
+  await step("closing the sidebar", async () => {
+    if (!(await importButton.isVisible())) {
+      await nav.click({ timeout: timeoutMs });
+      await importButton.waitFor({ state: "visible", timeout: timeoutMs });
+    }
     await nav.click({ timeout: timeoutMs });
-    await importButton.waitFor({ state: "visible", timeout: timeoutMs });
-  }
-  await nav.click({ timeout: timeoutMs });
-  await importButton.waitFor({ state: "hidden", timeout: timeoutMs });
+    await importButton.waitFor({ state: "hidden", timeout: timeoutMs });
+  });
 }
 
 async function runShot(ctx, base, shot, plan) {
-  const timeoutMs = plan.timeoutMs ?? 60000;
+  const timeoutMs = plan.timeoutMs ?? 120000;
+  const reportMs = plan.reportMs ?? 15000;
   const started = Date.now();
   const layout = JSON.parse(fs.readFileSync(shot.layout, "utf8"));
   const layoutName = path.basename(shot.layout, ".json");
@@ -340,47 +412,61 @@ async function runShot(ctx, base, shot, plan) {
     result.steps[step] = Date.now() - started;
     log(shot.name, step, `${result.steps[step]} ms`);
   };
-  const page = await ctx.newPage();
-  page.on("pageerror", (error) => result.errors.push(`pageerror: ${error.message}`));
-  page.on("console", (message) => {
-    if (message.type() === "error" && !/favicon|Failed to load resource/.test(message.text())) {
-      result.errors.push(`console: ${message.text().slice(0, 300)}`);
-    }
-  });
+  const wait = (what, check, options) =>
+    until(`${shot.name}: ${what}`, check, { timeoutMs, reportMs, ...options });
+  let page;
   let last;
   try {
+    const source = shot.source.serve ? await serve(shot, timeoutMs) : shot.source;
+    if (shot.source.serve) {
+      mark("served");
+    }
+    page = await ctx.newPage();
+    page.on("pageerror", (error) => result.errors.push(`pageerror: ${error.message}`));
+    page.on("console", (message) => {
+      if (message.type() === "error" && !/favicon|Failed to load resource/.test(message.text())) {
+        result.errors.push(`console: ${message.text().slice(0, 300)}`);
+      }
+    });
     await page.addInitScript(initScript, {
       name: path.basename(shot.layout),
       content: fs.readFileSync(shot.layout, "utf8"),
     });
-    await page.goto(appUrl(base, shot), { timeout: timeoutMs });
-    await page.waitForFunction(() => window.__tankviz?.rendered || window.__tankviz?.errors.length,
-      null, { timeout: timeoutMs });
-    const hostErrors = await page.evaluate(() => window.__tankviz.errors);
-    if (hostErrors.length) {
-      throw new Error(`the Foxglove app did not start: ${hostErrors.join("; ")}`);
+    await step("loading the page", () => page.goto(appUrl(base, shot, source), { timeout: timeoutMs }));
+    // The host page says when the app rendered (or why it could not start).
+    let host;
+    await wait("the Foxglove app started", async () => {
+      try {
+        host = await page.evaluate(() => window.__tankviz && { ...window.__tankviz });
+      } catch (error) {
+        host = { evaluate: String(error?.message ?? error).split("\n")[0] };
+      }
+      return host?.rendered || host?.errors?.length;
+    }, { missing: () => `window.__tankviz = ${JSON.stringify(host ?? null)}` });
+    if (host.errors.length) {
+      throw new Error(`the Foxglove app did not start: ${host.errors.join("; ")}`);
     }
     mark("app");
     const nav = page.locator('button[title="Layouts"]');
     if (shot.via !== "preload") {
       await importLayout(page, timeoutMs);
       // The imported layout is listed (by its file name) and becomes the current one.
-      await page.locator(`text=${layoutName}`).first().waitFor({ timeout: timeoutMs });
+      await step(`the imported layout ${layoutName} listed`, () =>
+        page.locator(`text=${layoutName}`).first().waitFor({ timeout: timeoutMs }));
       mark("imported");
     }
     // Every panel of the layout is on screen.
     const panelIds = Object.keys(layout.configById);
-    const shown = await until(async () => {
+    let absent = panelIds;
+    await wait("the layout's panels shown", async () => {
+      absent = [];
       for (const id of panelIds) {
         if (!(await panelInfo(page, id))) {
-          return false;
+          absent.push(id);
         }
       }
-      return true;
-    }, timeoutMs);
-    if (!shown) {
-      throw new Error(`the layout's panels did not all appear: ${panelIds.join(", ")}`);
-    }
+      return absent.length === 0;
+    }, { missing: () => `not on screen: ${absent.join(", ")}` });
     await closeSidebar(page, nav, timeoutMs);
     mark("panels");
 
@@ -390,7 +476,7 @@ async function runShot(ctx, base, shot, plan) {
     const minExtent = shot.plotExtent ?? 0;
     const panelText = shot.panelText ?? {};
     const check = async () => {
-      const png = await page.screenshot({ type: "png" });
+      const png = await page.screenshot({ type: "png", timeout: timeoutMs });
       const image = decodePng(png);
       const state = { png, image, failures: [] };
       if (scene) {
@@ -449,19 +535,31 @@ async function runShot(ctx, base, shot, plan) {
       last = state;
       return state.failures.length === 0 ? state : undefined;
     };
-    const seen = await until(check, timeoutMs, 400);
-    mark(seen ? "seen" : "timeout");
-    result.failures = last?.failures ?? ["nothing checked"];
+    let seen;
+    try {
+      seen = await wait("everything expected on screen", check, {
+        stepMs: 400,
+        missing: () => (last?.failures ?? ["nothing checked"]).join("; "),
+      });
+      mark("seen");
+      result.failures = [];
+    } catch (error) {
+      if (!(error instanceof NotReady)) {
+        throw error;
+      }
+      mark("timeout");
+      result.failures = [error.summary, ...(last?.failures ?? ["nothing checked"])];
+    }
 
     // Labels: OCR of screenshots until every wanted pattern was matched in what was read.
     let ocr;
-    if (shot.ocr?.length && scene) {
+    if (shot.ocr?.length && scene && last) {
       const wanted = shot.ocr;
       const readText = [];
       for (let attempt = 0; attempt < 10; attempt++) {
         const info = await panelInfo(page, scene.panel);
-        const image = attempt === 0 ? last.image : decodePng(await page.screenshot({ type: "png" }));
-        const read = ocrLabels(image, info.region);
+        const image = attempt === 0 ? last.image : decodePng(await page.screenshot({ type: "png", timeout: timeoutMs }));
+        const read = ocrLabels(image, info.region, timeoutMs);
         if (!read.available) {
           ocr = { available: false };
           break;
@@ -486,43 +584,50 @@ async function runShot(ctx, base, shot, plan) {
     });
   } catch (error) {
     result.errors.push(String(error?.stack ?? error));
-    result.failures.push(String(error?.message ?? error));
+    result.failures.unshift(String(error?.message ?? error));
+    log(shot.name, "failed:", String(error?.message ?? error));
   } finally {
     // The picture to keep: the one the checks passed on (or the last one seen).
-    if (shot.screenshot) {
+    if (shot.screenshot && page) {
       try {
         fs.mkdirSync(path.dirname(shot.screenshot), { recursive: true });
-        fs.writeFileSync(shot.screenshot, last?.png ?? (await page.screenshot({ type: "png" })));
+        fs.writeFileSync(shot.screenshot, last?.png ?? (await page.screenshot({ type: "png", timeout: timeoutMs })));
       } catch {
         // the page may be gone
       }
     }
-    result.seconds = +((Date.now() - started) / 1000).toFixed(1);
-    await page.close().catch(() => {});
+    result.seconds = seconds(Date.now() - started);
+    await page?.close().catch(() => {});
   }
   return result;
 }
 
 export async function run(plan) {
+  const timeoutMs = plan.timeoutMs ?? 120000;
   const { server, url: base } = await startServer({ dataDir: plan.dataDir });
   const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), "tankviz-chromium-"));
   const started = Date.now();
   let ctx;
   try {
-    ctx = await chromium.launchPersistentContext(userDataDir, {
+    ctx = await step("starting chromium", () => chromium.launchPersistentContext(userDataDir, {
       executablePath: plan.chromium ?? "/usr/bin/chromium",
       headless: true,
       args: CHROMIUM_ARGS,
       viewport: plan.viewport ?? { width: 1600, height: 1000 },
       deviceScaleFactor: 1,
-      timeout: plan.timeoutMs ?? 60000,
-    });
+      timeout: timeoutMs,
+    }));
+    // Every playwright call without its own timeout (screenshots, waits) gets the plan's.
+    ctx.setDefaultTimeout(timeoutMs);
+    ctx.setDefaultNavigationTimeout(timeoutMs);
     log("chromium", ctx.browser()?.version() ?? "", `${Date.now() - started} ms`);
     const shots = [];
     for (const shot of plan.shots) {
-      shots.push(await runShot(ctx, base, shot, plan));
+      const result = await runShot(ctx, base, shot, plan);
+      shots.push(result);
+      process.stdout.write(`${JSON.stringify({ shot: result })}\n`);
     }
-    return { ok: shots.every((s) => s.ok), seconds: +((Date.now() - started) / 1000).toFixed(1), shots };
+    return { ok: shots.every((s) => s.ok), seconds: seconds(Date.now() - started), shots };
   } finally {
     await ctx?.close().catch(() => {});
     server.close();
