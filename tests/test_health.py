@@ -21,7 +21,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.decode.decoder import DatabaseFile, Decoder
 from bridge.errors import UsageError
-from bridge.frame import Frame
+from bridge.frame import NS, Frame
 from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
@@ -36,7 +36,6 @@ from bridge.sim.frames import load_ecocar
 from bridge.sim.scenario import DEFAULT_START_NS, FAULT_ONSET_S, FAULT_RECOVERY_S, SCENARIOS
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 
-NS = 1_000_000_000
 BITRATE = 1_000_000
 DATA_BITRATE = 2_000_000
 SETTINGS = HealthSettings()

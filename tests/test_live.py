@@ -27,7 +27,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.apps.live import Live
-from bridge.frame import Frame
+from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec, ReadSchedule, merge_batches
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
@@ -35,8 +35,6 @@ from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.drives import DriveRecorder, drive_name
 from bridge.sinks.mcap import frame_payload
 from bridge.sinks.websocket import LiveServer, wait_for
-
-NS = 1_000_000_000
 
 
 def frames_recorded(path: Path) -> int:

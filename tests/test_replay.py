@@ -17,11 +17,11 @@ import websockets
 from bridge.apps.replay import replay_log, replay_mcap
 from bridge.cli import main
 from bridge.errors import UsageError
+from bridge.frame import NS
 from bridge.pipeline.drive import load_stages
 from bridge.sim.drive import simulate
 from bridge.sinks.websocket import LiveServer
 
-NS = 1_000_000_000
 PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]
 
 
