@@ -107,10 +107,6 @@ class Drive:
         #: the decode statistics of the last description
         self.statistics: dict[str, Any] = {}
 
-    @property
-    def frames(self) -> int:
-        return self.pipeline.frames
-
     def add(self, sink: Sink) -> Sink:
         """One more sink, after those there are (before the first frame)."""
         self.pipeline.add_sink(sink)
