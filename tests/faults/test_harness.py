@@ -3,6 +3,7 @@ viewer gets the scene all along."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,5 +22,5 @@ def test_a_drive_without_a_fault_is_watched_and_recorded_whole(tmp_path: Path) -
     recording = assert_survived(car, viewer, fault_ended=started + 1.0, on_log=None)
     scenes = viewer.scenes_after(started)
     assert len(scenes) >= 2.0 * 20  # 20 Hz
-    assert max(b - a for a, b in zip(scenes, scenes[1:])) < 0.5
+    assert max(b - a for a, b in itertools.pairwise(scenes)) < 0.5
     assert len(recording["/scene/ego"]) >= 2.5 * 20
