@@ -6,6 +6,22 @@ stop at the first line or object they cannot parse; :class:`LogSource` records t
 reason and carries on after it, so everything readable is converted and nothing is skipped
 silently. With ``strict=True`` the first such problem is an :class:`~bridge.errors.InputError`.
 
+- Text logs: a line python-can cannot parse is reported with its line and the reader resumes after
+  it. ASC and candump (``.log``) lines are counted against the frames they give: a line that gives
+  none is reported (python-can skips some silently: an ASC frame with a time lacking its dot, a
+  status line, the frame python-can's header scan swallows), except blank lines and the lines of
+  an ASC header and trigger block. A last line without its newline is a file cut short: its frame
+  is not kept, and the cut is reported.
+- BLF: python-can's reader stops at the first damaged object (losing the rest of the file), loops
+  forever on an object of size 0, or makes frames of garbage. :class:`_BlfReader` walks the
+  objects first and gives python-can's object parser only intact ones: a damaged log container is
+  skipped whole, a damaged object up to the next object signature (``LOBJ``), and each damage is
+  reported with its byte offset; the frames before and after it are kept.
+- A frame stamped before 1970 or after 2262 (a negative, huge or non-finite time: more than an
+  MCAP can hold) is skipped and reported; the others go on.
+- A log that gives no frame at all, a folder or a file of unknown format is an
+  :class:`~bridge.errors.InputError` (one line naming the file, and the first problem met).
+
 Time: logs with absolute time (BLF, candump, TRC, CSV/SQLite as python-can writes them, ASC with a
 dated ``Begin Triggerblock``) keep it. python-can reports float seconds, which at Unix-epoch
 magnitudes resolve about a quarter of a microsecond, so times are rounded to whole microseconds
@@ -19,12 +35,15 @@ import heapq
 import io
 import itertools
 import logging
-from collections.abc import Callable, Iterable, Iterator
+import re
+import zlib
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
 import can
+from can.io import blf
 from can.io.generic import MessageReader, TextIOMessageReader
 from can.io.player import MESSAGE_READERS
 
@@ -36,6 +55,18 @@ DEFAULT_BUS = "can0"
 
 #: Formats whose reader tankviz can resume after a bad line (python-can reads them line by line).
 _LINE_FORMATS = {".asc", ".log", ".trc", ".csv"}
+
+#: The lines that give no frame and need no word, by format: for the formats listed, every other
+#: line that gives no frame is reported (python-can skips some silently).
+_QUIET_LINES = {
+    ".log": re.compile(r"\s*$"),
+    ".asc": re.compile(r"\s*($|//|date\s|base\s|(no\s+)?internal\s+events\s+logged|"
+                       r"begin\s+triggerblock\b|end\s+triggerblock\b|"
+                       r"\d+\.\d+\s+start\s+of\s+measurement\b)", re.IGNORECASE),
+}
+
+#: A frame stamped at or after this (2262-04-11, 2^63 ns) cannot be recorded; nor before 1970.
+_LAST_SECOND = float(2**63 // 10**9)
 
 
 def supported_suffixes() -> list[str]:
@@ -63,7 +94,8 @@ class SourceIssue:
     reason: str
 
     def __str__(self) -> str:
-        return f"{self.path}:{self.where}: {self.reason}"
+        return f"{self.path}:{self.where}: {self.reason}" if self.where else \
+            f"{self.path}: {self.reason}"
 
 
 def _suffix(path: Path) -> tuple[str, bool]:
@@ -79,22 +111,39 @@ class _Lines:
 
     Until the first frame has been read it remembers the lines it served (the log's header), so a
     fresh reader can be primed with them to carry on after a line python-can could not parse.
+    Each line done with (the reader asks for the next) without ``framed`` set is handed to
+    ``unframed(line number, text)``; ``cut`` tells the line served last has no newline.
     """
 
-    def __init__(self, lines: Iterator[str], start_line: int = 0) -> None:
+    def __init__(self, lines: Iterator[str], start_line: int = 0,
+                 unframed: Callable[[int, str], None] | None = None) -> None:
         self._lines = lines
         self.line = start_line
         self.header: list[str] | None = []
+        self.text = ""
+        self.framed = True
+        self.cut = False
+        self.unframed = unframed
 
     def __iter__(self) -> _Lines:
         return self
 
     def __next__(self) -> str:
+        self.done()
         text = next(self._lines)
         self.line += 1
+        self.text = text
+        self.framed = False
+        self.cut = not text.endswith("\n")
         if self.header is not None:
             self.header.append(text)
         return text
+
+    def done(self) -> None:
+        """The line served last is done with: handed to ``unframed`` if it gave no frame."""
+        if not self.framed and self.unframed is not None:
+            self.unframed(self.line, self.text)
+        self.framed = True
 
     def readline(self) -> str:
         return next(self, "")
@@ -121,13 +170,234 @@ class _Bytes:
     def close(self) -> None:
         """The underlying file is closed by :class:`LogSource`."""
 
+# --- BLF: python-can's object parser, fed only intact objects ---
+
+_OBJ = blf.OBJ_HEADER_BASE_STRUCT
+_CONTAINER = blf.LOG_CONTAINER_STRUCT
+#: The size of the file header python-can and Vector write (python-can reads the first 72 bytes).
+_FILE_HEADER_SIZE = blf.FILE_HEADER_SIZE
+#: The largest log container believed (writers use about 128 KiB); a larger size is damage.
+_MAX_CONTAINER = 16 << 20
+#: The largest object inside a container believed; a larger size is damage.
+_MAX_OBJECT = 1 << 20
+#: The size of the object header of each version python-can reads.
+_HEADER_SIZES = {1: _OBJ.size + blf.OBJ_HEADER_V1_STRUCT.size,
+                 2: _OBJ.size + blf.OBJ_HEADER_V2_STRUCT.size}
+#: The body python-can unpacks for each object type it reads as a frame.
+_BODY_SIZES = {blf.CAN_MESSAGE: blf.CAN_MSG_STRUCT.size, blf.CAN_MESSAGE2: blf.CAN_MSG_STRUCT.size,
+               blf.CAN_ERROR_EXT: blf.CAN_ERROR_EXT_STRUCT.size,
+               blf.CAN_FD_MESSAGE: blf.CAN_FD_MSG_STRUCT.size,
+               blf.CAN_FD_MESSAGE_64: blf.CAN_FD_MSG_64_STRUCT.size}
+
+
+def _object_size(data: bytes | bytearray, at: int, largest: int) -> int | None:
+    """The size of the BLF object whose header is at ``at`` (its whole header is in ``data``),
+    or None when that header cannot be right: python-can would loop forever on a size 0, read
+    past the object for a size too small for its type, or wait for a size beyond ``largest``."""
+    signature, header_size, version, size, kind = _OBJ.unpack_from(data, at)
+    size = int(size)
+    if signature != b"LOBJ" or not _OBJ.size <= header_size <= size <= largest:
+        return None
+    if kind == blf.LOG_CONTAINER:
+        return size if size >= _OBJ.size + _CONTAINER.size else None
+    body = _BODY_SIZES.get(kind)
+    if body is not None and version in _HEADER_SIZES and size < _HEADER_SIZES[version] + body:
+        return None
+    return size
+
+
+def intact_objects(data: bytes | bytearray, lost: bool = False,
+                   ) -> tuple[list[tuple[int, int]], int, int, bool]:
+    """Where the intact objects are in the data of a BLF log container: ``(runs, rest, damaged,
+    lost)``.
+
+    ``runs`` are the (start, end) of runs of consecutive intact objects, as python-can steps from
+    one to the next (an object's signature up to 4 bytes of padding after the one before); data
+    from ``rest`` on is the start of an object that goes on in the next container. A header that
+    cannot be right is damage: the walk goes on at the next object signature (``LOBJ``) and
+    counts the ``damaged`` bytes it skips. ``lost`` on entry says the data begins with the rest
+    of an object whose start was lost (skipped to the first signature, not counted as damage); on
+    return, that no signature was found after damage until the end.
+    """
+    runs: list[tuple[int, int]] = []
+    damaged = 0
+    n = len(data)
+    pos = 0
+    start = 0
+    if lost:
+        first = data.find(b"LOBJ")
+        if first < 0:
+            return [], max(0, n - 3), 0, True
+        pos = start = first
+        lost = False
+    while pos + _OBJ.size <= n:
+        at = data.find(b"LOBJ", pos, pos + 8)
+        if 0 <= at <= n - _OBJ.size:
+            size = _object_size(data, at, _MAX_OBJECT)
+            if size is not None:
+                if at + size > n:
+                    break  # goes on in the next container
+                pos = at + size
+                continue
+        elif at >= 0:
+            break  # the header goes on in the next container
+        # damage: the objects so far are one run; the walk goes on at the next signature
+        if pos > start:
+            runs.append((start, pos))
+        after = data.find(b"LOBJ", (pos if at < 0 else at) + 1)
+        if after < 0:
+            damaged += max(0, n - 3 - pos)
+            return runs, max(pos, n - 3), damaged, True
+        damaged += after - pos
+        pos = start = after
+    if pos > start:
+        runs.append((start, pos))
+    return runs, pos, damaged, lost
+
+
+class _BlfReader(can.BLFReader):
+    """python-can's BLF reader, going on after damage.
+
+    python-can stops at the first damaged object and loses the rest of the file, loops forever on
+    an object of size 0, or makes frames of any bytes after a damaged one. This reader walks the
+    objects first: a log container whose header or compressed data is damaged is skipped whole
+    (its frames are lost); a damaged object inside a container is skipped to the next object
+    signature (``LOBJ``); python-can's own parser (``_parse_data``) gets only runs of intact
+    objects. ``damaged(byte offset, reason)`` is told of each damage.
+    """
+
+    def __init__(self, stream: _Bytes, damaged: Callable[[int, str], None]) -> None:
+        head = stream.read(_FILE_HEADER_SIZE)
+        super().__init__(io.BytesIO(head))  # python-can reads the file header
+        self.file = stream  # type: ignore[assignment]
+        self._stream = stream
+        self._damaged = damaged
+        self._buffer = bytearray()
+        declared = blf.FILE_HEADER_STRUCT.unpack_from(head)[1]
+        if blf.FILE_HEADER_STRUCT.size <= declared <= _FILE_HEADER_SIZE:
+            self._buffer += head[declared:]
+        elif _FILE_HEADER_SIZE < declared <= 1 << 16:
+            stream.read(declared - _FILE_HEADER_SIZE)
+        else:
+            damaged(4, f"the file header gives its own size as {declared} bytes (damaged); "
+                    f"reading on after {_FILE_HEADER_SIZE}")
+        self._at = stream.offset - len(self._buffer)  # the file offset of the buffer's start
+        self._lost = False  # the data of the next container begins inside a lost object
+
+    def _fill(self, size: int) -> bool:
+        while len(self._buffer) < size:
+            chunk = self._stream.read(max(size - len(self._buffer), 1 << 16))
+            if not chunk:
+                return False
+            self._buffer += chunk
+        return True
+
+    def _drop(self, size: int) -> None:
+        del self._buffer[:size]
+        self._at += size
+
+    def _skip_to_signature(self) -> int:
+        """Drops bytes up to the next object signature after the first byte; how many."""
+        skipped = 0
+        while True:
+            found = self._buffer.find(b"LOBJ", 1)
+            if found > 0:
+                self._drop(found)
+                return skipped + found
+            keep = min(len(self._buffer), 3)  # a signature may begin in the last 3 bytes
+            skipped += len(self._buffer) - keep
+            self._drop(len(self._buffer) - keep)
+            if not self._fill(len(self._buffer) + 1):
+                skipped += len(self._buffer)
+                self._drop(len(self._buffer))
+                return skipped
+
+    def __iter__(self) -> Generator[can.Message, None, None]:
+        damage_at: int | None = None  # where the damaged bytes being skipped began
+        skipped = 0
+        while True:
+            if not self._fill(_OBJ.size):
+                if damage_at is not None:
+                    self._damaged(damage_at, f"damaged data: the rest of the file "
+                                  f"({skipped + len(self._buffer)} bytes) holds no object")
+                elif self._buffer.strip(b"\0"):
+                    self._damaged(self._at, "the file ends in the middle of an object; frames "
+                                  "in it are lost")
+                break
+            padding = self._buffer.find(b"LOBJ", 0, 8)  # python-can pads objects to 4 bytes
+            if padding > 0 and damage_at is None:
+                self._drop(padding)
+                continue
+            size = _object_size(self._buffer, 0, _MAX_CONTAINER) if padding == 0 else None
+            if size is None:
+                if damage_at is None:
+                    damage_at, skipped = self._at, 0
+                skipped += self._skip_to_signature()
+                continue
+            if damage_at is not None:
+                self._damaged(damage_at, f"damaged data: {skipped} bytes skipped to the next "
+                              f"object at byte {self._at}; frames in them are lost")
+                damage_at = None
+                self._lost, self._tail = True, b""
+            at = self._at
+            if not self._fill(size):
+                self._damaged(at, "the file ends in the middle of an object; frames in it are "
+                              "lost")
+                break
+            obj = bytes(self._buffer[:size])
+            self._drop(size)
+            padding = size % 4  # python-can's writer pads objects to 4 bytes
+            if self._fill(padding) and not self._buffer[:padding].strip(b"\0"):
+                self._drop(padding)
+            kind = _OBJ.unpack_from(obj)[4]
+            if kind == blf.LOG_CONTAINER:
+                yield from self._container(obj, at)
+            elif kind in _BODY_SIZES:  # a frame outside a container (python-can skips those)
+                yield from self._parse_data(obj)
+        if self._tail.find(b"LOBJ") >= 0:
+            self._damaged(self._at, "the file ends in the middle of an object; frames in it "
+                          "are lost")
+        self.stop()
+
+    def _container(self, obj: bytes, at: int) -> Iterator[can.Message]:
+        """The frames of the log container ``obj`` found at byte ``at`` of the file."""
+        method, _ = _CONTAINER.unpack_from(obj, _OBJ.size)
+        packed = obj[_OBJ.size + _CONTAINER.size:]
+        if method == blf.NO_COMPRESSION:
+            data = packed
+        elif method == blf.ZLIB_DEFLATE:
+            unpack = zlib.decompressobj()
+            try:
+                data = unpack.decompress(packed, _MAX_CONTAINER)
+                if not unpack.eof:
+                    raise zlib.error("the compressed data ends early" if not
+                                     unpack.unconsumed_tail else "too much data")
+            except zlib.error as exc:
+                self._damaged(at, f"damaged log container ({exc}): the frames in it are lost")
+                self._lost, self._tail = True, b""
+                return
+        else:
+            self._damaged(at, f"log container with unknown compression method {method} "
+                          "(damaged?): the frames in it are lost")
+            self._lost, self._tail = True, b""
+            return
+        data = self._tail + data
+        runs, rest, damaged, self._lost = intact_objects(data, self._lost)
+        for start, end in runs:
+            yield from self._parse_data(data[start:end])
+        if damaged:
+            self._damaged(at, f"damaged objects in the log container here: {damaged} bytes "
+                          "skipped to the next object; frames in them are lost")
+        self._tail = data[rest:]
+
 
 @dataclass
 class LogSource:
     """Every frame python-can can read from one log file, in file order.
 
     Iterate once. ``issues`` then lists what was skipped and where; ``frames`` counts what was
-    read; ``progress()`` tells how much of the file has been read, for a progress bar.
+    read; ``progress()`` tells how much of the file has been read, for a progress bar. A file that
+    gives no frame at all raises :class:`~bridge.errors.InputError` at the end of the iteration.
     """
 
     path: Path
@@ -141,6 +411,9 @@ class LogSource:
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
+        if self.path.is_dir():
+            raise InputError(self.path, f"is a folder, not a log file: name the log files in it "
+                             f"({self.path}/*.blf …)")
         suffix, _ = _suffix(self.path)
         if suffix not in MESSAGE_READERS or (suffix in {".db", ".mf4"} and _suffix(self.path)[1]):
             known = ", ".join(supported_suffixes())
@@ -150,6 +423,10 @@ class LogSource:
             raise InputError(self.path, "no such file")
         self._size = self.path.stat().st_size
 
+    def _format(self) -> str:
+        suffix, gzipped = _suffix(self.path)
+        return suffix + (".gz" if gzipped else "")
+
     def progress(self) -> tuple[int, int]:
         """Bytes of the file read so far and its size."""
         if self._raw is None or self._raw.closed:
@@ -157,6 +434,7 @@ class LogSource:
         return self._raw.tell(), self._size
 
     def _problem(self, where: str, reason: str) -> None:
+        reason = " ".join(reason.splitlines())  # one line, whatever python-can said
         issue = SourceIssue(str(self.path), where, reason)
         if self.strict:
             raise InputError(self.path, f"{reason} (--strict)", where=where)
@@ -178,7 +456,14 @@ class LogSource:
                     for place, text in warnings.texts:
                         self._problem(place, f"skipped: python-can says {text!r}")
                     warnings.texts.clear()
-                ns = round(message.timestamp * 1_000_000) * 1000  # to_ns(), inlined
+                seconds = message.timestamp
+                ident = message.arbitration_id
+                if not (isinstance(seconds, (float, int)) and 0.0 <= seconds < _LAST_SECOND
+                        and isinstance(ident, int) and 0 <= ident < 1 << 29
+                        and isinstance(message.dlc, int) and len(message.data) <= 64):
+                    self._problem(self._where(), _unrecordable(message))
+                    continue
+                ns = round(seconds * 1_000_000) * 1000  # to_ns(), inlined
                 if last_ns is not None and ns < last_ns:
                     self.backwards += 1
                     self._problem(self._where(), f"time jumps backwards by "
@@ -205,6 +490,11 @@ class LogSource:
                 )
             for place, text in warnings.texts:
                 self._problem(place, f"skipped: python-can says {text!r}")
+            if not frames:
+                first = self.issues[0] if self.issues else None
+                first_text = "" if first is None else \
+                    f" ({first.where}: {first.reason})" if first.where else f" ({first.reason})"
+                raise InputError(self.path, f"no CAN frames in this file{first_text}")
         finally:
             can_logger.removeHandler(warnings)
 
@@ -223,17 +513,30 @@ class LogSource:
             try:
                 if issubclass(reader_type, TextIOMessageReader) and suffix in _LINE_FORMATS:
                     text = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
-                    yield from self._text(reader_type, text)
+                    yield from self._text(reader_type, text, suffix)
                 else:
                     yield from self._binary(reader_type, binary)
-            except (OSError, EOFError, gzip.BadGzipFile) as exc:
+            except (OSError, EOFError, zlib.error) as exc:  # also gzip.BadGzipFile
                 self._problem("", f"cannot read the file any further: {exc}")
 
-    def _text(self, reader_type: type[MessageReader],
-              text: Iterator[str]) -> Iterator[can.Message]:
-        lines = _Lines(text)
+    def _text(self, reader_type: type[MessageReader], text: Iterator[str],
+              suffix: str) -> Iterator[can.Message]:
         header: list[str] = []
         kwargs = {"relative_timestamp": False} if reader_type is can.ASCReader else {}
+        quiet = _QUIET_LINES.get(suffix)
+        checked = 0  # the lines up to this one are accounted for (a fresh reader reads some again)
+
+        def unframed(line: int, content: str) -> None:
+            nonlocal checked
+            if line > checked:
+                checked = line
+                if quiet is not None and not quiet.match(content):
+                    shown = content.rstrip("\r\n")
+                    shown = shown if len(shown) <= 80 else shown[:77] + "…"
+                    self._problem(f"line {line}", f"no frame in this line (python-can skips it): "
+                                  f"{shown!r}")
+
+        lines = _Lines(text, unframed=unframed)
 
         def where() -> str:
             return f"line {lines.line}"
@@ -247,17 +550,25 @@ class LogSource:
                     if lines.header is not None:
                         header = lines.header[:-1]
                         lines.header = None
+                    lines.framed = True
+                    if lines.cut:
+                        self._problem(f"line {lines.line}", "the file ends in the middle of this "
+                                      "line (no newline): cut short, its frame is not kept")
+                        continue
                     yield message
+                lines.done()
                 return
             except Exception as exc:  # python-can raises anything from ValueError to IndexError
-                bad_line = lines.line
+                if isinstance(exc, (InputError, OSError, EOFError, zlib.error)):
+                    raise  # --strict, or the file cannot be read (not: a line cannot be parsed)
+                bad_line = checked = max(checked, lines.line)
                 self._problem(f"line {bad_line}", f"skipped a line python-can cannot parse "
                               f"({type(exc).__name__}: {exc})")
                 if lines.header is not None:
                     header = lines.header[:-1]
                 # A fresh reader, primed with the header so it knows the log's settings, carries
                 # on after the bad line; its counter comes back to the bad line after the header.
-                lines = _Lines(itertools.chain(header, text), bad_line - len(header))
+                lines = _Lines(itertools.chain(header, text), bad_line - len(header), unframed)
                 lines.header = None
 
     def _binary(self, reader_type: type[MessageReader],
@@ -270,10 +581,19 @@ class LogSource:
 
         self._where = where
 
+        def damaged(offset: int, reason: str) -> None:
+            self._problem(f"byte {offset}", reason)
+
         try:
-            reader = reader_type(file=stream)  # type: ignore[arg-type]
+            if reader_type is can.BLFReader:
+                reader: MessageReader = _BlfReader(stream, damaged)
+            else:
+                reader = reader_type(file=stream)  # type: ignore[arg-type]
+        except InputError:
+            raise
         except Exception as exc:
-            raise InputError(self.path, f"not a readable {self.path.suffix} log: {exc}") from exc
+            raise InputError(self.path, " ".join(
+                f"not a readable {self._format()} log: {exc}".splitlines())) from exc
         last_failure: int | None = None
         while True:
             try:
@@ -281,13 +601,15 @@ class LogSource:
                     count += 1
                     yield message
                 break
+            except InputError:
+                raise  # --strict
             except Exception as exc:
                 if last_failure == stream.offset:
                     break  # no progress: the rest of the file is unreadable, reported below
                 last_failure = stream.offset
                 self._problem(f"byte {stream.offset}", f"skipped damaged data "
                               f"({type(exc).__name__}: {exc})")
-        if stream.cut_at is not None:
+        if stream.cut_at is not None and not isinstance(reader, _BlfReader):
             self._problem(f"byte {stream.cut_at}", "the file ends in the middle of an object; "
                           "frames in it are lost")
 
@@ -305,7 +627,8 @@ class LogSource:
             raise InputError(self.path, f"reading {self.path.suffix} needs an optional package "
                              f"({exc}); install tankviz[mf4]") from exc
         except Exception as exc:
-            raise InputError(self.path, f"not a readable {self.path.suffix} log: {exc}") from exc
+            raise InputError(self.path, " ".join(
+                f"not a readable {self._format()} log: {exc}".splitlines())) from exc
         try:
             for message in reader:
                 count += 1
@@ -315,6 +638,16 @@ class LogSource:
                           f"({type(exc).__name__}: {exc})")
         finally:
             reader.stop()
+
+
+def _unrecordable(message: can.Message) -> str:
+    """Why a frame python-can made of damaged data cannot be recorded."""
+    seconds = message.timestamp
+    if not isinstance(seconds, (float, int)) or not 0.0 <= seconds < _LAST_SECOND:  # also NaN
+        return (f"skipped a frame stamped {seconds!r} s: a time before 1970 or after 2262 "
+                "cannot be recorded")
+    return (f"skipped a frame with id {message.arbitration_id!r}, DLC {message.dlc!r} and "
+            f"{len(message.data)} data bytes: not a CAN frame")
 
 
 class _Warnings(logging.Handler):
