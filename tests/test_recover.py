@@ -199,6 +199,10 @@ def check_cut(cut: int) -> RecoverReport:
     a cut already checked (hypothesis draws a cut again, the tests' cuts overlap) gets its report.
     """
     d = drive()
+    if cut < 8:  # not even the MCAP magic: nothing to recover, nothing written
+        with pytest.raises(InputError, match="not an MCAP file"):
+            run(d.data[:cut])
+        return RecoverReport()
     report, fixed = run(d.data[:cut])
     got = check_valid(report, fixed)
     assert got == d.messages[:len(got)]
@@ -372,12 +376,40 @@ def test_channels_defined_in_a_skipped_chunk() -> None:
             "chunk") in format_report(report, "a", "b").splitlines()
 
 
-def test_a_damaged_record_length_stops_reading() -> None:
+def test_a_damaged_record_length_is_repaired_from_the_summary() -> None:
     d = drive()
     start = d.chunks[3][0]
     report, fixed = run(damage(d.data, start + 2))  # the chunk's record length
+    assert report.stopped is None and report.skipped == []
+    (line,) = report.repaired
+    assert line.startswith(f"chunk record at byte {start:,}: its length field says ")
+    assert line.endswith("; read with the opcode and length the summary's index gives it")
+    assert check_valid(report, fixed) == d.messages
+    assert f"repaired the damaged {line}" in format_report(report, "a", "b").splitlines()
+
+
+def test_a_chunk_with_a_damaged_length_in_a_cut_drive_is_skipped() -> None:
+    """No summary: the next chunk that proves itself by its CRC is where reading goes on."""
+    d = drive()
+    start = d.chunks[3][0]
+    before = d.chunks[2][2]
+    cut = d.chunks[8][1]
+    report, fixed = run(damage(d.data, start + 2)[:cut])
+    (line,) = report.skipped
+    assert line.startswith(f"chunk record at byte {start:,}: its length field says ")
+    after = min(at for at in d.starts if at > start and d.data[at] != 0x07)  # the attachment
+    assert line.endswith(f"reading went on at byte {after:,}, the next record found intact")
+    assert report.attachments == 1
+    got = check_valid(report, fixed)
+    assert got == d.messages[:before] + d.messages[d.chunks[3][2]:d.chunks[8][2]]
+
+
+def test_a_damaged_stretch_with_nothing_intact_after_it_stops_reading() -> None:
+    d = drive()
+    start = d.chunks[3][0]
+    report, fixed = run(d.data[:start] + bytes([0x55]) * 20 + d.data[start + 20:d.chunks[3][1]])
     assert report.stopped_at == start
-    assert report.stopped is not None and "chunk record" in report.stopped
+    assert report.stopped == "no MCAP record starts here (opcode 0x55): the data is damaged"
     assert check_valid(report, fixed) == d.messages[:d.chunks[2][2]]
 
 
@@ -433,10 +465,15 @@ def test_a_missing_input_or_not_an_mcap_is_one_line(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("cut", [0, 5, 8])
 def test_a_file_cut_before_its_first_record(cut: int) -> None:
+    if cut < 8:  # no MCAP magic: not an MCAP file (tests/faults/test_recover_damage.py)
+        with pytest.raises(InputError, match={
+                0: r"^drive\.mcap: not an MCAP file \(it is empty\)$",
+                5: r"^drive\.mcap: not an MCAP file \(its 5 bytes are the start of the MCAP "
+                   r"magic, nothing more\)$"}[cut]):
+            run(drive().data[:cut])
+        return
     report, fixed = run(drive().data[:cut])
     assert check_valid(report, fixed) == []
-    assert report.stopped_at == (0 if cut < 8 else 8)
-    assert report.stopped == {0: "the file is empty",
-                              5: "the file ends inside the MCAP magic (5 of 8 bytes)",
-                              8: "the file ends right after the MCAP magic"}[cut]
+    assert report.stopped_at == 8
+    assert report.stopped == "the file ends right after the MCAP magic"
     assert format_report(report, "a", "b").startswith("recovered no messages\n")

@@ -4,35 +4,54 @@ The recorder writes zstd chunks and flushes at least every second, so a drive cu
 or a SIGKILL is a valid header, a run of complete records (chunks, each followed by its message
 indexes; metadata and attachments between them) and a partial last record, with no summary and no
 footer; a file system may also leave zero bytes where the last data never reached the disk.
-:func:`recover` reads such a file record by record with mcap's :class:`StreamReader`, stops
-cleanly at the first record it cannot read, and writes every schema, channel, message (log time,
-publish time, sequence and data unchanged, in file order), metadata record and attachment it found
-into a complete new MCAP (zstd chunks, with a summary), plus a ``tankviz.recover`` metadata record
-saying what was recovered and where and why reading stopped.
+:func:`recover` reads such a file record by record with mcap's :class:`StreamReader`, steps over
+damaged records where it can (below), stops cleanly at the first record it cannot read, and
+writes every schema, channel, message (log time, publish time, sequence and data unchanged, in
+file order), metadata record and attachment it found into a complete new MCAP (zstd chunks, with
+a summary), plus a ``tankviz.recover`` metadata record saying what was recovered and where and why
+reading stopped.
 
 How a record is read. Before mcap parses a record, its 9-byte header (opcode, length) is checked:
 a known opcode, and a length that fits in what is left of the file (so a cut record is recognised
 without reading it, and a damaged length cannot make us allocate gigabytes). While mcap parses it,
 no read goes past its declared end, and a record whose fields do not take exactly its length is
 damaged (MCAP lets later versions append fields to a record, but the records tankviz copies have
-none: extra bytes mean a damaged length, and skipping them would skip records unseen). Where the
-file ends, where the bytes are zeros or hold no record, where a record is damaged or the disk
-cannot read it, reading stops: the record's offset and the reason are the report's
-``stopped_at`` and ``stopped``. Message index records are not needed (the writer builds
-new ones) and are only counted; a file cut right after a chunk keeps every message of the chunk.
+none: extra bytes mean a damaged length, and skipping them would skip records unseen). Message
+index records are not needed (the writer builds new ones): their fields are checked against their
+length, and they are only counted; a file cut right after a chunk keeps every message of the chunk.
+Where the file ends, where the disk cannot read it, or where the bytes are damaged and nothing
+intact follows, reading stops: the record's offset and the reason are the report's ``stopped_at``
+and ``stopped``.
 
-A chunk whose CRC fails (or that does not decompress) is skipped and reading goes on. The choice:
-a cut never produces a bad chunk (a cut record is caught by its length first), so a CRC failure
-means bytes inside a complete record changed on the disk or in a copy. When the chunk's record
-framing is intact (known opcode, length within the file, its fields add up to exactly its length),
-the damage is confined to the compressed payload that the CRC covers, the next record starts where
-the length says, and every later chunk carries its own CRC: skipping loses the messages of that
-one chunk (counted from the message indexes after it) instead of the rest of the drive, which is
-what ``mcap recover`` does too. If the framing is not intact, nothing after it can be trusted and
-reading stops. An attachment whose CRC fails is skipped the same way. Messages whose channel was
-defined only in a skipped chunk are dropped and counted, unless the file still has its summary,
-whose copies of the schemas and channels then stand in. Skipped records are listed in the report
-(``skipped``); a cut file never has any, so what it recovers is exactly a prefix of its messages.
+A damaged record is stepped over, and reading goes on, wherever the file says where the next
+record starts (only a file that can seek). If the file still has an intact summary (it ends with
+a footer and the magic), its chunk, attachment and metadata indexes give where each of those
+records, and each chunk's run of message indexes, starts and ends: a chunk, attachment or metadata
+record whose header is damaged is read again with the opcode and length its index gives it (the
+report's ``repaired``), and any other damaged record is stepped over to the end of what the index
+says it is in (a damaged message index: to the end of its chunk's message indexes, losing no
+message), or to the next record the indexes know. Without a summary (a drive cut before its end)
+the next chunk, attachment, metadata or data end record that proves itself intact is searched for
+byte by byte (a chunk or an attachment by its CRC, every one by fields that take exactly its
+length). A record cut by the end of the file has nothing intact after it, so a cut file is read up
+to its cut record exactly as before. So a cut never leads to a skip, and damage that is not a cut
+(a byte changed on the disk or in a copy) loses only the damaged record.
+
+A chunk whose CRC fails (or that does not decompress) is skipped and reading goes on: its record
+framing being intact (known opcode, length within the file, its fields add up to exactly its
+length), the damage is confined to the compressed payload that the CRC covers, the next record
+starts where the length says, and every later chunk carries its own CRC: skipping loses the
+messages of that one chunk (counted from the message indexes after it) instead of the rest of the
+drive, which is what ``mcap recover`` does too. An attachment whose CRC fails is skipped the same
+way. Messages whose channel was defined only in a skipped chunk are dropped and counted, unless
+the file still has its summary, whose copies of the schemas and channels then stand in. Skipped
+records are listed in the report (``skipped``, each with its offset, what was wrong and where
+reading went on); a cut file never has any, so what it recovers is exactly a prefix of its
+messages. Metadata records and attachments are copied wherever they are read intact: tankviz
+writes a drive's databases and profile as attachments at its start, so a cut drive keeps them.
+
+A file that does not start with the whole MCAP magic (an empty file, another format) is not
+recovered: :class:`~bridge.errors.InputError`, and nothing is written.
 
 The input is only ever read. :func:`recover_file` writes ``.<name>.partial`` beside the output and
 renames it when the new MCAP is complete.
@@ -41,12 +60,14 @@ renames it when the new MCAP is complete.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
+import re
 import struct
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -69,6 +90,7 @@ from mcap.records import (
     Schema,
 )
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+from mcap.summary import Summary
 from mcap.writer import CompressionType
 from zstandard import ZstdError
 
@@ -91,6 +113,15 @@ Progress = Callable[[int, float | None], None]
 
 _OPCODES = {int(op) for op in Opcode}
 _RECORD_HEADER = struct.Struct("<BQ")
+_INDEX_HEADER = struct.Struct("<BQHI")  # a message index: record header, channel, entries length
+#: The records a damaged stretch is stepped over to when no summary says where the next one is:
+#: each can prove itself intact (CRC, or fields that take exactly its length).
+_RESYNC = {Opcode.CHUNK, Opcode.ATTACHMENT, Opcode.METADATA, Opcode.DATA_END}
+_RESYNC_OPCODE = re.compile(b"[" + re.escape(bytes(sorted(_RESYNC))) + b"]")
+_REPAIRABLE = {"chunk record": Opcode.CHUNK, "attachment record": Opcode.ATTACHMENT,
+               "metadata record": Opcode.METADATA}
+_RESYNC_LIMIT = 1 << 30  # a longer record is not read to check it
+_SCAN_BLOCK = 1 << 20
 _AFTER_DATA = " — after the data section, so no data was lost"
 _BLOCK = 1 << 24  # the largest single read from the input
 # What mcap, zstd and lz4 raise on bytes that are not what they should be.
@@ -117,6 +148,8 @@ class RecoverReport:
     stopped_at: int | None = None
     #: Damaged records that were skipped (a chunk or an attachment whose CRC fails), one line each.
     skipped: list[str] = field(default_factory=list)
+    #: Records whose damaged header was repaired from the summary's indexes, one line each.
+    repaired: list[str] = field(default_factory=list)
     #: Messages dropped because their channel was defined only in a skipped chunk.
     dropped: int = 0
 
@@ -196,6 +229,29 @@ class _Input:
         return data
 
 
+def _index_problem(head: bytes) -> str | None:
+    """What is wrong with a message index record that starts with ``head`` (its record header,
+    channel id and entries length), or None: its fields must take exactly its length."""
+    if len(head) < _INDEX_HEADER.size:
+        return None  # too short to be checked: mcap's reader will tell
+    _, length, _, entries = _INDEX_HEADER.unpack(head)
+    if entries % 16:
+        return f"its entries take {entries:,} bytes, not a multiple of 16"
+    if length != 6 + entries:
+        return f"its length field says {length:,} bytes, its fields take {6 + entries:,}"
+    return None
+
+
+def _next_record(known: list[tuple[int, int, str]], at: int) -> tuple[int | None, str | None]:
+    """Where the record after the one at ``at`` starts, and what ``at`` holds, from the
+    summary's ``known`` records; (None, None) if it does not say."""
+    for start, end, kind in known:
+        if start <= at < end:
+            return end, kind
+    later = [start for start, _, _ in known if start > at]
+    return (min(later), None) if later else (None, None)
+
+
 def _kind(opcode: int) -> str:
     """``chunk record``, ``message index record``, … for an opcode."""
     try:
@@ -272,26 +328,33 @@ class _Salvage:
         self.skipped: list[_Skipped] = []
         self.after_skip = False  # message indexes that follow belong to a skipped chunk
         self._summary: tuple[dict[int, Schema], dict[int, Channel]] | None = None
+        self._full_summary: Summary | None = None
+        self.repaired: dict[int, str] = {}  # record header repaired from the summary, by offset
+        self._summary_read = False
+        #: the data section's records from the summary's indexes, and where the summary starts
+        self._layout: tuple[list[tuple[int, int, str]], int | None] | None = None
 
     # -- the records -------------------------------------------------------------------------
 
     def run(self) -> None:
-        """Read the whole file or up to the first record that cannot be read."""
+        """Read the whole file or up to the first record that cannot be read or stepped over."""
         source = self.source
-        if len(source.read(len(MAGIC))) < len(MAGIC):
-            self.stop(0, "the file is empty" if source.count == 0 else
-                      f"the file ends inside the MCAP magic ({source.count} of 8 bytes)")
-            return
-        records = StreamReader(cast(IO[bytes], source), skip_magic=True, emit_chunks=True,
-                               record_size_limit=None).records
+        source.read(len(MAGIC))  # :func:`recover` has checked it
+        records = self.reader()
         in_summary = False
         every = 0
         while True:
             at = source.count
-            head = source.peek(_RECORD_HEADER.size)
+            head = source.peek(_INDEX_HEADER.size)[:_RECORD_HEADER.size]
             problem = self.check_header(head, at, in_summary)
             after_data = in_summary or head[:1] == bytes([Opcode.DATA_END])
+            if problem is None and head[0] == Opcode.MESSAGE_INDEX:
+                problem = _index_problem(source.peek(_INDEX_HEADER.size))
             if problem is not None:
+                if not in_summary and self.step_over(at, head, problem):
+                    records = self.reader()
+                    in_summary = self.in_summary(source.count)
+                    continue
                 self.stop(at, problem + (_AFTER_DATA if after_data else ""))
                 return
             opcode, length = _RECORD_HEADER.unpack(head)
@@ -313,17 +376,25 @@ class _Salvage:
                 record, reason = None, _describe(exc)
             else:
                 reason = "its fields do not add up to its length"
-            if record is None or source.short or source.count != end:
-                if source.eof and self.total is None:  # a stream: its length was not known
-                    problem = f"the file ends inside a {_kind(opcode)}"
-                else:
-                    problem = f"this {_kind(opcode)} is damaged: {reason}"
-                self.stop(at, problem + (_AFTER_DATA if after_data else ""))
+            if record is not None and not source.short and source.count == end:
+                size = None if in_summary else _fields_size(record)
+                if size is not None and size != length:
+                    record, reason = None, (f"its length field says {length:,} bytes, its fields "
+                                            f"take {size:,}")
+            elif source.eof and self.total is None:  # a stream: its length was not known
+                self.stop(at, f"the file ends inside a {_kind(opcode)}"
+                          + (_AFTER_DATA if after_data else ""))
                 return
-            size = None if in_summary else _fields_size(record)
-            if size is not None and size != length:
-                self.stop(at, f"this {_kind(opcode)} is damaged: its length field says "
-                          f"{length:,} bytes, its fields take {size:,}")
+            else:
+                record = None
+            if record is None:
+                source.end = None
+                if not in_summary and self.step_over(at, head, reason):
+                    records = self.reader()
+                    in_summary = self.in_summary(source.count)
+                    continue
+                self.stop(at, f"this {_kind(opcode)} is damaged: {reason}"
+                          + (_AFTER_DATA if after_data else ""))
                 return
             source.end = None
             self.after_skip = False
@@ -340,6 +411,225 @@ class _Salvage:
             if self.progress is not None and every % 64 == 0:
                 self.progress(self.report.messages,
                               source.count / self.total if self.total else None)
+
+    def reader(self) -> Iterator[McapRecord]:
+        """mcap's records from where the input is now (again after a damaged record)."""
+        return StreamReader(cast(IO[bytes], self.source), skip_magic=True, emit_chunks=True,
+                            record_size_limit=None).records
+
+    # -- stepping over a damaged record -------------------------------------------------------
+
+    def step_over(self, at: int, head: bytes, problem: str) -> bool:
+        """Go on after the damaged record at ``at``, if the file says where the next one starts.
+
+        Only a file that can seek: where its summary is intact, its indexes give where every
+        chunk, message index run, attachment and metadata record starts and ends; otherwise the
+        next chunk, attachment, metadata or data end record that proves itself (CRC, fields that
+        take exactly its length) is searched for. A record cut by the end of the file (nothing
+        after it proves itself) is not stepped over: reading stops there, as before.
+        """
+        if len(head) < _RECORD_HEADER.size or self.total is None or not self.raw.seekable():
+            return False
+        known = self.known_records()
+        target, kind = _next_record(known, at)
+        if self.repair(at, head, known, problem):
+            return True
+        if target is not None and not self.starts_record(target):
+            target, kind = None, None
+        how = "where the summary's indexes say the next record starts"
+        if target is None:
+            target, how = self.scan(at), "the next record found intact"
+            kind = None
+        if target is None:
+            return False
+        opcode, length = _RECORD_HEADER.unpack(head)
+        what = kind or (_kind(opcode) if opcode in _OPCODES else "record")
+        why = self.damage(at, opcode, length, problem)
+        if kind == "message index record":  # the end of the chunk's message indexes
+            why += "; no message lost (message indexes are not needed)"
+        elif kind is None and self.index_run_ends_at(at, target):
+            why += "; no message lost (message indexes are not needed)"
+            what = "message index record"
+        else:
+            why += f"; reading went on at byte {target:,}, {how}"
+        self.skip(at, what, why)
+        if what != "chunk record":  # only a chunk's message indexes count its lost messages
+            self.after_skip = False
+        self.jump(target)
+        return True
+
+    def repair(self, at: int, head: bytes, known: list[tuple[int, int, str]],
+               problem: str) -> bool:
+        """Read the record at ``at`` again with the opcode and length the summary's index gives
+        it, if they differ from its header's (once: a record still damaged then is skipped)."""
+        extent = next(((end, kind) for start, end, kind in known if start == at), None)
+        if extent is None or at in self.repaired or extent[1] not in _REPAIRABLE:
+            return False
+        opcode, length = _RECORD_HEADER.unpack(head)
+        fixed = _RECORD_HEADER.pack(_REPAIRABLE[extent[1]],
+                                    extent[0] - at - _RECORD_HEADER.size)
+        if fixed == head:
+            return False
+        self.repaired[at] = (f"{extent[1]} at byte {at:,}: "
+                             f"{self.damage(at, opcode, length, problem)}; read with the opcode "
+                             "and length the summary's index gives it")
+        self.jump(at)
+        self.source._pending = fixed
+        self.raw.seek(self.start + at + _RECORD_HEADER.size)
+        return True
+
+    def damage(self, at: int, opcode: int, length: int, problem: str) -> str:
+        """What is wrong with the record at ``at``, which is damaged (not cut by the end)."""
+        assert self.total is not None
+        left = self.total - at - _RECORD_HEADER.size
+        if not opcode and not length:
+            return "its header is zero bytes"
+        if opcode not in _OPCODES and opcode < 0x80:
+            return f"its opcode 0x{opcode:02x} is no MCAP record's"
+        if length > left:
+            return (f"its length field says {length:,} bytes, more than the {left:,} left in "
+                    "the file")
+        return problem
+
+    def jump(self, target: int) -> None:
+        """Read on from ``target`` (an offset from where the input started)."""
+        source = self.source
+        self.raw.seek(self.start + target)
+        source._pending, source.count, source.end = b"", target, None
+        source.eof = source.short = False
+
+    def in_summary(self, at: int) -> bool:
+        return self._layout is not None and self._layout[1] is not None and at >= self._layout[1]
+
+    def known_records(self) -> list[tuple[int, int, str]]:
+        """(start, end, kind) of the data section's records, from an intact summary, sorted."""
+        if self._layout is None:
+            self._layout = [], None
+            found = self.full_summary()
+            summary_start = self.summary_start()
+            if found is not None and summary_start is not None:
+                known = []
+                for c in found.chunk_indexes:
+                    end = c.chunk_start_offset + c.chunk_length
+                    known.append((c.chunk_start_offset, end, "chunk record"))
+                    if c.message_index_length:
+                        known.append((end, end + c.message_index_length, "message index record"))
+                known += [(a.offset, a.offset + a.length, "attachment record")
+                          for a in found.attachment_indexes]
+                known += [(m.offset, m.offset + m.length, "metadata record")
+                          for m in found.metadata_indexes]
+                data_end = summary_start - _RECORD_HEADER.size - 4
+                known.append((data_end, summary_start, "data end record"))
+                self._layout = sorted(known), summary_start
+        return self._layout[0]
+
+    def summary_start(self) -> int | None:
+        """Where the summary section starts, if the file ends with a footer and the magic."""
+        assert self.total is not None
+        size = _RECORD_HEADER.size + 20 + len(MAGIC)
+        if self.total < size + len(MAGIC):
+            return None
+        tail = self.read_at(self.total - size, size)
+        if tail is None or tail[:9] != _RECORD_HEADER.pack(Opcode.FOOTER, 20) or (
+                tail[-8:] != MAGIC):
+            return None
+        (start,) = struct.unpack_from("<Q", tail, 9)
+        return start if 0 < start < self.total else None
+
+    def read_at(self, at: int, n: int) -> bytes | None:
+        """``n`` bytes at ``at`` (or fewer at the end), the input's position kept."""
+        position = self.raw.tell()
+        try:
+            self.raw.seek(self.start + at)
+            return self.raw.read(n)
+        except OSError:
+            return None
+        finally:
+            self.raw.seek(position)
+
+    def starts_record(self, at: int) -> bool:
+        """Whether an intact message index record, or any record :meth:`record_at` finds
+        intact, starts at ``at``."""
+        head = self.read_at(at, _INDEX_HEADER.size) or b""
+        if head[:1] == bytes([Opcode.MESSAGE_INDEX]) and len(head) == _INDEX_HEADER.size:
+            return _index_problem(head) is None
+        return self.record_at(at) is not None
+
+    def record_at(self, at: int) -> McapRecord | None:
+        """The record at ``at`` if it proves itself intact, else None.
+
+        A chunk must pass its CRC, an attachment its CRC, and every record's fields must take
+        exactly its length; a metadata or data end record (no CRC) must be followed by a record
+        header that could be one.
+        """
+        assert self.total is not None
+        head = self.read_at(at, _RECORD_HEADER.size)
+        if head is None or len(head) < _RECORD_HEADER.size:
+            return None
+        opcode, length = _RECORD_HEADER.unpack(head)
+        end = at + _RECORD_HEADER.size + length
+        if opcode not in _RESYNC or end > self.total or length > _RESYNC_LIMIT:
+            return None
+        data = self.read_at(at, end - at)
+        if data is None or len(data) != end - at:
+            return None
+        try:
+            record = next(StreamReader(io.BytesIO(data), skip_magic=True, emit_chunks=True,
+                                       record_size_limit=None).records)
+            if _fields_size(record) != length:
+                return None
+            if isinstance(record, Chunk):
+                if not record.uncompressed_crc:
+                    return None
+                breakup_chunk(record, validate_crc=True)
+            elif isinstance(record, Attachment):
+                if not int.from_bytes(data[-4:], "little") or not _attachment_crc_ok(
+                        record, data[-4:]):
+                    return None
+            else:
+                after = self.read_at(end, _RECORD_HEADER.size) or b""
+                if len(after) == _RECORD_HEADER.size:
+                    if after[0] not in _OPCODES or _RECORD_HEADER.unpack(after)[1] > (
+                            self.total - end - _RECORD_HEADER.size):
+                        return None
+                elif after != MAGIC[:len(after)] or not isinstance(record, DataEnd):
+                    return None
+        except (*_DAMAGE, StopIteration):
+            return None
+        return record
+
+    def scan(self, at: int) -> int | None:
+        """The offset of the first record after ``at`` that proves itself intact, or None."""
+        assert self.total is not None
+        position = at + 1
+        while position + _RECORD_HEADER.size <= self.total:
+            block = self.read_at(position, _SCAN_BLOCK + _RECORD_HEADER.size)
+            if not block:
+                return None
+            for match in _RESYNC_OPCODE.finditer(block, 0, _SCAN_BLOCK):
+                candidate = position + match.start()
+                if match.start() + _RECORD_HEADER.size > len(block):
+                    break
+                (length,) = struct.unpack_from("<Q", block, match.start() + 1)
+                if length <= self.total - candidate - _RECORD_HEADER.size and (
+                        self.record_at(candidate) is not None):
+                    return candidate
+            position += _SCAN_BLOCK
+        return None
+
+    def index_run_ends_at(self, at: int, target: int) -> bool:
+        """Whether the bytes from ``at`` to ``target`` are message index records (their
+        entries' lengths lead exactly to ``target``, whatever their opcodes and lengths say)."""
+        position = at
+        while position < target:
+            head = self.read_at(position, _INDEX_HEADER.size)
+            if head is None or len(head) < _INDEX_HEADER.size:
+                return False
+            (entries,) = struct.unpack_from("<I", head, 11)
+            if entries % 16:
+                return False
+            position += _INDEX_HEADER.size + entries
+        return position == target
 
     def check_header(self, head: bytes, at: int, in_summary: bool) -> str | None:
         """Why the record that starts at ``at`` cannot be read, or None if it can."""
@@ -403,6 +693,7 @@ class _Salvage:
 
     def skip(self, at: int, what: str, why: str) -> None:
         self.skipped.append(_Skipped(at, what, why))
+        self.repaired.pop(at, None)  # repaired, and still damaged
         self.after_skip = True
 
     def message(self, m: Message) -> None:
@@ -460,19 +751,25 @@ class _Salvage:
         Only read when a message's channel is missing (defined in a skipped chunk).
         """
         if self._summary is None:
-            self._summary = {}, {}
+            found = self.full_summary()
+            self._summary = ({}, {}) if found is None else (dict(found.schemas),
+                                                            dict(found.channels))
+        return self._summary
+
+    def full_summary(self) -> Summary | None:
+        """The summary section, if the file still has an intact one (read once, when needed)."""
+        if not self._summary_read:
+            self._summary_read = True
             if self.start == 0 and self.raw.seekable():
                 position = self.raw.tell()
                 try:
                     self.raw.seek(0)
-                    found = make_reader(self.raw).get_summary()
-                    if found is not None:
-                        self._summary = dict(found.schemas), dict(found.channels)
+                    self._full_summary = make_reader(self.raw).get_summary()
                 except (*_DAMAGE, OSError):
-                    pass  # no intact summary: the messages are dropped
+                    pass  # no intact summary
                 finally:
                     self.raw.seek(position)
-        return self._summary
+        return self._full_summary
 
     # -- the ends ----------------------------------------------------------------------------
 
@@ -513,6 +810,7 @@ class _Salvage:
             + ("" if s.lost is None else f"; {s.lost:,} messages lost")
             for s in self.skipped
         ]
+        report.repaired = [self.repaired[at] for at in sorted(self.repaired)]
         if not self.started:
             self.begin(None)
 
@@ -530,6 +828,7 @@ class _Salvage:
             "stopped_at": r.stopped_at,
             "stopped": r.stopped or "",
             "skipped": r.skipped,
+            "repaired": r.repaired,
             "messages": r.messages,
             "messages_per_topic": r.per_topic,
             "dropped_messages": r.dropped,
@@ -561,8 +860,13 @@ def recover(broken: IO[bytes], fixed: IO[bytes], *, source_name: str = "",
         head = source.peek(len(MAGIC))
     except _Unreadable as exc:
         raise InputError(name, f"cannot read: {exc}") from None
+    if not head:
+        raise InputError(name, "not an MCAP file (it is empty)")
     if head != MAGIC[:len(head)]:
         raise InputError(name, f"not an MCAP file (it starts with {head!r}, not {MAGIC!r})")
+    if len(head) < len(MAGIC):
+        raise InputError(name, f"not an MCAP file (its {len(head)} bytes are the start of the "
+                         "MCAP magic, nothing more)")
     report = RecoverReport()
     writer = Writer(fixed, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
     salvage = _Salvage(broken, source, writer, start, total, report, progress)
@@ -618,13 +922,16 @@ def format_report(report: RecoverReport, broken_path: Path | str, fixed_path: Pa
         share = f" ({math.floor(1000 * r.bytes_read / r.bytes_total) / 10:.1f} %)"
     lines.append(f"read {r.bytes_read:,} of {r.bytes_total:,} bytes of {broken_path}{share}")
     if r.stopped is None:
-        lines.append("the file was complete" + (", but damaged inside" if r.skipped else ""))
+        lines.append("the file was complete"
+                     + (", but damaged inside" if r.skipped or r.repaired else ""))
         if r.bytes_read < r.bytes_total:
             lines.append(f"  {r.bytes_total - r.bytes_read:,} bytes after its end were ignored")
     else:
         lines.append(f"stopped at byte {r.stopped_at or 0:,}: {r.stopped}")
     for text in r.skipped:
         lines.append(f"skipped the damaged {text}")
+    for text in r.repaired:
+        lines.append(f"repaired the damaged {text}")
     if r.dropped:
         lines.append(f"dropped {r.dropped:,} messages whose channel was defined only in a "
                      "skipped chunk")
@@ -638,7 +945,8 @@ def add_parser(sub: Subparsers) -> None:
         "recover", help="salvage a drive (MCAP) cut short by a power loss or a crash",
         description="Copy every complete record of an MCAP file that was cut short (power loss, "
         "killed recorder) into a complete new MCAP, and say what was recovered and where and why "
-        "reading stopped. Damaged chunks (CRC mismatch) are skipped and reported.")
+        "reading stopped. Damaged records are skipped (or repaired from the file's indexes) and "
+        "reported.")
     parser.add_argument("input", type=Path, metavar="BROKEN.mcap")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="FIXED.mcap",
                         help="the complete MCAP to write")
