@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     install_stop_signals(stopping.set)
     if args.run_for:
         threading.Timer(args.run_for, stopping.set).start()
-    print(f"Foxglove: open connection {server.url} (Foxglove WebSocket)")
+    print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
     print(f"layout:   import {options.layout_hint()} (Layouts menu)", flush=True)
     try:
         if stages is None:

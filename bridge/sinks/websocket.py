@@ -16,7 +16,23 @@ never anyone else's, and never delays the pipeline or the recorder.
 Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is advertised to every
 client but its messages go only to the clients that subscribed; :meth:`LiveServer.wanted` tells
 the pipeline whether anyone subscribed, so it can skip work nobody looks at. The protocol has no
-authentication: bind to 127.0.0.1 (the default) unless the network is trusted.
+authentication: bind to 127.0.0.1 (the default) unless the network is trusted. Bound to every
+address (``0.0.0.0``, ``::``), :attr:`LiveServer.urls` names the machine's own addresses (see
+:func:`machine_addresses`), which a laptop on the car's network can open.
+
+A viewer sends only ``subscribe`` and ``unsubscribe`` (the server advertises no capability that
+takes input). Anything else — text that is not JSON, JSON that is not such a message, another
+op, any binary message — is checked by :func:`client_message` before foxglove-websocket sees it:
+the viewer gets the protocol's ``status`` message (level error) saying what was wrong, the
+console one line (logger ``tankviz.server``, warning, no traceback; at most
+:data:`REFUSALS_LOGGED` per viewer), and nothing else happens. Replies to a viewer are written
+without waiting for it (never more than :data:`_REPLY_LIMIT_BYTES` behind).
+
+A viewer that closes the connection while it still has not read what was sent to it (its socket
+buffers are full) is dropped at once: the echo of its close frame could only reach it behind all
+that, so the connection is aborted instead of waiting for websockets' close timeout (10 s by
+default; :data:`CLOSE_TIMEOUT_S` here). It is then no longer counted (:meth:`LiveServer.viewers`)
+and its subscriptions no longer keep channels wanted.
 """
 
 from __future__ import annotations
@@ -25,6 +41,8 @@ import asyncio
 import base64
 import collections
 import contextlib
+import ipaddress
+import itertools
 import json
 import logging
 import socket
@@ -32,15 +50,20 @@ import struct
 import threading
 import time
 import uuid
-from collections.abc import Callable, Sequence
+import weakref
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from foxglove_websocket.server import FoxgloveServer, FoxgloveServerListener
-from foxglove_websocket.types import ChannelId
+from foxglove_websocket.types import ChannelId, StatusLevel
 from mcap_protobuf.schema import build_file_descriptor_set
+from websockets.exceptions import ConnectionClosed
 from websockets.frames import Frame as WebSocketFrame
 from websockets.frames import Opcode
+from websockets.legacy.framing import prepare_ctrl
+from websockets.legacy.server import WebSocketServerProtocol
+from websockets.typing import DataLike
 
 from bridge.decode.decoder import Decoded, MessageCodec
 from bridge.errors import BridgeError
@@ -56,6 +79,10 @@ DEFAULT_QUEUE_LIMIT = 2000
 #: How often the loop takes in published messages without being asked to (s): a safety net,
 #: publishers flush.
 DRAIN_INTERVAL_S = 0.1
+#: How long the server waits for a viewer's part of a closing handshake (s; websockets: 10).
+CLOSE_TIMEOUT_S = 1.0
+#: Console lines for one viewer's refused messages; it gets a status for every one.
+REFUSALS_LOGGED = 20
 
 _MESSAGE_DATA = 0x01
 _TIME = 0x02
@@ -67,13 +94,27 @@ class ServerError(BridgeError):
     """The server could not start (e.g. the port is taken)."""
 
 
+class ViewerInputError(BridgeError):
+    """A message from a viewer that the server does not take (the reason, in one line)."""
+
+
 @dataclass
 class ClientStats:
-    """What one client was sent and what it lost."""
+    """What one client was sent and what it lost (how many messages of which topics)."""
 
     address: str
     sent: int = 0
     dropped: int = 0
+    #: messages lost per topic (filled in by :meth:`LiveServer.client_stats`)
+    topics: collections.Counter[str] = field(default_factory=collections.Counter)
+    #: messages lost per channel id
+    channels: collections.Counter[int] = field(default_factory=collections.Counter)
+
+    def lost(self, items: Iterable[tuple[Any, ...]]) -> None:
+        """Queued ``(channel, time, payload)`` items that were dropped."""
+        for item in items:
+            self.channels[item[0]] += 1
+            self.dropped += 1
 
 
 @dataclass
@@ -101,8 +142,11 @@ class _Client:
         """Queue messages; a full queue drops its oldest (counted)."""
         queue = self.queue
         before = len(queue)
+        excess = before + len(items) - self.limit
+        if excess > 0:
+            self.stats.lost(itertools.chain(itertools.islice(queue, min(excess, before)),
+                                            items[:max(0, excess - before)]))
         queue.extend(items)
-        self.stats.dropped += before + len(items) - len(queue)
         self.ready.set()
 
     def put_control(self, frame: Any) -> None:
@@ -197,6 +241,110 @@ class _Subscriptions(FoxgloveServerListener):  # type: ignore[misc]
         self.wanted.discard(channel_id)
 
 
+#: The ops a viewer may send (the server advertises no capability that takes more).
+CLIENT_OPS = ("subscribe", "unsubscribe")
+
+
+def client_message(raw: str | bytes) -> dict[str, Any]:
+    """A viewer's message as a JSON object the server takes, or :class:`ViewerInputError` saying
+    in one line why not (nothing of the message but a short op name is repeated)."""
+    if not isinstance(raw, str):
+        raise ViewerInputError(f"a binary message ({len(raw)} bytes): this server takes none "
+                               "(no client publishing, no services)")
+    try:
+        message = json.loads(raw)
+    except ValueError as exc:  # json.JSONDecodeError, or a number too long to convert
+        raise ViewerInputError(f"not JSON ({exc})") from None
+    if not isinstance(message, dict):
+        raise ViewerInputError(f"a JSON {type(message).__name__}, not an object with an \"op\"")
+    op = message.get("op")
+    if not isinstance(op, str):
+        raise ViewerInputError("a JSON object without an \"op\" string")
+    if op not in CLIENT_OPS:
+        shown = json.dumps(op[:40] + ("…" if len(op) > 40 else ""), ensure_ascii=True)
+        raise ViewerInputError(f"op {shown} is not taken here (only {' and '.join(CLIENT_OPS)})")
+    if op == "subscribe":
+        subscriptions = message.get("subscriptions")
+        if not (isinstance(subscriptions, list) and all(
+                isinstance(sub, dict) and _is_int(sub.get("id"))
+                and _is_int(sub.get("channelId")) for sub in subscriptions)):
+            raise ViewerInputError('subscribe: "subscriptions" must be a list of '
+                                   '{"id": integer, "channelId": integer}')
+    else:
+        ids = message.get("subscriptionIds")
+        if not (isinstance(ids, list) and all(map(_is_int, ids))):
+            raise ViewerInputError('unsubscribe: "subscriptionIds" must be a list of integers')
+    return message
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _viewer(connection: Any) -> str:
+    address = connection.remote_address
+    return f"{address[0]}:{address[1]}" if address else "?"
+
+
+class _Server(FoxgloveServer):  # type: ignore[misc]
+    """foxglove-websocket's server, taking from viewers only what :func:`client_message` lets
+    through, and replying without waiting for the viewer to read."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._refusals: weakref.WeakKeyDictionary[Any, int] = weakref.WeakKeyDictionary()
+
+    async def _handle_raw_client_message(self, client: Any, raw_message: str | bytes) -> None:
+        try:
+            message = client_message(raw_message)
+            await self._handle_client_text_message(client, message)
+        except ConnectionClosed:
+            pass
+        except ViewerInputError as exc:
+            await self._refuse(client.connection, str(exc))
+        except Exception as exc:  # checked, and foxglove-websocket refused it all the same
+            await self._refuse(client.connection, f"{type(exc).__name__}: {exc}")
+
+    async def _refuse(self, connection: Any, problem: str) -> None:
+        count = self._refusals[connection] = self._refusals.get(connection, 0) + 1
+        if count <= REFUSALS_LOGGED:
+            log.warning("viewer %s: %s: ignored%s", _viewer(connection), problem,
+                        " (its next ones are not logged)" if count == REFUSALS_LOGGED else "")
+        await self._send_status(connection, StatusLevel.ERROR, problem)
+
+    async def _send_json(self, connection: Any, msg: Any) -> None:
+        """Written at once, never awaited: only our sender task waits for a viewer's socket
+        (websockets' legacy connections cannot have two waiting at once)."""
+        transport = connection.transport
+        if connection.open and transport.get_write_buffer_size() < _REPLY_LIMIT_BYTES:
+            transport.write(WebSocketFrame(
+                Opcode.TEXT, json.dumps(msg, separators=(",", ":")).encode()).serialize(
+                    mask=False, extensions=connection.extensions))
+
+
+class _Connection(WebSocketServerProtocol):
+    """websockets' server connection, which lets a viewer go at once when it closes without
+    having read what was sent to it, and answers its pings without waiting.
+
+    Only our sender task may wait for a full socket (websockets' legacy connections fail with an
+    AssertionError, logged with its traceback, when two wait at once): the echo of a close frame
+    and a pong are written and never waited for.
+    """
+
+    async def write_close_frame(self, close: Any, data: Any = None) -> None:
+        transport = self.transport
+        if (self.close_rcvd is not None
+                and transport.get_write_buffer_size() > transport.get_write_buffer_limits()[0]):
+            # The viewer said goodbye; the echo would wait behind all it never read.
+            transport.abort()
+            return
+        await super().write_close_frame(close, data)
+
+    async def pong(self, data: DataLike = b"") -> None:
+        await self.ensure_open()
+        self.write_frame_sync(True, Opcode.PONG, prepare_ctrl(data))
+
+
 class LiveServer(Sink):
     """A Foxglove WebSocket server in a thread of its own; every public method is thread-safe
     and non-blocking apart from :meth:`start` and :meth:`stop`.
@@ -261,8 +409,25 @@ class LiveServer(Sink):
 
     @property
     def url(self) -> str:
-        host = "localhost" if self.host in ("127.0.0.1", "::1", "localhost") else self.host
-        return f"ws://{host}:{self.port}"
+        """Where a viewer connects: the first of :attr:`urls`."""
+        return self.urls[0]
+
+    @property
+    def urls(self) -> list[str]:
+        """Where viewers connect: ``localhost`` for a loopback server; for one on every address
+        (``0.0.0.0``, ``::``) each of the machine's own addresses (:func:`machine_addresses`;
+        ``localhost`` when it has none); else the address it was given."""
+        if self.host in ("0.0.0.0", "::", ""):
+            hosts = [_url_host(a) for a in machine_addresses()] or ["localhost"]
+        elif self.host in ("127.0.0.1", "::1", "localhost"):
+            hosts = ["localhost"]
+        else:
+            hosts = [_url_host(self.host)]
+        return [f"ws://{host}:{self.port}" for host in hosts]
+
+    def viewers(self) -> int:
+        """How many viewers are connected now."""
+        return len(self._server._clients) if self._server is not None else 0
 
     def _run(self) -> None:
         try:
@@ -281,14 +446,16 @@ class LiveServer(Sink):
             self._ready.set()
             return
         capabilities = ["time"] if self.server_time else []
-        server = FoxgloveServer(None, None, self.name,
-                                capabilities=capabilities, supported_encodings=[],
-                                session_id=self.session_id,
-                                metadata={"tankviz": "live"}, logger=log,
-                                # No keepalive pings: websockets' legacy protocol cannot have a
-                                # ping and our sender wait on one full socket at the same time.
-                                server_kwargs={"compression": None, "sock": sock,
-                                               "ping_interval": None})
+        server = _Server(None, None, self.name,
+                         capabilities=capabilities, supported_encodings=[],
+                         session_id=self.session_id,
+                         metadata={"tankviz": "live"}, logger=log,
+                         # No keepalive pings: websockets' legacy protocol cannot have a ping
+                         # and our sender wait on one full socket at the same time.
+                         server_kwargs={"compression": None, "sock": sock,
+                                        "ping_interval": None,
+                                        "create_protocol": _Connection,
+                                        "close_timeout": CLOSE_TIMEOUT_S})
         server.set_listener(_Subscriptions(self._wanted))
         self._server = server
         server.start()
@@ -394,8 +561,13 @@ class LiveServer(Sink):
         self._post(_Control("time", t_ns))
 
     def client_stats(self) -> list[ClientStats]:
-        """Every client connected now and every one that left."""
-        return [c.stats for c in list(self._clients.values())] + self.finished
+        """Every client connected now and every one that left (with the topics it lost)."""
+        stats = [c.stats for c in list(self._clients.values())] + self.finished
+        topics = {channel: topic for topic, channel in list(self._channels.items())}
+        for s in stats:
+            s.topics = collections.Counter({topics.get(c, f"channel {c}"): n
+                                            for c, n in s.channels.items()})
+        return stats
 
     def _post(self, item: _Control) -> None:
         self._inbox.append(item)
@@ -488,6 +660,9 @@ _FAIR_SHARE = 64
 #: (websockets' own default write limit).
 _WRITE_NOW_BYTES = 2**16
 
+#: A viewer this far behind (bytes not yet taken by its socket) gets no more replies.
+_REPLY_LIMIT_BYTES = 2**20
+
 #: Kernel send buffer per connection: about half a second of a busy scene, 25 MB/s at 20 ms
 #: round trip (the kernel doubles it for its bookkeeping).
 SEND_BUFFER_BYTES = 256 * 1024
@@ -517,6 +692,37 @@ def _listening_socket(host: str, port: int) -> socket.socket:
         sock.close()
         raise
     return sock
+
+
+def machine_addresses() -> list[str]:
+    """This machine's IPv4 addresses but loopback, in interface order: read from the network
+    interfaces (Linux's SIOCGIFADDR), then what the host name resolves to. Asks no network and
+    no name server beyond the host's own resolver."""
+    found: list[str] = []
+    try:
+        import fcntl
+
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            for _, name in socket.if_nameindex():
+                with contextlib.suppress(OSError):  # (an interface without an IPv4 address)
+                    request = struct.pack("256s", name.encode()[:15])
+                    found.append(socket.inet_ntoa(
+                        fcntl.ioctl(probe.fileno(), _SIOCGIFADDR, request)[20:24]))
+    except (ImportError, OSError):  # not Linux, or no interfaces to list
+        pass
+    with contextlib.suppress(OSError):
+        found += [str(info[4][0]) for info in socket.getaddrinfo(
+            socket.gethostname(), None, socket.AF_INET, socket.SOCK_STREAM)]
+    addresses = [ipaddress.ip_address(a) for a in found]
+    return list(dict.fromkeys(str(a) for a in addresses
+                              if not (a.is_loopback or a.is_unspecified)))
+
+
+_SIOCGIFADDR = 0x8915  # Linux: an interface's address
+
+
+def _url_host(address: str) -> str:
+    return f"[{address}]" if ":" in address else address
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 0.01) -> bool:
