@@ -1,4 +1,8 @@
-"""``tankviz inspect``: what a drive archive holds, readable in a terminal."""
+"""``tankviz inspect``: what a drive archive holds, readable in a terminal.
+
+A file that is missing, unreadable, a folder or not MCAP is an :class:`~bridge.errors.InputError`
+naming it (one line).
+"""
 
 from __future__ import annotations
 
@@ -82,6 +86,11 @@ def summarize_file(path: Path | str) -> DriveSummary:
             return summarize(stream)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, f"is a folder, not an MCAP file; name the drives in it "
+                         f"({path / '*.mcap'})") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
     except (McapError, ValueError, EOFError) as exc:  # mcap raises these for damaged files
         raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
 
@@ -132,6 +141,15 @@ def format_summary(path: str, s: DriveSummary) -> str:
                 f"{k} ({v})" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
         for k, text in list(stats.get("last_decode_error", {}).items())[:12]:
             lines.append(f"    {k}: {text}")
+        longer = stats.get("longer", {})
+        lines.append("  CAN FD frames longer than their message (decoded what it defines): "
+                     f"{sum(v['frames'] for v in longer.values()):,}")
+        lines += [f"    {topic}: {v['frames']:,} frames longer than its {v['message_bytes']} "
+                  f"bytes (up to {v['longest']})" for topic, v in longer.items()]
+        warnings = _json(ours.get("warnings", "[]"))
+        if warnings:
+            lines += ["", f"warnings ({len(warnings)}):"]
+            lines += [f"  {text}" for text in warnings]
         alarms = _json(ours.get("alarms", "[]"))
         lines += ["", f"alarms ({sum(a['event'] == 'raised' for a in alarms)} raised):"]
         lines += [f"  {format_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: {a['message']}"

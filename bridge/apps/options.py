@@ -1,11 +1,15 @@
 """Command-line options that several commands share, and what they turn into.
 
-Settings come from the command line, else the environment (``TANKVIZ_*``), else a default.
+Settings come from the command line, else the environment (``TANKVIZ_*``), else a default. The
+environment is read when the parser is built: a value that makes no sense there
+(``TANKVIZ_PORT=abc``) ends the command at once, even ``--help``, with one line naming the
+variable and exit status 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 from collections.abc import Callable
@@ -27,6 +31,34 @@ else:
 def env(name: str, default: str) -> str:
     """Settings: command line > environment (TANKVIZ_*) > default."""
     return os.environ.get(f"TANKVIZ_{name}", default)
+
+
+def _bad_env(name: str, expected: str) -> SystemExit:
+    """The one-line error for a setting of the environment that makes no sense."""
+    return SystemExit(f"error: TANKVIZ_{name}={os.environ.get(f'TANKVIZ_{name}')!r}: "
+                      f"expected {expected}")
+
+
+def env_port(name: str, default: int) -> int:
+    """A port number from the environment (TANKVIZ_*) or ``default``."""
+    text = env(name, str(default)).strip()
+    if not text.isdigit() or int(text) > 65535:
+        raise _bad_env(name, "a port number (0 to 65535)")
+    return int(text)
+
+
+def env_seconds(name: str) -> float | None:
+    """A number of seconds > 0 from the environment (TANKVIZ_*), or None where it is unset."""
+    text = env(name, "").strip()
+    if not text:
+        return None
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise _bad_env(name, "a number of seconds > 0")
+    return seconds
 
 
 def dbc_option(text: str) -> str:
@@ -60,7 +92,7 @@ def add_server_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default=env("HOST", "127.0.0.1"),
                         help="address to serve Foxglove on (default 127.0.0.1, env TANKVIZ_HOST; "
                         "0.0.0.0 serves the car network: the protocol has no authentication)")
-    parser.add_argument("--port", type=int, default=int(env("PORT", "8765")),
+    parser.add_argument("--port", type=int, default=env_port("PORT", 8765),
                         help="WebSocket port (default 8765, env TANKVIZ_PORT)")
 
 
@@ -78,6 +110,10 @@ def add_record_options(parser: argparse.ArgumentParser) -> None:
                         help="start a new part when the current one reaches this size")
     parser.add_argument("--split-duration", type=float, metavar="S",
                         help="start a new part after this many seconds")
+    parser.add_argument("--min-free", type=float, default=200.0, metavar="MB",
+                        help="stop recording (finishing the file) while the drives folder's disk "
+                        "has less free space than this, and resume when there is room "
+                        "(default 200)")
     parser.add_argument("--no-record", action="store_true", help="view only: record nothing")
     parser.add_argument("--no-server", action="store_true",
                         help="record only: no WebSocket server, no display load")
@@ -85,9 +121,8 @@ def add_record_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_run_for(parser: argparse.ArgumentParser) -> None:
-    default = env("RUN_FOR", "")
     parser.add_argument("--for", dest="run_for", type=float, metavar="S",
-                        default=float(default) if default else None,
+                        default=env_seconds("RUN_FOR"),
                         help="stop by itself after this many seconds (env TANKVIZ_RUN_FOR)")
 
 

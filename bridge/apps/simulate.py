@@ -2,61 +2,162 @@
 
 ``.mcap`` is the drive converted as ``tankviz convert`` would convert it (ecocar profile, the
 simulation's seed and duration in the metadata); any other suffix that python-can writes
-(.blf .asc .log .trc .csv .db) is a CAN log of the same frames. The output is checked before
-anything is simulated and appears only complete.
+(.blf .asc .log .csv .db, the text formats also gzipped) is a CAN log of the same frames, each
+of them: read back, the log gives exactly the frames written, as many as the command says.
+
+A format that cannot hold the drive is refused before anything is simulated, saying why
+(:data:`CANNOT_HOLD`: python-can's TRC writer skips CAN FD frames, and it cannot gzip BLF).
+CSV and SQLite have no column for the CAN FD flags: their frames keep id, time and every data
+byte, and the command warns about the flags it leaves out. The output is checked before anything
+is simulated and appears only complete: a log is written under a hidden name
+(``.NAME_partial.SUFFIX``) and renamed when python-can has written every frame. Stopped by
+SIGTERM or SIGHUP, it leaves nothing behind, as on Ctrl+C.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
 
+from bridge.apps.convert import Stopped, stopped_by_signals
 from bridge.apps.options import Subparsers
-from bridge.errors import BridgeError
+from bridge.errors import OutputError, UsageError
+from bridge.frame import Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sinks.mcap import atomic_output, check_output
 
+#: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
+CANNOT_HOLD = {
+    ".trc": "python-can's TRC writer cannot write CAN FD frames, and the drive has them",
+    ".trc.gz": "python-can's TRC writer cannot write CAN FD frames, and the drive has them",
+    ".blf.gz": "python-can cannot write BLF into gzip",
+}
+#: Log formats without a column for the CAN FD flags (FD, bitrate switch).
+NO_FD_FLAGS = {".csv": "CSV", ".csv.gz": "CSV", ".db": "SQLite"}
+_HOLDS = ".blf, .asc, .log, .csv, .db (or .asc.gz, .log.gz, .csv.gz) or .mcap"
+
 
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
         "simulate", help="write the simulated ecocar drive as a CAN log or an MCAP",
-        description="Write the simulated ecocar drive: a CAN log (.blf .asc .log .trc .csv .db) "
+        description="Write the simulated ecocar drive: a CAN log (.blf .asc .log .csv .db) "
         "or a converted drive (.mcap with the ecocar profile).")
     parser.add_argument("-o", "--output", type=Path, required=True)
-    parser.add_argument("--duration", type=float, default=60.0, metavar="S",
+    parser.add_argument("--duration", default="60", metavar="S",
                         help="seconds of driving (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
     parser.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    output: Path = args.output
-    check_output(output, force=args.force)
-    frames = simulate(duration_s=args.duration, seed=args.seed)
-    if output.suffix.lower() == ".mcap":
-        drive = Drive(load_stages([], "ecocar"),
-                      extra={"simulated": {"seed": args.seed, "duration_s": args.duration}})
-        with atomic_output(output) as stream:
-            drive.record(stream)
-            count = drive.run(frames)
-            drive.finish()
-    else:
-        if not any(str(output).lower().endswith(s) for s in supported_suffixes()):
-            raise BridgeError(f"{output}: unknown log format; write .blf, .asc, .log, .trc, "
-                              ".csv, .db or .mcap")
-        count = 0
-        with can.Logger(output) as logger:
+def duration_seconds(text: str) -> float:
+    """``--duration``: a finite number of seconds > 0."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"--duration {text}: expected a number of seconds > 0")
+    return seconds
+
+
+def log_format(output: Path) -> str:
+    """The log suffix of ``output`` (``.asc.gz`` for a gzipped one), refused where python-can
+    cannot write the drive into it."""
+    name = output.name.lower()
+    suffix = next((s for s in sorted(supported_suffixes(), key=len, reverse=True)
+                   if name.endswith(s)), None)
+    if suffix is None:
+        suffix = next((s for s in CANNOT_HOLD if name.endswith(s)), None)
+    if suffix is None:
+        raise OutputError(output, f"unknown log format; write {_HOLDS}")
+    if suffix in CANNOT_HOLD:
+        raise OutputError(output, f"{CANNOT_HOLD[suffix]}; write {_HOLDS}")
+    return suffix
+
+
+class _CompleteSqliteWriter(can.SqliteWriter):
+    """python-can's SQLite writer, writing everything it is given.
+
+    Its writer thread ends on ``stop()`` after at most one more batch (~500 frames), and whatever
+    is still queued is lost; this one waits for the queue to be taken first.
+    """
+
+    def stop(self) -> None:
+        thread = self._writer_thread
+        while not self.buffer.empty() and thread.is_alive():
+            time.sleep(0.01)
+        super().stop()
+
+
+def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, int]:
+    """Write ``frames`` with python-can's writer for ``suffix``, under a hidden name renamed when
+    every frame is written. Returns how many frames, and how many of them CAN FD."""
+    # python-can chooses its writer by the suffixes (exactly two for gzip): keep only those
+    partial = output.with_name(f".{output.name[:-len(suffix)].replace('.', '_')}_partial{suffix}")
+    partial.unlink(missing_ok=True)  # SQLite would add to the table of an old file
+    count = fd = 0
+    try:
+        try:
+            writer: can.Listener = (_CompleteSqliteWriter(partial) if suffix == ".db"
+                                    else can.Logger(partial))
+        except NotImplementedError as exc:  # MF4 without asammdf
+            raise OutputError(output, f"{exc}; pip install 'tankviz[mf4]'") from None
+        try:
             for frame in frames:
-                logger.on_message_received(can.Message(
+                writer.on_message_received(can.Message(
                     timestamp=frame.timestamp_ns / 1e9, arbitration_id=frame.arbitration_id,
                     data=frame.data, is_extended_id=frame.is_extended, is_fd=frame.is_fd,
                     bitrate_switch=frame.bitrate_switch, dlc=frame.dlc, channel=0))
                 count += 1
-    print(f"wrote {output}: {count:,} frames, {args.duration:g} s of the simulated ecocar drive "
+                fd += frame.is_fd
+        finally:
+            writer.stop()
+        if isinstance(writer, can.SqliteWriter) and writer.num_frames != count:
+            raise OutputError(output, f"python-can's SQLite writer wrote {writer.num_frames:,} "
+                              f"of {count:,} frames")
+        os.replace(partial, output)
+    except OSError as exc:
+        raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
+    finally:
+        partial.unlink(missing_ok=True)
+    return count, fd
+
+
+def run(args: argparse.Namespace) -> int:
+    output: Path = args.output
+    duration = duration_seconds(args.duration)
+    suffix = None if output.suffix.lower() == ".mcap" else log_format(output)
+    check_output(output, force=args.force)
+    frames = simulate(duration_s=duration, seed=args.seed)
+    fd = 0
+    try:
+        with stopped_by_signals():
+            if suffix is None:
+                drive = Drive(load_stages([], "ecocar"),
+                              extra={"simulated": {"seed": args.seed, "duration_s": duration}})
+                with atomic_output(output) as stream:
+                    drive.record(stream)
+                    count = drive.run(frames)
+                    drive.finish()
+            else:
+                count, fd = write_log(frames, output, suffix)
+    except Stopped as stop:
+        print(f"{stop}: {output} not written", file=sys.stderr)
+        return 128 + stop.signum
+    if suffix in NO_FD_FLAGS and fd:
+        print(f"warning: {output}: {NO_FD_FLAGS[suffix]} has no column for the CAN FD flags: "
+              f"its {fd:,} CAN FD frames are read back without the FD flag and the bitrate "
+              "switch (id, time and data are kept)", file=sys.stderr)
+    print(f"wrote {output}: {count:,} frames, {duration:g} s of the simulated ecocar drive "
           f"(seed {args.seed})")
     return 0

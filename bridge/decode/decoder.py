@@ -2,12 +2,25 @@
 
 A frame whose id no database of its bus defines, one that does not decode, and error frames are
 counted per (bus, id) in :class:`DecodeStats`, never raised: the recorder keeps every raw frame,
-so nothing is lost. Frames shorter than their DBC length decode what fits and are counted too.
+so nothing is lost. Frames shorter than their DBC length decode what fits and are counted too;
+CAN FD frames longer than their message decode what the message defines and are counted with the
+longest length seen (``longer`` in the statistics).
+
+A float signal (IEEE, ``SIG_VALTYPE_``) that decodes to +inf, -inf or NaN is kept in the decoded
+message as it came, named in :attr:`Decoded.non_finite` and counted per bus, message and signal
+(``non_finite`` in the statistics); the world never takes such a value
+(:mod:`bridge.world.observe`).
+
+Problems that would silence a message without a word are warnings: a message cantools cannot
+decode (overlapping signals, a signal beyond the message: cantools' ``strict`` check) is named in
+:attr:`DatabaseFile.warnings` when the file is loaded, and :meth:`Decoder.warnings` adds, once
+frames have been decoded, every ``--dbc BUS=`` whose bus no frame came from.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from collections import Counter
 from collections.abc import Iterable, Mapping
@@ -18,6 +31,7 @@ from typing import Any, NamedTuple
 import cantools
 from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
+from cantools.database.errors import Error as CantoolsError
 from google.protobuf import descriptor_pool
 
 from bridge.decode.proto_schema import MessageSchema, identifier
@@ -42,10 +56,34 @@ class DatabaseFile:
     sha256: str
     content: bytes
     db: Database = field(repr=False, compare=False)
+    #: what in it silences a message (:func:`database_warnings`), one line each
+    warnings: tuple[str, ...] = field(default=(), compare=False)
+
+
+def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
+    """A line for every message whose layout cantools' strict check refuses (overlapping
+    signals, a signal that does not fit), saying when no frame of it can decode."""
+    warnings = []
+    for message in db.messages:
+        try:
+            message.refresh(strict=True)
+            continue
+        except CantoolsError as exc:
+            text = str(exc).strip().rstrip(".")
+        message.refresh(strict=False)
+        text = f"{text[:1].lower()}{text[1:]} (0x{message.frame_id:X})"
+        if not message.is_multiplexed():  # a payload of zeros may name no multiplexed part
+            try:
+                message.decode(bytes(message.length), decode_choices=False,
+                               allow_truncated=True)
+            except Exception:  # cantools: DecodeError, bitstruct errors
+                text += "; cantools cannot decode any frame of it"
+        warnings.append(f"{path}: {text}")
+    return tuple(warnings)
 
 
 def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
-    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file."""
+    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file, with its warnings."""
     path = Path(path)
     try:
         content = path.read_bytes()
@@ -60,7 +98,8 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
         raise DatabaseError(path, f"cantools cannot load it: {reason}") from None
     if not isinstance(db, Database):
         raise DatabaseError(path, "not a CAN database (cantools loaded a diagnostics database)")
-    return DatabaseFile(path, name or path.stem, hashlib.sha256(content).hexdigest(), content, db)
+    return DatabaseFile(path, name or path.stem, hashlib.sha256(content).hexdigest(), content, db,
+                        database_warnings(path, db))
 
 
 def parse_dbc_option(text: str) -> tuple[str | None, Path]:
@@ -74,11 +113,13 @@ def parse_dbc_option(text: str) -> tuple[str | None, Path]:
 
 
 class Decoded(NamedTuple):
-    """One decoded frame: its message, the signal values and their protobuf encoding."""
+    """One decoded frame: its message, the signal values and their protobuf encoding, and the
+    float signals whose value is not finite (+inf, -inf, NaN)."""
 
     codec: MessageCodec
     signals: Mapping[str, Any]
     payload: bytes
+    non_finite: tuple[str, ...] = ()
 
 
 class MessageCodec:
@@ -94,19 +135,36 @@ class MessageCodec:
         self.length = message.length
         self.decoded = 0
         self.truncated = 0
+        #: CAN FD frames longer than the message, and the longest of them
+        self.longer = 0
+        self.longest = 0
+        #: the float signals, which alone can decode to +inf, -inf or NaN
+        self.floats = tuple(s.name for s in message.signals if s.is_float)
+        #: non-finite values per signal name
+        self.non_finite: Counter[str] = Counter()
         self._cache: dict[bytes, Decoded] = {}
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
-        if len(data) < self.length:
-            self.truncated += 1
+        if len(data) != self.length:
+            if len(data) < self.length:
+                self.truncated += 1
+            else:
+                self.longer += 1
+                self.longest = max(self.longest, len(data))
         hit = self._cache.get(data)
         if hit is not None:
             self.decoded += 1
+            if hit.non_finite:
+                self.non_finite.update(hit.non_finite)
             return hit
         signals: dict[str, Any] = self.message.decode(  # type: ignore[assignment]
             data, decode_choices=False, allow_truncated=True)
-        result = Decoded(self, signals, self.schema.serialize(signals))
+        bad = (tuple(n for n in self.floats if not math.isfinite(signals.get(n, 0.0)))
+               if self.floats else ())
+        if bad:
+            self.non_finite.update(bad)
+        result = Decoded(self, signals, self.schema.serialize(signals), bad)
         if len(self._cache) >= _CACHE_SIZE:
             self._cache.clear()
         self._cache[data] = result
@@ -154,12 +212,17 @@ class DecodeStats:
             "decoded": {c.topic: c.decoded for c in sorted(codecs, key=lambda c: c.topic)
                         if c.decoded},
             "truncated": {c.topic: c.truncated for c in codecs if c.truncated},
+            "longer": {c.topic: {"frames": c.longer, "message_bytes": c.length,
+                                 "longest": c.longest} for c in codecs if c.longer},
             "unknown_ids": ids(self.unknown),
             "decode_errors": ids(self.errors),
             "last_decode_error": {f"{bus}/0x{i:X}": text
                                   for (bus, i), text in sorted(self.last_error.items())},
             "error_frames": dict(sorted(self.error_frames.items())),
             "remote_frames": dict(sorted(self.remote_frames.items())),
+            "non_finite": {f"{c.bus}/{c.message.name}.{name}": n
+                           for c in sorted(codecs, key=lambda c: c.topic)
+                           for name, n in sorted(c.non_finite.items())},
         }
 
 
@@ -185,6 +248,19 @@ class Decoder:
             for f in files:
                 seen.setdefault(str(f.path), f)
         return list(seen.values())
+
+    def warnings(self) -> list[str]:
+        """What silences messages: the databases' warnings, then every ``--dbc BUS=`` whose bus
+        no frame came from (once frames have been decoded)."""
+        lines = [text for f in self.files for text in f.warnings]
+        seen = self.stats.frames
+        if seen:
+            have = ", ".join(sorted(seen))
+            lines += [f"--dbc {bus}={f.path}: no input has bus {bus} (the inputs have {have}), "
+                      "so nothing was decoded with it"
+                      for bus, files in self._databases.items()
+                      if bus is not None and bus not in seen for f in files]
+        return lines
 
     def buses_for(self, database: DatabaseFile) -> list[str]:
         """The buses a database applies to (``*`` for every bus)."""

@@ -1,0 +1,58 @@
+"""Nonsense on the command line or in the environment gets one line, ``error: …``, and exit
+status 1: never a traceback (issue #13, item 14)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def tankviz(*argv: str, cwd: Path, env: dict[str, str] | None = None,
+            ) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "bridge", *argv], capture_output=True, text=True,
+                          cwd=cwd, timeout=120, env={**os.environ, **(env or {})})
+
+
+def one_error_line(result: subprocess.CompletedProcess[str]) -> str:
+    """The only line of stderr, checked to be an ``error:`` line with exit status 1."""
+    assert result.returncode == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    (line,) = result.stderr.splitlines()
+    assert line.startswith("error: ")
+    return line
+
+
+@pytest.mark.parametrize("duration", ["0", "-5", "nan", "inf"])
+def test_simulate_wants_a_duration_of_some_seconds(tmp_path: Path, duration: str) -> None:
+    line = one_error_line(tankviz("simulate", "-o", "drive.blf", f"--duration={duration}",
+                                  cwd=tmp_path))
+    assert line == f"error: --duration {duration}: expected a number of seconds > 0"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["live", "--help"], ["demo", "--for", "1"]])
+def test_a_bad_port_in_the_environment_is_named(tmp_path: Path, argv: list[str]) -> None:
+    line = one_error_line(tankviz(*argv, cwd=tmp_path, env={"TANKVIZ_PORT": "abc"}))
+    assert line == "error: TANKVIZ_PORT='abc': expected a port number (0 to 65535)"
+
+
+def test_a_bad_run_time_in_the_environment_is_named(tmp_path: Path) -> None:
+    line = one_error_line(tankviz("--help", cwd=tmp_path, env={"TANKVIZ_RUN_FOR": "soon"}))
+    assert line == "error: TANKVIZ_RUN_FOR='soon': expected a number of seconds > 0"
+
+
+def test_good_settings_in_the_environment_are_the_defaults(tmp_path: Path) -> None:
+    result = tankviz("live", "--help", cwd=tmp_path,
+                     env={"TANKVIZ_PORT": "9001", "TANKVIZ_RUN_FOR": "2.5"})
+    assert result.returncode == 0, result.stderr
+
+
+def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
+    (tmp_path / "drives").mkdir()
+    line = one_error_line(tankviz("inspect", "drives", cwd=tmp_path))
+    assert line.startswith("error: drives: is a folder")
+    assert "drives/*.mcap" in line

@@ -1,0 +1,114 @@
+"""Database problems that silence a message are said, not found out later (issue #13, item 9):
+overlapping signals or a signal beyond its message (cantools cannot decode such a message) are
+warned about when the database is loaded; a ``--dbc BUS=`` for a bus that no input has is warned
+about at the end of the summary; both are in the drive's metadata. CAN FD frames longer than their
+DBC message decode what the message defines, and the statistics note the bytes beyond it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+from conftest import T0, WriteLog, message
+
+from bridge.apps.inspect import format_summary, summarize_file
+from bridge.cli import main
+from bridge.decode.decoder import load_database
+
+DOOR_DBC = """VERSION ""
+BS_:
+BU_: Door
+BO_ 1056 DoorState: 8 Door
+ SG_ Open : 0|8@1+ (1,0) [0|255] "" Door
+ SG_ Lock : 4|8@1+ (1,0) [0|255] "" Door
+BO_ 1057 Window: 2 Door
+ SG_ Pos : 0|8@1+ (1,0) [0|255] "" Door
+ SG_ Far : 12|8@1+ (1,0) [0|255] "" Door
+BO_ 1058 Mirror: 8 Door
+ SG_ Angle : 0|8@1+ (1,0) [0|255] "" Door
+"""
+
+
+def door_frames(n: int = 10) -> list[can.Message]:
+    return [can.Message(timestamp=T0 + i / 100, arbitration_id=id_, data=bytes(8), channel=0,
+                        is_extended_id=False)
+            for i in range(n) for id_ in (0x420, 0x421, 0x422)]
+
+
+def metadata_warnings(path: Path) -> list[str]:
+    warnings: list[str] = json.loads(summarize_file(path).metadata["tankviz"]["warnings"])
+    return warnings
+
+
+def test_a_message_cantools_cannot_decode_is_warned_about_at_load(tmp_path: Path) -> None:
+    path = tmp_path / "door.dbc"
+    path.write_text(DOOR_DBC)
+    assert load_database(path).warnings == (
+        f"{path}: the signals Lock and Open are overlapping in message DoorState (0x420); "
+        "cantools cannot decode any frame of it",
+        f"{path}: the signal Far does not fit in message Window (0x421); "
+        "cantools cannot decode any frame of it",
+    )
+
+
+def test_a_sound_database_has_no_warnings(shared_dbc: Path) -> None:
+    for path in sorted(shared_dbc.glob("*.dbc")):
+        assert load_database(path).warnings == ()
+
+
+def test_convert_warns_at_load_and_at_the_end_and_keeps_the_warnings(
+        tmp_path: Path, write_log: WriteLog, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "door.dbc").write_text(DOOR_DBC)
+    log = write_log("door.blf", door_frames())
+    out = tmp_path / "door.mcap"
+    assert main(["convert", str(log), "-o", str(out), "--dbc", str(tmp_path / "door.dbc")]) == 0
+    printed = capsys.readouterr()
+    warnings = load_database(tmp_path / "door.dbc").warnings
+    assert [line for line in printed.err.splitlines() if line.startswith("warning:")] == [
+        f"warning: {text}" for text in warnings]
+    lines = printed.out.splitlines()
+    assert lines[-3:] == ["  warnings (2):", *(f"    {text}" for text in warnings)]
+    assert metadata_warnings(out) == list(warnings)
+    inspected = format_summary(str(out), summarize_file(out))
+    assert all(text in inspected for text in warnings)
+
+
+def test_a_dbc_for_a_bus_that_no_input_has_is_warned_about(
+        tmp_path: Path, shared_dbc: Path, write_log: WriteLog,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    esr = cantools.database.load_file(shared_dbc / "ESR.dbc")
+    log = write_log("esr.blf", [message(esr, "Target1", T0 + i / 20, channel=0)
+                                for i in range(20)])  # BLF channel 0: bus can0
+    out = tmp_path / "esr.mcap"
+    assert main(["convert", str(log), "-o", str(out),
+                 "--dbc", f"radar={shared_dbc / 'ESR.dbc'}"]) == 0
+    printed = capsys.readouterr().out
+    expected = (f"--dbc radar={shared_dbc / 'ESR.dbc'}: no input has bus radar (the inputs have "
+                "can0), so nothing was decoded with it")
+    assert printed.splitlines()[-2:] == ["  warnings (1):", f"    {expected}"]
+    assert "unknown ids 20" in printed
+    assert metadata_warnings(out) == [expected]
+
+
+def test_fd_frames_longer_than_their_message_decode_and_the_extra_bytes_are_noted(
+        tmp_path: Path, write_log: WriteLog, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "mirror.dbc").write_text(DOOR_DBC)
+    frames = [can.Message(timestamp=T0 + i / 100, arbitration_id=0x422, is_fd=True,
+                          is_extended_id=False, data=bytes([7] * length), channel=0)
+              for i, length in enumerate([8, 12, 64, 64])]
+    log = write_log("mirror.blf", frames)
+    out = tmp_path / "mirror.mcap"
+    assert main(["convert", str(log), "-o", str(out), "--dbc",
+                 str(tmp_path / "mirror.dbc")]) == 0
+    printed = capsys.readouterr().out
+    stats = json.loads(summarize_file(out).metadata["tankviz"]["statistics"])
+    assert stats["decoded"] == {"/can/can0/Mirror": 4}
+    assert stats["longer"] == {"/can/can0/Mirror": {"frames": 3, "message_bytes": 8,
+                                                     "longest": 64}}
+    assert "longer than their message 3" in printed
+    assert ("/can/can0/Mirror: 3 frames longer than its 8 bytes (up to 64)"
+            in format_summary(str(out), summarize_file(out)))
