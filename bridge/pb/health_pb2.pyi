@@ -27,7 +27,7 @@ ALARM_KIND_BUS_SILENT: AlarmKind
 ALARM_KIND_BABBLING: AlarmKind
 
 class BusHealth(_message.Message):
-    __slots__ = ("bus", "frames_per_s", "bits_per_s", "load", "bitrate", "data_bitrate", "error_frames", "error_frames_total", "unknown_ids", "unknown_ids_total", "decode_errors", "decode_errors_total", "silent_s", "gap", "gaps_total", "expected_period_s", "frames_total", "top_id", "top_id_hz", "top_id_share")
+    __slots__ = ("bus", "frames_per_s", "bits_per_s", "load", "bitrate", "data_bitrate", "error_frames", "error_frames_total", "unknown_ids", "unknown_ids_total", "decode_errors", "decode_errors_total", "silent_s", "gap", "gaps_total", "expected_period_s", "frames_total", "top_id", "top_id_hz", "top_id_share", "non_finite_total")
     BUS_FIELD_NUMBER: _ClassVar[int]
     FRAMES_PER_S_FIELD_NUMBER: _ClassVar[int]
     BITS_PER_S_FIELD_NUMBER: _ClassVar[int]
@@ -48,6 +48,7 @@ class BusHealth(_message.Message):
     TOP_ID_FIELD_NUMBER: _ClassVar[int]
     TOP_ID_HZ_FIELD_NUMBER: _ClassVar[int]
     TOP_ID_SHARE_FIELD_NUMBER: _ClassVar[int]
+    NON_FINITE_TOTAL_FIELD_NUMBER: _ClassVar[int]
     bus: str
     frames_per_s: float
     bits_per_s: float
@@ -68,10 +69,11 @@ class BusHealth(_message.Message):
     top_id: int
     top_id_hz: float
     top_id_share: float
-    def __init__(self, bus: _Optional[str] = ..., frames_per_s: _Optional[float] = ..., bits_per_s: _Optional[float] = ..., load: _Optional[float] = ..., bitrate: _Optional[int] = ..., data_bitrate: _Optional[int] = ..., error_frames: _Optional[int] = ..., error_frames_total: _Optional[int] = ..., unknown_ids: _Optional[int] = ..., unknown_ids_total: _Optional[int] = ..., decode_errors: _Optional[int] = ..., decode_errors_total: _Optional[int] = ..., silent_s: _Optional[float] = ..., gap: bool = ..., gaps_total: _Optional[int] = ..., expected_period_s: _Optional[float] = ..., frames_total: _Optional[int] = ..., top_id: _Optional[int] = ..., top_id_hz: _Optional[float] = ..., top_id_share: _Optional[float] = ...) -> None: ...
+    non_finite_total: int
+    def __init__(self, bus: _Optional[str] = ..., frames_per_s: _Optional[float] = ..., bits_per_s: _Optional[float] = ..., load: _Optional[float] = ..., bitrate: _Optional[int] = ..., data_bitrate: _Optional[int] = ..., error_frames: _Optional[int] = ..., error_frames_total: _Optional[int] = ..., unknown_ids: _Optional[int] = ..., unknown_ids_total: _Optional[int] = ..., decode_errors: _Optional[int] = ..., decode_errors_total: _Optional[int] = ..., silent_s: _Optional[float] = ..., gap: bool = ..., gaps_total: _Optional[int] = ..., expected_period_s: _Optional[float] = ..., frames_total: _Optional[int] = ..., top_id: _Optional[int] = ..., top_id_hz: _Optional[float] = ..., top_id_share: _Optional[float] = ..., non_finite_total: _Optional[int] = ...) -> None: ...
 
 class FamilyHealth(_message.Message):
-    __slots__ = ("name", "sensor", "expected_hz", "expected_source", "actual_hz", "rate_ratio", "age_s", "valid_objects", "silent", "frames_total")
+    __slots__ = ("name", "sensor", "expected_hz", "expected_source", "actual_hz", "rate_ratio", "age_s", "valid_objects", "silent", "frames_total", "rule_errors_total", "last_rule_error")
     NAME_FIELD_NUMBER: _ClassVar[int]
     SENSOR_FIELD_NUMBER: _ClassVar[int]
     EXPECTED_HZ_FIELD_NUMBER: _ClassVar[int]
@@ -82,6 +84,8 @@ class FamilyHealth(_message.Message):
     VALID_OBJECTS_FIELD_NUMBER: _ClassVar[int]
     SILENT_FIELD_NUMBER: _ClassVar[int]
     FRAMES_TOTAL_FIELD_NUMBER: _ClassVar[int]
+    RULE_ERRORS_TOTAL_FIELD_NUMBER: _ClassVar[int]
+    LAST_RULE_ERROR_FIELD_NUMBER: _ClassVar[int]
     name: str
     sensor: str
     expected_hz: float
@@ -92,7 +96,9 @@ class FamilyHealth(_message.Message):
     valid_objects: int
     silent: bool
     frames_total: int
-    def __init__(self, name: _Optional[str] = ..., sensor: _Optional[str] = ..., expected_hz: _Optional[float] = ..., expected_source: _Optional[str] = ..., actual_hz: _Optional[float] = ..., rate_ratio: _Optional[float] = ..., age_s: _Optional[float] = ..., valid_objects: _Optional[int] = ..., silent: bool = ..., frames_total: _Optional[int] = ...) -> None: ...
+    rule_errors_total: int
+    last_rule_error: str
+    def __init__(self, name: _Optional[str] = ..., sensor: _Optional[str] = ..., expected_hz: _Optional[float] = ..., expected_source: _Optional[str] = ..., actual_hz: _Optional[float] = ..., rate_ratio: _Optional[float] = ..., age_s: _Optional[float] = ..., valid_objects: _Optional[int] = ..., silent: bool = ..., frames_total: _Optional[int] = ..., rule_errors_total: _Optional[int] = ..., last_rule_error: _Optional[str] = ...) -> None: ...
 
 class SensorBias(_message.Message):
     __slots__ = ("pair", "sensor_a", "sensor_b", "matches", "lateral_offset_m", "angular_offset_deg")

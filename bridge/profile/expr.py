@@ -59,6 +59,10 @@ Evaluation
 missing from ``values`` and :class:`ZeroDivisionError` for a division by zero.
 ``rule.test(values)``, meant for the hot path, returns a bool and never raises for a missing name,
 an arithmetic error or a value that is not a number: such a rule is simply not satisfied.
+``rule.judge(values)`` tells those apart: ``(holds, why)``, where ``why`` is ``""`` when the rule
+could be evaluated (a missing name counts as not satisfied: the signal has not come yet) and names
+the error when it could not (``"ZeroDivisionError: division by zero"``, a value that is not a
+number); ``holds`` is then False. The world counts such errors (:mod:`bridge.world.observe`).
 """
 
 from __future__ import annotations
@@ -125,6 +129,16 @@ class Expression:
             return bool(self._fn(values))
         except _EVALUATION_ERRORS:
             return False
+
+    def judge(self, values: Values) -> tuple[bool, str]:
+        """Whether the rule holds, and why it could not be evaluated ("" when it could; a missing
+        name is "not satisfied", not an error)."""
+        try:
+            return bool(self._fn(values)), ""
+        except LookupError:
+            return False, ""
+        except _EVALUATION_ERRORS as exc:
+            return False, f"{type(exc).__name__}: {exc}"
 
 
 def parse(text: str) -> Expression:

@@ -2,14 +2,24 @@
 
 The world keeps the newest valid observation of each object (per group and object id), the newest
 valid lane lines and the ego state. Objects expire after their group's lifetime, measured in log
-time, so conversion, replay and live agree. From that state it derives the lane model (camera
+time, so conversion, replay and live agree; when the clock steps, every time held is shifted with
+it (:meth:`World.shift`). From that state it derives the lane model (camera
 lanes while they are fresh, otherwise lanes extrapolated from the steering angle) and the MIO
 check: is the lead vehicle the closest valid track inside the ego lane?
+
+Nothing non-finite enters or leaves it: observations with a non-finite position or coefficient,
+and non-finite ego values, are not applied (the observer already keeps them out), and a lane line
+whose points or coefficients overflow (absurd but finite coefficients, a steering angle at the
+tangent's pole) is not drawn, so the scene never gets a non-finite coordinate. An observation
+whose validity rule could not be evaluated is applied as invalid (the object or line is left
+out) and counted per group in :attr:`World.rule_errors` (lane lines under ``lanes``), with the
+latest reason in :attr:`World.last_rule_error`.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -52,6 +62,11 @@ class LaneCurve:
 
     def lateral_at(self, x: float) -> float:
         return polynomial(self.coefficients, x)
+
+    def finite(self) -> bool:
+        """Whether every point and coefficient is a finite number (drawable)."""
+        return (all(math.isfinite(c) for c in self.coefficients)
+                and all(math.isfinite(y) for _, y in self.points))
 
 
 @dataclass(frozen=True)
@@ -126,6 +141,10 @@ class World:
     lanes: dict[str, LaneObservation] = field(default_factory=dict)
     ego: EgoState = field(default_factory=EgoState)
     last_camera_lanes_ns: int | None = None
+    #: validity rules that could not be evaluated, per group ("lanes" for lane lines)
+    rule_errors: Counter[str] = field(default_factory=Counter)
+    #: the latest reason per group
+    last_rule_error: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.lifetimes_ns = {name: round(g.lifetime_s * NS)
@@ -137,12 +156,20 @@ class World:
 
     def apply(self, observation: Observation) -> None:
         if isinstance(observation, ObjectObservation):
+            if not (math.isfinite(observation.x) and math.isfinite(observation.y)):
+                return
             group = self.objects.setdefault(observation.group, {})
+            if observation.rule_error:
+                self._rule_error(observation.group, observation.rule_error)
             if observation.valid:
                 group[observation.object_id] = observation
             else:
                 group.pop(observation.object_id, None)
         elif isinstance(observation, LaneObservation):
+            if not all(math.isfinite(c) for c in observation.coefficients):
+                return
+            if observation.rule_error:
+                self._rule_error("lanes", observation.rule_error)
             if observation.valid:
                 self.lanes[observation.name] = observation
             else:
@@ -150,12 +177,17 @@ class World:
         elif isinstance(observation, EgoObservation):
             ego = self.ego
             ego.t_ns = observation.t_ns
-            if observation.speed is not None:
+            if observation.speed is not None and math.isfinite(observation.speed):
                 ego.speed = observation.speed
-            if observation.yaw_rate is not None:
+            if observation.yaw_rate is not None and math.isfinite(observation.yaw_rate):
                 ego.yaw_rate = observation.yaw_rate
-            if observation.steering_wheel_angle is not None:
-                ego.steering_wheel_angle = observation.steering_wheel_angle
+            angle = observation.steering_wheel_angle
+            if angle is not None and math.isfinite(angle):
+                ego.steering_wheel_angle = angle
+
+    def _rule_error(self, group: str, why: str) -> None:
+        self.rule_errors[group] += 1
+        self.last_rule_error[group] = why
 
     def expire(self, now_ns: int) -> None:
         """Forget objects older than their group's lifetime."""
@@ -165,30 +197,47 @@ class World:
             for i in stale:
                 del objects[i]
 
+    def shift(self, shift_ns: int) -> None:
+        """The clock stepped: every log time held moves by ``shift_ns``, so lifetimes and
+        staleness go on from the new time as if no time had passed."""
+        for objects in self.objects.values():
+            for o in objects.values():
+                o.t_ns += shift_ns
+        for lane in self.lanes.values():
+            lane.t_ns += shift_ns
+        if self.ego.t_ns is not None:
+            self.ego.t_ns += shift_ns
+        if self.last_camera_lanes_ns is not None:
+            self.last_camera_lanes_ns += shift_ns
+
     def lane_model(self, now_ns: int) -> LaneModel:
         spec: LaneSpec | None = self.profile.lanes
         if spec is None:
             return LaneModel("none")
         stale_ns = round(spec.stale_after_s * NS)
         fresh = {name: obs for name, obs in self.lanes.items() if now_ns - obs.t_ns <= stale_ns}
+        camera: tuple[LaneCurve, ...] = ()
         if "left" in fresh and "right" in fresh:
-            self.last_camera_lanes_ns = max(fresh["left"].t_ns, fresh["right"].t_ns)
+            curves = [camera_curve(name, spec.sensor, fresh[name].coefficients, spec.length_m)
+                      for name in ("left", "right", "next_left", "next_right") if name in fresh]
+            drawable = [c.finite() for c in curves]
+            if drawable[0] and drawable[1]:  # left and right
+                camera = tuple(c for c, ok in zip(curves, drawable, strict=True) if ok)
+                self.last_camera_lanes_ns = max(fresh["left"].t_ns, fresh["right"].t_ns)
         age = ((now_ns - self.last_camera_lanes_ns) / NS
                if self.last_camera_lanes_ns is not None else -1.0)
-        if "left" in fresh and "right" in fresh:
-            lines = tuple(camera_curve(name, spec.sensor, fresh[name].coefficients, spec.length_m)
-                          for name in ("left", "right", "next_left", "next_right")
-                          if name in fresh)
-            return LaneModel("camera", lines, age)
+        if camera:
+            return LaneModel("camera", camera, age)
         if self.ego.steering_wheel_angle is None:
             return LaneModel("none", (), age)
         vehicle = self.profile.vehicle
         curvature = steering_curvature(self.ego.steering_wheel_angle, vehicle.wheelbase_m,
                                        vehicle.steering_ratio)
-        return LaneModel("steering", (
-            steering_curve("left", spec.fallback_left_m, curvature, spec.length_m),
-            steering_curve("right", spec.fallback_right_m, curvature, spec.length_m),
-        ), age)
+        lines = (steering_curve("left", spec.fallback_left_m, curvature, spec.length_m),
+                 steering_curve("right", spec.fallback_right_m, curvature, spec.length_m))
+        if not all(line.finite() for line in lines):
+            return LaneModel("none", (), age)
+        return LaneModel("steering", lines, age)
 
     def track_groups(self) -> list[str]:
         return [name for name, g in self.profile.groups.items() if g.is_tracks]

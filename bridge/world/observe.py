@@ -4,6 +4,17 @@ The profile stage of the data path. :class:`Observer` routes each decoded messag
 means (an object of a group, a lane line, the lead vehicle, ego motion) and converts positions
 from the sensor's conventions (polar or cartesian, lateral sign, units, mounting pose) into the
 one vehicle frame: x forward, y left, z up.
+
+A value that is not finite (+inf, -inf or NaN from an IEEE float signal, or a conversion that
+overflows) never reaches the world: an object without a finite position, a lane line without
+finite coefficients make no observation (the world keeps what it had, until it goes stale); any
+other field (velocity, probability, class, id, an ego signal) is left out of its observation. The
+decoder counts such values (:mod:`bridge.decode.decoder`).
+
+A validity rule that cannot be evaluated (a division by zero: :meth:`Expression.judge
+<bridge.profile.expr.Expression.judge>`) leaves the object or lane line out, as a rule that does
+not hold does; its observation says why in ``rule_error``, and the world counts it per group
+(:class:`bridge.world.model.World`).
 """
 
 from __future__ import annotations
@@ -19,6 +30,7 @@ from bridge.profile.model import (
     ObjectClass,
     ObjectGroup,
     Profile,
+    Rule,
     Sensor,
     SignalRef,
     expand,
@@ -68,6 +80,8 @@ class ObjectObservation:
     vy: float | None = None
     probability: float | None = None
     object_class: ObjectClass = ObjectClass.UNKNOWN
+    #: why the validity rule could not be evaluated ("" when it could; then valid is False)
+    rule_error: str = ""
 
 
 @dataclass(slots=True)
@@ -78,6 +92,8 @@ class LaneObservation:
     t_ns: int
     coefficients: tuple[float, float, float, float]
     valid: bool
+    #: why the validity rule could not be evaluated ("" when it could; then valid is False)
+    rule_error: str = ""
 
 
 @dataclass(slots=True)
@@ -97,17 +113,40 @@ LEAD_GROUP = "lead"
 
 
 _Ref = tuple[str, str, float, float]  # message, signal, scale, offset
+#: Object ids are uint32 on /perception.
+_ID_LIMIT = 1 << 32
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
 
 
 def _read(latest: Mapping[str, Mapping[str, Any]], ref: _Ref | None) -> float | None:
-    """A field's value from the latest messages of an object, or None."""
+    """A field's value from the latest messages of an object, or None (also when not finite)."""
     if ref is None:
         return None
     found = latest.get(ref[0])
     if found is None:
         return None
     raw = found.get(ref[1])
-    return None if raw is None else float(raw) * ref[2] + ref[3]
+    if raw is None:
+        return None
+    value = float(raw) * ref[2] + ref[3]
+    return value if math.isfinite(value) else None
+
+
+def judge(rule: Rule, values: Mapping[str, Any],
+          by_message: Mapping[str, Mapping[str, Any]]) -> tuple[bool, str]:
+    """Whether ``rule`` holds (``values`` by plain name, ``by_message`` for qualified names),
+    and why it could not be evaluated ("" when it could): :meth:`Rule.test` telling errors."""
+    if rule.qualified:
+        values = dict(values)
+        for name, message, signal in rule.qualified:
+            found = by_message.get(message)
+            if found is not None and signal in found:
+                values[name] = found[signal]
+    holds, why = rule.expression.judge(values)
+    return holds, f"rule '{rule.text}': {why}" if why else ""
 
 
 class _Object:
@@ -138,10 +177,12 @@ class _Object:
         #: time of the latest position; -1 until the first
         self.position_ns = -1
 
-    def valid(self) -> bool:
+    def valid(self) -> tuple[bool, str]:
+        """Whether the object is valid, and why its rule could not be evaluated ("" if it
+        could)."""
         rule = self.rule
         if rule is None:
-            return True
+            return True, ""
         latest = self.latest  # this object's messages only: what qualified names read
         merged: dict[str, Any] = {}
         for name in self.rule_sources:
@@ -150,7 +191,7 @@ class _Object:
                 if found is not None and name in found:
                     merged[name] = found[name]
                     break
-        return rule.test(merged, latest)
+        return judge(rule, merged, latest)
 
 
 class _GroupReader:
@@ -210,15 +251,16 @@ class _GroupReader:
         vx, vy = _read(latest, obj.vx), _read(latest, obj.vy)
         if vx is not None or vy is not None:
             vx, vy = velocity_to_vehicle(sensor, (vx or 0.0) * scale, (vy or 0.0) * scale)
+            vx, vy = _finite(vx), _finite(vy)
         ident = _read(latest, obj.id)
         raw_class = _read(latest, obj.class_signal)
         object_class = (g.classes.get(int(raw_class), ObjectClass.UNKNOWN)
-                        if raw_class is not None and math.isfinite(raw_class)
-                        else ObjectClass.UNKNOWN)
-        object_id = (int(ident) if ident is not None and math.isfinite(ident)
-                     else (index or 0))
-        return ObjectObservation(g.name, object_id, t_ns, x, y, obj.valid(), vx, vy,
-                                 _read(latest, obj.probability), object_class)
+                        if raw_class is not None else ObjectClass.UNKNOWN)
+        object_id = (int(ident) if ident is not None and 0 <= ident < _ID_LIMIT
+                     else (index or 0))  # an id /perception cannot carry: the slot
+        valid, rule_error = obj.valid()
+        return ObjectObservation(g.name, object_id, t_ns, x, y, valid, vx, vy,
+                                 _read(latest, obj.probability), object_class, rule_error)
 
 
 class Observer:
@@ -284,16 +326,15 @@ class Observer:
         for line in self._lanes.get(message, ()):
             c = [ref.read(values) if ref is not None else 0.0
                  for ref in (line.c0, line.c1, line.c2, line.c3)]
-            if any(v is None for v in c):
-                continue
+            if any(v is None or not math.isfinite(v) for v in c):
+                continue  # not observed: a non-finite value never reaches the world
             coefficients = (float(c[0] or 0.0), float(c[1] or 0.0), float(c[2] or 0.0),
                             float(c[3] or 0.0))
-            valid = (line.valid.test(values, {message: values}) if line.valid is not None
-                     else True)
-            out.append(LaneObservation(line.name, t_ns, coefficients,
-                                       valid and all(math.isfinite(v) for v in coefficients)))
+            valid, rule_error = (judge(line.valid, values, {message: values})
+                                 if line.valid is not None else (True, ""))
+            out.append(LaneObservation(line.name, t_ns, coefficients, valid, rule_error))
         refs = self._ego.get(message)
         if refs:
-            found = {name: ref.read(values) for name, ref in refs}
+            found = {name: _finite(ref.read(values)) for name, ref in refs}
             out.append(EgoObservation(t_ns, found.get("speed"), found.get("yaw_rate"),
                                       found.get("steering_wheel_angle")))
