@@ -3,17 +3,25 @@
 The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
 (``/can/<bus>/<Message>``), a ``tankviz`` metadata record (version, inputs, databases with their
 SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs) and every
-database file as an attachment, so a drive can be decoded again from the MCAP alone.
+database file as an attachment, so a drive can be decoded again from the MCAP alone. What silences
+a message (a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input has) is printed
+as a warning when the databases are loaded and at the end of the summary, and kept in the
+metadata (``warnings``).
 
-A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`).
+A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`). Stopped
+by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`Stopped`): no file is left behind, and
+the command says so and exits with 128 + the signal's number.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -46,6 +54,8 @@ class ConvertReport:
     seconds: float
     statistics: dict[str, Any]
     issues: list[SourceIssue] = field(default_factory=list)
+    #: what silenced messages (:meth:`bridge.decode.decoder.Decoder.warnings`), also in the metadata
+    warnings: list[str] = field(default_factory=list)
 
 
 def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
@@ -78,23 +88,60 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
     })
     drive.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
-                         drive.statistics, issues)
+                         drive.statistics, issues, decoder.warnings())
 
 
 def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
             profile: str | Path | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
             force: bool = False, strict: bool = False,
-            progress: Progress | None = None) -> ConvertReport:
-    """Convert log files into ``output``; everything is checked before the output is touched."""
+            progress: Progress | None = None,
+            warn: Callable[[str], None] | None = None) -> ConvertReport:
+    """Convert log files into ``output``; everything is checked before the output is touched.
+    ``warn`` is told the databases' warnings as soon as they are loaded."""
     output = Path(output)
     check_output(output, force=force)
     decoder, loaded_profile = load_stages(dbc_options, profile)
+    if warn is not None:
+        for text in decoder.warnings():
+            warn(text)
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
     with atomic_output(output) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
                               scene_rate=scene_rate, progress=progress)
     report.output = output
     return report
+
+
+class Stopped(BaseException):
+    """A signal that ends the conversion; like KeyboardInterrupt, not an error of the input."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+
+
+#: The signals that stop a command writing a file: a service stopped, the terminal closed.
+STOP_SIGNALS = (signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else []))
+
+
+@contextlib.contextmanager
+def stopped_by_signals(*signums: int) -> Iterator[None]:
+    """Within the block, these signals (default :data:`STOP_SIGNALS`) raise :class:`Stopped`, so
+    the output being written is removed as on Ctrl+C. Only in the main thread."""
+    signums = signums or STOP_SIGNALS
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Stopped(signum)
+
+    previous = {s: signal.signal(s, handler) for s in signums}
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)
 
 
 def add_parser(sub: Subparsers) -> None:
@@ -130,11 +177,18 @@ def run(args: argparse.Namespace) -> int:
         print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
-        report = convert(inputs, args.output, dbcs, profile=profile, scene_rate=args.scene_rate,
-                         force=args.force, strict=args.strict, progress=bar)
-    finally:
-        if bar is not None:
-            bar.close()
+        try:
+            with stopped_by_signals():
+                report = convert(inputs, args.output, dbcs, profile=profile,
+                                 scene_rate=args.scene_rate, force=args.force,
+                                 strict=args.strict, progress=bar,
+                                 warn=lambda text: print(f"warning: {text}", file=sys.stderr))
+        finally:
+            if bar is not None:
+                bar.close()
+    except Stopped as stop:
+        print(f"{stop}: {args.output} not written", file=sys.stderr)
+        return 128 + stop.signum
     if not args.quiet:
         print(format_report(report))
     return 0
@@ -150,14 +204,23 @@ def format_report(report: ConvertReport) -> str:
              f"unknown ids {sum(stats['unknown_ids'].values()):,}, "
              f"decode errors {sum(stats['decode_errors'].values()):,}, "
              f"short frames {sum(stats['truncated'].values()):,}, "
+             f"longer than their message "
+             f"{sum(v['frames'] for v in stats.get('longer', {}).values()):,}, "
              f"error frames {sum(stats['error_frames'].values()):,}"]
-    for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors")):
-        top = sorted(stats[key].items(), key=lambda kv: -kv[1])[:8]
+    for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors"),
+                       ("non_finite", "non-finite values (kept out of the scene)"),
+                       ("rule_errors", "rule errors (objects left out)")):
+        top = sorted(stats.get(key, {}).items(), key=lambda kv: -kv[1])[:8]
         if top:
             lines.append(f"  {title}: " + ", ".join(f"{k} ({n})" for k, n in top))
+    for group, why in stats.get("last_rule_error", {}).items():
+        lines.append(f"    {group}: {why}")
     if report.issues:
         lines.append(f"  skipped in the inputs: {len(report.issues)}")
         lines += [f"    {issue}" for issue in report.issues[:10]]
         if len(report.issues) > 10:
             lines.append(f"    … {len(report.issues) - 10} more (tankviz inspect lists them)")
+    if report.warnings:
+        lines.append(f"  warnings ({len(report.warnings)}):")
+        lines += [f"    {text}" for text in report.warnings]
     return "\n".join(lines)

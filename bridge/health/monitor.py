@@ -7,12 +7,14 @@ The seed's team found a radar knocked out of alignment only because the blue sph
 - every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
   included, :func:`bridge.health.wire.frame_bits`, over the bitrate, the data phase of CAN FD
   frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
-  but no data bitrate), error frames, unknown ids, decode errors, gaps (no traffic for longer
-  than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
+  but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
+  (+inf, -inf, NaN: :attr:`bridge.decode.decoder.Decoded.non_finite`), gaps (no traffic for
+  longer than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
 - every message family of the profile (object groups such as radar, camera and tracks; the lead
   vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
   ``GenMsgCycleTime``, or learned over the first seconds), actual rate, age of the newest frame,
-  valid objects;
+  valid objects, and how often its validity rule could not be evaluated (a division by zero:
+  :attr:`bridge.world.model.World.rule_errors`; those objects are left out);
 
 and raises alarms with hysteresis (a condition must hold for ``raise_after_s`` to raise an alarm,
 and be gone for ``clear_after_s`` to clear it: :class:`bridge.health.alarms.Alarm`; thresholds
@@ -31,6 +33,9 @@ and times are :class:`bridge.health.alarms.HealthSettings`):
 ``lanes.lost``             no valid camera lanes (the steering fallback) for ``lane_loss_s``
 ``bus.<bus>.silent``       no traffic at all on the bus (a gap)
 ``bus.<bus>.babbling``     one id far above its cycle time, or (without one) most of the bus
+``recorder.disk_full``     the recorder stopped for want of disk space (live: its condition
+                           is told with :meth:`HealthMonitor.hold`; raised and cleared at the
+                           next check, without waiting)
 =========================  ===================================================================
 
 A silent bus explains everything on it: while a bus is in a gap, the sensor alarms of families
@@ -41,9 +46,13 @@ is.
 
 Time is log time (frame timestamps) throughout: :meth:`HealthMonitor.advance` evaluates on a grid
 of ``eval_hz`` ticks, catching up the ticks of a gap in the log (so a bus that went silent raises
-its alarm at the right log time even in a conversion, where nothing arrives during the gap). It
-returns ``/health`` (:data:`~bridge.topics.HEALTH_TOPIC`, ``tankviz.Health``) at ``publish_hz``
-and ``foxglove.Log`` messages on ``/log`` when an alarm is raised or cleared.
+its alarm at the right log time even in a conversion, where nothing arrives during the gap). A
+clock step (:mod:`bridge.pipeline.clock`) is not a gap: :meth:`HealthMonitor.rebase` moves every
+time held with the clock at once. It returns ``/health`` (:data:`~bridge.topics.HEALTH_TOPIC`,
+``tankviz.Health``) at ``publish_hz`` and ``foxglove.Log`` messages on ``/log`` when an alarm is
+raised or cleared. A non-finite value of a signal and a validity rule that cannot be evaluated
+are warned about on ``/log`` too: the first time, then at most every ``_REPORT_S`` seconds of log
+time while they go on, with the count so far. A ``blind`` alarm of a group whose rule fails says so.
 
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations
 and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonitor.on_world`).
@@ -74,12 +83,13 @@ from bridge.world.observe import LEAD_GROUP, ObjectObservation
 _NEVER = -(1 << 62)  # a time before everything
 _UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
 _EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
+_REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
 
 
 class _Bus:
     __slots__ = ("bitrate", "bits", "brs_bits", "cycles", "data_bitrate", "decode_errors",
                  "error_frames", "families", "first_ns", "frames", "gap_ns", "gaps", "ids",
-                 "known", "last_ns", "name", "unknown")
+                 "known", "last_ns", "name", "non_finite", "unknown")
 
     def __init__(self, name: str, t_ns: int, known: frozenset[int], bitrate: int | None,
                  data_bitrate: int | None) -> None:
@@ -95,6 +105,7 @@ class _Bus:
         self.error_frames = 0
         self.unknown = 0
         self.decode_errors = 0
+        self.non_finite = 0
         self.gaps = 0
         self.gap_ns = _UNKNOWN
         self.ids: Counter[int] = Counter()
@@ -105,7 +116,8 @@ class _Bus:
 class _Family:
     __slots__ = ("buses", "expected_hz", "first_ns", "frames", "gap_ns", "group", "kind",
                  "last_ns", "last_valid_ns", "messages", "name", "rate_window_ns", "resumed_ns",
-                 "seen_messages", "sensor", "source", "subject", "valid_objects", "witnessed_ns")
+                 "rule_errors", "seen_messages", "sensor", "source", "subject",
+                 "valid_objects", "why_rule", "witnessed_ns")
 
     def __init__(self, name: str, kind: str, sensor: Sensor | None, messages: Iterable[str],
                  group: str | None) -> None:
@@ -128,6 +140,8 @@ class _Family:
         self.valid_objects = 0
         self.seen_messages: set[str] = set()
         self.buses: set[str] = set()
+        self.rule_errors = 0  # validity rule evaluations that failed, since the start
+        self.why_rule = ""  # the latest reason
 
 
 @dataclass(frozen=True)
@@ -232,8 +246,14 @@ class HealthMonitor:
         if profile is not None and profile.lanes is not None:
             self._alarm("lanes.lost", AlarmKind.LANES_LOST, "lanes", (profile.lanes.sensor.name,),
                         raise_ns=round(s.lane_loss_s * NS))
+        #: (count, latest value) of every signal that had a non-finite value, by bus/Message.Signal
+        self._bad_values: dict[str, tuple[int, str]] = {}
+        #: (count, log time) of the latest /log warning, per value or rule
+        self._reported: dict[str, tuple[int, int]] = {}
         #: (id, "raised"/"cleared", log time, message) of every alarm event so far
         self.events: list[tuple[str, str, int, str]] = []
+        #: conditions told from outside (:meth:`hold`): alarm id -> why
+        self._held: dict[str, str] = {}
 
     # --- set-up --------------------------------------------------------------------------
 
@@ -336,6 +356,8 @@ class HealthMonitor:
             bus.brs_bits += data_phase
         key = frame.arbitration_id | _EXTENDED if frame.is_extended else frame.arbitration_id
         bus.ids[key] += 1
+        if decoded is not None and decoded.non_finite:
+            self._non_finite(bus, decoded)
         if decoded is None:
             if frame.is_error:
                 bus.error_frames += 1
@@ -371,6 +393,9 @@ class HealthMonitor:
                 family.valid_objects = len(found)
                 if found:
                     family.last_valid_ns = t_ns
+            rules = family.group if family.group is not None else family.kind
+            family.rule_errors = world.rule_errors.get(rules, 0)
+            family.why_rule = world.last_rule_error.get(rules, "")
         spec = world.profile.lanes
         if spec is not None:
             if lanes is not None:
@@ -438,6 +463,39 @@ class HealthMonitor:
         """The checks still due at the end of the drive (log time ``t_ns``)."""
         return self.advance(t_ns + 1) if self.next_tick_ns != float("-inf") else []
 
+    def rebase(self, shift_ns: int, t_ns: int) -> None:
+        """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
+        time held (windows, last frames, alarm timers) moves with it, as if no time had passed,
+        and the next check is the first of the grid after ``t_ns``: nothing looks silent,
+        nothing waits for the log to catch up."""
+        def moved(t: int) -> int:
+            return t if t == _NEVER else t + shift_ns
+
+        if self.next_tick_ns != float("-inf"):
+            self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
+        if self._next_publish_ns is not None:
+            self._next_publish_ns += shift_ns
+        for name in ("first_ns", "last_tick_ns", "_world_ns"):
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, value + shift_ns)
+        for bus in self._buses.values():
+            bus.first_ns += shift_ns
+            bus.last_ns += shift_ns
+        for f in self.families:
+            f.first_ns, f.last_ns, f.resumed_ns = (moved(f.first_ns), moved(f.last_ns),
+                                                   moved(f.resumed_ns))
+            f.last_valid_ns, f.witnessed_ns = moved(f.last_valid_ns), moved(f.witnessed_ns)
+        for snap in self._snapshots:
+            snap.t_ns += shift_ns
+        for name, matches in self._bias.items():
+            self._bias[name] = deque((t + shift_ns, a, b) for t, a, b in matches)
+        for alarm in self._alarms.values():
+            for name in ("holding_since", "gone_since", "since_ns"):
+                value = getattr(alarm, name)
+                if value is not None:
+                    setattr(alarm, name, value + shift_ns)
+
     def tick(self, t_ns: int) -> list[TopicMessage]:
         """Check everything at log time ``t_ns``: alarm events as ``/log`` messages, and the
         ``/health`` message when one is due."""
@@ -453,10 +511,21 @@ class HealthMonitor:
         events = self._check(t_ns, buses, families)
         for alarm, event in events:
             out.append(TopicMessage(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
+        out += self._value_warnings(t_ns)
         if self._next_publish_ns is None or t_ns >= self._next_publish_ns:
             self._next_publish_ns = (t_ns // self.publish_ns + 1) * self.publish_ns
             out.append(TopicMessage(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
         return out
+
+    def hold(self, alarm_id: str, kind: AlarmKind, subject: str, why: str | None) -> None:
+        """A condition the monitor cannot see itself (``recorder.disk_full``): it holds for
+        ``why`` (None: it does not), from the next check on; raised and cleared without delay."""
+        if why is None:
+            self._held.pop(alarm_id, None)
+            return
+        if alarm_id not in self._alarms:
+            self._alarms[alarm_id] = Alarm(alarm_id, kind, subject, (), 0, 0)
+        self._held[alarm_id] = why
 
     def event_records(self) -> list[dict[str, Any]]:
         """Every alarm raised or cleared so far, for a drive's metadata (``tankviz inspect``)."""
@@ -525,7 +594,7 @@ class HealthMonitor:
                 gap=t_ns - bus.last_ns > bus.gap_ns,
                 expected_period_s=(_seconds(bus.gap_ns) / self.settings.gap_factor
                                    if bus.gap_ns != _UNKNOWN else 0.0),
-                frames_total=bus.frames)
+                frames_total=bus.frames, non_finite_total=bus.non_finite)
             msg.gaps_total = bus.gaps + int(msg.gap)
             if elapsed > 0:
                 window_frames = bus.frames - frames
@@ -562,7 +631,8 @@ class HealthMonitor:
                 age_s=_seconds(t_ns - family.last_ns) if family.last_ns != _NEVER else -1.0,
                 valid_objects=family.valid_objects,
                 silent=family.last_ns != _NEVER and t_ns - family.last_ns > family.gap_ns,
-                frames_total=family.frames)
+                frames_total=family.frames, rule_errors_total=family.rule_errors,
+                last_rule_error=family.why_rule)
             if elapsed > 0:
                 msg.actual_hz = (family.frames - base.families.get(family.name, 0)) / elapsed
                 if family.expected_hz:
@@ -588,6 +658,8 @@ class HealthMonitor:
         def hold(alarm_id: str, why: str) -> None:
             conditions.setdefault(alarm_id, []).append(why)
 
+        for held_id, held_why in self._held.items():
+            hold(held_id, held_why)
         in_gap = {name: msg.gap for name, msg in buses.items()}
         for name, msg in buses.items():
             if msg.gap:
@@ -636,7 +708,9 @@ class HealthMonitor:
                     and t_ns - family.witnessed_ns < self.window_ns):
                 hold(f"{subject}.blind", f"{family.name}: frames but no valid object for "
                      f"{_seconds(t_ns - nothing_since):.1f} s while another sensor sees "
-                     "objects in its field of view")
+                     "objects in its field of view" + (
+                         f" (its validity rule failed {family.rule_errors} times: "
+                         f"{family.why_rule})" if family.rule_errors else ""))
         no_evidence = set()
         for pair in self._pairs:
             n, lateral, angular = self._bias_means[pair.name]
@@ -669,6 +743,36 @@ class HealthMonitor:
                 events.append((alarm, event))
                 self.events.append((alarm.id, event, t_ns, alarm.message))
         return events
+
+    def _non_finite(self, bus: _Bus, decoded: Decoded) -> None:
+        """Count a frame's non-finite values (per signal, for the warnings on /log)."""
+        bus.non_finite += len(decoded.non_finite)
+        message = decoded.codec.message.name
+        for name in decoded.non_finite:
+            key = f"{bus.name}/{message}.{name}"
+            count, _ = self._bad_values.get(key, (0, ""))
+            self._bad_values[key] = (count + 1, str(decoded.signals.get(name)))
+
+    def _value_warnings(self, t_ns: int) -> list[TopicMessage]:
+        """``/log`` warnings of non-finite values and failing validity rules: new ones at once,
+        ongoing ones at most every ``_REPORT_S`` seconds."""
+        found = [(f"value {key}", count,
+                  f"{key} = {value}: a non-finite value ({count} so far), kept out of the world; "
+                  "the frame is recorded as it came")
+                 for key, (count, value) in self._bad_values.items()]
+        found += [(f"rule {f.name}", f.rule_errors,
+                   f"{f.name}: validity {f.why_rule} ({f.rule_errors} times so far): "
+                   f"{'those objects are' if f.group is not None else 'that is'} left out")
+                  for f in self.families if f.rule_errors]
+        out = []
+        for key, count, words in found:
+            reported, at = self._reported.get(key, (0, _NEVER))
+            if count > reported and abs(t_ns - at) >= _REPORT_S * NS:
+                self._reported[key] = (count, t_ns)
+                out.append(TopicMessage(LOG_TOPIC, Log(
+                    timestamp=timestamp(t_ns), level=Log.WARNING, message=words,
+                    name="tankviz.values"), t_ns))
+        return out
 
     def _log(self, alarm: Alarm, event: str, t_ns: int) -> Log:
         if event == "raised":

@@ -10,11 +10,16 @@ layout checks collect what a profile produces. None of them wires stages by hand
   drive, its sinks in the order they are added (add the live server first: viewers wait for a
   scene, the recorder does not), :meth:`Drive.run` for frames, and :meth:`Drive.finish`, which
   emits what is still due and finishes every sink.
-- :meth:`Drive.describe`: what makes a recorded drive self-contained: every database and the
-  profile as attachments, and the ``tankviz`` metadata record (version, profile, databases with
-  their SHA-256, bus → database map, decode statistics, the alarms raised, and what the command
-  adds in :attr:`Drive.extra`). A file sink made with :meth:`Drive.record` or
-  :meth:`Drive.record_parts` is described just before it is finished.
+- :meth:`Drive.attach` and :meth:`Drive.describe`: what makes a recorded drive self-contained:
+  every database and the profile as attachments, and the ``tankviz`` metadata record (version,
+  profile, databases with their SHA-256, bus → database map, the decoder's warnings
+  (``warnings``: what silences a message), decode statistics (with a profile,
+  also the validity rules that could not be evaluated, per group), the alarms raised, the clock
+  steps (``clock_steps``: from and to which log time the frame stamps jumped), and what the
+  command adds in :attr:`Drive.extra`). A file sink made with :meth:`Drive.record`
+  or :meth:`Drive.record_parts` gets the attachments when it starts (each part of a drive: a file
+  cut short by a power loss still has its databases and profile) and is described just before it
+  is finished.
 """
 
 from __future__ import annotations
@@ -114,14 +119,15 @@ class Drive:
 
     def record(self, output: IO[bytes]) -> Recorder:
         """Record the drive into the open binary ``output``, described when it is finished."""
-        recorder = Recorder(output, describe=self.describe)
+        recorder = Recorder(output, describe=self.describe, attach=self.attach)
         self.add(recorder)
         return recorder
 
     def record_parts(self, folder: Path, *, split_size: int | None = None,
                      split_duration_s: float | None = None) -> DriveRecorder:
         """Record the drive into ``folder``, one MCAP per part, each described."""
-        recorder = DriveRecorder(folder, self.describe, split_size, split_duration_s)
+        recorder = DriveRecorder(folder, self.describe, split_size, split_duration_s,
+                                 attach=self.attach)
         self.add(recorder)
         return recorder
 
@@ -152,21 +158,30 @@ class Drive:
         for sink in self.pipeline.sinks:
             sink.finish()
 
+    def attach(self, recorder: Recorder) -> None:
+        """Attach the databases and the profile (as a recording starts, before any message)."""
+        names = attachment_names(self.decoder.files)
+        for f in self.decoder.files:
+            recorder.add_attachment(names[f.sha256], f.content)
+        if self.profile is not None:
+            recorder.add_attachment(f"profile-{self.profile.path.name}",
+                                    self.profile.path.read_bytes(), media="application/toml")
+
     def describe(self, recorder: Recorder, part: Mapping[str, Any] | None = None) -> None:
-        """Attach the databases and the profile, and write the ``tankviz`` metadata record
-        (with :attr:`extra`, the alarms so far and ``part``'s own entries)."""
+        """Write the ``tankviz`` metadata record (with :attr:`extra`, the alarms so far and
+        ``part``'s own entries); :meth:`attach` has attached the databases and the profile."""
         decoder, profile = self.decoder, self.profile
         names = attachment_names(decoder.files)
-        for f in decoder.files:
-            recorder.add_attachment(names[f.sha256], f.content)
-        if profile is not None:
-            recorder.add_attachment(f"profile-{profile.path.name}", profile.path.read_bytes(),
-                                    media="application/toml")
         buses: dict[str, list[str]] = {}
         for f in decoder.files:
             for bus in decoder.buses_for(f):
                 buses.setdefault(bus, []).append(names[f.sha256])
         self.statistics = decoder.stats.to_dict(decoder.codecs())
+        perception = self.pipeline.perception
+        if perception is not None:  # validity rules that could not be evaluated, per group
+            self.statistics["rule_errors"] = dict(sorted(perception.world.rule_errors.items()))
+            self.statistics["last_rule_error"] = dict(
+                sorted(perception.world.last_rule_error.items()))
         recorder.add_metadata({
             "tankviz_version": __version__,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -177,7 +192,9 @@ class Drive:
                           for f in decoder.files],
             "bus_databases": buses,
             "statistics": self.statistics,
+            "warnings": decoder.warnings(),
             **self.extra,
             "alarms": self.health.event_records(),
+            "clock_steps": [step.to_dict() for step in self.pipeline.steps],
             **(part or {}),
         })

@@ -4,7 +4,10 @@
 It is driven by frame times: call :meth:`advance` with each frame's time (cheap unless a scene
 tick is due) and :meth:`feed` with each decoded message. At each tick of the scene rate it emits
 the scene (``/scene/*``), the semantic topics and the sensor frames for that tick's log time,
-from everything observed before it.
+from everything observed before it. Every tick of log time is made, also the ticks of a gap (a
+quiet log, a live pipeline that fell behind on a loaded machine), up to a minute of them; a clock
+step is re-based at once (:meth:`Perception.rebase`, :mod:`bridge.pipeline.clock`), never waited
+out.
 
 Between two ticks :meth:`feed` only notes the newest message of each name; the tick observes
 them. The world keeps the newest observation of each object, lane line and ego signal, and an
@@ -43,8 +46,8 @@ from bridge.world.observe import Observer
 
 DEFAULT_SCENE_RATE = 20.0
 MAX_SCENE_RATE = 50.0
-
-
+#: The ticks of a gap longer than this are not all made: its first minute, then the latest.
+MAX_FILL_NS = 60 * NS
 
 
 def check_scene_rate(rate: float) -> float:
@@ -106,23 +109,45 @@ class Perception:
                 apply(observation)
             pending.clear()
 
-    def advance(self, t_ns: int) -> list[TopicMessage]:
-        """The scenes due before log time ``t_ns`` (none most of the time)."""
+    def due_ticks(self, t_ns: int) -> list[int]:
+        """The log times of the scene ticks due before log time ``t_ns``, in order (none most
+        of the time); they are then no longer due: call :meth:`tick` with each.
+
+        Every tick is due, also after a gap (a quiet log, a live pipeline that fell behind):
+        the recording gets every scene of log time. After a gap longer than
+        :data:`MAX_FILL_NS` (a clock step is re-based before: :meth:`rebase`), the ticks of
+        its first minute and then the latest."""
         if not self._started:
             self._started = True
             self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
             return []
         if t_ns < self.next_tick_ns:
             return []
+        period = self.period_ns
         tick = int(self.next_tick_ns)
-        missed = (t_ns - tick) // self.period_ns
-        tick += missed * self.period_ns  # after a gap in the log, only the latest tick
-        self.next_tick_ns = tick + self.period_ns
-        return self.tick(tick)
+        due = (t_ns - tick) // period + 1
+        limit = MAX_FILL_NS // period
+        ticks = list(range(tick, tick + min(due, limit) * period, period))
+        if due > limit:
+            ticks.append(tick + (due - 1) * period)
+        self.next_tick_ns = ticks[-1] + period
+        return ticks
 
-    def finish(self, t_ns: int) -> list[TopicMessage]:
-        """The scenes still due at the end of the drive (log time ``t_ns``)."""
-        return self.advance(t_ns + 1) if self._started else []
+    def advance(self, t_ns: int) -> list[TopicMessage]:
+        """The scenes due before log time ``t_ns`` (:meth:`due_ticks`), one tick after the
+        other."""
+        return [out for tick in self.due_ticks(t_ns) for out in self.tick(tick)]
+
+    def rebase(self, shift_ns: int, t_ns: int) -> None:
+        """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
+        time held is shifted as if no time had passed (the world's observations and lifetimes,
+        the messages not yet observed), and the next tick is the first on the scene rate's grid
+        after ``t_ns`` (within one period)."""
+        self.world.shift(shift_ns)
+        self._pending = {name: (values, t + shift_ns)
+                         for name, (values, t) in self._pending.items()}
+        if self._started:
+            self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
 
     def update_world(self, t_ns: int) -> LaneModel:
         """The world brought up to the tick at log time ``t_ns``: the messages fed since the

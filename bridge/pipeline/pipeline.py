@@ -3,9 +3,13 @@
 :class:`Pipeline` is what every command runs for every frame (:class:`bridge.pipeline.drive.Drive`
 assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets every raw frame, every decoded
 message, and the scene, perception and health messages made at each tick, in the order the sinks
-were given (the live server first: viewers wait for a scene, the recorder does not). Each message
-is serialized once for all sinks; the live server itself sends raw frames and decoded signals only
-to viewers that subscribed to them.
+were given (the live server first: viewers wait for a scene, the recorder does not). Every scene
+tick of log time is made and recorded; when the pipeline catches up several ticks at once (it fell
+behind), viewers (:meth:`Pipeline.add_viewer`) get the latest only. A clock step (a frame stamped
+far before or after log time, :mod:`bridge.pipeline.clock`) re-bases scene ticks, health windows
+and lifetimes at once, is said on ``/log`` and noted in :attr:`Pipeline.steps`; frames keep their
+own stamps. Each message is serialized once for all sinks; the live server itself sends raw
+frames and decoded signals only to viewers that subscribed to them.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pipeline.clock import ClockStep, StepDetector
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
@@ -38,7 +43,8 @@ class Pipeline:
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),
-                 health: HealthMonitor | None = None) -> None:
+                 health: HealthMonitor | None = None,
+                 clock: StepDetector | None = None) -> None:
         self.decoder = decoder
         self.profile = profile
         self.scene_rate = scene_rate
@@ -53,18 +59,29 @@ class Pipeline:
                                         or health is not None else float("inf"))
         self.frames = 0
         self.last_ns: int | None = None
+        #: tells clock steps from the frames (and, live, from the wall clock: :meth:`advance`)
+        self.clock = clock or StepDetector()
+        #: every clock step so far
+        self.steps: list[ClockStep] = []
+        #: sinks that may get fewer scenes (live viewers): not those of a catch-up
+        self.viewers: list[Sink] = []
+        self._archives: list[Sink] = []
         for sink in sinks:
             self.add_sink(sink)
 
     def add_sink(self, sink: Sink) -> None:
         """One more sink, after those there are (before the first frame)."""
         self.sinks.append(sink)
+        self._archives = [s for s in self.sinks if s not in self.viewers]
         self._on_frame = [s.on_frame for s in self.sinks]
         self._on_decoded = [s.on_decoded for s in self.sinks]
 
     def process(self, frame: Frame) -> None:
         """One frame through every stage."""
         t = frame.timestamp_ns
+        step = self.clock.check(t)
+        if step is not None:
+            self.rebase(step)
         if t >= self._next_tick:
             self.advance(t)
         if self.sinks:
@@ -86,20 +103,46 @@ class Pipeline:
         self.frames += 1
         self.last_ns = t
 
+    def add_viewer(self, sink: Sink) -> None:
+        """One more sink that may get fewer scenes (a live server): when the pipeline catches
+        up several scene ticks at once, it gets the latest only; every other sink gets all."""
+        self.viewers.append(sink)
+        self.add_sink(sink)
+
+    def rebase(self, step: ClockStep) -> None:
+        """The clock stepped: scene ticks, health windows and lifetimes go on from the new log
+        time at once; the step is said on ``/log`` and noted (:attr:`steps`)."""
+        self.steps.append(step)
+        if self.perception is not None:
+            self.perception.rebase(step.shift_ns, step.to_ns)
+        if self.health is not None:
+            self.health.rebase(step.shift_ns, step.to_ns)
+        self._next_tick = self._next_due()
+        self.emit([step.log()])
+
     def advance(self, t_ns: int) -> None:
         """Emit the scenes and health checks due before log time ``t_ns`` (also when no frame
-        comes)."""
+        comes: live's clock), every scene tick in turn, each with the health checks due by
+        then."""
+        self.clock.passed(t_ns)
         perception, health = self.perception, self.health
-        outputs: list[TopicMessage] = []
         if perception is not None:
-            outputs = perception.advance(t_ns)
-            if outputs and health is not None:
-                outputs.append(self._health_scene(perception, health, outputs[0].t_ns))
+            ticks = perception.due_ticks(t_ns)
+            last = ticks[-1] if ticks else None
+            for tick in ticks:
+                outputs = perception.tick(tick)
+                if health is not None:
+                    outputs.append(self._health_scene(perception, health, tick))
+                self.emit(outputs, catching_up=tick != last)
+                if health is not None:
+                    self.emit(health.advance(tick))
         if health is not None:
-            outputs += health.advance(t_ns)
-        self.emit(outputs)
-        self._next_tick = min(perception.next_tick_ns if perception is not None else INF,
-                              health.next_tick_ns if health is not None else INF)
+            self.emit(health.advance(t_ns))
+        self._next_tick = self._next_due()
+
+    def _next_due(self) -> int | float:
+        return min(self.perception.next_tick_ns if self.perception is not None else INF,
+                   self.health.next_tick_ns if self.health is not None else INF)
 
     def _health_scene(self, perception: Perception, health: HealthMonitor,
                       t_ns: int) -> TopicMessage:
@@ -117,21 +160,15 @@ class Pipeline:
         """Emit what is still due at the end of the drive (the sinks are not stopped)."""
         if self.last_ns is None:
             return
-        if self.perception is not None:
-            outputs = self.perception.finish(self.last_ns)
-            if outputs and self.health is not None:
-                outputs.append(self._health_scene(self.perception, self.health,
-                                                  outputs[0].t_ns))
-            self.emit(outputs)
-        if self.health is not None:
-            self.emit(self.health.finish(self.last_ns))
+        self.advance(self.last_ns + 1)
 
-    def emit(self, outputs: Iterable[TopicMessage]) -> None:
-        """Scene, perception and other messages to every sink, serialized once."""
+    def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False) -> None:
+        """Scene, perception and other messages to every sink, serialized once (``catching_up``:
+        not to :attr:`viewers`)."""
         serialized = [Serialized(out.topic, type(out.message), out.message.SerializeToString(),
                                  out.t_ns) for out in outputs]
         if serialized:
-            for sink in self.sinks:
+            for sink in self._archives if catching_up else self.sinks:
                 sink.on_messages(serialized)
 
     def channels(self, buses: Iterable[str]) -> list[Channel]:
