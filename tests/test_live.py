@@ -115,6 +115,9 @@ def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
                  if c.topic == "/can/can0/frames"]
     assert len(times) > 3 * 2000  # about 2,300 frames a second were sent
     assert killed_at - max(times) < 1.6 * NS
+    with fixed.open("rb") as f:  # written at the start of the drive: the cut file has them
+        assert {a.name for a in make_reader(f).iter_attachments()} == {"ecocar.dbc",
+                                                                       "profile-ecocar.toml"}
 
 
 class FlakyBus(can.BusABC):

@@ -5,7 +5,20 @@ once) a few times per scene period, just after each scene tick and between, and 
 into the recording (never dropping one) and the live scene (never waiting for a viewer). Each
 bus has a thread that opens it: when the bus fails (adapter unplugged, interface down) it says
 so, retries with backoff and says when it is back; the pipeline keeps running, viewers get a
-``foxglove.Log`` on ``/log``, and the recording marks the gap.
+``foxglove.Log`` on ``/log``, and the recording marks the gap. A bus that cannot work at all (an
+unknown interface, a NAME without python-can configuration) is an error at start, never retried.
+A full disk (or free space below ``--min-free``) stops the recording, not the drive: the part is
+finished, ``recorder.disk_full`` is raised on ``/log`` and ``/health``, viewers are still served
+and recording resumes in a new part when there is room (:mod:`bridge.sinks.drives`).
+
+Log time is the frames' clock (:class:`~bridge.io.buses.ReadSchedule` follows it with the wall
+clock). When it steps (:mod:`bridge.pipeline.clock`: a frame stamped more than a second before log
+time, or more than two seconds after it), the pipeline re-bases its scene ticks, health windows
+and lifetimes at once and says so on ``/log``, the schedule takes the new offset at once, and the
+drive's metadata lists the step (``clock_steps``); every frame is recorded with its own stamp.
+When the pipeline falls behind (a loaded machine), the scenes of every tick it missed are made
+and recorded; viewers get the latest. At the end it prints how many messages slow viewers lost:
+which viewers, and of which topics.
 """
 
 from __future__ import annotations
@@ -18,7 +31,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,11 +48,13 @@ from bridge.apps.options import (
 )
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame, timestamp
+from bridge.health.alarms import AlarmKind
 from bridge.io.buses import BusEvent, BusLink, BusSpec, ReadSchedule, merge_batches
+from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
 from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.websocket import ClientStats, LiveServer
 from bridge.topics import LOG_TOPIC, TopicMessage
 
 
@@ -54,6 +69,19 @@ class LiveReport:
     files: list[Path]
     gaps: list[Gap]
     dropped: int
+    #: every viewer, with what it lost
+    viewers: list[ClientStats] = field(default_factory=list)
+
+
+def dropped_report(viewers: Sequence[ClientStats]) -> str:
+    """How many messages slow viewers lost: which viewers, and of which topics."""
+    lost = [v for v in viewers if v.dropped]
+    text = f"{sum(v.dropped for v in lost):,} messages dropped for slow viewers"
+    if not lost:
+        return text
+    return text + ": " + "; ".join(
+        f"{v.address} lost {v.dropped:,} (" + ", ".join(
+            f"{topic} {n:,}" for topic, n in v.topics.most_common()) + ")" for v in lost)
 
 
 class Live:
@@ -63,6 +91,7 @@ class Live:
                  scene_rate: float = DEFAULT_SCENE_RATE,
                  drives: Path | None = Path("drives"), server: LiveServer | None = None,
                  split_size: int | None = None, split_duration_s: float | None = None,
+                 min_free: int = 0,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
                  say: Callable[[str], None] = print) -> None:
         names = [b.name for b in buses]
@@ -77,11 +106,18 @@ class Live:
         self.drive = Drive(stages, scene_rate=scene_rate,
                            bitrates={b.name: b.bitrate for b in buses if b.bitrate is not None},
                            extra={"buses": [str(b) for b in self.buses]})
+        # Live knows log time from the wall clock too: a step a few seconds ahead is one.
+        self.drive.pipeline.clock = StepDetector(forward_ns=LIVE_FORWARD_NS)
         if server is not None:
-            self.drive.add(server)  # first: viewers wait for a scene, the recorder does not
+            # first: viewers wait for a scene, the recorder does not; and viewers may get fewer
+            # scenes when the pipeline catches up, the recording gets every one
+            self.drive.pipeline.add_viewer(server)
         self.recorder = (self.drive.record_parts(drives, split_size=split_size,
                                                  split_duration_s=split_duration_s)
                          if drives is not None else None)
+        if self.recorder is not None:
+            self.recorder.min_free = min_free
+            self.recorder.check_space()
         self.pipeline = self.drive.pipeline
         self.pipeline.advertise(names)
         self.stopping = threading.Event()
@@ -91,11 +127,21 @@ class Live:
         self.stopping.set()
 
     def start(self, timeout: float = 5.0) -> None:
-        """Open the buses (each by its opener thread); returns once each was tried."""
+        """Open the buses (each by its opener thread); returns once each was tried. A bus that
+        cannot work (:func:`bridge.io.buses.configuration_error`) raises its ``UsageError``:
+        the buses are closed and nothing is recorded."""
         for link in self.links:
             link.start()
         for link in self.links:
             link.tried.wait(timeout)
+        error = next((link.error for link in self.links if link.error is not None), None)
+        if error is not None:
+            for link in self.links:
+                link.stop()
+                link.close()
+            if self.recorder is not None:
+                self.recorder.finish()
+            raise error
 
     def _poll(self) -> list[Frame]:
         """Every bus's new frames, in time order."""
@@ -121,9 +167,13 @@ class Live:
                         break
                 frames = self._poll()
                 if frames:
-                    schedule.saw(frames[-1].timestamp_ns, time.time_ns())
+                    read_ns = time.time_ns()
+                    schedule.saw(frames[-1].timestamp_ns, read_ns)
+                    steps = len(pipeline.steps)
                     for frame in frames:
                         process(frame)
+                    if len(pipeline.steps) != steps:  # the clock stepped: log time with it
+                        schedule.restart(frames[-1].timestamp_ns, read_ns)
                 # Every frame stamped before this was read: the scenes due go out now, whether
                 # or not a later frame came (a quiet or silent bus).
                 log_now = schedule.log_time(time.time_ns())
@@ -133,6 +183,7 @@ class Live:
                     self.server.flush()  # raw frames and signals for who subscribed to them
                 if self.recorder is not None:
                     self.recorder.tick()
+                    self._recorder_state()
         finally:
             for link in self.links:
                 link.stop()
@@ -145,9 +196,25 @@ class Live:
             for link in self.links:
                 link.close()
             self.drive.finish()
-        dropped = sum(s.dropped for s in self.server.client_stats()) if self.server else 0
+            if self.recorder is not None:
+                for text in self.recorder.take_notices():
+                    self.say(text)
+        viewers = self.server.client_stats() if self.server else []
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
-                          self.recorder.gaps if self.recorder else [], dropped)
+                          self.recorder.gaps if self.recorder else [],
+                          sum(s.dropped for s in viewers), viewers)
+
+    def _recorder_state(self) -> None:
+        """What the recorder says (the disk filled, recording resumed) on ``/log``, and its
+        ``recorder.disk_full`` condition to the health monitor."""
+        assert self.recorder is not None
+        for text in self.recorder.take_notices():
+            t = max(time.time_ns(), self.pipeline.last_ns or 0)
+            level = Log.INFO if " cleared: " in text else Log.WARNING
+            self.pipeline.emit([log_message(t, level, text)])
+            self.say(text)
+        self.drive.health.hold("recorder.disk_full", AlarmKind.DISK_FULL, "recorder",
+                               self.recorder.disk_full)
 
     def _bus_event(self, event: BusEvent) -> None:
         t = max(event.t_ns, self.pipeline.last_ns or 0)
@@ -201,12 +268,15 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
         raise UsageError(f"--split-size {args.split_size:g}: must be above 0")
     if args.split_duration is not None and args.split_duration <= 0:
         raise UsageError(f"--split-duration {args.split_duration:g}: must be above 0")
+    if not args.min_free >= 0:
+        raise UsageError(f"--min-free {args.min_free:g}: must be 0 or more (MB)")
     server = None if args.no_server else options.start_server(args)
     try:
         live = Live(buses, stages, scene_rate=args.scene_rate,
                     drives=None if args.no_record else args.drives, server=server,
                     split_size=(round(args.split_size * 1e6) if args.split_size else None),
-                    split_duration_s=args.split_duration)
+                    split_duration_s=args.split_duration,
+                    min_free=round(args.min_free * 1e6))
 
         def stop() -> None:
             if stop_feed is not None:
@@ -215,10 +285,12 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
 
         install_stop_signals(stop)
         if args.run_for:
-            threading.Timer(args.run_for, stop).start()
+            timer = threading.Timer(args.run_for, stop)
+            timer.daemon = True  # an error at start ends the process at once
+            timer.start()
         print(f"buses: {', '.join(str(b) for b in buses)}")
         if server is not None:
-            print(f"Foxglove: open connection {server.url} (Foxglove WebSocket)")
+            print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
             print(f"layout:   import {options.layout_hint()} (Layouts menu)")
         if live.recorder is not None:
             print(f"recording into {args.drives}/")
@@ -233,7 +305,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
     for path in report.files:
         print(f"recorded {path}")
     print(f"{report.frames:,} frames; {len(report.gaps)} bus gaps; "
-          f"{report.dropped:,} messages dropped for slow viewers")
+          f"{dropped_report(report.viewers)}")
     return 0
 
 

@@ -2,7 +2,10 @@
 several at once), kept open, and read.
 
 Each bus has a thread that opens it (:class:`BusLink`): when the bus fails (adapter unplugged,
-interface down) it says so, retries with backoff and says when it is back. The pipeline's thread
+interface down) it says so, retries with backoff and says when it is back. A bus that cannot
+work at all (an interface python-can does not have, a ``NAME`` without configuration, options it
+refuses: :func:`configuration_error`) is a :class:`~bridge.errors.UsageError` at its first
+opening, never retried. The pipeline's thread
 reads every bus itself, without waiting, a few times per scene period (:class:`ReadSchedule`):
 just after each scene tick and between; the frames of several buses are merged in time order
 (:func:`merge_batches`).
@@ -11,6 +14,7 @@ just after each scene tick and between; the frames of several buses are merged i
 from __future__ import annotations
 
 import contextlib
+import difflib
 import operator
 import queue
 import re
@@ -57,7 +61,7 @@ class BusSpec:
     def open(self) -> can.BusABC:
         """The bus, as python-can creates it."""
         if self.interface is None:
-            return can.Bus(context=self.name)
+            return can.Bus(config_context=self.name)
         kwargs: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
         if self.bitrate is not None:
             kwargs["bitrate"] = self.bitrate
@@ -68,6 +72,35 @@ class BusSpec:
             return f"{self.name} (python-can config)"
         rate = f"@{self.bitrate}" if self.bitrate else ""
         return f"{self.name}={self.interface}:{self.channel}{rate}"
+
+
+#: What python-can raises for a bus that cannot work however long one waits: no such interface
+#: (also what a NAME without configuration gives), a driver module missing, options refused.
+#: An ``OSError`` or other ``CanError`` may pass (an adapter not plugged in yet): retried.
+CONFIGURATION_ERRORS = (can.CanInterfaceNotImplementedError, ImportError, ValueError, TypeError,
+                        LookupError, NameError)
+
+
+def configuration_error(spec: BusSpec, exc: Exception) -> UsageError | None:
+    """The one-line error for a bus that cannot work (see :data:`CONFIGURATION_ERRORS`), or None
+    for a failure that waiting may cure."""
+    if not isinstance(exc, CONFIGURATION_ERRORS):
+        return None
+    if isinstance(exc, can.CanInterfaceNotImplementedError):
+        if spec.interface is None:
+            return UsageError(
+                f"--bus {spec.name}: python-can's configuration has no interface for "
+                f"{spec.name} (no [{spec.name}] section with an interface in "
+                f"{', '.join(can.util.CONFIG_FILES)}); give --bus {spec.name}=INTERFACE:CHANNEL")
+        known = sorted(can.interfaces.VALID_INTERFACES)
+        if spec.interface not in known:
+            close = difflib.get_close_matches(spec.interface, known, n=1)
+            hint = f"did you mean {close[0]}?" if close else "one of " + ", ".join(known)
+            return UsageError(f'--bus {spec}: python-can has no interface "{spec.interface}" '
+                              f"({hint})")
+    text = str(exc).strip().splitlines()
+    return UsageError(f"--bus {spec}: cannot work: {type(exc).__name__}"
+                      + (f": {text[0]}" if text else ""))
 
 
 @dataclass(frozen=True)
@@ -87,7 +120,9 @@ class BusLink:
     The pipeline reads every bus at once a few times per scene period, so a scene tick sees the
     frames of all buses before it, and no thread wakes up for each frame. Opening is what may
     block (an adapter that is being plugged in), so only the opener thread ever waits for it;
-    it sleeps while the bus is up. Bus failures and returns are put on ``events``.
+    it sleeps while the bus is up. Bus failures and returns are put on ``events``. A bus that
+    cannot work (:func:`configuration_error`) at its first opening is not retried: the opener
+    ends and :attr:`error` says why.
     """
 
     def __init__(self, spec: BusSpec, events: queue.SimpleQueue[BusEvent], *,
@@ -100,6 +135,9 @@ class BusLink:
         self.stopping = threading.Event()
         #: set once the bus was opened, or failed to open, for the first time
         self.tried = threading.Event()
+        #: why the bus cannot work at all (set, with ``tried``, by a failed first opening)
+        self.error: UsageError | None = None
+        self._opened = False  # once: later failures are a lost bus, retried
         self._bus: can.BusABC | None = None  # the open bus, handed over by the opener
         self._reopen = threading.Event()  # the opener is wanted
         self._reopen.set()
@@ -133,14 +171,21 @@ class BusLink:
             try:
                 try:
                     bus = self.open_bus(self.spec)
+                except Exception as exc:
+                    if not self._opened:
+                        self.error = configuration_error(self.spec, exc)
+                    raise
                 finally:
                     self.tried.set()
             except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
+                if self.error is not None:
+                    break
                 self._failed(exc)
                 self.stopping.wait(delay)
                 delay = min(delay * 2, self.backoff[1])
                 continue
             delay = self.backoff[0]
+            self._opened = True
             self._reopen.clear()
             if self._down:
                 self._down = False
@@ -212,7 +257,8 @@ class ReadSchedule:
     offset, and the largest is close to it (0 for buses stamped with the wall clock, such as
     socketcan and virtual; something else for an adapter's own clock). A larger one counts at
     once, a smaller one (a clock that drifts) once a second, from the next read on: the read
-    made just after a tick must still see that tick due.
+    made just after a tick must still see that tick due. When the frames' clock steps, the
+    pipeline re-bases and the offset starts again from the newest frame (:meth:`restart`).
     """
 
     def __init__(self, period_ns: int, *, after_tick_ns: int = 500_000,
@@ -239,6 +285,14 @@ class ReadSchedule:
             self._best = lead
         if self.offset_ns is None or lead > self.offset_ns:
             self.offset_ns = lead  # a better estimate counts at once
+
+    def restart(self, newest_ns: int, now_ns: int) -> None:
+        """The frames' clock stepped (:mod:`bridge.pipeline.clock`): forget the offset, and take
+        the newest frame's (log time, after the step) and its reading's (wall time) at once."""
+        self.offset_ns = newest_ns - now_ns
+        self._best = None
+        self._next_offset = None
+        self._window_end = now_ns + NS
 
     def log_time(self, now_ns: int) -> int | None:
         """Log time now, minus the time frames may take to be read: every frame stamped

@@ -2,24 +2,99 @@
 
 A drive is named by its UTC start time (:func:`drive_name`); parts after the first get
 ``_partNNN``. :class:`DriveRecorder` is the pipeline's :class:`~bridge.sinks.base.Sink` for
-``tankviz live``: it opens the first part at the first frame, describes and finishes each part
-when it is closed, and notes the bus gaps of the drive.
+``tankviz live``: it opens the first part at the first frame, starts each part with the drive's
+attachments (databases, profile: a part cut short still has them), describes and finishes each
+part when it is closed, and notes the bus gaps of the drive.
+
+A full disk never stops the drive. The drives folder is checked when the recorder is made (a
+folder that cannot be written is an :class:`~bridge.errors.OutputError`), and a reserve file
+(``.tankviz-reserve``, ``reserve`` bytes) is kept in it. A write that finds the disk full frees
+the reserve and is retried, so the part is then finished cleanly (its summary fits in the
+reserve); so is it, now and then (every ``check_interval_s``), when the free space is below
+``min_free``. Recording then stops (:attr:`DriveRecorder.disk_full` says why, and
+:meth:`DriveRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and
+the raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest
+dropped and counted). Once there is room for ``min_free`` and twice the reserve, the reserve is
+made again and recording resumes in a new part, which starts with the frames kept; decoded
+messages and scenes of the pause are not recorded (a ``convert`` of the frames makes them
+again). Each part's metadata lists these pauses (``recording_gaps``), and the part before and
+after a pause say so on ``/log``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import io
+import os
 import time
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from foxglove_schemas_protobuf.Log_pb2 import Log
+
 from bridge.decode.decoder import Decoded
 from bridge.errors import OutputError
-from bridge.frame import Frame
+from bridge.frame import Frame, timestamp
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.mcap import Recorder
+from bridge.topics import LOG_TOPIC
+
+#: The file in a drives folder that keeps room for finishing a part when the disk is full.
+RESERVE_NAME = ".tankviz-reserve"
+MB = 1_000_000
+
+
+def free_bytes(folder: Path) -> int:
+    """Bytes an unprivileged writer may still use on the file system of ``folder``."""
+    st = os.statvfs(folder)
+    return st.f_bavail * st.f_frsize
+
+
+class _PartFile(io.RawIOBase):
+    """A part's file: a write the disk has no room for calls ``release`` (which frees the
+    reserve) and is retried; :attr:`full` then says that the disk filled."""
+
+    def __init__(self, path: Path, release: Callable[[], bool]) -> None:
+        super().__init__()
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        self._release = release
+        self.full = False
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def write(self, data: Any) -> int:
+        while True:
+            try:
+                return os.write(self._fd, data)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC or not self._release():
+                    raise
+                self.full = True
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return os.lseek(self._fd, offset, whence)
+
+    def tell(self) -> int:
+        return os.lseek(self._fd, 0, os.SEEK_CUR)
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def close(self) -> None:
+        if not self.closed:
+            try:
+                super().close()
+            finally:
+                os.close(self._fd)
 
 
 def drive_name(start_ns: int, part: int) -> str:
@@ -40,7 +115,8 @@ class Gap:
 class DriveRecorder(Sink):
     """One MCAP per drive in ``folder``, split into complete parts by size or duration.
 
-    ``describe`` is called with each part's recorder and the part's own metadata entries
+    ``attach`` is called with each part's recorder as the part is opened, before its first
+    message; ``describe`` is called with each part's recorder and the part's own metadata entries
     (``drive_start``, ``part``, ``bus_gaps``) just before the part is finished. :meth:`tick`
     (called often) flushes the current chunk to disk every ``flush_interval`` seconds, so a
     power cut loses about that much; a file cut that way is salvaged with ``tankviz recover``.
@@ -55,6 +131,20 @@ class DriveRecorder(Sink):
     flush_interval_s: float = 1.0
     flush_wait_s: float = 0.1
     clock: Callable[[], float] = time.monotonic
+    attach: Callable[[Recorder], None] | None = None
+    #: stop recording (and finish the part) below this many free bytes; 0: when the disk is full
+    min_free: int = 0
+    #: the room kept for finishing a part: a chunk and the summary (attachments, indexes)
+    reserve: int = 8 * 1024 * 1024
+    free_space: Callable[[Path], int] = free_bytes
+    check_interval_s: float = 1.0
+    #: raw frames kept in memory while recording is stopped
+    backlog_limit: int = 1_000_000
+    #: why recording is stopped (the disk is full), None while it records
+    disk_full: str | None = None
+    #: recording pauses: from_ns, to_ns (wall clock), reason, frames_dropped, messages_lost
+    recording_gaps: list[dict[str, Any]] = field(default_factory=list)
+    frames_dropped: int = 0  # kept while stopped, then dropped for want of memory
     files: list[Path] = field(default_factory=list)
     gaps: list[Gap] = field(default_factory=list)
     frames: int = 0
@@ -64,6 +154,11 @@ class DriveRecorder(Sink):
     _part_start: float = 0.0
     _last_flush: float = 0.0
     _emitted: bool = False  # a scene (or other pipeline output) was written since the last tick
+    _file: _PartFile | None = None
+    _next_check: float = 0.0
+    _backlog: deque[tuple[Frame, bytes]] = field(default_factory=deque)
+    _gap: dict[str, Any] | None = None
+    _notices: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         try:
@@ -71,6 +166,121 @@ class DriveRecorder(Sink):
         except OSError as exc:
             raise OutputError(self.folder, f"cannot create the drives folder: "
                               f"{exc.strerror or exc}") from None
+        try:
+            self._make_reserve()
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise OutputError(self.folder, f"cannot record: {exc.strerror or exc}") from None
+            self._stop(f"disk full: no room for the {self.reserve / MB:.0f} MB reserve")
+        else:
+            self.check_space()
+
+    def check_space(self) -> None:
+        """Stop recording now if the free space is below ``min_free``."""
+        self._next_check = self.clock() + self.check_interval_s
+        if self.disk_full is None and (free := self.free_space(self.folder)) < self.min_free:
+            self._stop(self._low(free))
+
+    # --- the reserve, and stopping and resuming ------------------------------------------
+
+    def _make_reserve(self) -> None:
+        path = self.folder / RESERVE_NAME
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            try:
+                os.posix_fallocate(fd, 0, self.reserve)
+            except OSError as exc:
+                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                    raise
+                block = bytes(MB)
+                for start in range(0, self.reserve, MB):
+                    os.write(fd, block[:min(MB, self.reserve - start)])
+                os.fsync(fd)
+        except OSError:
+            os.close(fd)
+            path.unlink(missing_ok=True)
+            raise
+        os.close(fd)
+
+    def _release(self) -> bool:
+        """Free the reserve; False if there was none."""
+        try:
+            (self.folder / RESERVE_NAME).unlink()
+        except OSError:
+            return False
+        return True
+
+    def _low(self, free: int) -> str:
+        return (f"{free / MB:.0f} MB free in {self.folder}, below --min-free "
+                f"{self.min_free / MB:.0f} MB")
+
+    def take_notices(self) -> list[str]:
+        """What happened to the recording since the last call (recording stopped, resumed,
+        a part left unfinished), one line each, to tell on ``/log``."""
+        notices, self._notices = self._notices, []
+        return notices
+
+    def _note(self, text: str, *, record: bool) -> None:
+        """A line to tell (:meth:`take_notices`), and if ``record`` on the part's own ``/log``
+        (the part about to be finished: what is told comes too late for it)."""
+        self._notices.append(text)
+        if record and self._recorder is not None:
+            t = time.time_ns()
+            self._recorder.write(LOG_TOPIC, Log(timestamp=timestamp(t), level=Log.WARNING,
+                                                message=text, name="tankviz.recorder"), t)
+
+    def _stop(self, reason: str) -> None:
+        """Finish the current part (if any) and stop recording until there is room again."""
+        self.disk_full = reason
+        self._gap = {"from_ns": time.time_ns(), "to_ns": None, "reason": reason,
+                     "frames_dropped": 0, "messages_lost": 0}
+        self._note(f"recorder.disk_full: {reason}: recording stopped (viewers are still "
+                   "served); it resumes in a new part when there is room", record=True)
+        self._close()
+
+    def _failed(self, exc: OSError) -> None:
+        """A write failed even with the reserve freed: the part is left as it is."""
+        reason = f"cannot write {self.files[-1].name if self.files else self.folder}: " \
+                 f"{exc.strerror or exc}"
+        self._recorder = None
+        stream, self._stream = self._stream, None
+        with contextlib.suppress(OSError):
+            stream.close()
+        self._notices.append(f"recorder.disk_full: {reason}; the part is left unfinished "
+                             "(tankviz recover salvages it)")
+        self._stop(reason)
+
+    def _resume(self) -> None:
+        """Recording again, in a new part, if there is room: the frames kept go first."""
+        if self.free_space(self.folder) < self.min_free + 2 * self.reserve:
+            return
+        try:
+            self._make_reserve()
+            self._open(time.time_ns())
+        except OSError:
+            return
+        gap, self._gap = self._gap, None
+        assert gap is not None and self._recorder is not None
+        gap["to_ns"] = time.time_ns()
+        gap["frames_dropped"] = self.frames_dropped
+        self.recording_gaps.append(gap)
+        self.disk_full = None
+        kept = len(self._backlog)
+        self._note(f"recorder.disk_full cleared: recording resumed in {self.files[-1].name} "
+                   f"after {(gap['to_ns'] - gap['from_ns']) / 1e9:.1f} s; the {kept} frames "
+                   f"received meanwhile are in it ({self.frames_dropped} dropped), "
+                   f"{gap['messages_lost']} decoded messages and scenes are not", record=False)
+        self.frames_dropped = 0
+        write = self._recorder.write_frame
+        while self._backlog:
+            write(*self._backlog.popleft())
+            self.frames += 1
+
+    def _keep(self, frame: Frame, payload: bytes) -> None:
+        if len(self._backlog) >= self.backlog_limit:
+            self._backlog.popleft()
+            self.frames_dropped += 1
+        self._backlog.append((frame, payload))
 
     @property
     def recorder(self) -> Recorder:
@@ -83,47 +293,112 @@ class DriveRecorder(Sink):
         if not self.files:
             self._start_ns = t_ns
         path = self.folder / drive_name(self._start_ns, len(self.files) + 1)
-        try:
-            self._stream = path.open("xb")
-        except OSError as exc:
-            raise OutputError(path, f"cannot record: {exc.strerror or exc}") from None
+        self._file = _PartFile(path, self._release)
+        self._stream = io.BufferedWriter(self._file, 1 << 16)
         self.files.append(path)
-        self._recorder = Recorder(self._stream)
+        self._recorder = Recorder(self._stream, attach=self.attach)
         self._part_start = self._last_flush = self.clock()
 
     def _close(self) -> None:
         if self._recorder is None:
             return
-        self.describe(self._recorder, {
-            "drive_start": self._start_ns, "part": len(self.files),
-            "bus_gaps": [{"bus": g.bus, "from_ns": g.start_ns, "to_ns": g.end_ns,
-                          "reason": g.reason} for g in self.gaps],
-        })
-        self._recorder.finish()
-        self._stream.close()
+        try:
+            self.describe(self._recorder, {
+                "drive_start": self._start_ns, "part": len(self.files),
+                "bus_gaps": [{"bus": g.bus, "from_ns": g.start_ns, "to_ns": g.end_ns,
+                              "reason": g.reason} for g in self.gaps],
+                "recording_gaps": [*self.recording_gaps, *([self._gap] if self._gap else [])],
+            })
+            self._recorder.finish()
+            self._stream.close()
+        except OSError as exc:
+            self._failed(exc)
         self._recorder = None
 
     # the Sink interface, for the pipeline
+    def _part(self) -> Recorder | None:
+        """The part to write into (opened at the first frame); None while stopped."""
+        if self._recorder is None and self.disk_full is None:
+            try:
+                self._open(time.time_ns())
+            except OSError as exc:
+                self._stop(f"cannot open a part: {exc.strerror or exc}")
+        return self._recorder
+
     def on_frame(self, frame: Frame, payload: bytes, /) -> None:
-        (self._recorder or self.recorder).write_frame(frame, payload)
+        recorder = self._recorder or self._part()
+        if recorder is None:
+            self._keep(frame, payload)
+            return
+        try:
+            recorder.write_frame(frame, payload)
+        except OSError as exc:
+            self._failed(exc)
         self.frames += 1
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
-        (self._recorder or self.recorder).write_decoded(t_ns, decoded)
+        recorder = self._recorder or self._part()
+        if recorder is None:
+            if self._gap is not None:
+                self._gap["messages_lost"] += 1
+            return
+        try:
+            recorder.write_decoded(t_ns, decoded)
+        except OSError as exc:
+            self._failed(exc)
 
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
-        self.recorder.on_messages(messages)
+        recorder = self._recorder or self._part()
+        if recorder is None:
+            if self._gap is not None:
+                self._gap["messages_lost"] += len(messages)
+            return
+        try:
+            recorder.on_messages(messages)
+        except OSError as exc:
+            self._failed(exc)
         self._emitted = True
 
     def finish(self) -> None:
-        """Describe and finish the current part."""
+        """Describe and finish the current part (after a last try to record the frames kept
+        while the disk was full); the reserve is removed."""
+        if self.disk_full is not None and self._backlog:
+            self._resume()
         self._close()
+        if self._backlog:
+            self._notices.append(f"recorder.disk_full: {len(self._backlog)} frames received "
+                                 "while the disk was full are not recorded")
+            self.frames_dropped += len(self._backlog)
+            self._backlog.clear()
+        self._release()
 
     def tick(self) -> None:
-        """Flush to disk when due; start the next part when this one is big or long enough."""
+        """Flush to disk when due; start the next part when this one is big or long enough.
+        Stop recording when the disk filled (or, checked now and then, free space is below
+        ``min_free``); resume when there is room again."""
+        now = self.clock()
+        if self.disk_full is not None:
+            if now >= self._next_check:
+                self._next_check = now + self.check_interval_s
+                self._resume()
+            return
         if self._recorder is None:
             return
-        now = self.clock()
+        if self._file is not None and self._file.full:
+            self._stop(f"disk full ({self.folder})")
+            return
+        if now >= self._next_check:
+            self._next_check = now + self.check_interval_s
+            if (free := self.free_space(self.folder)) < self.min_free:
+                self._stop(self._low(free))
+                return
+        try:
+            self._tick(now)
+        except OSError as exc:
+            self._failed(exc)
+
+    def _tick(self, now: float) -> None:
+        assert self._recorder is not None
         emitted, self._emitted = self._emitted, False
         since = now - self._last_flush
         if ((self.split_size is not None and self._stream.tell() >= self.split_size)

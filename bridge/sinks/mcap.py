@@ -226,22 +226,25 @@ def frame_payload(frame: Frame) -> bytes:
 _DATA_FIELD = [bytes((11 << 3 | 2, n)) for n in range(128)]
 
 
-#: Called just before a recorder is finished, to attach and note what describes its drive.
+#: Called with a recorder: when it starts, to attach what its drive is decoded with (databases,
+#: profile), so that a file cut before its end still has them; and just before it is finished, to
+#: note what describes its drive (the metadata record).
 Describe = Callable[["Recorder"], None]
 
 
 class Recorder(Sink):
     """Writes frames, decoded messages and any protobuf message into one MCAP stream.
 
-    As a :class:`~bridge.sinks.base.Sink` it records everything the pipeline hands it;
-    :meth:`finish` has ``describe`` add the drive's attachments and metadata first. A topic
+    As a :class:`~bridge.sinks.base.Sink` it records everything the pipeline hands it. ``attach``
+    adds the drive's attachments right after the file's header, before any message (a file cut
+    short still has them); :meth:`finish` has ``describe`` add its metadata first. A topic
     carries one message type: a second one is refused (``ValueError``), as mcap_protobuf's
     writer refuses it.
     """
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD,
-                 describe: Describe | None = None) -> None:
+                 describe: Describe | None = None, attach: Describe | None = None) -> None:
         self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression)
         self._writer.start(profile="", library=f"tankviz {__version__}")
         self.describe = describe
@@ -254,6 +257,8 @@ class Recorder(Sink):
         self._frame_schema: int | None = None
         self.messages = 0
         self._finished = False
+        if attach is not None:
+            attach(self)
 
     def _schema(self, name: str, data: bytes) -> int:
         schema_id = self._schemas.get(name)
