@@ -262,6 +262,12 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
              stop_feed: Callable[[], None] | None = None) -> int:
     """Live on ``buses``; ``start_feed``/``stop_feed`` run a frame source beside it (demo)."""
     stages = options.stages(args)
+    decoder, names = stages.decoder, {b.name for b in buses}
+    unread = [f"--dbc {bus}={f.path}: no --bus {bus}, so nothing is decoded with it"
+              for f in decoder.files for bus in decoder.buses_for(f)
+              if bus != "*" and bus not in names]
+    for text in [*decoder.warnings(), *unread]:  # what would silence messages, said at once
+        print(f"warning: {text}", file=sys.stderr)
     if args.no_record and args.no_server:
         raise UsageError("--no-record and --no-server: nothing would be done")
     if args.split_size is not None and args.split_size <= 0:

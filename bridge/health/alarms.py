@@ -17,8 +17,7 @@ id                         kind                subject
 ``lanes.lost``             ``LANES_LOST``      ``lanes``
 ``bus.<bus>.silent``       ``BUS_SILENT``      a bus
 ``bus.<bus>.babbling``     ``BABBLING``        a bus
-``recorder.disk_full``     ``DISK_FULL``       ``recorder`` (``ALARM_KIND_UNSPECIFIED`` in
-                                               ``/health`` until the schema has a kind)
+``recorder.disk_full``     ``DISK_FULL``       ``recorder``
 =========================  ==================  ============================================
 
 When each condition holds is the monitor's business (:mod:`bridge.health.monitor`).
@@ -121,7 +120,7 @@ _PB_KINDS = {
     AlarmKind.LANES_LOST: health_pb2.ALARM_KIND_LANES_LOST,
     AlarmKind.BUS_SILENT: health_pb2.ALARM_KIND_BUS_SILENT,
     AlarmKind.BABBLING: health_pb2.ALARM_KIND_BABBLING,
-    AlarmKind.DISK_FULL: health_pb2.ALARM_KIND_UNSPECIFIED,
+    AlarmKind.DISK_FULL: health_pb2.ALARM_KIND_DISK_FULL,
 }
 
 

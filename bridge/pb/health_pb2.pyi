@@ -17,6 +17,7 @@ class AlarmKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     ALARM_KIND_LANES_LOST: _ClassVar[AlarmKind]
     ALARM_KIND_BUS_SILENT: _ClassVar[AlarmKind]
     ALARM_KIND_BABBLING: _ClassVar[AlarmKind]
+    ALARM_KIND_DISK_FULL: _ClassVar[AlarmKind]
 ALARM_KIND_UNSPECIFIED: AlarmKind
 ALARM_KIND_SENSOR_SILENT: AlarmKind
 ALARM_KIND_RATE_LOW: AlarmKind
@@ -25,6 +26,7 @@ ALARM_KIND_MISALIGNED: AlarmKind
 ALARM_KIND_LANES_LOST: AlarmKind
 ALARM_KIND_BUS_SILENT: AlarmKind
 ALARM_KIND_BABBLING: AlarmKind
+ALARM_KIND_DISK_FULL: AlarmKind
 
 class BusHealth(_message.Message):
     __slots__ = ("bus", "frames_per_s", "bits_per_s", "load", "bitrate", "data_bitrate", "error_frames", "error_frames_total", "unknown_ids", "unknown_ids_total", "decode_errors", "decode_errors_total", "silent_s", "gap", "gaps_total", "expected_period_s", "frames_total", "top_id", "top_id_hz", "top_id_share", "non_finite_total")

@@ -112,3 +112,24 @@ def test_fd_frames_longer_than_their_message_decode_and_the_extra_bytes_are_note
     assert "longer than their message 3" in printed
     assert ("/can/can0/Mirror: 3 frames longer than its 8 bytes (up to 64)"
             in format_summary(str(out), summarize_file(out)))
+
+
+def test_live_warns_at_start_about_a_database_and_a_bus_it_will_never_decode(
+        tmp_path: Path) -> None:
+    """Live says at once what would silence messages: a database cantools cannot decode all of,
+    and a --dbc BUS= for a bus that is not read."""
+    import subprocess
+    import sys
+
+    (tmp_path / "door.dbc").write_text(DOOR_DBC)
+    run = subprocess.run(
+        [sys.executable, "-m", "bridge", "live", "--bus", f"body=virtual:warn-{tmp_path.name}",
+         "--dbc", f"body={tmp_path / 'door.dbc'}", "--dbc", f"trailer={tmp_path / 'door.dbc'}",
+         "--no-server", "--drives", str(tmp_path / "drives"), "--min-free", "0", "--for", "0.5"],
+        capture_output=True, text=True, timeout=60, check=False)
+    assert run.returncode == 0, run.stderr
+    warned = [line for line in run.stderr.splitlines() if line.startswith("warning:")]
+    assert warned == [
+        *(f"warning: {text}" for text in load_database(tmp_path / "door.dbc").warnings),
+        f"warning: --dbc trailer={tmp_path / 'door.dbc'}: no --bus trailer, so nothing is "
+        "decoded with it"]

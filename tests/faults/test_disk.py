@@ -193,5 +193,6 @@ def test_live_survives_a_full_disk_and_records_every_frame(tmp_path: Path) -> No
     assert "recorder.disk_full" in car.output
     healths = [health_pb2.Health.FromString(payload) for _, topic, payload in viewer.got
                if topic == "/health"]
-    assert any(a.id == "recorder.disk_full" and a.active for h in healths for a in h.alarms)
+    assert any(a.id == "recorder.disk_full" and a.active
+               and a.kind == health_pb2.ALARM_KIND_DISK_FULL for h in healths for a in h.alarms)
     assert recording["/log"]
