@@ -146,6 +146,24 @@ def format_summary(path: str, s: DriveSummary) -> str:
                      f"{sum(v['frames'] for v in longer.values()):,}")
         lines += [f"    {topic}: {v['frames']:,} frames longer than its {v['message_bytes']} "
                   f"bytes (up to {v['longest']})" for topic, v in longer.items()]
+        for title, key in (("non-finite values (kept out of the scene)", "non_finite"),
+                           ("validity rules that could not be evaluated (objects left out)",
+                            "rule_errors")):
+            entries = stats.get(key, {})
+            if entries:
+                lines.append(f"  {title}: {sum(entries.values()):,} — " + ", ".join(
+                    f"{k} ({v})" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])))
+        steps = _json(ours.get("clock_steps", "[]"))
+        if steps:
+            lines += ["", f"clock steps ({len(steps)}; frames recorded with their own stamps):"]
+            lines += [f"  {format_time(s['from_ns'])} -> {format_time(s['to_ns'])} "
+                      f"({s['step_s']:+,.3f} s)" for s in steps[:20]]
+        gaps = _json(ours.get("recording_gaps", "[]"))
+        if gaps:
+            lines += ["", f"recording paused ({len(gaps)}):"]
+            lines += [f"  {format_time(g['from_ns'])}: {g['reason']} "
+                      f"({g.get('frames_dropped', 0):,} frames dropped, "
+                      f"{g.get('messages_lost', 0):,} messages not recorded)" for g in gaps]
         warnings = _json(ours.get("warnings", "[]"))
         if warnings:
             lines += ["", f"warnings ({len(warnings)}):"]

@@ -209,6 +209,10 @@ def test_convert_goes_on_with_the_scene_after_a_step_back(shared_dbc: Path,
     assert len(radar) >= 2 * (3.0 * 20 - 2)
     (step,) = metadata["clock_steps"]
     assert step["step_s"] < -29.0
+    from bridge.apps.inspect import format_summary, summarize_file
+
+    assert "clock steps (1; frames recorded with their own stamps)" in format_summary(
+        str(out), summarize_file(out))  # tankviz inspect says so
     assert not [a for a in alarms_raised(metadata) if a.startswith(("bus.", "radar."))]
 
 

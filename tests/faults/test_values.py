@@ -158,6 +158,11 @@ def test_inf_and_nan_in_a_float_steering_angle_are_counted_and_kept_out_of_the_s
     assert any(a == INF for a in angles) and any(a == -INF for a in angles)
     assert any(math.isnan(a) for a in angles)  # decoded and recorded as they came
     assert_scene_finite(recording)
+    from bridge.apps.inspect import format_summary, summarize_file
+
+    inspected = format_summary(str(out), summarize_file(out))  # tankviz inspect says so
+    assert re.search(r"non-finite values \(kept out of the scene\): [\d,]+ — "
+                     r"can0/Steering\.SteeringWheelAngle", inspected), inspected
     assert all(math.isfinite(e.steering_wheel_angle) and math.isfinite(e.curvature)
                for e in recording["/ego"])
     statistics = metadata(out)["statistics"]
