@@ -138,7 +138,8 @@ class FlakyBus(can.BusABC):
         time.sleep(max(wait, 0.0))
         self.next_at += 0.001
         self.source.sent += 1
-        return can.Message(timestamp=time.time(), arbitration_id=0x100,
+        return can.Message(timestamp=time.time() + self.source.clock_offset_s,
+                           arbitration_id=0x100,
                            data=self.source.sent.to_bytes(8, "little")), False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -146,7 +147,8 @@ class FlakyBus(can.BusABC):
 
 
 class FlakySource:
-    def __init__(self) -> None:
+    def __init__(self, clock_offset_s: float = 0.0) -> None:
+        self.clock_offset_s = clock_offset_s  # an adapter that stamps with a clock of its own
         self.broken = threading.Event()
         self.sent = 0
         self.opens = 0
@@ -186,6 +188,35 @@ def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Pa
     assert [text for text in logs if text.startswith("bus chassis")] == said
     (gap,) = json.loads(meta["bus_gaps"])
     assert gap["bus"] == "chassis" and 0.8e9 < gap["to_ns"] - gap["from_ns"] < 3e9
+
+
+def test_a_lost_bus_is_noted_in_the_log_time_of_its_frames(tmp_path: Path) -> None:
+    """An adapter that stamps with its own clock (an hour behind the wall clock here): the bus
+    lost and back lines on /log and the gap in the metadata are in the frames' log time, beside
+    the frames, not an hour after them."""
+    source = FlakySource(clock_offset_s=-3600.0)
+    live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
+                drives=tmp_path, open_bus=source.open, say=lambda text: None)
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    time.sleep(0.5)
+    source.broken.set()
+    time.sleep(1.0)
+    before_gap = source.sent
+    source.broken.clear()
+    assert wait_for(lambda: source.sent > before_gap + 300, timeout=10)
+    live.stop()
+    runner.join(10)
+
+    (drive,) = tmp_path.glob("*.mcap")
+    with drive.open("rb") as f:
+        reader = make_reader(f)
+        frames = [m.log_time for _, c, m in reader.iter_messages() if c.topic.endswith("frames")]
+        logs = [m.log_time for _, c, m in reader.iter_messages() if c.topic == "/log"]
+        meta = next(m.metadata for m in reader.iter_metadata() if m.name == "tankviz")
+    (gap,) = json.loads(meta["bus_gaps"])
+    for t_ns in [*logs, gap["from_ns"], gap["to_ns"]]:
+        assert frames[0] <= t_ns <= frames[-1] + NS, (t_ns - frames[-1]) / NS
 
 
 def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:

@@ -162,7 +162,7 @@ class Live:
                 schedule.wait()
                 while True:
                     try:
-                        self._bus_event(events.get_nowait())
+                        self._bus_event(events.get_nowait(), schedule.offset_ns or 0)
                     except queue.Empty:
                         break
                 frames = self._poll()
@@ -216,8 +216,11 @@ class Live:
         self.drive.health.hold("recorder.disk_full", AlarmKind.DISK_FULL, "recorder",
                                self.recorder.disk_full)
 
-    def _bus_event(self, event: BusEvent) -> None:
-        t = max(event.t_ns, self.pipeline.last_ns or 0)
+    def _bus_event(self, event: BusEvent, offset_ns: int) -> None:
+        """A bus lost or back, noted at the log time it happened (its wall time plus the
+        offset the frames tell: an adapter's own clock, a clock step), never before the last
+        frame."""
+        t = max(event.t_ns + offset_ns, self.pipeline.last_ns or 0)
         if not event.up:
             gap = self._down[event.bus] = Gap(event.bus, t, None, event.reason)
             if self.recorder is not None:
