@@ -141,9 +141,10 @@ class Perception:
     def rebase(self, shift_ns: int, t_ns: int) -> None:
         """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
         time held is shifted as if no time had passed (the world's observations and lifetimes,
-        the messages not yet observed), and the next tick is the first on the scene rate's grid
-        after ``t_ns`` (within one period)."""
+        each object's latest position, the messages not yet observed), and the next tick is the
+        first on the scene rate's grid after ``t_ns`` (within one period)."""
         self.world.shift(shift_ns)
+        self.observer.shift(shift_ns)
         self._pending = {name: (values, t + shift_ns)
                          for name, (values, t) in self._pending.items()}
         if self._started:

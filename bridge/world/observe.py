@@ -291,6 +291,15 @@ class Observer:
         #: every message name this observer uses, to skip the rest cheaply
         self.messages = frozenset(self._objects) | frozenset(self._lanes) | frozenset(self._ego)
 
+    def shift(self, shift_ns: int) -> None:
+        """The clock stepped: the time of each object's latest position moves by ``shift_ns``,
+        so an observation its companion message makes after the step is in the new timeline."""
+        readers = {id(reader): reader for pairs in self._objects.values() for reader, _ in pairs}
+        for reader in readers.values():
+            for obj in reader.objects.values():
+                if obj.position_ns >= 0:
+                    obj.position_ns += shift_ns
+
     def observe(self, message: str, values: Mapping[str, Any], t_ns: int) -> list[Observation]:
         """The observations one decoded message makes (often none, e.g. for a companion)."""
         out: list[Observation] = []

@@ -304,3 +304,21 @@ def test_a_full_viewer_queue_counts_what_it_drops_per_channel() -> None:
     assert stats.dropped == 3
     assert stats.channels == Counter({1: 2, 2: 1})
     assert [item[1] for item in client.queue] == [3, 4, 5]
+
+
+def test_an_object_seen_before_a_step_is_placed_in_the_new_timeline(shared_dbc: Path) -> None:
+    """The A frame (position) of a Bosch radar object came before a 30 s step back, its B frame
+    after: the observation the B frame makes is stamped in the new timeline, where its lifetime
+    goes on, not 30 s in the future."""
+    from bridge.pipeline.perception import Perception
+
+    _, profile = load_stages([str(shared_dbc / "tesla_radar_bosch.dbc")],
+                             Path(__file__).resolve().parents[1] / "profiles" / "bosch_radar.toml")
+    assert profile is not None
+    perception = Perception(profile)
+    a = {"LongDist": 20.0, "LatDist": 0.0, "LongSpeed": 0.0, "ProbExist": 90.0, "Valid": 1}
+    perception.observer.observe("RadarPoint0_A", a, 100 * NS)
+    perception.rebase(-30 * NS, 70 * NS)
+    (seen,) = perception.observer.observe("RadarPoint0_B", {"LatSpeed": 0.0, "Class": 1},
+                                          70 * NS + NS // 100)
+    assert seen.t_ns == 70 * NS
