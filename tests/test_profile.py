@@ -446,7 +446,7 @@ def test_databases_must_exist(error: Callable[[str], str], car: Path, databases:
     pytest.param(
         "wheelbase = 2.8", "wheel_base = 2.8",
         "vehicle.wheel_base: unknown key; closest: wheelbase "
-        "(allowed: height, length, steering_ratio, wheelbase, width)",
+        "(allowed: height, length, origin, rear_overhang, steering_ratio, wheelbase, width)",
         id="vehicle"),
     pytest.param(
         '[sensors.fusion]\nkind = "fusion"', '[sensors.fusion]\nkind = "fusion"\ncolour = "red"',
@@ -465,8 +465,8 @@ def test_databases_must_exist(error: Callable[[str], str], car: Path, databases:
     pytest.param(
         'probability = "ProbExist"', 'probabilty = "ProbExist"',
         "objects.radar.probabilty: unknown key; closest: probability (allowed: azimuth, class, "
-        "classes, id, index, lifetime, messages, probability, range, sensor, valid, vx, vy, x, "
-        "y)",
+        "classes, id, index, lifetime, messages, probability, range, role, sensor, valid, vx, "
+        "vy, x, y)",
         id="object-group"),
     pytest.param(
         'id = "TrackID"\nx = "PosX"\ny = "PosY"\nvx = "RelVelX"\nvalid',
@@ -1146,10 +1146,12 @@ def test_message_signal_rules_decide_validity_in_the_observer(
 # --- lanes ----------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("header", ["[lanes.left]", "[lanes.right]"])
-def test_lanes_need_a_left_and_a_right_line(error: Callable[[str], str], header: str) -> None:
-    assert error(without(header)) == "car.toml: lanes: needs at least [lanes.left] and " \
-                                     "[lanes.right]"
+@pytest.mark.parametrize(("header", "other"), [("[lanes.left]", "[lanes.right]"),
+                                               ("[lanes.right]", "[lanes.left]")])
+def test_lanes_need_a_left_and_a_right_line(error: Callable[[str], str], header: str,
+                                            other: str) -> None:
+    assert error(without(header)) == (f"car.toml: lanes: {other} needs {header} too; or no "
+                                      "camera lines at all for lanes from the steering angle only")
 
 
 def test_neighbour_lines_are_optional(load: Callable[[str], Profile]) -> None:

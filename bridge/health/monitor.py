@@ -27,10 +27,12 @@ and times are :class:`bridge.health.alarms.HealthSettings`):
 ``<sensor>.blind``         frames but no valid object (for as long as makes it silent), while
                            another sensor sees objects (not stationary ones) inside this
                            sensor's field of view
-``<a>-<b>.misaligned``     objects both sensors see (greedy nearest neighbour within
+``<a>-<b>.misaligned``     detections both sensors see (groups of role detections, not tracks;
+                           greedy nearest neighbour within
                            ``bias_gate_m``) are offset on average by more than
                            ``bias_lateral_m`` or ``bias_angle_deg``: one sensor is misaligned
 ``lanes.lost``             no valid camera lanes (the steering fallback) for ``lane_loss_s``
+                           (only with camera lines: steering-only lanes have none to lose)
 ``bus.<bus>.silent``       no traffic at all on the bus (a gap)
 ``bus.<bus>.babbling``     one id far above its cycle time, or (without one) most of the bus
 ``recorder.disk_full``     the recorder stopped for want of disk space (live: its condition
@@ -75,7 +77,7 @@ from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings
 from bridge.health.wire import frame_bits
 from bridge.pb import health_pb2
-from bridge.profile.model import ObjectClass, Profile, Sensor, SensorKind
+from bridge.profile.model import ObjectClass, Profile, Sensor
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import LEAD_GROUP, ObjectObservation
@@ -243,7 +245,7 @@ class HealthMonitor:
         for pair in self._pairs:
             self._alarm(f"{pair.name}.misaligned", AlarmKind.MISALIGNED, pair.name,
                         (pair.a.subject, pair.b.subject))
-        if profile is not None and profile.lanes is not None:
+        if profile is not None and profile.lanes is not None and profile.lanes.sensor is not None:
             self._alarm("lanes.lost", AlarmKind.LANES_LOST, "lanes", (profile.lanes.sensor.name,),
                         raise_ns=round(s.lane_loss_s * NS))
         #: (count, latest value) of every signal that had a non-finite value, by bus/Message.Signal
@@ -263,7 +265,7 @@ class HealthMonitor:
         if profile.lead is not None and profile.lead.group is not None:
             lead = profile.lead.group
             families.append(_Family("lead", "lead", lead.sensor, lead.members, LEAD_GROUP))
-        if profile.lanes is not None:
+        if profile.lanes is not None and profile.lanes.lines:  # not for steering-only lanes
             families.append(_Family("lanes", "lanes", profile.lanes.sensor,
                                     (line.message for line in profile.lanes.lines.values()),
                                     None))
@@ -287,9 +289,8 @@ class HealthMonitor:
         return round(max(self.settings.rate_window_s, 5 * period_s) * NS)
 
     def _make_pairs(self) -> list[_Pair]:
-        """Every two object families of different radar or camera sensors."""
-        candidates = [f for f in self.families if f.kind == "objects" and f.sensor is not None
-                      and f.sensor.kind is not SensorKind.FUSION]
+        """Every two detection families of different sensors."""
+        candidates = [f for f in self.families if self._detections(f)]
         pairs = []
         for i, a in enumerate(candidates):
             for b in candidates[i + 1:]:
@@ -298,9 +299,16 @@ class HealthMonitor:
                     pairs.append(_Pair(f"{a.sensor.name}-{b.sensor.name}", a, b))
         return pairs
 
+    def _detections(self, family: _Family) -> bool:
+        """An object family whose group's role is detections (not tracks)."""
+        if family.kind != "objects" or family.sensor is None or self.profile is None:
+            return False
+        group = self.profile.groups.get(family.group or "")
+        return group is not None and not group.is_tracks
+
     def _blind_checked(self, family: _Family) -> bool:
-        return (family.kind == "objects" and family.sensor is not None
-                and family.sensor.kind is not SensorKind.FUSION and _has_fov(family.sensor))
+        return (self._detections(family) and family.sensor is not None
+                and _has_fov(family.sensor))
 
     def _alarm(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
                raise_ns: int | None = None) -> Alarm:
@@ -410,8 +418,7 @@ class HealthMonitor:
             for family in self.families:
                 if family.kind == "lanes":
                     family.valid_objects = count
-        seers = [f for f in self.families if f.kind == "objects" and f.sensor is not None
-                 and f.sensor.kind is not SensorKind.FUSION]
+        seers = [f for f in self.families if self._detections(f)]
         for family in seers:
             sensor = family.sensor
             if sensor is None or not _has_fov(sensor):

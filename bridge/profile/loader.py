@@ -60,6 +60,8 @@ else:  # pragma: no cover - Python 3.10
 
 #: Scene categories that are not object groups (a group gets /scene/<name>).
 _RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "mio"}
+#: What an object group is (``[objects.GROUP] role``).
+_ROLES = ("detections", "tracks")
 _TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
@@ -314,6 +316,9 @@ class _Loader:
         lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
         lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
         ego = self.ego(doc.get("ego", {}))
+        if lanes is not None and not lanes.lines and ego.steering_wheel_angle is None:
+            raise self.fail("lanes", "no camera lines and no ego.steering_wheel_angle: nothing "
+                            "to draw the lanes from")
         bitrates, data_bitrates = self.buses(doc.get("buses", {}))
         return Profile(name, self.path, vehicle, sensors, groups, lead, lanes, ego,
                        self.databases(), bitrates, data_bitrates)
@@ -332,14 +337,26 @@ class _Loader:
 
     def vehicle(self, value: Any) -> Vehicle:
         t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",
-                                          "height"})
+                                          "height", "origin", "rear_overhang"})
         d = Vehicle()
+        length = self.number(t, "vehicle", "length", d.length_m, positive=True)
+        origin = self.string(t, "vehicle", "origin", d.origin, choices=Vehicle.ORIGINS)
+        overhang = self.number(t, "vehicle", "rear_overhang", d.rear_overhang_m,
+                               non_negative=True)
+        if "rear_overhang" in t and origin != "rear_axle":
+            raise self.fail("vehicle.rear_overhang",
+                            f'only for origin = "rear_axle", the origin is {origin!r}')
+        if origin == "rear_axle" and overhang >= length:
+            raise self.fail("vehicle.rear_overhang",
+                            f"must be less than the length {length}, got {overhang}")
         return Vehicle(
             self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True),
             self.number(t, "vehicle", "steering_ratio", d.steering_ratio, positive=True),
-            self.number(t, "vehicle", "length", d.length_m, positive=True),
+            length,
             self.number(t, "vehicle", "width", d.width_m, positive=True),
             self.number(t, "vehicle", "height", d.height_m, positive=True),
+            origin=origin,
+            rear_overhang_m=overhang,
         )
 
     def sensor(self, name: str, value: Any) -> Sensor:
@@ -377,9 +394,11 @@ class _Loader:
     def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
               *, lifetime: float = 0.1) -> ObjectGroup:
         fields = {"x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id"}
+        roles = {"role"} if key.startswith("objects.") else set()  # not on [lead]
         t = self.table(value, key, {"sensor", "messages", "index", "classes", "valid",
-                                    "lifetime"} | fields, required=["sensor", "messages"])
+                                    "lifetime"} | fields | roles, required=["sensor", "messages"])
         sensor = self.sensor_of(t, key, sensors)
+        role = self.role(t, key, sensor) if roles else None
         templates = t["messages"]
         if isinstance(templates, str):
             templates = [templates]
@@ -489,7 +508,17 @@ class _Loader:
             ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
             ref("probability"), ref("class"), classes, ref("id"), rules,
             self.number(t, key, "lifetime", lifetime, non_negative=True),
+            role=role,
         )
+
+    def role(self, t: Mapping[str, Any], key: str, sensor: Sensor) -> str:
+        """``role``: detections or tracks; by default tracks on a fusion sensor."""
+        default = "tracks" if sensor.kind is SensorKind.FUSION else "detections"
+        role = self.string(t, key, "role", default)
+        if role not in _ROLES:
+            raise self.fail(f"{key}.role", f"must be one of {', '.join(_ROLES)}, got {role!r}"
+                            f"{_closest(role, _ROLES)}")
+        return role
 
     def lead(self, value: Any, sensors: Mapping[str, Sensor]) -> LeadSpec:
         key = "lead"
@@ -506,9 +535,15 @@ class _Loader:
 
     def lanes(self, value: Any, sensors: Mapping[str, Sensor]) -> LaneSpec:
         key = "lanes"
+        # No camera lines at all: a car without a lane camera, lanes from the steering angle only.
+        camera = isinstance(value, dict) and any(name in value for name in _LANE_NAMES)
         t = self.table(value, key, {"sensor", "stale_after", "length", "fallback", *_LANE_NAMES},
-                       required=["sensor"])
-        sensor = self.sensor_of(t, key, sensors)
+                       required=["sensor"] if camera else [])
+        if not camera and "sensor" in t:
+            raise self.fail(f"{key}.sensor", f"{t['sensor']!r} but there are no camera lines "
+                            "([lanes.left], [lanes.right]): lanes from the steering angle need "
+                            "no sensor")
+        sensor = self.sensor_of(t, key, sensors) if camera else None
         lines = {}
         for name in _LANE_NAMES:
             if name not in t:
@@ -527,8 +562,12 @@ class _Loader:
             lines[name] = LaneLine(name, message.name, c0, coefficient("c1"), coefficient("c2"),
                                    coefficient("c3"),
                                    self.rule(lt, lk, [message]))
-        if "left" not in lines or "right" not in lines:
-            raise self.fail(key, "needs at least [lanes.left] and [lanes.right]")
+        if lines and ("left" not in lines or "right" not in lines):
+            named: list[str] = [n for n in ("left", "right") if n in lines] or list(lines)
+            given = ", ".join(f"[lanes.{n}]" for n in named)
+            missing = " and ".join(f"[lanes.{n}]" for n in ("left", "right") if n not in lines)
+            raise self.fail(key, f"{given} need{'s' if len(named) == 1 else ''} {missing} too; "
+                            "or no camera lines at all for lanes from the steering angle only")
         fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
         return LaneSpec(
             sensor, lines,

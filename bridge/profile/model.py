@@ -1,8 +1,8 @@
 """Vehicle profiles: what the DBC signals of one car *mean*; this module is the model.
 
-A profile names the sensors (mounting pose and conventions), the object groups (radar and camera
-detections, fused tracks) bound to families of DBC messages, the lead vehicle, the lane lines and
-the ego signals. Its parts are frozen dataclasses (and the enumerations :class:`ObjectClass` and
+A profile names the sensors (mounting pose and conventions), the object groups (detections or
+tracks, by each group's role) bound to families of DBC messages, the lead vehicle, the lane lines
+and the ego signals. Its parts are frozen dataclasses (and the enumerations :class:`ObjectClass` and
 :class:`SensorKind`) that check nothing themselves: a :class:`Profile` comes from
 :func:`bridge.profile.loader.load_profile`, which has checked every name in it against the loaded
 databases, and a profile that cannot be used is a :class:`ProfileError` naming the file, the key
@@ -173,7 +173,10 @@ class FamilyMember:
 
 @dataclass(frozen=True)
 class ObjectGroup:
-    """A group of objects (detections of one sensor, or fused tracks) from a family of messages.
+    """A group of objects (detections of one sensor, or tracks) from a family of messages.
+
+    Its ``role`` says which: a radar's track slots are tracks as much as a fusion's output, so one
+    sensor can serve a detections group and a tracks group.
 
     Object ``i`` is described by the messages ``templates`` with ``{i}`` replaced; the first
     template carries the position and makes a new observation, the others (companions) add their
@@ -199,9 +202,14 @@ class ObjectGroup:
     #: the validity rule of each object (index); empty: every object is valid
     valid: Mapping[int | None, Rule] = field(default_factory=dict)
     lifetime_s: float = 0.1
+    #: "detections" or "tracks" (red, labelled, candidates for ``[lead] source = "tracks"``);
+    #: None: from the sensor's kind (fusion: tracks, else detections)
+    role: str | None = None
 
     @property
     def is_tracks(self) -> bool:
+        if self.role is not None:
+            return self.role == "tracks"
         return self.sensor.kind is SensorKind.FUSION
 
 
@@ -230,7 +238,9 @@ class LaneLine:
 
 @dataclass(frozen=True)
 class LaneSpec:
-    sensor: Sensor
+    #: The camera whose frame the lines are in; None without camera lines (steering lanes only).
+    sensor: Sensor | None
+    #: Camera lines by name; empty for a car without a lane camera: lanes from the steering only.
     lines: Mapping[str, LaneLine]
     #: Camera lanes older than this (s) are stale: the steering fallback takes over.
     stale_after_s: float = 0.5
@@ -257,6 +267,23 @@ class Vehicle:
     length_m: float = 2.5
     width_m: float = 1.5
     height_m: float = 1.0
+    #: Where the vehicle frame's origin is on the car: one of :data:`ORIGINS`.
+    origin: str = "centre"
+    #: For ``origin = "rear_axle"``: how far (m) the box's rear is behind the origin.
+    rear_overhang_m: float = 1.0
+
+    #: "centre": the box centred on the origin; "rear_axle": its rear ``rear_overhang_m`` behind
+    #: the origin; "front_bumper": its front at the origin.
+    ORIGINS = ("centre", "rear_axle", "front_bumper")
+
+    @property
+    def box_centre_x(self) -> float:
+        """x of the ego box's centre in the vehicle frame, as the origin says."""
+        if self.origin == "rear_axle":
+            return self.length_m / 2 - self.rear_overhang_m
+        if self.origin == "front_bumper":
+            return -self.length_m / 2
+        return 0.0
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """Scene: pure functions from the world to ``foxglove.SceneUpdate`` messages, one per category.
 
-The look is the Tank Viz baseline: an orange-brown ego box, green camera lanes (magenta when
-extrapolated from the steering angle), small blue radar and white camera spheres, red track
+The look is the Tank Viz baseline: an orange-brown ego box (placed about the vehicle origin as
+the profile's ``[vehicle] origin`` says), green camera lanes (magenta when extrapolated from
+the steering angle), small blue radar and white camera spheres, red track
 spheres labelled "TrackID: n / x: … / y: …", a green lead-vehicle box labelled "Lead Vehicle /
 x: … / y: …". Beyond it: class labels, pedestrians as tall yellow cylinders that cannot be missed,
 neighbour lane lines, sensor frames and the MIO check.
@@ -140,7 +141,7 @@ def _place(primitive: Any, x: float, y: float) -> None:
 @lru_cache(maxsize=4)
 def _ego_template(v: Vehicle) -> SceneEntity:
     e = _template("ego", 0.0)
-    e.cubes.append(CubePrimitive(pose=pose(0.0, 0.0, v.height_m / 2),
+    e.cubes.append(CubePrimitive(pose=pose(v.box_centre_x, 0.0, v.height_m / 2),
                                  size=Vector3(x=v.length_m, y=v.width_m, z=v.height_m),
                                  color=color(EGO_COLOR)))
     return e
@@ -183,11 +184,11 @@ def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
 
 @lru_cache(maxsize=256)
 def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
-                     labelled: bool) -> SceneEntity:
-    """What every object entity of this kind and class shares; its sphere, label and pedestrian
-    cylinder stand at x = y = 0. Never changed, only copied."""
+                     labelled: bool, track: bool) -> SceneEntity:
+    """What every object entity of this kind, role and class shares; its sphere, label and
+    pedestrian cylinder stand at x = y = 0. Never changed, only copied."""
     e = _template("", lifetime_s)
-    if kind is SensorKind.FUSION:
+    if track:
         add_sphere(e, 0.0, 0.0, 0.5, TRACK_SIZE, TRACK_COLOR)
         if labelled:
             add_text(e, 0.0, 0.0, 1.6, "")
@@ -206,18 +207,20 @@ def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectCl
 
 def object_entities(into: Entities, objects: Iterable[ObjectObservation], kind: SensorKind,
                     group: str, t_ns: int, lifetime_s: float,
-                    lead: ObjectObservation | None = None) -> None:
+                    lead: ObjectObservation | None = None, *, track: bool | None = None) -> None:
     """Detections (radar blue, camera white) or tracks (red, labelled), with class labels.
 
-    The track that is ``lead`` keeps its sphere; its label is the lead vehicle's (one label,
-    not two drawn over each other).
+    ``track``: the group's role is tracks (default: the sensor ``kind`` is fusion). The track
+    that is ``lead`` keeps its sphere; its label is the lead vehicle's (one label, not two drawn
+    over each other).
     """
     stamp = _stamp(t_ns)
-    track = kind is SensorKind.FUSION
+    if track is None:
+        track = kind is SensorKind.FUSION
     for o in sorted(objects, key=lambda o: o.object_id):
         labelled = o is not lead if track else o.object_class in CLASS_LABELS
         e = into.add()
-        e.MergeFrom(_object_template(kind, lifetime_s, o.object_class, labelled))
+        e.MergeFrom(_object_template(kind, lifetime_s, o.object_class, labelled, track))
         e.id = f"{group}-{o.object_id}"
         e.timestamp.CopyFrom(stamp)
         x, y = o.x, o.y
@@ -340,7 +343,7 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
     lead_track = check.expected if check.ok and check.lead is not None else None
     for name, group in profile.groups.items():
         object_entities(category(name), world.objects[name].values(), group.sensor.kind, name,
-                        t_ns, group.lifetime_s, lead_track)
+                        t_ns, group.lifetime_s, lead_track, track=group.is_tracks)
     if profile.lead is not None:
         lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s, lead_track)
         mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)

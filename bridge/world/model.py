@@ -4,7 +4,8 @@ The world keeps the newest valid observation of each object (per group and objec
 valid lane lines and the ego state. Objects expire after their group's lifetime, measured in log
 time, so conversion, replay and live agree; when the clock steps, every time held is shifted with
 it (:meth:`World.shift`). From that state it derives the lane model (camera
-lanes while they are fresh, otherwise lanes extrapolated from the steering angle) and the MIO
+lanes while they are fresh, otherwise, and always for a profile without camera lines, lanes
+extrapolated from the steering angle) and the MIO
 check: is the lead vehicle the closest valid track inside the ego lane?
 
 Nothing non-finite enters or leaves it: observations with a non-finite position or coefficient,
@@ -217,7 +218,7 @@ class World:
         stale_ns = round(spec.stale_after_s * NS)
         fresh = {name: obs for name, obs in self.lanes.items() if now_ns - obs.t_ns <= stale_ns}
         camera: tuple[LaneCurve, ...] = ()
-        if "left" in fresh and "right" in fresh:
+        if spec.sensor is not None and "left" in fresh and "right" in fresh:
             curves = [camera_curve(name, spec.sensor, fresh[name].coefficients, spec.length_m)
                       for name in ("left", "right", "next_left", "next_right") if name in fresh]
             drawable = [c.finite() for c in curves]
