@@ -175,7 +175,14 @@ def test_a_radars_track_slots_are_drawn_as_labelled_tracks_and_feed_the_lead(
 
 def test_without_role_a_radar_group_is_detections_and_feeds_no_lead(
         tmp_path: Path, db: cantools.database.can.Database) -> None:
-    profile = load(tmp_path, db, PROFILE.replace('role = "tracks"\n', ""))
+    text = PROFILE.replace('role = "tracks"\n', "")
+    with pytest.raises(ProfileError) as info:  # a lead from tracks, and no group of tracks
+        load(tmp_path, db, text)
+    assert str(info.value) == (
+        f"{tmp_path / 'car.toml'}: lead.source: 'tracks' but no object group has role = "
+        '"tracks" (a fusion sensor\'s groups, or role = "tracks" on a group): there would '
+        "never be a lead")
+    profile = load(tmp_path, db, text.replace('[lead]\nsource = "tracks"\n', ""))
     assert profile.groups["slots"].role == "detections"
     out = drive(db, profile, [
         ("STEER", {"WHEEL_ANGLE": 0.0}),
@@ -183,9 +190,7 @@ def test_without_role_a_radar_group_is_detections_and_feeds_no_lead(
     ])
     (slot,) = out[scene_topic("slots")].entities
     assert rgba(slot.spheres[0]) == RADAR_COLOR and not slot.texts
-    lead = out[LEAD_TOPIC]
-    assert not lead.present
-    assert lead.mio_reason == "not checked (needs lead, tracks and lanes)"
+    assert LEAD_TOPIC not in out
 
 
 def test_a_fusion_group_can_be_declared_detections(

@@ -314,6 +314,11 @@ class _Loader:
                                 f"{', '.join(sorted(_RESERVED_GROUPS))}")
         groups = {n: self.group(f"objects.{n}", n, v, sensors) for n, v in objects_doc.items()}
         lead = self.lead(doc["lead"], sensors) if "lead" in doc else None
+        if lead is not None and lead.source == "tracks" and not any(
+                g.role == "tracks" for g in groups.values()):
+            raise self.fail("lead.source", "'tracks' but no object group has role = \"tracks\" "
+                            "(a fusion sensor's groups, or role = \"tracks\" on a group): "
+                            "there would never be a lead")
         lanes = self.lanes(doc["lanes"], sensors) if "lanes" in doc else None
         ego = self.ego(doc.get("ego", {}))
         if lanes is not None and not lanes.lines and ego.steering_wheel_angle is None:
