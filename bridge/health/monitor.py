@@ -473,13 +473,14 @@ class HealthMonitor:
     def rebase(self, shift_ns: int, t_ns: int) -> None:
         """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
         time held (windows, last frames, alarm timers) moves with it, as if no time had passed,
-        and the next check is the first of the grid after ``t_ns``: nothing looks silent,
+        and the next check is the one of the grid at or just before ``t_ns``, made at once (a
+        clock that steps away and back leaves no check unmade): nothing looks silent,
         nothing waits for the log to catch up."""
         def moved(t: int) -> int:
             return t if t == _NEVER else t + shift_ns
 
         if self.next_tick_ns != float("-inf"):
-            self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
+            self.next_tick_ns = t_ns // self.period_ns * self.period_ns  # (made at once)
         if self._next_publish_ns is not None:
             self._next_publish_ns += shift_ns
         for name in ("first_ns", "last_tick_ns", "_world_ns"):

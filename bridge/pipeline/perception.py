@@ -142,13 +142,14 @@ class Perception:
         """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
         time held is shifted as if no time had passed (the world's observations and lifetimes,
         each object's latest position, the messages not yet observed), and the next tick is the
-        first on the scene rate's grid after ``t_ns`` (within one period)."""
+        one on the scene rate's grid at or just before ``t_ns``, made at once."""
         self.world.shift(shift_ns)
         self.observer.shift(shift_ns)
         self._pending = {name: (values, t + shift_ns)
                          for name, (values, t) in self._pending.items()}
-        if self._started:
-            self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
+        if self._started:  # the tick at or just before the frame: a clock that steps away and
+            # back (one frame stamped a year off) leaves no tick of either timeline unmade
+            self.next_tick_ns = t_ns // self.period_ns * self.period_ns
 
     def update_world(self, t_ns: int) -> LaneModel:
         """The world brought up to the tick at log time ``t_ns``: the messages fed since the

@@ -11,12 +11,13 @@ from __future__ import annotations
 import itertools
 import json
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import can
 import cantools
+import pytest
 from harness import Viewer, assert_survived, start, steady
 from mcap.reader import make_reader
 
@@ -30,6 +31,7 @@ from bridge.topics import HEALTH_TOPIC, scene_topic
 PROFILES = Path(__file__).resolve().parent.parent / "profiles"
 T0 = 1_700_000_000.0  # an absolute start time, in python-can's float seconds
 PERIOD_NS = NS // 20  # the default scene rate
+MS_NS = 1_000_000
 YEAR_NS = 365 * 24 * 3600 * NS
 
 
@@ -322,3 +324,33 @@ def test_an_object_seen_before_a_step_is_placed_in_the_new_timeline(shared_dbc: 
     (seen,) = perception.observer.observe("RadarPoint0_B", {"LatSpeed": 0.0, "Class": 1},
                                           70 * NS + NS // 100)
     assert seen.t_ns == 70 * NS
+
+
+@pytest.mark.parametrize("away_ms", [(1_040, 1_060), (995, 1_005)],
+                         ids=["across a scene tick", "across a health check"])
+def test_a_frame_stamped_a_year_off_and_back_leaves_no_tick_unmade(
+        away_ms: tuple[int, int]) -> None:
+    """The clock steps a year ahead for one frame, then back: every scene tick and health check
+    of the drive's own timeline is still made, also the one that fell due while the clock was
+    away (the frame after the stray one comes just after it)."""
+    made: dict[str, list[int]] = {scene_topic("ego"): [], HEALTH_TOPIC: []}
+
+    class Ticks(Sink):
+        def on_messages(self, messages: Sequence[Serialized], /) -> None:
+            for m in messages:
+                made.get(m.topic, []).append(m.t_ns)
+
+    drive = Drive(load_stages([], "ecocar"), [Ticks()])
+    t0 = 1_800_000_000 * NS
+    before, after = away_ms
+    stamps = [t0 + ms * MS_NS for ms in range(0, before + 1, 10)]
+    stamps += [t0 + 365 * 86_400 * NS, t0 + after * MS_NS]
+    stamps += [t0 + ms * MS_NS for ms in range(after + 10, 3_001, 10)]
+    drive.run(Frame(t, "can0", 0x7FF, b"") for t in stamps)
+    drive.finish()
+    own = {topic: sorted(t for t in times if t < t0 + 10 * NS) for topic, times in made.items()}
+    assert missing_ticks(own[scene_topic("ego")], t0, t0 + 3 * NS) == []
+    health = own[HEALTH_TOPIC]
+    # /health about every second: the same bound as the live tests' (a step re-bases its clock)
+    assert health and max(b - a for a, b in itertools.pairwise(health)) <= 1.2 * NS, health
+    assert len(drive.pipeline.steps) == 2
