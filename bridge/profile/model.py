@@ -151,16 +151,28 @@ class Rule:
     def names(self) -> frozenset[str]:
         return self.expression.names
 
-    def test(self, values: Mapping[str, Any],
-             by_message: Mapping[str, Mapping[str, Any]] | None = None) -> bool:
-        """Whether the rule holds; ``values`` by plain name, ``by_message`` for qualified ones."""
+    def _values(self, values: Mapping[str, Any],
+                by_message: Mapping[str, Mapping[str, Any]] | None) -> Mapping[str, Any]:
+        """``values`` by plain name, with each qualified name read from ``by_message``."""
         if self.qualified and by_message is not None:
             values = dict(values)
             for name, message, signal in self.qualified:
                 found = by_message.get(message)
                 if found is not None and signal in found:
                     values[name] = found[signal]
-        return self.expression.test(values)
+        return values
+
+    def test(self, values: Mapping[str, Any],
+             by_message: Mapping[str, Mapping[str, Any]] | None = None) -> bool:
+        """Whether the rule holds; ``values`` by plain name, ``by_message`` for qualified ones."""
+        return self.expression.test(self._values(values, by_message))
+
+    def judge(self, values: Mapping[str, Any],
+              by_message: Mapping[str, Mapping[str, Any]] | None = None) -> tuple[bool, str]:
+        """Whether the rule holds, and why it could not be evaluated, naming the rule ("" when
+        it could: :meth:`Expression.judge <bridge.profile.expr.Expression.judge>`)."""
+        holds, why = self.expression.judge(self._values(values, by_message))
+        return holds, f"rule '{self.text}': {why}" if why else ""
 
 
 @dataclass(frozen=True)

@@ -8,13 +8,13 @@ lanes while they are fresh, otherwise, and always for a profile without camera l
 extrapolated from the steering angle) and the MIO
 check: is the lead vehicle the closest valid track inside the ego lane?
 
-Nothing non-finite enters or leaves it: observations with a non-finite position or coefficient,
-and non-finite ego values, are not applied (the observer already keeps them out), and a lane line
-whose points or coefficients overflow (absurd but finite coefficients, a steering angle at the
-tangent's pole) is not drawn, so the scene never gets a non-finite coordinate. An observation
-whose validity rule could not be evaluated is applied as invalid (the object or line is left
-out) and counted per group in :attr:`World.rule_errors` (lane lines under ``lanes``), with the
-latest reason in :attr:`World.last_rule_error`.
+Nothing non-finite enters or leaves it: the observer makes no observation with a non-finite position
+or coefficient and leaves non-finite values out (:mod:`bridge.world.observe`), and a lane line whose
+points or coefficients overflow (absurd but finite coefficients, a steering angle at the tangent's
+pole) is not drawn, so the scene never gets a non-finite coordinate. An observation whose validity
+rule could not be evaluated is applied as invalid (the object or line is left out) and counted per
+group in :attr:`World.rule_errors` (lane lines under ``lanes``), with the latest reason in
+:attr:`World.last_rule_error`.
 """
 
 from __future__ import annotations
@@ -157,8 +157,6 @@ class World:
 
     def apply(self, observation: Observation) -> None:
         if isinstance(observation, ObjectObservation):
-            if not (math.isfinite(observation.x) and math.isfinite(observation.y)):
-                return
             group = self.objects.setdefault(observation.group, {})
             if observation.rule_error:
                 self._rule_error(observation.group, observation.rule_error)
@@ -167,8 +165,6 @@ class World:
             else:
                 group.pop(observation.object_id, None)
         elif isinstance(observation, LaneObservation):
-            if not all(math.isfinite(c) for c in observation.coefficients):
-                return
             if observation.rule_error:
                 self._rule_error("lanes", observation.rule_error)
             if observation.valid:
@@ -178,13 +174,12 @@ class World:
         elif isinstance(observation, EgoObservation):
             ego = self.ego
             ego.t_ns = observation.t_ns
-            if observation.speed is not None and math.isfinite(observation.speed):
+            if observation.speed is not None:
                 ego.speed = observation.speed
-            if observation.yaw_rate is not None and math.isfinite(observation.yaw_rate):
+            if observation.yaw_rate is not None:
                 ego.yaw_rate = observation.yaw_rate
-            angle = observation.steering_wheel_angle
-            if angle is not None and math.isfinite(angle):
-                ego.steering_wheel_angle = angle
+            if observation.steering_wheel_angle is not None:
+                ego.steering_wheel_angle = observation.steering_wheel_angle
 
     def _rule_error(self, group: str, why: str) -> None:
         self.rule_errors[group] += 1

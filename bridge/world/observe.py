@@ -11,8 +11,8 @@ finite coefficients make no observation (the world keeps what it had, until it g
 other field (velocity, probability, class, id, an ego signal) is left out of its observation. The
 decoder counts such values (:mod:`bridge.decode.decoder`).
 
-A validity rule that cannot be evaluated (a division by zero: :meth:`Expression.judge
-<bridge.profile.expr.Expression.judge>`) leaves the object or lane line out, as a rule that does
+A validity rule that cannot be evaluated (a division by zero: :meth:`Rule.judge
+<bridge.profile.model.Rule.judge>`) leaves the object or lane line out, as a rule that does
 not hold does; its observation says why in ``rule_error``, and the world counts it per group
 (:class:`bridge.world.model.World`).
 """
@@ -30,7 +30,6 @@ from bridge.profile.model import (
     ObjectClass,
     ObjectGroup,
     Profile,
-    Rule,
     Sensor,
     SignalRef,
     expand,
@@ -135,20 +134,6 @@ def _read(latest: Mapping[str, Mapping[str, Any]], ref: _Ref | None) -> float | 
     return value if math.isfinite(value) else None
 
 
-def judge(rule: Rule, values: Mapping[str, Any],
-          by_message: Mapping[str, Mapping[str, Any]]) -> tuple[bool, str]:
-    """Whether ``rule`` holds (``values`` by plain name, ``by_message`` for qualified names),
-    and why it could not be evaluated ("" when it could): :meth:`Rule.test` telling errors."""
-    if rule.qualified:
-        values = dict(values)
-        for name, message, signal in rule.qualified:
-            found = by_message.get(message)
-            if found is not None and signal in found:
-                values[name] = found[signal]
-    holds, why = rule.expression.judge(values)
-    return holds, f"rule '{rule.text}': {why}" if why else ""
-
-
 class _Object:
     """One object of a group: where each of its fields is, and its latest messages."""
 
@@ -191,7 +176,7 @@ class _Object:
                 if found is not None and name in found:
                     merged[name] = found[name]
                     break
-        return judge(rule, merged, latest)
+        return rule.judge(merged, latest)
 
 
 class _GroupReader:
@@ -339,7 +324,7 @@ class Observer:
                 continue  # not observed: a non-finite value never reaches the world
             coefficients = (float(c[0] or 0.0), float(c[1] or 0.0), float(c[2] or 0.0),
                             float(c[3] or 0.0))
-            valid, rule_error = (judge(line.valid, values, {message: values})
+            valid, rule_error = (line.valid.judge(values, {message: values})
                                  if line.valid is not None else (True, ""))
             out.append(LaneObservation(line.name, t_ns, coefficients, valid, rule_error))
         refs = self._ego.get(message)
