@@ -160,11 +160,8 @@ class FlakySource:
         return FlakyBus(self)
 
 
-def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
-    source = FlakySource()
-    said: list[str] = []
-    live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
-                drives=tmp_path, open_bus=source.open, say=said.append)
+def unplug_for_a_second(live: Live, source: FlakySource) -> None:
+    """Run live on the flaky source, unplug its adapter for a second, plug it back, stop."""
     runner = threading.Thread(target=live.run)
     runner.start()
     time.sleep(0.5)
@@ -175,6 +172,14 @@ def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Pa
     assert wait_for(lambda: source.sent > before_gap + 300, timeout=10)
     live.stop()
     runner.join(10)
+
+
+def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
+    source = FlakySource()
+    said: list[str] = []
+    live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
+                drives=tmp_path, open_bus=source.open, say=said.append)
+    unplug_for_a_second(live, source)
 
     (drive,) = tmp_path.glob("*.mcap")
     assert frames_recorded(drive) == source.sent  # nothing lost before, during or after
@@ -197,16 +202,7 @@ def test_a_lost_bus_is_noted_in_the_log_time_of_its_frames(tmp_path: Path) -> No
     source = FlakySource(clock_offset_s=-3600.0)
     live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
                 drives=tmp_path, open_bus=source.open, say=lambda text: None)
-    runner = threading.Thread(target=live.run)
-    runner.start()
-    time.sleep(0.5)
-    source.broken.set()
-    time.sleep(1.0)
-    before_gap = source.sent
-    source.broken.clear()
-    assert wait_for(lambda: source.sent > before_gap + 300, timeout=10)
-    live.stop()
-    runner.join(10)
+    unplug_for_a_second(live, source)
 
     (drive,) = tmp_path.glob("*.mcap")
     with drive.open("rb") as f:
