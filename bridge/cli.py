@@ -38,9 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    args.argv = list(argv) if argv is not None else sys.argv[1:]
+    arguments = list(argv) if argv is not None else sys.argv[1:]
+    try:
+        parser = build_parser()  # (reads the TANKVIZ_* settings: one may make no sense)
+    except BridgeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    args = parser.parse_args(arguments)
+    args.argv = arguments
     try:
         code: int = args.run(args)
         return code

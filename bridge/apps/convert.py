@@ -9,24 +9,27 @@ as a warning when the databases are loaded and at the end of the summary, and ke
 metadata (``warnings``).
 
 A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`). Stopped
-by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`Stopped`): no file is left behind, and
-the command says so and exits with 128 + the signal's number.
+by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`~bridge.apps.options.Stopped`): no file
+is left behind, and the command says so and exits with 128 + the signal's number.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from bridge.apps.options import Subparsers, add_stage_options, dbc_option
+from bridge.apps.options import (
+    Stopped,
+    Subparsers,
+    add_stage_options,
+    dbc_option,
+    stopped_by_signals,
+)
 from bridge.apps.progress import ProgressBar
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError
@@ -110,38 +113,6 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
                               scene_rate=scene_rate, progress=progress)
     report.output = output
     return report
-
-
-class Stopped(BaseException):
-    """A signal that ends the conversion; like KeyboardInterrupt, not an error of the input."""
-
-    def __init__(self, signum: int) -> None:
-        self.signum = signum
-        super().__init__(f"stopped by {signal.Signals(signum).name}")
-
-
-#: The signals that stop a command writing a file: a service stopped, the terminal closed.
-STOP_SIGNALS = (signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else []))
-
-
-@contextlib.contextmanager
-def stopped_by_signals(*signums: int) -> Iterator[None]:
-    """Within the block, these signals (default :data:`STOP_SIGNALS`) raise :class:`Stopped`, so
-    the output being written is removed as on Ctrl+C. Only in the main thread."""
-    signums = signums or STOP_SIGNALS
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        raise Stopped(signum)
-
-    previous = {s: signal.signal(s, handler) for s in signums}
-    try:
-        yield
-    finally:
-        for s, old in previous.items():
-            signal.signal(s, old)
 
 
 def add_parser(sub: Subparsers) -> None:

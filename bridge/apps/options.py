@@ -9,14 +9,17 @@ variable and exit status 1.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import signal
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from bridge.decode.decoder import parse_dbc_option
+from bridge.errors import UsageError
 from bridge.pipeline.drive import Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.resources import bundled_database, layouts_dir
@@ -33,9 +36,9 @@ def env(name: str, default: str) -> str:
     return os.environ.get(f"TANKVIZ_{name}", default)
 
 
-def _bad_env(name: str, expected: str) -> SystemExit:
+def _bad_env(name: str, expected: str) -> UsageError:
     """The one-line error for a setting of the environment that makes no sense."""
-    return SystemExit(f"error: TANKVIZ_{name}={os.environ.get(f'TANKVIZ_{name}')!r}: "
+    return UsageError(f"TANKVIZ_{name}={os.environ.get(f'TANKVIZ_{name}')!r}: "
                       f"expected {expected}")
 
 
@@ -139,3 +142,35 @@ def install_stop_signals(stop: Callable[[], None]) -> None:
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
+
+
+class Stopped(BaseException):
+    """A signal that ends the conversion; like KeyboardInterrupt, not an error of the input."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+
+
+#: The signals that stop a command writing a file: a service stopped, the terminal closed.
+STOP_SIGNALS = (signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else []))
+
+
+@contextlib.contextmanager
+def stopped_by_signals(*signums: int) -> Iterator[None]:
+    """Within the block, these signals (default :data:`STOP_SIGNALS`) raise :class:`Stopped`, so
+    the output being written is removed as on Ctrl+C. Only in the main thread."""
+    signums = signums or STOP_SIGNALS
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Stopped(signum)
+
+    previous = {s: signal.signal(s, handler) for s in signums}
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)

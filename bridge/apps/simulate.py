@@ -26,8 +26,7 @@ from pathlib import Path
 
 import can
 
-from bridge.apps.convert import Stopped, stopped_by_signals
-from bridge.apps.options import Subparsers
+from bridge.apps.options import Stopped, Subparsers, stopped_by_signals
 from bridge.errors import OutputError, UsageError
 from bridge.frame import Frame
 from bridge.io.logs import supported_suffixes
