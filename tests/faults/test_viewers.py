@@ -15,6 +15,7 @@ and tests/profiles/bosch_radar.toml).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import json
 import logging
@@ -151,12 +152,9 @@ def publish_until(server: LiveServer, channels: list[int], stop: threading.Event
         time.sleep(0.02)
 
 
-@pytest.mark.parametrize("leaving", ["close", "abort"])
-def test_a_viewer_that_leaves_without_reading_is_released_at_once(leaving: str) -> None:
-    """It subscribed to everything, stopped reading (its buffers filled up) and left: with a
-    closing handshake (``close``: which the server cannot answer behind the megabytes the viewer
-    never read) or by dropping the connection (``abort``). The server forgets it at once: no
-    longer counted, nothing kept wanted for it."""
+@contextlib.contextmanager
+def busy_server() -> Iterator[tuple[LiveServer, list[int]]]:
+    """A live server with two channels kept busy (:func:`publish_until`) while in the block."""
     with LiveServer(port=0, queue_limit=100) as server:
         channels = [server.channel("/scene/radar", SceneUpdate),
                     server.channel("/can/radar/frames", CanFrame)]
@@ -164,10 +162,20 @@ def test_a_viewer_that_leaves_without_reading_is_released_at_once(leaving: str) 
         publisher = threading.Thread(target=publish_until, args=(server, channels, stop))
         publisher.start()
         try:
-            released = asyncio.run(leave_without_reading(server, channels, leaving))
+            yield server, channels
         finally:
             stop.set()
             publisher.join()
+
+
+@pytest.mark.parametrize("leaving", ["close", "abort"])
+def test_a_viewer_that_leaves_without_reading_is_released_at_once(leaving: str) -> None:
+    """It subscribed to everything, stopped reading (its buffers filled up) and left: with a
+    closing handshake (``close``: which the server cannot answer behind the megabytes the viewer
+    never read) or by dropping the connection (``abort``). The server forgets it at once: no
+    longer counted, nothing kept wanted for it."""
+    with busy_server() as (server, channels):
+        released = asyncio.run(leave_without_reading(server, channels, leaving))
     assert released < 2.0 * timeout_scale(), f"released after {released:.1f} s"
 
 
@@ -208,17 +216,8 @@ def test_a_stalled_viewer_that_pings_stays_and_nothing_is_logged(
     """Python's websockets pings every 20 s: the pong to a viewer that has stopped reading used
     to wait for its full socket beside the server's own sender, which websockets does not allow
     ("data transfer failed", a traceback, and the viewer thrown out)."""
-    with LiveServer(port=0, queue_limit=100) as server:
-        channels = [server.channel("/scene/radar", SceneUpdate),
-                    server.channel("/can/radar/frames", CanFrame)]
-        stop = threading.Event()
-        publisher = threading.Thread(target=publish_until, args=(server, channels, stop))
-        publisher.start()
-        try:
-            asyncio.run(ping_without_reading(server, channels))
-        finally:
-            stop.set()
-            publisher.join()
+    with busy_server() as (server, channels):
+        asyncio.run(ping_without_reading(server, channels))
     errors = [r for r in caplog.records if r.levelno >= logging.WARNING]
     assert not errors, [r.getMessage() for r in errors]
 
