@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: The packages of bridge/ in data-path order: each may import those before it.
 DATA_PATH = ("io", "decode", "profile", "world", "scene", "health", "sinks", "pipeline", "view",
-             "sim", "apps")
+             "sim", "fleet", "apps")
 #: Modules at the top of bridge/ that every stage may use; they import no stage.
 SHARED = ("__init__", "errors", "frame", "topics", "resources", "pb")
 
