@@ -90,11 +90,49 @@ VALUES: dict[str, float] = {
     ("max(LatDist, -10)", -3.5),
     ("max(Class, Valid, ProbExist, Status)", 85),
     ("ABS", 99),  # keywords and functions are lower case: ABS is a signal
+    # values computed from several signals (a vehicle profile's mapped fields)
+    ("(LongDist + LatDist) / 2", 58.5),
+    ("if(Class == 0, LongDist, LatDist)", 120.5),
+    ("if(Valid, 1, 1 / 0)", 1),  # only the branch taken is evaluated
+    ("cos(0) + sin(0) + tan(0)", 1.0),
+    ("if(LongDist > 100, tan(0.5), 0)", math.tan(0.5)),
 ])
 def test_rule_examples(rule: str, expected: float) -> None:
     result = parse(rule)({**VALUES, "ABS": 99})
     assert result == expected
     assert type(result) is type(expected)
+
+
+def test_none_is_no_value_as_a_missing_signal_is() -> None:
+    # A distance whose zero means "no object": no value, and no error either.
+    distance = parse("if(Dist == 0, none, Dist)")
+    assert distance.value({"Dist": 42.5}) == 42.5
+    assert distance.value({"Dist": 0}) is None
+    with pytest.raises(KeyError):
+        distance({"Dist": 0})
+    assert distance.test({"Dist": 0}) is False
+    assert distance.judge({"Dist": 0}) == (False, "")
+    assert distance.names == frozenset({"Dist"})
+    assert parse("none").value({}) is None
+
+
+def test_value_is_a_finite_float_or_none_when_it_cannot_be_computed() -> None:
+    mean = parse("(FL + FR + RL + RR) / 4")
+    wheels = {"FL": 10, "FR": 11, "RL": 12, "RR": 13}
+    assert mean.value(wheels) == 11.5
+    assert type(parse("FL").value(wheels)) is float
+    assert parse("FL > 5").value(wheels) == 1.0  # a bool is 1 or 0
+    assert mean.value({"FL": 10, "FR": 11, "RL": 12}) is None  # a signal missing
+    assert parse("FL / (FR - 11)").value(wheels) is None  # division by zero
+    assert parse("FL * 1e308 * 10").value(wheels) is None  # inf
+    assert parse("FL - FL").value({"FL": math.inf}) is None  # NaN
+    assert parse("sin(FL)").value({"FL": math.inf}) is None  # math domain error
+    assert parse("FL").value({"FL": "moving"}) is None  # type: ignore[dict-item]
+
+
+def test_names_know_the_column_they_are_first_read_at() -> None:
+    rule = parse("(Steering.ANGLE + FRACTION) * 0.5 + FRACTION")
+    assert rule.columns == {"Steering.ANGLE": 2, "FRACTION": 19}
 
 
 def test_and_or_stop_as_soon_as_the_answer_is_known() -> None:
@@ -138,6 +176,7 @@ def test_division_by_zero_raises_but_test_is_false() -> None:
     assert rule.test({**VALUES, "Class": 2}) is True
     constant = parse("1 / 0 > 0")  # parses; fails only when evaluated, like any other rule
     assert constant.test({}) is False
+    assert parse("sin(1e999) > 0").test({}) is False  # math domain error: likewise
 
 
 def test_test_is_false_for_values_that_are_not_numbers() -> None:
@@ -187,15 +226,21 @@ def test_test_gives_the_truth_of_numbers() -> None:
     ("Valid == ) && x", "rule 'Valid == ) && x': column 10: expected a value, found ')'"),
     ("Valid == 1 && x = 2", "rule 'Valid == 1 && x = 2': column 12: use 'and' instead of '&&'"),
     # functions
-    ("foo(x)", "rule 'foo(x)': column 1: unknown function 'foo'; known: abs, max, min"),
+    ("foo(x)",
+     "rule 'foo(x)': column 1: unknown function 'foo'; known: abs, cos, if, max, min, sin, tan"),
     ("x > 1 and Radar.abs(x)",
      "rule 'x > 1 and Radar.abs(x)': column 11: unknown function 'Radar.abs'; "
-     "known: abs, max, min"),
+     "known: abs, cos, if, max, min, sin, tan"),
     ("__import__('os')",
-     "rule '__import__('os')': column 1: unknown function '__import__'; known: abs, max, min"),
+     "rule '__import__('os')': column 1: unknown function '__import__'; "
+     "known: abs, cos, if, max, min, sin, tan"),
     ("abs(x, y)", "rule 'abs(x, y)': column 1: abs() takes exactly 1 argument, found 2"),
     ("abs()", "rule 'abs()': column 1: abs() takes exactly 1 argument, found 0"),
     ("1 + min(x)", "rule '1 + min(x)': column 5: min() takes at least 2 arguments, found 1"),
+    ("if(x, 1)", "rule 'if(x, 1)': column 1: if() takes exactly 3 arguments, found 2"),
+    ("tan(x, 1)", "rule 'tan(x, 1)': column 1: tan() takes exactly 1 argument, found 2"),
+    ("x in (1, none)",
+     "rule 'x in (1, none)': column 10: expected a number, true or false, found 'none'"),
     # parentheses
     ("(a < 1",
      "rule '(a < 1': column 7: expected ')' to close the '(' at column 1, found end of rule"),
@@ -435,7 +480,8 @@ def test_random_text_parses_or_raises_an_expression_error(text: str) -> None:
 
 FRAGMENTS = ["a", "Msg.b", "Msg.", "1", "2.5", ".5", "1e3", "1e", "(", ")", ",", "==", "!=", "<",
              "<=", "=", "!", "&&", "|", "+", "-", "*", "/", "and", "or", "not", "in", "true",
-             "false", "abs", "min", "max", "foo", " ", "\n", "é", "'", "#", "AND"]
+             "false", "abs", "min", "max", "if", "none", "tan", "foo", " ", "\n", "é", "'", "#",
+             "AND"]
 
 
 @given(st.lists(st.sampled_from(FRAGMENTS), max_size=80).map("".join))

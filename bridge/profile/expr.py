@@ -1,6 +1,9 @@
-"""Validity rules: a small, safe expression language over the signals of one decoded CAN message.
+"""Validity rules and computed values: a small, safe expression language over the signals of
+decoded CAN messages.
 
-A vehicle profile gives a group of objects a rule such as ``Valid == 1 and ProbExist > 70``;
+A vehicle profile gives a group of objects a rule such as ``Valid == 1 and ProbExist > 70``, and
+may compute a mapped value from several signals, such as ``(Steering.ANGLE + Steering.FRACTION) *
+0.01745329`` or ``if(Dist == 0, none, Dist)``;
 :func:`parse` reads it once (a tokenizer and a recursive-descent parser of our own, never Python's
 ``eval``) and compiles it into nested closures, and the resulting :class:`Expression` is then
 evaluated on every decoded message, a mapping of signal name to number::
@@ -8,6 +11,7 @@ evaluated on every decoded message, a mapping of signal name to number::
     rule = parse("LongDist < 150 and (Class != 0 or ProbExist >= 90)")
     rule.names                                   # frozenset({'LongDist', 'Class', 'ProbExist'})
     rule.test({"LongDist": 80, "Class": 0, "ProbExist": 95})           # True
+    parse("(FL + FR + RL + RR) / 4").value({"FL": 10, "FR": 11, "RL": 12, "RR": 13})   # 11.5
 
 Grammar
 -------
@@ -23,12 +27,13 @@ From the loosest to the tightest binding (``{ }`` repeats, ``[ ]`` is optional):
     sum         = product { ( "+" | "-" ) product }
     product     = unary { ( "*" | "/" ) unary }
     unary       = "-" unary | atom
-    atom        = number | "true" | "false" | name | function "(" rule { "," rule } ")"
-                | "(" rule ")"
+    atom        = number | "true" | "false" | "none" | name
+                | function "(" rule { "," rule } ")" | "(" rule ")"
     literal     = [ "-" ] number | "true" | "false"
-    function    = "abs" | "min" | "max"
+    function    = "abs" | "cos" | "if" | "max" | "min" | "sin" | "tan"
     name        = word [ "." word ]          (a signal, or Message.Signal)
-    word        = [A-Za-z_][A-Za-z0-9_]*     (except the keywords and, or, not, in, true, false)
+    word        = [A-Za-z_][A-Za-z0-9_]*     (except the keywords and, or, not, in, true, false,
+                                              none)
     number      = 12 | 0.5 | .5 | 5. | 1e3 | 2.5E-2
 
 - A name is looked up in the values given at evaluation time, dotted names (``Message.Signal``)
@@ -40,7 +45,13 @@ From the loosest to the tightest binding (``{ }`` repeats, ``[ ]`` is optional):
   numbers; ``x not in (...)`` is its negation; a membership test cannot be part of a chain.
 - ``and``, ``or`` and ``not`` give ``true`` or ``false`` and stop as soon as the answer is known
   (``x != 0 and 10 / x > 2`` never divides by zero). Any other value is true when it is not zero.
-- ``abs(x)`` is the absolute value; ``min(a, b, ...)`` and ``max(a, b, ...)`` take two or more.
+- ``abs(x)`` is the absolute value; ``min(a, b, ...)`` and ``max(a, b, ...)`` take two or more;
+  ``sin(x)``, ``cos(x)`` and ``tan(x)`` take radians (``tan(Angle * 0.01745329)`` for degrees).
+- ``if(condition, then, otherwise)`` is ``then`` where the condition is true (not zero), else
+  ``otherwise``; only the branch taken is evaluated (``if(x != 0, 10 / x, 0)`` never divides by
+  zero).
+- ``none`` is no value: evaluating it is as if a signal were missing (:class:`KeyError`), so
+  ``if(Dist == 0, none, Dist)`` reads a distance whose zero means "no object" as missing.
 - Keywords are lower case; spaces, tabs and line breaks between tokens are ignored.
 - ``&&``, ``||``, ``!`` and ``=`` are errors that name the right word (``and``, ``or``, ``not``,
   ``==``). A rule has at most 1,000 characters and nests at most 50 levels deep (parentheses,
@@ -56,17 +67,23 @@ Evaluation
 ----------
 
 ``rule(values)`` returns the value (a number or a bool) and raises :class:`KeyError` for a name
-missing from ``values`` and :class:`ZeroDivisionError` for a division by zero.
+missing from ``values`` (or ``none``) and :class:`ZeroDivisionError` for a division by zero.
+``rule.value(values)``, for a computed value, returns it as a finite float, or None when it cannot
+be computed: a missing name, ``none``, an arithmetic error, a value that is not a number, or a
+result that is infinite or NaN.
 ``rule.test(values)``, meant for the hot path, returns a bool and never raises for a missing name,
 an arithmetic error or a value that is not a number: such a rule is simply not satisfied.
 ``rule.judge(values)`` tells those apart: ``(holds, why)``, where ``why`` is ``""`` when the rule
 could be evaluated (a missing name counts as not satisfied: the signal has not come yet) and names
 the error when it could not (``"ZeroDivisionError: division by zero"``, a value that is not a
 number); ``holds`` is then False. The world counts such errors (:mod:`bridge.world.observe`).
+``rule.columns`` gives the column (1-based) where each name is first read, for errors that name
+it (a signal that is not in the databases).
 """
 
 from __future__ import annotations
 
+import math
 import operator
 import re
 from collections.abc import Callable, Mapping
@@ -82,7 +99,10 @@ MAX_LENGTH = 1000
 #: The deepest nesting of parentheses, function calls, ``not`` and unary ``-``.
 MAX_DEPTH = 50
 #: The functions a rule may call.
-FUNCTIONS = ("abs", "max", "min")
+FUNCTIONS = ("abs", "cos", "if", "max", "min", "sin", "tan")
+#: How many arguments each function takes: exactly (an int) or at least (a str "2+").
+_ARITY = {"abs": 1, "cos": 1, "sin": 1, "tan": 1, "if": 3, "max": 2, "min": 2}
+_TRIG: dict[str, Callable[[float], float]] = {"cos": math.cos, "sin": math.sin, "tan": math.tan}
 
 Value: TypeAlias = float | bool  # ints are floats to the type checker, and bools are ints
 Values: TypeAlias = Mapping[str, float | int]
@@ -118,6 +138,8 @@ class Expression:
     #: Every signal name the rule reads (to check against a DBC).
     names: frozenset[str]
     _fn: Fn = field(repr=False, compare=False)
+    #: The column (1-based) where each name is first read.
+    columns: Mapping[str, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __call__(self, values: Values) -> Value:
         """The rule's value; :class:`KeyError` for a missing name, ZeroDivisionError, ..."""
@@ -129,6 +151,15 @@ class Expression:
             return bool(self._fn(values))
         except _EVALUATION_ERRORS:
             return False
+
+    def value(self, values: Values) -> float | None:
+        """The value as a finite float; None when it cannot be computed (a missing name,
+        ``none``, an arithmetic error, a value that is not a number, infinity or NaN)."""
+        try:
+            result = float(self._fn(values))
+        except _EVALUATION_ERRORS:
+            return None
+        return result if math.isfinite(result) else None
 
     def judge(self, values: Values) -> tuple[bool, str]:
         """Whether the rule holds, and why it could not be evaluated ("" when it could; a missing
@@ -149,7 +180,7 @@ def parse(text: str) -> Expression:
                               f"this one has {len(text)}")
     parser = _Parser(text)
     tree = parser.rule()
-    return Expression(text, frozenset(parser.names), _as_fn(_compile(tree)))
+    return Expression(text, frozenset(parser.names), _as_fn(_compile(tree)), parser.names)
 
 
 # --- tokens ---------------------------------------------------------------------------------------
@@ -157,7 +188,7 @@ def parse(text: str) -> Expression:
 _NUMBER = re.compile(r"(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NAME_TAIL = re.compile(r"[A-Za-z0-9_.]*")
-_KEYWORDS = frozenset({"and", "or", "not", "in", "true", "false"})
+_KEYWORDS = frozenset({"and", "or", "not", "in", "true", "false", "none"})
 _OPERATORS = ("==", "!=", "<=", ">=", "<", ">", "+", "-", "*", "/", "(", ")", ",")
 _COMPARISONS = frozenset({"==", "!=", "<", "<=", ">", ">="})
 #: Operators of other languages, and what to write instead.
@@ -251,6 +282,11 @@ class _Name:
 
 
 @dataclass(frozen=True, slots=True)
+class _NoValue:
+    """``none``: no value, as a missing signal."""
+
+
+@dataclass(frozen=True, slots=True)
 class _Neg:
     operand: _Node
 
@@ -295,7 +331,8 @@ class _Call:
     args: tuple[_Node, ...]
 
 
-_Node: TypeAlias = _Num | _Name | _Neg | _Not | _Arith | _Compare | _Member | _BoolOp | _Call
+_Node: TypeAlias = (_Num | _Name | _NoValue | _Neg | _Not | _Arith | _Compare | _Member | _BoolOp
+                    | _Call)
 
 
 # --- the parser -----------------------------------------------------------------------------------
@@ -313,7 +350,8 @@ class _Parser:
         self.tokens = _tokenize(text)
         self.pos = 0
         self.depth = 0
-        self.names: set[str] = set()
+        #: name -> the column where it is first read
+        self.names: dict[str, int] = {}
 
     def peek(self, ahead: int = 0) -> _Token:
         return self.tokens[min(self.pos + ahead, len(self.tokens) - 1)]
@@ -452,10 +490,12 @@ class _Parser:
             return _Num(token.value)
         if token.kind in ("true", "false"):
             return _Num(token.kind == "true")
+        if token.kind == "none":
+            return _NoValue()
         if token.kind == "name" and self.peek().kind == "(":
             return self.call(token)
         if token.kind == "name":
-            self.names.add(token.text)
+            self.names.setdefault(token.text, token.column)
             return _Name(token.text)
         if token.kind == "(":
             self.enter(token)
@@ -479,10 +519,12 @@ class _Parser:
             while self.close(opening, comma=True).kind == ",":
                 args.append(self.or_())
         self.depth -= 1
-        if function == "abs" and len(args) != 1:
-            self.fail(name, f"abs() takes exactly 1 argument, found {len(args)}")
-        if function != "abs" and len(args) < 2:
-            self.fail(name, f"{function}() takes at least 2 arguments, found {len(args)}")
+        arity = _ARITY[function]
+        if function in ("min", "max") and len(args) < arity:
+            self.fail(name, f"{function}() takes at least {arity} arguments, found {len(args)}")
+        if function not in ("min", "max") and len(args) != arity:
+            plural = "argument" if arity == 1 else "arguments"
+            self.fail(name, f"{function}() takes exactly {arity} {plural}, found {len(args)}")
         return _Call(function, tuple(args))
 
 
@@ -576,7 +618,8 @@ def _fold(fn: Fn, *parts: _Code) -> _Code:
     if all(isinstance(part, _Const) for part in parts):
         try:
             return _Const(fn({}))
-        except ArithmeticError:  # 1 / 0: left to fail at evaluation, where callers expect it
+        except (ArithmeticError, ValueError):  # 1 / 0, sin(1e999): left to fail at evaluation,
+            # where callers expect it
             pass
     return fn
 
@@ -651,11 +694,17 @@ def _bool_op(node: _BoolOp) -> _Code:
     return _fold(fn, *codes)
 
 
+def _no_value(v: Values) -> Value:
+    raise KeyError("none")
+
+
 def _compile(node: _Node) -> _Code:
     if isinstance(node, _Num):
         return _Const(node.value)
     if isinstance(node, _Name):
         return _Lookup(node.name)
+    if isinstance(node, _NoValue):
+        return _no_value
     if isinstance(node, (_Neg, _Not)):
         code = _compile(node.operand)
         f = _as_fn(code)
@@ -696,6 +745,12 @@ def _compile(node: _Node) -> _Code:
             name = code.name
             return lambda v: abs(v[name])
         return _fold(lambda v: abs(f(v)), code)
+    if node.function in _TRIG:
+        trig, g = _TRIG[node.function], fs[0]
+        return _fold(lambda v: trig(g(v)), codes[0])
+    if node.function == "if":
+        condition, then, otherwise = fs
+        return _fold(lambda v: then(v) if condition(v) else otherwise(v), *codes)
     function: Callable[..., Value] = min if node.function == "min" else max
     if len(fs) == 2:
         a, b = fs

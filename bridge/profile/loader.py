@@ -10,14 +10,25 @@ and checks every key, type, value, message and signal name (against the loaded d
 :func:`read_profile_databases` reads only the databases the profile names (``[profile]
 databases``: files beside the profile, else bundled ones), so that they can be loaded first.
 
+A mapped field is one signal or a value computed from several: a string that is more than one
+name (it has an operator, a space or a parenthesis) or ``{ value = "...", scale = .., offset =
+.. }`` is an expression (:mod:`bridge.profile.expr`), parsed once here and its names resolved as a
+validity rule's are (:meth:`_Loader.resolve`): plain names must be signals of exactly one of the
+group's messages (of the lane line's message), ``Message.Signal`` names one of them; an ego value
+names ``Message.Signal`` of any message.
+
 Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
 value of the wrong type or out of range, a message or signal not in the databases) raises
 :class:`~bridge.profile.model.ProfileError` naming the profile file, the key (for an error in
-one), the bad name and, when some are close, the closest existing names.
+one), the bad name and, when some are close, the closest existing names. A profile drafted by
+``tankviz profile new`` (:mod:`bridge.profile.draft`) that fails while it still has ``# TODO:``
+lines (something it needs that the draft could not find) names the first of them instead:
+``car.toml: line 23: TODO: no lateral position found for objects.radar (signals: …)``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import re
@@ -29,11 +40,13 @@ from typing import Any
 from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
-from bridge.profile.expr import ExpressionError, parse
+from bridge.profile.expr import Expression, ExpressionError, parse
 from bridge.profile.model import (
     _INDEX,
+    Computed,
     EgoSpec,
     FamilyMember,
+    Field,
     LaneLine,
     LaneSpec,
     LeadSpec,
@@ -65,6 +78,9 @@ _ROLES = ("detections", "tracks")
 _TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
+#: A mapped field written as one name ("Signal", "Message.Signal", "Obj{i}_A.X"): no operator, space
+#: or parenthesis. Anything else is an expression.
+_ONE_NAME = re.compile(r"[^\s()+\-*/,<>=!&|]*")
 
 
 def bundled_profile(name: str) -> Path | None:
@@ -91,10 +107,37 @@ def read_profile_databases(path: Path) -> dict[str, tuple[Path, ...]]:
     return _Loader(path, _read_toml(path), []).databases()
 
 
-def load_profile(name_or_path: str | Path, databases: Iterable[Database]) -> Profile:
-    """Load and check a profile against the databases its messages must come from."""
+def load_profile(name_or_path: str | Path, databases: Iterable[Database], *,
+                 own_databases: bool = True) -> Profile:
+    """Load and check a profile against the databases its messages must come from.
+
+    With ``own_databases=False`` its ``[profile] databases`` are set aside (not even checked to
+    exist): the databases come from elsewhere (``--dbc``, or those attached to a recorded drive).
+    """
     path = resolve_profile(name_or_path)
-    return _Loader(path, _read_toml(path), list(databases)).profile()
+    doc = _read_toml(path)
+    if not own_databases and isinstance(doc.get("profile"), dict):
+        doc["profile"].pop("databases", None)
+    try:
+        return _Loader(path, doc, list(databases)).profile()
+    except ProfileError as exc:
+        raise _todo_error(path) or exc from None
+
+
+def _todo_error(path: Path) -> ProfileError | None:
+    """A drafted profile (``tankviz profile new``) that fails to load while ``# TODO:`` lines
+    (what it needs and the draft did not find) are left: the error names the first of them."""
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return None
+    todos = [(n, line.strip().lstrip("#").strip()) for n, line in enumerate(lines, 1)
+             if re.match(r"\s*#\s*TODO:", line)]
+    if not todos:
+        return None
+    (n, text), more = todos[0], [str(m) for m, _ in todos[1:]]
+    return ProfileError(path, f"line {n}", text + (f" (more TODO lines: {', '.join(more)})"
+                                                   if more else ""))
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -115,6 +158,10 @@ def _closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
     """``; closest: …`` naming likely meant names; with ``or_all``, else every name."""
     choices = list(choices)
     matches = difflib.get_close_matches(word, choices, n=3, cutoff=0.75)
+    if not matches:  # WheelSpeedFL for WHEEL_SPEED_FL: the same letters in another case
+        lower = {c.lower(): c for c in choices}
+        matches = [lower[m] for m in difflib.get_close_matches(word.lower(), lower, n=3,
+                                                              cutoff=0.75)]
     if matches:
         return f"; closest: {', '.join(matches)}"
     if or_all and choices:
@@ -129,6 +176,8 @@ class _Loader:
         self.path = path
         self.doc = doc
         self.messages: dict[str, DbcMessage] = {}
+        #: every expression parsed so far, by text
+        self.parsed: dict[str, Expression] = {}
         for db in databases:
             for m in db.messages:
                 self.messages.setdefault(m.name, m)
@@ -211,31 +260,101 @@ class _Loader:
             raise self.fail(f"{key}.valid", f"expected a rule (string), got {_type_name(text)}")
         if index is not None:
             text = expand(text, index)
-        try:
-            expression = parse(text)
-        except ExpressionError as exc:
-            raise self.fail(f"{key}.valid", str(exc)) from None
-        where = ", ".join(m.name for m in messages)
-        qualified = []
-        for name in sorted(expression.names):
+        expression = self.parse(text, f"{key}.valid")
+        reads = self.resolve(expression, f"{key}.valid", messages, rule=True)
+        return Rule(expression, tuple(read for read in reads if "." in read[0]))
+
+    def parse(self, text: str, key: str) -> Expression:
+        """``text`` parsed (once per text: the objects of a family share it)."""
+        expression = self.parsed.get(text)
+        if expression is None:
+            try:
+                expression = self.parsed[text] = parse(text)
+            except ExpressionError as exc:
+                raise self.fail(key, str(exc)) from None
+        return expression
+
+    def resolve(self, expression: Expression, key: str, messages: Sequence[DbcMessage] | None,
+                *, rule: bool = False) -> tuple[tuple[str, str, str], ...]:
+        """(name, message, signal) for every name the expression reads: a plain name must be a
+        signal of exactly one of ``messages``, ``Message.Signal`` name one of them; without
+        ``messages`` (an ego value) every name is ``Message.Signal`` of any message. The errors
+        of a validity rule (``rule``) name what it reads; those of a value, the column."""
+        text = expression.text
+        columns = expression.columns
+        where = ", ".join(m.name for m in messages or ())
+        reads = []
+        names = sorted(expression.names) if rule else sorted(
+            expression.names, key=lambda n: (columns.get(n, 0), n))
+        for name in names:
+
+            def fail(as_rule: str, as_value: str, name: str = name) -> ProfileError:
+                if rule:
+                    return self.fail(key, f"rule {text!r} reads {name!r}, {as_rule}")
+                return self.fail(key, str(ExpressionError(text, columns.get(name, 1), as_value)))
+
             message_name, _, signal_name = name.rpartition(".")
-            candidates = [m for m in messages if m.name == message_name] if message_name else \
-                list(messages)
-            if message_name and not candidates:
-                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, but "
-                                f"{message_name!r} is not one of {where}")
+            if messages is None:
+                if not message_name:
+                    raise fail("", f"write Message.Signal for {name!r}: ego values may come from "
+                               "any message")
+                if message_name not in self.messages:
+                    raise fail("", f"no message {message_name!r} in the databases"
+                               f"{_closest(message_name, self.messages)}")
+                candidates = [self.messages[message_name]]
+            elif message_name:
+                candidates = [m for m in messages if m.name == message_name]
+                if not candidates:
+                    raise fail(f"but {message_name!r} is not one of {where}",
+                               f"message {message_name!r} is not one of {where}"
+                               f"{_closest(message_name, [m.name for m in messages])}")
+            else:
+                candidates = list(messages)
             owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
             if not owners:
-                known = {s.name for m in candidates for s in m.signals}
+                closest = _closest(signal_name, {s.name for m in candidates for s in m.signals})
                 named = message_name or where
-                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is not a "
-                                f"signal of {named}{_closest(signal_name, known)}")
+                raise fail(f"which is not a signal of {named}{closest}",
+                           f"no signal {signal_name!r} in {named}{closest}")
             if len(owners) > 1:
-                raise self.fail(f"{key}.valid", f"rule {text!r} reads {name!r}, which is in "
-                                f"{owners[0].name} and {owners[1].name}: write Message.Signal")
-            if message_name:
-                qualified.append((name, message_name, signal_name))
-        return Rule(expression, tuple(qualified))
+                both = f"{owners[0].name} and {owners[1].name}: write Message.Signal"
+                raise fail(f"which is in {both}", f"signal {signal_name!r} is in {both}")
+            reads.append((name, owners[0].name, signal_name))
+        return tuple(reads)
+
+    def is_computed(self, value: Any, key: str) -> bool:
+        """Whether a mapped field is an expression: ``{ value = ... }``, or a string that is more
+        than one name."""
+        if isinstance(value, dict):
+            if "value" in value and "signal" in value:
+                raise self.fail(key, "give either signal or value, not both")
+            return "value" in value
+        return isinstance(value, str) and _ONE_NAME.fullmatch(value) is None
+
+    def computed(self, value: Any, key: str, messages: Sequence[DbcMessage] | None,
+                 index: int | None = None) -> Computed:
+        """A value computed by an expression: "expr" or {value = "expr", scale =, offset =};
+        ``{i}`` in it replaced by ``index``; its names checked against ``messages`` (any message,
+        as Message.Signal, when None)."""
+        scale, offset = 1.0, 0.0
+        if isinstance(value, dict):
+            spec = self.table(value, key, {"value", "scale", "offset"}, required=["value"])
+            scale = self.number(spec, key, "scale", 1.0)
+            offset = self.number(spec, key, "offset", 0.0)
+            value = spec["value"]
+            key = f"{key}.value"
+            if not isinstance(value, str):
+                raise self.fail(key, f"expected an expression (string), got {_type_name(value)}")
+        assert isinstance(value, str)
+        expression = self.parse(value if index is None else expand(value, index), key)
+        return Computed(expression, self.resolve(expression, key, messages), scale, offset)
+
+    def mapped(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> Field:
+        """A mapped field: one signal (:meth:`signal`) or a value :meth:`computed` by an
+        expression over ``messages``."""
+        if self.is_computed(value, key):
+            return self.computed(value, key, messages)
+        return self.signal(value, key, messages)
 
     def signal(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> SignalRef:
         """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
@@ -454,11 +573,17 @@ class _Loader:
             members[m.name] = FamilyMember(templates[0], None)
             instances[None] = [m]
 
-        def ref(name: str) -> SignalRef | None:
-            """A signal of every object of the family ({i} in names is each object's index)."""
+        def ref(name: str) -> Field | None:
+            """A field of every object of the family ({i} in names is each object's index)."""
             if name not in t:
                 return None
             value = t[name]
+            if self.is_computed(value, f"{key}.{name}"):
+                each = {i: self.computed(value, f"{key}.{name}", messages, i)
+                        for i, messages in instances.items()}
+                first = next(iter(each.values()))
+                return dataclasses.replace(
+                    first, objects={i: c for i, c in each.items() if i is not None})
             text = value.get("signal") if isinstance(value, dict) else value
             found: SignalRef | None = None
             for i, messages in instances.items():
@@ -559,8 +684,8 @@ class _Loader:
             message = self.message(self.string(lt, lk, "message"), f"{lk}.message")
 
             def coefficient(c: str, lt: dict[str, Any] = lt, lk: str = lk,
-                            message: DbcMessage = message) -> SignalRef | None:
-                return self.signal(lt[c], f"{lk}.{c}", [message]) if c in lt else None
+                            message: DbcMessage = message) -> Field | None:
+                return self.mapped(lt[c], f"{lk}.{c}", [message]) if c in lt else None
 
             c0 = coefficient("c0")
             assert c0 is not None
@@ -585,10 +710,12 @@ class _Loader:
     def ego(self, value: Any) -> EgoSpec:
         t = self.table(value, "ego", {"speed", "yaw_rate", "steering_wheel_angle"})
 
-        def ref(name: str) -> SignalRef | None:
+        def ref(name: str) -> Field | None:
             if name not in t:
                 return None
             raw, key = t[name], f"ego.{name}"
+            if self.is_computed(raw, key):
+                return self.computed(raw, key, None)
             text = raw
             if isinstance(raw, dict):
                 text = self.table(raw, key, {"signal", "scale", "offset"},

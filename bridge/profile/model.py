@@ -12,6 +12,14 @@ In an object group, message and signal names are templates: ``{i}``, or ``{i:0Nd
 of one or two digits (zero-padded), stands for the object index. :func:`expand` fills it in and
 :meth:`SignalRef.at` gives the reference of one object. A :class:`SignalRef` converts linearly,
 value·scale + offset, and reads as None when its signal is missing.
+
+A mapped field (an object's position, velocity, probability, class or id; an ego signal; a lane
+coefficient) is a :data:`Field`: one signal (:class:`SignalRef`) or a value computed from several
+(:class:`Computed`: an expression of :mod:`bridge.profile.expr`, compiled once when the profile
+loads, its names resolved to message and signal as a validity rule's are). Both answer the same
+questions, so that the world reads them alike: :meth:`~SignalRef.value` of the latest decoded
+messages (message name -> signal values), a finite float or None; the ``messages`` it reads; and,
+in an object group, :meth:`~SignalRef.at` an object index.
 """
 
 from __future__ import annotations
@@ -128,11 +136,106 @@ class SignalRef:
         return SignalRef(expand(self.message, index), expand(self.signal, index), self.scale,
                          self.offset)
 
+    @property
+    def messages(self) -> tuple[str, ...]:
+        return (self.message,)
+
+    @property
+    def signals(self) -> tuple[tuple[str, str], ...]:
+        """(message, signal) of every signal the field reads: this one."""
+        return ((self.message, self.signal),)
+
+    @property
+    def label(self) -> str:
+        """``Message.Signal``, for people."""
+        return f"{self.message}.{self.signal}"
+
     def read(self, values: Mapping[str, Any]) -> float | None:
         raw = values.get(self.signal)
         if raw is None:
             return None
         return float(raw) * self.scale + self.offset
+
+    def value(self, latest: Mapping[str, Mapping[str, Any]]) -> float | None:
+        """The value from the latest messages (by name); None when missing or not finite."""
+        found = latest.get(self.message)
+        if found is None:
+            return None
+        raw = found.get(self.signal)
+        if raw is None:
+            return None
+        value = float(raw) * self.scale + self.offset
+        return value if math.isfinite(value) else None
+
+
+@dataclass(frozen=True)
+class Computed:
+    """A value computed from several signals: an expression, then value·scale + offset.
+
+    ``reads`` resolves every name the expression reads to its message and signal (plain names
+    and ``Message.Signal`` alike, checked when the profile loads). In an object group, the value
+    is that of the first object, and ``objects`` holds each object's own (``{i}`` filled in).
+    """
+
+    expression: Expression
+    #: (name in the expression, message, signal) for every name it reads
+    reads: tuple[tuple[str, str, str], ...]
+    scale: float = 1.0
+    offset: float = 0.0
+    #: in an object group: each object's value, by index
+    objects: Mapping[int, Computed] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def text(self) -> str:
+        return self.expression.text
+
+    @cached_property
+    def messages(self) -> tuple[str, ...]:
+        """Every message the value reads, in the order of their first name in the expression."""
+        columns = self.expression.columns
+        ordered = sorted(self.reads, key=lambda read: columns.get(read[0], 0))
+        return tuple(dict.fromkeys(message for _, message, _ in ordered))
+
+    @property
+    def message(self) -> str:
+        """The first message the value reads."""
+        return self.messages[0] if self.messages else ""
+
+    @property
+    def signals(self) -> tuple[tuple[str, str], ...]:
+        """(message, signal) of every signal the value reads."""
+        return tuple(dict.fromkeys((message, signal) for _, message, signal in self.reads))
+
+    @property
+    def label(self) -> str:
+        """The expression as written, for people."""
+        return self.text
+
+    def at(self, index: int | None) -> Computed:
+        """The value of object ``index`` of a family."""
+        if index is None:
+            return self
+        return self.objects.get(index, self)
+
+    def value(self, latest: Mapping[str, Mapping[str, Any]]) -> float | None:
+        """The value from the latest messages (by name); None when it cannot be computed (a
+        signal missing, ``none``, division by zero) or is not finite."""
+        values: dict[str, Any] = {}
+        for name, message, signal in self.reads:
+            found = latest.get(message)
+            if found is not None:
+                raw = found.get(signal)
+                if raw is not None:
+                    values[name] = raw
+        result = self.expression.value(values)
+        if result is None:
+            return None
+        result = result * self.scale + self.offset
+        return result if math.isfinite(result) else None
+
+
+#: A mapped field: one signal, or a value computed from several.
+Field = SignalRef | Computed
 
 
 @dataclass(frozen=True)
@@ -201,16 +304,16 @@ class ObjectGroup:
     templates: tuple[str, ...]
     #: Message name -> (template position, object index); built from the templates.
     members: Mapping[str, FamilyMember]
-    x: SignalRef | None
-    y: SignalRef | None
-    range: SignalRef | None
-    azimuth: SignalRef | None
-    vx: SignalRef | None = None
-    vy: SignalRef | None = None
-    probability: SignalRef | None = None
-    class_signal: SignalRef | None = None
+    x: Field | None
+    y: Field | None
+    range: Field | None
+    azimuth: Field | None
+    vx: Field | None = None
+    vy: Field | None = None
+    probability: Field | None = None
+    class_signal: Field | None = None
     classes: Mapping[int, ObjectClass] = field(default_factory=dict)
-    id: SignalRef | None = None
+    id: Field | None = None
     #: the validity rule of each object (index); empty: every object is valid
     valid: Mapping[int | None, Rule] = field(default_factory=dict)
     lifetime_s: float = 0.1
@@ -241,10 +344,10 @@ class LaneLine:
 
     name: str
     message: str
-    c0: SignalRef
-    c1: SignalRef | None
-    c2: SignalRef | None
-    c3: SignalRef | None
+    c0: Field
+    c1: Field | None
+    c2: Field | None
+    c3: Field | None
     valid: Rule | None = None
 
 
@@ -267,9 +370,9 @@ class LaneSpec:
 class EgoSpec:
     """Ego signals, converted to m/s, rad/s and the steering wheel angle in radians (left +)."""
 
-    speed: SignalRef | None = None
-    yaw_rate: SignalRef | None = None
-    steering_wheel_angle: SignalRef | None = None
+    speed: Field | None = None
+    yaw_rate: Field | None = None
+    steering_wheel_angle: Field | None = None
 
 
 @dataclass(frozen=True)
@@ -323,5 +426,5 @@ class Profile:
             names |= {line.message for line in self.lanes.lines.values()}
         for ref in (self.ego.speed, self.ego.yaw_rate, self.ego.steering_wheel_angle):
             if ref is not None:
-                names.add(ref.message)
+                names.update(ref.messages)
         return names

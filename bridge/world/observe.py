@@ -5,6 +5,13 @@ means (an object of a group, a lane line, the lead vehicle, ego motion) and conv
 from the sensor's conventions (polar or cartesian, lateral sign, units, mounting pose) into the
 one vehicle frame: x forward, y left, z up.
 
+Every mapped field is read through one interface, whether it is one signal or a value computed
+from several (:data:`bridge.profile.model.Field`): its value from the latest messages. An object's
+fields read its family's latest messages; a lane coefficient its line's message; an ego value the
+latest of the messages it reads, observed whenever one of them comes (a value whose messages have
+not all come yet is left out, as a missing signal is). A computed value that reads as missing
+(``none``, e.g. a distance whose zero means "no object") leaves the object out, and is no error.
+
 A value that is not finite (+inf, -inf or NaN from an IEEE float signal, or a conversion that
 overflows) never reaches the world: an object without a finite position, a lane line without
 finite coefficients make no observation (the world keeps what it had, until it goes stale); any
@@ -26,12 +33,12 @@ from typing import Any
 
 from bridge.profile.model import (
     FamilyMember,
+    Field,
     LaneLine,
     ObjectClass,
     ObjectGroup,
     Profile,
     Sensor,
-    SignalRef,
     expand,
 )
 
@@ -111,7 +118,6 @@ Observation = ObjectObservation | LaneObservation | EgoObservation
 LEAD_GROUP = "lead"
 
 
-_Ref = tuple[str, str, float, float]  # message, signal, scale, offset
 #: Object ids are uint32 on /perception.
 _ID_LIMIT = 1 << 32
 
@@ -120,18 +126,9 @@ def _finite(value: float | None) -> float | None:
     return value if value is not None and math.isfinite(value) else None
 
 
-def _read(latest: Mapping[str, Mapping[str, Any]], ref: _Ref | None) -> float | None:
+def _read(latest: Mapping[str, Mapping[str, Any]], ref: Field | None) -> float | None:
     """A field's value from the latest messages of an object, or None (also when not finite)."""
-    if ref is None:
-        return None
-    found = latest.get(ref[0])
-    if found is None:
-        return None
-    raw = found.get(ref[1])
-    if raw is None:
-        return None
-    value = float(raw) * ref[2] + ref[3]
-    return value if math.isfinite(value) else None
+    return ref.value(latest) if ref is not None else None
 
 
 class _Object:
@@ -141,11 +138,8 @@ class _Object:
                  "range", "rule", "rule_sources", "vx", "vy", "x", "y")
 
     def __init__(self, group: ObjectGroup, index: int | None) -> None:
-        def ref(found: SignalRef | None) -> _Ref | None:
-            if found is None:
-                return None
-            found = found.at(index)
-            return found.message, found.signal, found.scale, found.offset
+        def ref(found: Field | None) -> Field | None:
+            return found.at(index) if found is not None else None
 
         self.x, self.y = ref(group.x), ref(group.y)
         self.range, self.azimuth = ref(group.range), ref(group.azimuth)
@@ -268,11 +262,15 @@ class Observer:
         if profile.lanes is not None:
             for line in profile.lanes.lines.values():
                 self._lanes.setdefault(line.message, []).append(line)
-        self._ego: dict[str, list[tuple[str, SignalRef]]] = {}
+        #: the ego values each message is read by
+        self._ego: dict[str, list[tuple[str, Field]]] = {}
         for field_name in ("speed", "yaw_rate", "steering_wheel_angle"):
             ref = getattr(profile.ego, field_name)
             if ref is not None:
-                self._ego.setdefault(ref.message, []).append((field_name, ref))
+                for name in ref.messages:
+                    self._ego.setdefault(name, []).append((field_name, ref))
+        #: the latest values of each message an ego value reads
+        self._ego_latest: dict[str, Mapping[str, Any]] = {}
         #: every message name this observer uses, to skip the rest cheaply
         self.messages = frozenset(self._objects) | frozenset(self._lanes) | frozenset(self._ego)
 
@@ -317,8 +315,10 @@ class Observer:
 
     def _observe_lanes_and_ego(self, message: str, values: Mapping[str, Any], t_ns: int,
                                out: list[Observation]) -> None:
-        for line in self._lanes.get(message, ()):
-            c = [ref.read(values) if ref is not None else 0.0
+        lines = self._lanes.get(message, ())
+        latest = {message: values} if lines else {}
+        for line in lines:
+            c = [ref.value(latest) if ref is not None else 0.0
                  for ref in (line.c0, line.c1, line.c2, line.c3)]
             if any(v is None or not math.isfinite(v) for v in c):
                 continue  # not observed: a non-finite value never reaches the world
@@ -329,6 +329,8 @@ class Observer:
             out.append(LaneObservation(line.name, t_ns, coefficients, valid, rule_error))
         refs = self._ego.get(message)
         if refs:
-            found = {name: _finite(ref.read(values)) for name, ref in refs}
+            ego_latest = self._ego_latest
+            ego_latest[message] = values
+            found = {name: ref.value(ego_latest) for name, ref in refs}
             out.append(EgoObservation(t_ns, found.get("speed"), found.get("yaw_rate"),
                                       found.get("steering_wheel_angle")))
