@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from bridge.errors import BridgeError
+from bridge.pipeline.drive import load_stages
 from bridge.profile.loader import load_profile, read_profile_databases
 from bridge.profile.model import (
     FamilyMember,
@@ -210,6 +211,17 @@ def test_a_profile_names_its_databases_without_loading_them(car: Path) -> None:
     car.write_text('[profile]\ndatabases = { radar = "mine.dbc", "*" = ["ecocar.dbc"] }\n')
     assert read_profile_databases(car) == {"radar": (Path("mine.dbc"),),
                                            "*": (data_dir() / "ecocar.dbc",)}
+
+
+def test_databases_given_elsewhere_set_the_profiles_own_aside(car: Path) -> None:
+    # a profile copied from another machine names a database that is not here; --dbc gives it
+    Path("radar.dbc").write_text((data_dir() / "ecocar.dbc").read_text())
+    car.write_text('[profile]\nname = "moved"\ndatabases = ["/nowhere/radar.dbc"]\n')
+    with pytest.raises(BridgeError, match=r"car.toml: profile.databases: no database file"):
+        load_stages([], car)
+    decoder, profile = load_stages(["radar.dbc"], car)
+    assert profile is not None and profile.name == "moved" and profile.databases == {}
+    assert [f.path for f in decoder.files] == [Path("radar.dbc")]
 
 
 def test_everything_but_the_names_is_optional(load: Callable[[str], Profile]) -> None:

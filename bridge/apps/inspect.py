@@ -1,5 +1,10 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
+Besides times, topics, attachments and the decode statistics it prints what the ``tankviz``
+metadata record says of the drive: inputs, databases, clock steps, recording gaps, warnings, the
+alarms raised and cleared, and each sensor's lateral sign verdict (``ok``, ``flipped`` or
+``unknown``, one line per sensor: :mod:`bridge.world.lateral`).
+
 A file that is missing, unreadable, a folder or not MCAP is an :class:`~bridge.errors.InputError`
 naming it (one line).
 """
@@ -174,6 +179,10 @@ def format_summary(path: str, s: DriveSummary) -> str:
                   for a in alarms[:50]]
         if len(alarms) > 50:
             lines.append(f"  … {len(alarms) - 50} more in the metadata")
+        lateral = _json(ours.get("lateral_sign", "[]"))
+        if lateral:  # each sensor's verdict: bridge.world.lateral
+            lines += ["", "lateral sign (stationary objects against the turn):"]
+            lines += [f"  {v['verdict']:<7}  {v['message']}" for v in lateral]
         issues = _json(ours.get("input_issues", "{}"))
         if issues.get("count"):
             lines += ["", f"skipped in the inputs ({issues['count']}):"]

@@ -55,6 +55,10 @@ time held with the clock at once. It returns ``/health`` (:data:`~bridge.topics.
 raised or cleared. A non-finite value of a signal and a validity rule that cannot be evaluated
 are warned about on ``/log`` too: the first time, then at most every ``_REPORT_S`` seconds of log
 time while they go on, with the count so far. A ``blind`` alarm of a group whose rule fails says so.
+A sensor whose stationary objects sweep with the ego's turn instead of against it (its profile's
+lateral sign looks wrong: :mod:`bridge.world.lateral`, fed at each scene tick) is warned about on
+``/log`` once, naming the fix; :meth:`HealthMonitor.lateral_sign_records` gives every sensor's
+verdict for the drive's metadata.
 
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations
 and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonitor.on_world`).
@@ -79,6 +83,7 @@ from bridge.health.wire import frame_bits
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile, Sensor
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
+from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import LEAD_GROUP, ObjectObservation
 
@@ -256,6 +261,11 @@ class HealthMonitor:
         self.events: list[tuple[str, str, int, str]] = []
         #: conditions told from outside (:meth:`hold`): alarm id -> why
         self._held: dict[str, str] = {}
+        #: the lateral sign check of the sensors with object groups (:mod:`bridge.world.lateral`)
+        self.lateral = (LateralSignCheck(profile) if profile is not None and profile.groups
+                        else None)
+        #: sensors whose "flipped" verdict was said on /log
+        self._lateral_said: set[str] = set()
 
     # --- set-up --------------------------------------------------------------------------
 
@@ -394,6 +404,8 @@ class HealthMonitor:
         sees what in whose field of view, radar-camera offsets, camera lanes. Without ``lanes``
         the camera lanes are judged like :meth:`World.lane_model` does (fresh left and right)."""
         self._world_ns = t_ns
+        if self.lateral is not None:
+            self.lateral.update(t_ns, world)
         objects = world.objects
         for family in self.families:
             if family.group is not None:
@@ -520,6 +532,7 @@ class HealthMonitor:
         for alarm, event in events:
             out.append(TopicMessage(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
         out += self._value_warnings(t_ns)
+        out += self._lateral_warnings(t_ns)
         if self._next_publish_ns is None or t_ns >= self._next_publish_ns:
             self._next_publish_ns = (t_ns // self.publish_ns + 1) * self.publish_ns
             out.append(TopicMessage(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
@@ -534,6 +547,25 @@ class HealthMonitor:
         if alarm_id not in self._alarms:
             self._alarms[alarm_id] = Alarm(alarm_id, kind, subject, (), 0, 0)
         self._held[alarm_id] = why
+
+    def _lateral_warnings(self, t_ns: int) -> list[TopicMessage]:
+        """A ``/log`` warning, once per sensor, when its lateral sign looks flipped."""
+        if self.lateral is None:
+            return []
+        out = []
+        for verdict in self.lateral.verdicts():
+            if verdict.verdict == "flipped" and verdict.sensor not in self._lateral_said:
+                self._lateral_said.add(verdict.sensor)
+                out.append(TopicMessage(LOG_TOPIC, Log(
+                    timestamp=timestamp(t_ns), level=Log.WARNING,
+                    message=f"lateral sign of {verdict.message}", name="tankviz.health"), t_ns))
+        return out
+
+    def lateral_sign_records(self) -> list[dict[str, Any]]:
+        """Each sensor's lateral sign verdict so far, for a drive's metadata (``tankviz
+        inspect``)."""
+        return ([v.to_dict() for v in self.lateral.verdicts()] if self.lateral is not None
+                else [])
 
     def event_records(self) -> list[dict[str, Any]]:
         """Every alarm raised or cleared so far, for a drive's metadata (``tankviz inspect``)."""

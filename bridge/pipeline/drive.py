@@ -14,7 +14,8 @@ layout checks collect what a profile produces. None of them wires stages by hand
   every database and the profile as attachments, and the ``tankviz`` metadata record (version,
   profile, databases with their SHA-256, bus → database map, the decoder's warnings
   (``warnings``: what silences a message), decode statistics (with a profile,
-  also the validity rules that could not be evaluated, per group), the alarms raised, the clock
+  also the validity rules that could not be evaluated, per group), the alarms raised, each
+  sensor's lateral sign verdict (``lateral_sign``: :mod:`bridge.world.lateral`), the clock
   steps (``clock_steps``: from and to which log time the frame stamps jumped), and what the
   command adds in :attr:`Drive.extra`). A file sink made with :meth:`Drive.record`
   or :meth:`Drive.record_parts` gets the attachments when it starts (each part of a drive: a file
@@ -64,15 +65,18 @@ def build_decoder(dbc_options: Sequence[str]) -> Decoder:
 
 
 def load_stages(dbc_options: Sequence[str], profile: str | Path | None) -> Stages:
-    """The decoder and the profile; without --dbc options the profile's own databases are used."""
+    """The decoder and the profile; without --dbc options the profile's own databases are used
+    (with them, the profile's ``databases`` are set aside: they need not exist here)."""
     if profile is None:
         return Stages(build_decoder(dbc_options), None)
     path = resolve_profile(profile)
-    if not dbc_options:
+    given = bool(dbc_options)
+    if not given:
         dbc_options = [str(p) if bus == "*" else f"{bus}={p}"
                        for bus, paths in read_profile_databases(path).items() for p in paths]
     decoder = build_decoder(dbc_options)
-    return Stages(decoder, load_profile(path, [f.db for f in decoder.files]))
+    return Stages(decoder, load_profile(path, [f.db for f in decoder.files],
+                                        own_databases=not given))
 
 
 def new_health_monitor(decoder: Decoder, profile: Profile | None,
@@ -117,9 +121,11 @@ class Drive:
         self.pipeline.add_sink(sink)
         return sink
 
-    def record(self, output: IO[bytes]) -> Recorder:
-        """Record the drive into the open binary ``output``, described when it is finished."""
-        recorder = Recorder(output, describe=self.describe, attach=self.attach)
+    def record(self, output: IO[bytes], *, attachment_time_ns: int | None = None) -> Recorder:
+        """Record the drive into the open binary ``output``, described when it is finished
+        (``attachment_time_ns``: a fixed create time of the attachments, for the same bytes)."""
+        recorder = Recorder(output, describe=self.describe, attach=self.attach,
+                            attachment_time_ns=attachment_time_ns)
         self.add(recorder)
         return recorder
 
@@ -195,6 +201,7 @@ class Drive:
             "warnings": decoder.warnings(),
             **self.extra,
             "alarms": self.health.event_records(),
+            "lateral_sign": self.health.lateral_sign_records(),
             "clock_steps": [step.to_dict() for step in self.pipeline.steps],
             **(part or {}),
         })
