@@ -8,6 +8,17 @@ a message (a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input
 as a warning when the databases are loaded and at the end of the summary, and kept in the
 metadata (``warnings``).
 
+Re-deriving a drive: an input ending in ``.mcap`` is a drive tankviz recorded
+(:mod:`bridge.io.drives`): its raw frames (``/can/<bus>/frames``, in the order recorded) go through
+the whole pipeline again (:class:`~bridge.pipeline.drive.Drive`): new decode, new scene, new
+health. Without ``--dbc`` the drive's attached databases decode it, on the buses its metadata
+records (every bus for a drive cut short before its metadata); without ``--profile`` its attached
+profile says what the signals mean (a profile given without ``--dbc`` is checked against the
+attached databases, whatever its ``databases`` say). The new ``tankviz`` metadata keeps the
+drive's own under ``source`` (with its file name, size and SHA-256) and its ``created``, and the
+attachments carry a fixed time: the same drive with the same databases and profile gives the same
+bytes. One drive at a time, without logs beside it.
+
 A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`). Stopped
 by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`~bridge.apps.options.Stopped`): no file
 is left behind, and the command says so and exits with 128 + the signal's number.
@@ -17,8 +28,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -32,10 +44,17 @@ from bridge.apps.options import (
 )
 from bridge.apps.progress import ProgressBar
 from bridge.decode.decoder import Decoder
-from bridge.errors import BridgeError
+from bridge.errors import BridgeError, InputError
+from bridge.io.drives import DriveSource, is_drive, read_drive
 from bridge.io.logs import LogSource, SourceIssue, merge
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline.rederive import (
+    describe_rederive,
+    recorded_scene_rate,
+    rederive_stages,
+    source_record,
+)
 from bridge.profile.model import Profile
 from bridge.resources import data_dir
 from bridge.sinks.mcap import atomic_output, check_output
@@ -45,6 +64,9 @@ MAX_ISSUES_RECORDED = 1000
 
 Progress = Callable[[int, float | None], None]
 """Called now and then with (frames so far, fraction of the input read or None)."""
+
+#: Where frames come from: CAN logs, or a recorded drive's raw frames.
+Source = LogSource | DriveSource
 
 
 @dataclass
@@ -59,18 +81,23 @@ class ConvertReport:
     issues: list[SourceIssue] = field(default_factory=list)
     #: what silenced messages (:meth:`bridge.decode.decoder.Decoder.warnings`), also in the metadata
     warnings: list[str] = field(default_factory=list)
+    #: a re-derived drive: what it was re-derived from and with
+    rederived: str = ""
 
 
-def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[bytes], *,
+def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes], *,
                  profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
-                 progress: Progress | None = None, every: int = 16384) -> ConvertReport:
+                 progress: Progress | None = None, every: int = 16384,
+                 extra: Mapping[str, Any] | None = None,
+                 attachment_time_ns: int | None = None) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
+    ``extra`` goes into the metadata record; ``attachment_time_ns`` fixes the attachments' time.
     """
     started = time.perf_counter()
-    drive = Drive(Stages(decoder, profile), scene_rate=scene_rate)
-    recorder = drive.record(output)
+    drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra)
+    recorder = drive.record(output, attachment_time_ns=attachment_time_ns)
     total_bytes = sum(s.progress()[1] for s in sources)
 
     def report_progress(frames: int) -> None:
@@ -95,12 +122,19 @@ def record_drive(sources: Sequence[LogSource], decoder: Decoder, output: IO[byte
 
 
 def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
-            profile: str | Path | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
+            profile: str | Path | None = None, scene_rate: float | None = None,
             force: bool = False, strict: bool = False,
             progress: Progress | None = None,
             warn: Callable[[str], None] | None = None) -> ConvertReport:
     """Convert log files into ``output``; everything is checked before the output is touched.
     ``warn`` is told the databases' warnings as soon as they are loaded."""
+    drives = [Path(p) for p in inputs if is_drive(p)]
+    if drives:
+        if len(inputs) > 1:
+            raise InputError(drives[0], "re-derive one drive at a time, without logs beside it "
+                             f"({len(inputs)} inputs given)")
+        return rederive(drives[0], output, dbc_options, profile=profile, scene_rate=scene_rate,
+                        force=force, strict=strict, progress=progress, warn=warn)
     output = Path(output)
     check_output(output, force=force)
     decoder, loaded_profile = load_stages(dbc_options, profile)
@@ -110,8 +144,33 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
     with atomic_output(output) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
-                              scene_rate=scene_rate, progress=progress)
+                              scene_rate=scene_rate or DEFAULT_SCENE_RATE, progress=progress)
     report.output = output
+    return report
+
+
+def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[str], *,
+             profile: str | Path | None = None, scene_rate: float | None = None,
+             force: bool = False, strict: bool = False, progress: Progress | None = None,
+             warn: Callable[[str], None] | None = None) -> ConvertReport:
+    """Run the raw frames of a recorded drive through the whole pipeline again, into ``output``
+    (see the module's description), at ``scene_rate``, else the drive's own."""
+    output = Path(output)
+    check_output(output, force=force)
+    drive = read_drive(drive_path)
+    with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
+        stages = rederive_stages(drive, dbc_options, profile, Path(folder))
+        if warn is not None:
+            for text in stages.decoder.warnings():
+                warn(text)
+        sources = [DriveSource(drive.path, strict=strict)]
+        rate = scene_rate if scene_rate is not None else recorded_scene_rate(drive)
+        with atomic_output(output) as stream:
+            report = record_drive(sources, stages.decoder, stream, profile=stages.profile,
+                                  scene_rate=rate, progress=progress,
+                                  extra=source_record(drive), attachment_time_ns=0)
+    report.output = output
+    report.rederived = describe_rederive(drive, stages, dbc_options, profile)
     return report
 
 
@@ -120,9 +179,12 @@ def add_parser(sub: Subparsers) -> None:
         "convert", help="convert CAN logs into one decoded MCAP drive archive",
         description="Convert CAN logs (any format python-can reads: .asc .blf .log .trc .csv "
         ".db, their .gz, .mf4 with tankviz[mf4]) into one MCAP with every raw frame, every "
-        "decoded message, the statistics and the databases attached.")
+        "decoded message, the statistics and the databases attached. Given a drive (.mcap) "
+        "tankviz recorded, re-derive it: its raw frames through the pipeline again, with its "
+        "attached databases and profile unless --dbc or --profile give new ones.")
     parser.add_argument("inputs", nargs="*", type=Path, metavar="INPUT",
-                        help="log files; several are merged in time order")
+                        help="log files; several are merged in time order; or one recorded "
+                        "drive (.mcap) to re-derive")
     parser.add_argument("-o", "--output", type=Path, required=True, help="the MCAP to write")
     add_stage_options(parser, profile_default=None)
     parser.add_argument("--sample", action="store_true",
@@ -144,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         profile = profile or "ecocar"
     if not inputs:
         raise BridgeError("convert: name at least one input log (or --sample)")
-    if not dbcs and profile is None:
+    if not dbcs and profile is None and not any(is_drive(p) for p in inputs):
         print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
@@ -169,15 +231,16 @@ def format_report(report: ConvertReport) -> str:
     """What a conversion wrote, decoded and skipped, for people."""
     stats = report.statistics
     rate = report.frames / report.seconds if report.seconds else 0.0
-    lines = [f"wrote {report.output}: {report.frames:,} frames, {report.messages:,} messages "
-             f"in {report.seconds:.1f} s ({rate:,.0f} frames/s)",
-             f"  decoded {sum(stats['decoded'].values()):,}, "
-             f"unknown ids {sum(stats['unknown_ids'].values()):,}, "
-             f"decode errors {sum(stats['decode_errors'].values()):,}, "
-             f"short frames {sum(stats['truncated'].values()):,}, "
-             f"longer than their message "
-             f"{sum(v['frames'] for v in stats.get('longer', {}).values()):,}, "
-             f"error frames {sum(stats['error_frames'].values()):,}"]
+    lines = [report.rederived] if report.rederived else []
+    lines += [f"wrote {report.output}: {report.frames:,} frames, {report.messages:,} messages "
+              f"in {report.seconds:.1f} s ({rate:,.0f} frames/s)",
+              f"  decoded {sum(stats['decoded'].values()):,}, "
+              f"unknown ids {sum(stats['unknown_ids'].values()):,}, "
+              f"decode errors {sum(stats['decode_errors'].values()):,}, "
+              f"short frames {sum(stats['truncated'].values()):,}, "
+              f"longer than their message "
+              f"{sum(v['frames'] for v in stats.get('longer', {}).values()):,}, "
+              f"error frames {sum(stats['error_frames'].values()):,}"]
     for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors"),
                        ("non_finite", "non-finite values (kept out of the scene)"),
                        ("rule_errors", "rule errors (objects left out)")):

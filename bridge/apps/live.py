@@ -281,7 +281,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
         raise UsageError(f"--min-free {args.min_free:g}: must be 0 or more (MB)")
     server = None if args.no_server else options.start_server(args)
     try:
-        live = Live(buses, stages, scene_rate=args.scene_rate,
+        live = Live(buses, stages, scene_rate=options.scene_rate(args),
                     drives=None if args.no_record else args.drives, server=server,
                     split_size=(round(args.split_size * 1e6) if args.split_size else None),
                     split_duration_s=args.split_duration,

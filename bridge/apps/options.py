@@ -81,9 +81,14 @@ def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str |
                         "scene and perception topics; a bundled name such as 'ecocar' works too; "
                         "without --dbc the profile's own databases are used"
                         + (f" (default {profile_default})" if profile_default else ""))
-    parser.add_argument("--scene-rate", type=float, default=DEFAULT_SCENE_RATE, metavar="HZ",
+    parser.add_argument("--scene-rate", type=float, metavar="HZ",
                         help=f"scene updates per second of log time (default "
-                        f"{DEFAULT_SCENE_RATE:g}, at most 50)")
+                        f"{DEFAULT_SCENE_RATE:g}, or a re-derived drive's own; at most 50)")
+
+
+def scene_rate(args: argparse.Namespace) -> float:
+    """``--scene-rate``, else the default."""
+    return DEFAULT_SCENE_RATE if args.scene_rate is None else float(args.scene_rate)
 
 
 def stages(args: argparse.Namespace) -> Stages:

@@ -1,16 +1,21 @@
 """``tankviz replay``: a recorded drive (MCAP) or any CAN log, served live in real time.
 
 An MCAP is served as recorded: every channel with its schema, every message at its log time. A
-CAN log goes through the pipeline (decode, profile, scene) as if it came from the bus. Either way
-the server publishes its time (the protocol's ``time`` capability), so viewers follow log time.
+CAN log goes through the pipeline (decode, profile, scene) as if it came from the bus. A drive
+(MCAP) given with ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live: its raw frames
+(:class:`~bridge.io.drives.DriveSource`) go through the pipeline as a log's do, decoded with the
+given databases and profile or else the attached ones (as ``tankviz convert DRIVE.mcap`` does,
+:func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
+protocol's ``time`` capability), so viewers follow log time.
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +23,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from bridge.apps import options
+from bridge.apps.convert import Source
 from bridge.apps.options import (
     Subparsers,
     add_run_for,
@@ -27,9 +33,11 @@ from bridge.apps.options import (
 )
 from bridge.errors import InputError, UsageError
 from bridge.frame import NS
+from bridge.io.drives import DriveSource, read_drive
 from bridge.io.logs import LogSource, merge
 from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
 from bridge.sinks.websocket import LiveServer
 
 #: Server time is published at least this often (ns of log time).
@@ -130,11 +138,28 @@ def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,
                speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
                stopping: threading.Event | None = None) -> ReplayReport:
     """Run CAN logs through the pipeline in real time and serve what it makes."""
+    return _replay_frames(lambda: [LogSource(p) for p in paths], stages, server,
+                          scene_rate=scene_rate, speed=speed, loop=loop, start_s=start_s,
+                          stopping=stopping)
+
+
+def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
+                 scene_rate: float = DEFAULT_SCENE_RATE,
+                 speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
+                 stopping: threading.Event | None = None) -> ReplayReport:
+    """Re-derive a recorded drive live: its raw frames through the pipeline in real time."""
+    return _replay_frames(lambda: [DriveSource(path)], stages, server, scene_rate=scene_rate,
+                          speed=speed, loop=loop, start_s=start_s, stopping=stopping)
+
+
+def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
+                   server: LiveServer, *, scene_rate: float, speed: float, loop: bool,
+                   start_s: float, stopping: threading.Event | None) -> ReplayReport:
     _check(speed, start_s)
     stopping = stopping or threading.Event()
     frames, loops = 0, 0
     while not stopping.is_set():
-        sources = [LogSource(p) for p in paths]
+        sources = make_sources()
         drive = Drive(stages, [server], scene_rate=scene_rate)
         process = drive.pipeline.process
         clock = Clock(speed, stopping, server.flush)
@@ -172,16 +197,34 @@ def add_parser(sub: Subparsers) -> None:
                         help="skip this many seconds of the drive")
     add_run_for(parser)
     add_stage_options(parser, profile_default=None)
+    parser.add_argument("--rederive", action="store_true",
+                        help="a drive (MCAP): run its raw frames through the pipeline again "
+                        "with its attached databases and profile (implied by --dbc or "
+                        "--profile, which replace them) instead of serving it as recorded")
     add_server_options(parser)
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    stopping = threading.Event()
     mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
     if mcap and len(args.files) > 1:
         raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
-    stages = None if mcap else options.stages(args)
+    if not mcap:
+        return _serve(args, mcap, options.stages(args))
+    if not (args.rederive or args.profile or args.dbc):
+        return _serve(args, mcap, None)
+    with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
+        drive = read_drive(mcap[0])
+        dbcs = [options.dbc_option(text) for text in args.dbc or []]
+        stages = rederive_stages(drive, dbcs, args.profile, Path(folder))
+        print(describe_rederive(drive, stages, dbcs, args.profile))
+        if args.scene_rate is None:
+            args.scene_rate = recorded_scene_rate(drive)
+        return _serve(args, mcap, stages)
+
+
+def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None) -> int:
+    stopping = threading.Event()
     server = options.start_server(args, server_time=True)
     install_stop_signals(stopping.set)
     if args.run_for:
@@ -192,12 +235,18 @@ def run(args: argparse.Namespace) -> int:
         if stages is None:
             report = replay_mcap(mcap[0], server, speed=args.speed, loop=args.loop,
                                  start_s=args.start, stopping=stopping)
+        elif mcap:
+            report = replay_drive(mcap[0], stages, server, scene_rate=options.scene_rate(args),
+                                  speed=args.speed, loop=args.loop, start_s=args.start,
+                                  stopping=stopping)
         else:
-            report = replay_log(list(args.files), stages, server, scene_rate=args.scene_rate,
+            report = replay_log(list(args.files), stages, server,
+                                scene_rate=options.scene_rate(args),
                                 speed=args.speed, loop=args.loop, start_s=args.start,
                                 stopping=stopping)
     finally:
         server.stop()
-    print(f"replayed {report.messages:,} messages ({report.loops} pass"
+    what = "frames" if stages is not None and mcap else "messages"
+    print(f"replayed {report.messages:,} {what} ({report.loops} pass"
           f"{'es' if report.loops != 1 else ''})")
     return 0

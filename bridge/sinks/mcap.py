@@ -239,13 +239,17 @@ class Recorder(Sink):
     adds the drive's attachments right after the file's header, before any message (a file cut
     short still has them); :meth:`finish` has ``describe`` add its metadata first. A topic
     carries one message type: a second one is refused (``ValueError``), as mcap_protobuf's
-    writer refuses it.
+    writer refuses it. Attachments are stamped with the time they are added, or with
+    ``attachment_time_ns`` where given (a re-derived drive: the same inputs, the same bytes).
     """
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD,
-                 describe: Describe | None = None, attach: Describe | None = None) -> None:
+                 describe: Describe | None = None, attach: Describe | None = None,
+                 attachment_time_ns: int | None = None) -> None:
         self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression)
+        #: the create time of the attachments (ns); None: when each is added
+        self.attachment_time_ns = attachment_time_ns
         self._writer.start(profile="", library=f"tankviz {__version__}")
         self.describe = describe
         self._schemas: dict[str, int] = {}
@@ -340,8 +344,8 @@ class Recorder(Sink):
 
     def add_attachment(self, name: str, data: bytes, *, media: str | None = None,
                        log_time: int = 0) -> None:
-        self._writer.add_attachment(time.time_ns(), log_time, name, media or media_type(name),
-                                    data)
+        created = time.time_ns() if self.attachment_time_ns is None else self.attachment_time_ns
+        self._writer.add_attachment(created, log_time, name, media or media_type(name), data)
 
     def finish(self) -> None:
         """Describe the drive (if a ``describe`` was given), write the summary and footer; the

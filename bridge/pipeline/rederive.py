@@ -1,0 +1,133 @@
+"""Re-deriving a recorded drive: the stages that decode and draw its raw frames again.
+
+A drive tankviz recorded carries its databases and profile as attachments
+(:meth:`Drive.attach <bridge.pipeline.drive.Drive.attach>`) and, in its ``tankviz`` metadata, the
+buses each database was for (:meth:`Drive.describe <bridge.pipeline.drive.Drive.describe>`).
+:func:`rederive_stages` gives the stages that run it again (``tankviz convert DRIVE.mcap``,
+``tankviz replay DRIVE.mcap --rederive``): the databases of ``--dbc`` options, else the attached
+ones on the buses recorded (on every bus where none are recorded: a drive cut short before its
+metadata); the profile given, else the attached one. A profile is checked against those
+databases, its own ``[profile] databases`` set aside (they were beside it when the drive was
+recorded). An attachment that does not load is named as ``DRIVE.mcap (attached NAME)``, never by
+the temporary file it was written to. :func:`source_record` is what the new drive's metadata says
+of the one it was re-derived from (``source``: file, size, SHA-256, whether complete, and its
+metadata), and keeps its ``created``, so that the same drive re-derived with the same databases and
+profile gives the same bytes. :func:`recorded_scene_rate` is the rate the drive was drawn at,
+which a re-derived drive keeps unless another is given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from bridge.decode.decoder import DatabaseFile, Decoder, database_warnings, load_database
+from bridge.errors import DatabaseError, InputError
+from bridge.io.drives import RecordedDrive
+from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
+from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.profile.loader import load_profile, resolve_profile
+from bridge.profile.model import ProfileError
+
+
+def _attached_database(drive: RecordedDrive, folder: Path, name: str, data: bytes,
+                       db_name: str | None) -> DatabaseFile:
+    """An attached database, loaded as cantools loads its file, named ``DRIVE.mcap/NAME``."""
+    where = Path(drive.path.name) / name
+    file = folder / name
+    file.write_bytes(data)
+    try:
+        loaded = load_database(file, name=db_name)
+    except DatabaseError as exc:
+        raise DatabaseError(where, f"(attached to {drive.path}) {exc.reason}") from None
+    return DatabaseFile(where, loaded.name, loaded.sha256, loaded.content, loaded.db,
+                        database_warnings(where, loaded.db))
+
+
+def attached_decoder(drive: RecordedDrive, folder: Path) -> Decoder:
+    """A decoder of the databases attached to ``drive``, on the buses its metadata records
+    (on every bus where it records none: a drive cut short before its end). Each attachment is
+    written into ``folder`` for cantools to load."""
+    entries = drive.metadata.get("databases")
+    if not isinstance(entries, list):
+        entries = [{"attachment": n, "buses": ["*"]} for n in drive.attachments
+                   if not n.startswith(PROFILE_PREFIX)]
+    by_bus: dict[str | None, list[DatabaseFile]] = {}
+    loaded: dict[str, DatabaseFile] = {}
+    for entry in entries:
+        name = str(entry.get("attachment"))
+        data = drive.attachments.get(name)
+        if data is None:
+            raise InputError(drive.path, f"its metadata names the database attachment {name!r}, "
+                             "which the file does not hold; give the databases with --dbc")
+        if name not in loaded:
+            loaded[name] = _attached_database(drive, folder, name, data, entry.get("name"))
+        for bus in entry.get("buses") or ["*"]:
+            by_bus.setdefault(None if bus == "*" else str(bus), []).append(loaded[name])
+    return Decoder(by_bus)
+
+
+def attached_profile(drive: RecordedDrive, folder: Path) -> Path | None:
+    """The profile attached to ``drive``, written into ``folder`` under its own file name (so
+    the re-derived drive attaches it under the same name); None if the drive has none."""
+    name: str | None = None
+    if "profile" in drive.metadata:
+        described = drive.metadata["profile"]
+        if isinstance(described, dict) and isinstance(described.get("attachment"), str):
+            name = described["attachment"]
+    else:  # no metadata (cut short): the attachment tells
+        name = next((n for n in drive.attachments if n.startswith(PROFILE_PREFIX)), None)
+    if not name or name not in drive.attachments:
+        return None
+    path = folder / name[len(PROFILE_PREFIX):]
+    path.write_bytes(drive.attachments[name])
+    return path
+
+
+def rederive_stages(drive: RecordedDrive, dbc_options: Sequence[str],
+                    profile: str | Path | None, folder: Path) -> Stages:
+    """The stages that re-derive ``drive``: the databases of ``dbc_options``, else the attached
+    ones; the ``profile``, else the attached one (if any). Attachments are written into
+    ``folder``, which must last as long as the drive is recorded (its profile is attached)."""
+    databases, profiles = folder / "databases", folder / "profile"
+    databases.mkdir(exist_ok=True)
+    profiles.mkdir(exist_ok=True)
+    decoder = build_decoder(dbc_options) if dbc_options else attached_decoder(drive, databases)
+    path = resolve_profile(profile) if profile is not None else attached_profile(drive, profiles)
+    if path is None:
+        return Stages(decoder, None)
+    try:
+        return Stages(decoder, load_profile(path, [f.db for f in decoder.files],
+                                            own_databases=False))
+    except ProfileError as exc:
+        if profile is not None:
+            raise
+        # the attached profile was written into a temporary folder: name the drive instead
+        raise ProfileError(f"{drive.path} (attached {PROFILE_PREFIX}{path.name})", exc.key,
+                           exc.reason) from None
+
+
+def describe_rederive(drive: RecordedDrive, stages: Stages, dbc_options: Sequence[str],
+                      profile: str | Path | None) -> str:
+    """What a drive is re-derived with, for people."""
+    decoder, loaded = stages
+    names = ", ".join(f.path.name for f in decoder.files) or "none"
+    databases = f"databases {names}" + ("" if dbc_options else " (attached)")
+    with_profile = ("no profile" if loaded is None else
+                    f"profile {loaded.path.name}" + ("" if profile is not None else " (attached)"))
+    return f"re-deriving {drive.path} with {databases}, {with_profile}"
+
+
+def source_record(drive: RecordedDrive) -> dict[str, Any]:
+    """What the metadata of a re-derived drive says of the drive it was re-derived from."""
+    return {"created": drive.metadata.get("created", ""),
+            "source": {"file": drive.path.name, "size": drive.size, "sha256": drive.sha256,
+                       "complete": drive.complete, "metadata": drive.metadata}}
+
+
+def recorded_scene_rate(drive: RecordedDrive) -> float:
+    """The scene rate a drive was recorded at (its metadata), else the default."""
+    described = drive.metadata.get("profile")
+    rate = described.get("scene_rate_hz") if isinstance(described, dict) else None
+    return float(rate) if isinstance(rate, (int, float)) and rate > 0 else DEFAULT_SCENE_RATE
