@@ -20,7 +20,8 @@ EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
 
 #: The commands, in the order ``tankviz --help`` lists them: modules of :mod:`bridge.apps`.
-COMMANDS = ("convert", "inspect", "live", "demo", "simulate", "replay", "recover", "layouts")
+COMMANDS = ("convert", "inspect", "live", "demo", "simulate", "replay", "recover", "layouts",
+            "batch", "catalog", "profile")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,217 @@
+"""``tankviz batch``: the work of ``tankviz convert`` over many drives at once, on Dask.
+
+``tankviz batch convert INPUTS… --out DIR`` converts CAN logs, ``tankviz batch rederive DRIVES…
+--out DIR`` converts tankviz drives (``.mcap``) again, e.g. with a fixed profile. Which files
+make one drive and what its output is called: :mod:`bridge.fleet.batch`. Each drive is one Dask
+task running :func:`bridge.apps.convert.convert`, the very function of ``tankviz convert``, on a
+local cluster (``--workers`` processes, one per core by default) or on the cluster at
+``--scheduler``.
+
+It prints one line per drive (``wrote``, ``skipped``: finished already, ``failed`` with its
+one-line error) and a summary on stdout; on stderr where the work runs, the Dask dashboard's link
+and, on a terminal, one progress line for the batch (drives done, frames/s overall, ETA by input
+bytes), fed by the drives' results and by the progress events of the drives under way. The exit
+status is 0 when every drive is written or skipped, else 1 after ``error: N of M drives failed``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TextIO
+
+from bridge.apps.convert import convert
+from bridge.apps.options import Subparsers, add_stage_options, dbc_option
+from bridge.decode.decoder import parse_dbc_option
+from bridge.errors import OutputError, UsageError
+from bridge.fleet.batch import (
+    DriveJob,
+    DriveResult,
+    Settings,
+    convert_task,
+    dashboard,
+    dask_client,
+    find_inputs,
+    finished,
+    group_drives,
+    input_bytes,
+    plan_jobs,
+    progress_line,
+    progress_topic,
+    run_batch,
+)
+from bridge.io.logs import supported_suffixes
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser(
+        "batch", help="convert many drives at once, on Dask (local cores or a cluster)",
+        description="Run tankviz convert over many drives at once on Dask: one output per "
+        "drive in --out; finished outputs are skipped on a re-run (unless --force).")
+    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+    for verb, what, help_text in (
+            ("convert", "INPUTS", "CAN logs (files, folders searched recursively, globs)"),
+            ("rederive", "DRIVES", "tankviz drives (.mcap: files, folders, globs), "
+                                   "converted again (e.g. with a fixed profile)")):
+        p = verbs.add_parser(verb, help=help_text, description=help_text)
+        p.add_argument("inputs", nargs="+", metavar=what, help=help_text)
+        p.add_argument("--out", type=Path, required=True, metavar="DIR",
+                       help="folder for the outputs, one <drive>.mcap each")
+        add_stage_options(p, profile_default=None)
+        p.add_argument("--workers", type=int, metavar="N",
+                       help="worker processes of the local cluster (default: one per core)")
+        p.add_argument("--scheduler", metavar="ADDRESS",
+                       help="use the Dask cluster at ADDRESS (tcp://host:8786); inputs and "
+                       "--out must then be paths every worker sees")
+        p.add_argument("--force", action="store_true",
+                       help="convert again drives whose output exists")
+        p.set_defaults(run=run)
+
+
+def _absolute_dbc(text: str) -> str:
+    """``--dbc [BUS=]PATH`` with PATH absolute (workers may run elsewhere)."""
+    text = dbc_option(text)
+    bus, path = parse_dbc_option(text)
+    if not path.exists():
+        return text
+    return f"{bus}={path.absolute()}" if bus else str(path.absolute())
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    profile = args.profile
+    if profile is not None and Path(profile).exists():
+        profile = str(Path(profile).absolute())
+    return Settings(tuple(_absolute_dbc(t) for t in args.dbc or []), profile, args.scene_rate,
+                    args.force)
+
+
+def _drives(n: int) -> str:
+    return f"{n} drive" if n == 1 else f"{n} drives"
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers is not None and (args.scheduler or args.workers < 1):
+        raise UsageError("--workers: a number ≥ 1, for the local cluster only (a --scheduler's "
+                         "cluster has its own workers)")
+    suffixes = supported_suffixes() if args.verb == "convert" else [".mcap"]
+    files = find_inputs(args.inputs, suffixes)
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise OutputError(out, "is not a folder")
+    settings = _settings(args)
+    jobs = plan_jobs(group_drives(files, suffixes, merge=args.verb == "convert"), out)
+    todo, skipped = finished(jobs, force=args.force)
+    for job in skipped:
+        print(f"skipped {job.output}: finished already (--force converts it again)")
+    started = time.monotonic()
+    results: list[DriveResult] = []
+    if todo:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            for job in todo:
+                Path(job.output).parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(out, f"cannot write: {exc.strerror or exc}") from None
+        results = _run(args, todo, settings)
+    failed = [r for r in results if r.error is not None]
+    frames = sum(r.frames for r in results)
+    seconds = time.monotonic() - started
+    rate = frames / seconds if seconds > 0 else 0.0
+    print(f"{_drives(len(jobs))}: {len(results) - len(failed)} written, {len(skipped)} skipped, "
+          f"{len(failed)} failed; {frames:,} frames in {seconds:.1f} s ({rate:,.0f} frames/s)")
+    if failed:
+        print(f"error: {len(failed)} of {_drives(len(jobs))} failed", file=sys.stderr)
+        return 1
+    return 0
+
+
+class _BatchProgress:
+    """The batch's one progress line on a terminal, from drives finished and the progress events
+    of the drives under way; and each drive's line as it finishes."""
+
+    def __init__(self, todo: list[DriveJob], stream: TextIO | None = None, hz: float = 5.0
+                 ) -> None:
+        self.stream = stream if stream is not None else sys.stderr  # (the one of the moment)
+        self.tty = self.stream.isatty()
+        self.total = len(todo)
+        self.sizes = {j.output: input_bytes(j) for j in todo}
+        self.total_bytes = sum(self.sizes.values()) or 1
+        self.running: dict[str, tuple[int, float]] = {}
+        self.finished: set[str] = set()
+        self.done = self.failed = self.frames = self.bytes = 0
+        self.started = time.monotonic()
+        self._interval = 1.0 / hz
+        self._last = 0.0
+        self._lock = threading.Lock()
+
+    def _line(self) -> str:
+        frames = self.frames + sum(f for f, _ in self.running.values())
+        done_bytes = self.bytes + sum(fraction * self.sizes.get(output, 0)
+                                      for output, (_, fraction) in self.running.items())
+        return progress_line(done=self.done, failed=self.failed, total=self.total,
+                             frames=frames, elapsed=time.monotonic() - self.started,
+                             fraction=done_bytes / self.total_bytes)
+
+    def _draw(self) -> None:
+        if self.tty:
+            self.stream.write("\r\033[K" + self._line())
+            self.stream.flush()
+
+    def progress(self, output: str, frames: int, fraction: float | None) -> None:
+        with self._lock:
+            if output in self.finished:  # an event that came after its drive's result
+                return
+            self.running[output] = (frames, fraction or 0.0)
+            now = time.monotonic()
+            if now - self._last >= self._interval:
+                self._last = now
+                self._draw()
+
+    def result(self, result: DriveResult) -> None:
+        job = result.job
+        with self._lock:
+            self.running.pop(job.output, None)
+            self.finished.add(job.output)
+            self.done += 1
+            self.frames += result.frames
+            self.bytes += self.sizes.get(job.output, 0)
+            if self.tty:
+                self.stream.write("\r\033[K")
+                self.stream.flush()
+            if result.error is None:
+                worker = f" on worker {result.worker}" if result.worker else ""
+                print(f"wrote {job.output}: {result.frames:,} frames from "
+                      f"{', '.join(job.inputs)} in {result.seconds:.1f} s{worker}", flush=True)
+            else:
+                self.failed += 1
+                print(f"failed {job.output}: {result.error}", flush=True)
+            self._draw()
+
+    def close(self) -> None:
+        with self._lock:
+            if self.tty:
+                self.stream.write("\n")
+                self.stream.flush()
+
+
+def _run(args: argparse.Namespace, todo: list[DriveJob], settings: Settings) -> list[DriveResult]:
+    topic = progress_topic()
+    task = functools.partial(convert_task, convert=convert,
+                             settings=dataclasses.replace(settings, progress_topic=topic))
+    with dask_client(workers=args.workers, scheduler=args.scheduler) as client:
+        where = (f"the Dask scheduler {args.scheduler}" if args.scheduler
+                 else f"a local Dask cluster of {len(client.scheduler_info()['workers'])} "
+                      "worker processes")
+        print(f"batch: {_drives(len(todo))} on {where}", file=sys.stderr)
+        print(dashboard(client), file=sys.stderr)
+        bar = _BatchProgress(todo)
+        try:
+            return run_batch(client, todo, task, bar.result, topic=topic,
+                             on_progress=bar.progress)
+        finally:
+            bar.close()

@@ -1,0 +1,93 @@
+"""``tankviz catalog``: index an archive of drives into a DuckDB file, and ask it questions.
+
+``tankviz catalog DRIVES... -o CATALOG`` (re)indexes (:func:`bridge.fleet.catalog.index`: only
+new or changed drives are read; ``--workers N`` or ``--scheduler ADDRESS`` read them on Dask) and
+prints one line per drive that could not be indexed (``skipped: <error>``) and a summary line;
+exit status 1 when a drive was not indexed. ``tankviz catalog query CATALOG "SQL"`` (or
+``--alarm ID``, ``--topic T``, ``--between T1 T2``) prints the answer as a table, then, for every
+row with a drive and a log time, the ``tankviz replay`` command and the Foxglove time to open it.
+(A drive file named ``query`` is given as ``./query``.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bridge.apps.options import Subparsers
+from bridge.errors import UsageError
+from bridge.fleet import catalog
+
+
+def add_parser(sub: Subparsers) -> None:
+    parser = sub.add_parser(
+        "catalog", help="index drives into a DuckDB catalogue, or query it",
+        description="tankviz catalog DRIVES... -o CATALOG.duckdb: (re)index drives (files, "
+        "folders searched recursively for *.mcap, globs); only new or changed drives are read. "
+        "tankviz catalog query CATALOG.duckdb \"SQL\" (or --alarm/--topic/--between): ask it, "
+        "with the tankviz replay command that opens each answer.")
+    parser.add_argument("items", nargs="+", metavar="DRIVES | query CATALOG [SQL]")
+    parser.add_argument("-o", "--output", type=Path, metavar="CATALOG.duckdb",
+                        help="the catalogue to (re)index")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="read the drives on a local Dask cluster of N worker processes")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="read the drives on an existing Dask cluster (tcp://host:8786); "
+                        "its workers must see the same paths")
+    parser.add_argument("--alarm", metavar="ID", help="query: every time alarm ID was raised")
+    parser.add_argument("--topic", metavar="T", help="query: every drive with topic T")
+    parser.add_argument("--between", nargs=2, metavar=("T1", "T2"),
+                        help="query: drives recorded between two UTC times (2026-01-01 or "
+                        "2026-01-01T12:00:00)")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    items: list[str] = args.items
+    if items[0] == "query":
+        return _query(args, items[1:])
+    for option in ("alarm", "topic", "between"):
+        if getattr(args, option) is not None:
+            raise UsageError(f"--{option} asks a catalogue: tankviz catalog query CATALOG "
+                             f"--{option} ...")
+    if args.output is None:
+        raise UsageError("name the catalogue to index into: tankviz catalog DRIVES... "
+                         "-o catalog.duckdb")
+    reader: catalog.Reader = catalog.read_here
+    if args.workers is not None or args.scheduler is not None:
+        reader = catalog.dask_reader(workers=args.workers, scheduler=args.scheduler)
+    report = catalog.index(args.output, items, reader=reader)
+    for _, error in report.failed:
+        print(f"skipped: {error}", file=sys.stderr)
+    print(report.summary(args.output))
+    return 1 if report.failed else 0
+
+
+def _query(args: argparse.Namespace, rest: list[str]) -> int:
+    if args.output is not None or args.workers is not None or args.scheduler is not None:
+        raise UsageError("-o, --workers and --scheduler are for indexing, not for query")
+    if not rest or len(rest) > 2:
+        raise UsageError('usage: tankviz catalog query CATALOG.duckdb ["SQL"] '
+                         "[--alarm ID | --topic T | --between T1 T2]")
+    path = Path(rest[0])
+    sql = rest[1] if len(rest) == 2 else None
+    between: tuple[str, str] | None = (
+        None if args.between is None else (args.between[0], args.between[1]))
+    if sum(x is not None for x in (sql, args.alarm, args.topic)) != 1 and not (
+            sql is None and args.alarm is None and args.topic is None and between is not None):
+        raise UsageError('ask one thing: "SQL", --alarm ID or --topic T (each may be narrowed '
+                         "with --between T1 T2, except SQL), or --between T1 T2 alone")
+    if sql is not None:
+        if between is not None:
+            raise UsageError("--between narrows --alarm and --topic; write it into the SQL")
+        answer = catalog.query(path, sql)
+    elif args.alarm is not None:
+        answer = catalog.alarm_query(path, args.alarm, between)
+    elif args.topic is not None:
+        answer = catalog.topic_query(path, args.topic, between)
+    else:
+        assert between is not None
+        answer = catalog.between_query(path, between)
+    print(catalog.format_answer(answer))
+    return 0

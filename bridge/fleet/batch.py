@@ -1,0 +1,434 @@
+"""Many drives at once: which files make one drive, what each output is called, and the run of
+one conversion per drive on a Dask cluster (``tankviz batch``).
+
+- **Inputs** (:func:`find_inputs`): files, folders (searched recursively) and globs, keeping the
+  files whose suffix is one of the formats asked for (CAN logs, or ``.mcap`` drives). Paths only:
+  a URL (``s3://…``, any fsspec scheme but ``file://``) is refused with one line, since the
+  readers open local files; storage every worker sees must be mounted (NFS, SMB, s3fs, …).
+- **Drives** (:func:`group_drives`): files in one folder whose names have the same *drive stem*
+  (:func:`drive_stem`: the name without its format suffix and without trailing bus or part
+  suffixes: ``_can1``, ``-CAN2``, ``_bus3``, ``_ch4``, ``_canfd0``, ``_part002``, ``.001``) are
+  one drive where their time spans overlap or are at most :data:`ADJACENT_NS` apart (one file per
+  bus, a logger's split parts); a stem whose files lie further apart in time is several drives.
+  A file's span comes from the BLF header or the MCAP summary where the file has one, else from
+  reading the file through (only files that share a stem are read for it). tankviz drives
+  (``.mcap``, for ``rederive``) are not merged: each is a drive of its own, since ``tankviz
+  convert`` re-derives one drive at a time.
+- **Outputs** (:func:`plan_jobs`): ``OUT/<subfolder>/<stem>.mcap``, the subfolder being where the
+  drive sits under a folder given as input; a stem that is several drives names each after its
+  UTC start (``<stem>_2026-10-02T08-15-00Z.mcap``). Two drives with one output name, or an output
+  that is one of the inputs, are refused before anything runs.
+- **The run** (:func:`run_batch`): one Dask task per drive, without retries, each calling the
+  conversion function it is given (``tankviz convert``'s own, :func:`convert_task`) with the
+  drive's inputs, which writes the output atomically. A drive that fails (an error of its input
+  or database, any exception, its worker dying) gives a :class:`DriveResult` with its one-line
+  error; the others go on. Outputs that exist already are skipped (:func:`finished`) unless
+  forced, so a batch that was interrupted resumes. Each task tells its progress (frames, fraction
+  of its input read) as Dask events on a topic of its batch (``Worker.log_event``), which the
+  client subscribes to for the batch's progress line (:func:`progress_line`).
+
+Dask (``distributed``) is imported only to run (:func:`dask_client`); without it the error says
+what to install (:data:`MISSING_DASK`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import glob
+import importlib.util
+import logging
+import os
+import re
+import time
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from bridge.errors import BridgeError, UsageError
+from bridge.io.logs import LogSource
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+#: The one line a user without Dask gets.
+MISSING_DASK = ("tankviz batch runs on Dask, which is not installed: "
+                "pip install 'tankviz[fleet]'")
+
+#: Two files of one stem are one drive when the later starts at most this long after the earlier
+#: ends (a logger's next part, a bus file that starts a little later).
+ADJACENT_NS = 60 * 10**9
+
+#: Trailing bus and part suffixes that a drive's files differ by.
+_PART = re.compile(r"(?:[_-](?:can|canfd|bus|ch|part)\d+|\.\d{3})+$", re.IGNORECASE)
+#: A URL scheme (``s3://``); ``file://`` is a path.
+_URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
+
+Span = tuple[int, int]
+"""A file's first and last frame time, integer nanoseconds."""
+
+
+def format_suffix(path: Path, suffixes: Iterable[str]) -> str | None:
+    """The longest of ``suffixes`` the file's name ends with (any case), or None."""
+    name = path.name.lower()
+    return next((s for s in sorted(suffixes, key=len, reverse=True) if name.endswith(s)), None)
+
+
+def drive_stem(path: Path, suffixes: Iterable[str]) -> str:
+    """The name a drive's files share: without the format suffix and the bus/part suffixes
+    (``trip_can0_part003.blf`` → ``trip``); a name that is nothing but such a suffix stays."""
+    suffix = format_suffix(path, suffixes) or path.suffix
+    base = path.name[:len(path.name) - len(suffix)]
+    return _PART.sub("", base) or base
+
+
+def _refuse_url(text: str) -> None:
+    match = _URL.match(text)
+    if match and match.group(1).lower() != "file":
+        raise UsageError(f"{text}: only local or shared-disk paths work (the CAN log readers "
+                         f"open files): mount the storage on every machine (NFS, SMB, s3fs, …) "
+                         f"and name its path")
+
+
+def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[Path, Path]]:
+    """Every file that ``patterns`` (files, folders searched recursively, globs) name, with the
+    folder its output's subfolder is counted from; absolute, each once, in name order."""
+    found: dict[Path, Path] = {}
+    wanted = ", ".join(suffixes)
+
+    def add_folder(folder: Path) -> int:
+        files = [p for p in sorted(folder.rglob("*"))
+                 if p.is_file() and not p.name.startswith(".") and format_suffix(p, suffixes)]
+        for p in files:
+            found.setdefault(p, folder)
+        return len(files)
+
+    for text in patterns:
+        _refuse_url(text)
+        if text.lower().startswith("file://"):
+            text = text[len("file://"):]
+        path = Path(text).expanduser().absolute()
+        if glob.has_magic(text):
+            matches = [Path(m).absolute() for m in sorted(glob.glob(str(path), recursive=True))]
+            if not matches:
+                raise UsageError(f"{text}: matches no file")
+            for m in matches:
+                if m.is_dir():
+                    add_folder(m)
+                elif m.is_file() and format_suffix(m, suffixes):
+                    found.setdefault(m, m.parent)
+        elif path.is_dir():
+            if not add_folder(path):
+                raise UsageError(f"{text}: holds no {wanted} file")
+        elif path.is_file():
+            found.setdefault(path, path.parent)
+        else:
+            raise UsageError(f"{text}: no such file or folder")
+    if not found:
+        raise UsageError(f"{' '.join(patterns)}: no {wanted} file found")
+    return sorted(found.items())
+
+
+def file_span(path: Path) -> Span:
+    """The first and last frame time of a log or drive: from the BLF header or the MCAP summary
+    where they tell it, else by reading the file through."""
+    name = path.name.lower()
+    if name.endswith(".blf"):
+        import can
+
+        with can.BLFReader(path) as reader:
+            start, stop = reader.start_timestamp, reader.stop_timestamp
+        if 0 < start <= stop:
+            return round(start * 1e6) * 1000, round(stop * 1e6) * 1000
+    if name.endswith(".mcap"):
+        from mcap.reader import make_reader
+
+        with path.open("rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is not None and summary.statistics is not None:
+            return summary.statistics.message_start_time, summary.statistics.message_end_time
+    times = [frame.timestamp_ns for frame in LogSource(path)]
+    return min(times), max(times)
+
+
+@dataclass(frozen=True)
+class DriveFiles:
+    """The files of one drive, and the name of its output under the output folder."""
+
+    name: str
+    inputs: tuple[Path, ...]
+
+
+def _utc(ns: int) -> str:
+    moment = datetime.datetime.fromtimestamp(ns / 1e9, tz=datetime.timezone.utc)
+    return moment.strftime("%Y-%m-%dT%H-%M-%SZ")
+
+
+def group_drives(files: Sequence[tuple[Path, Path]], suffixes: Sequence[str], *,
+                 span: Callable[[Path], Span] = file_span,
+                 merge: bool = True) -> list[DriveFiles]:
+    """The drives that ``files`` (from :func:`find_inputs`) make: one stem in one folder, with
+    overlapping or adjacent time spans (only files sharing a stem are asked their ``span``).
+    Without ``merge`` every file is a drive of its own, named after the file (tankviz drives:
+    ``tankviz convert`` re-derives one at a time)."""
+    by_stem: dict[tuple[Path, str], list[Path]] = {}
+    base_of = dict(files)
+    for path, _ in files:
+        suffix = format_suffix(path, suffixes) or path.suffix
+        stem = drive_stem(path, suffixes) if merge else path.name[:len(path.name) - len(suffix)]
+        by_stem.setdefault((path.parent, stem), []).append(path)
+    drives: list[DriveFiles] = []
+    for (folder, stem), paths in by_stem.items():
+        rel = folder.relative_to(base_of[paths[0]]).as_posix()
+        prefix = "" if rel == "." else f"{rel}/"
+        if len(paths) == 1:
+            drives.append(DriveFiles(prefix + stem, (paths[0],)))
+            continue
+        spans = sorted((span(p), p) for p in paths)
+        groups: list[tuple[int, int, list[Path]]] = []
+        for (start, end), p in spans:
+            if groups and start <= groups[-1][1] + ADJACENT_NS:
+                first, last, members = groups[-1]
+                groups[-1] = (first, max(last, end), [*members, p])
+            else:
+                groups.append((start, end, [p]))
+        for start, _, members in groups:
+            name = stem if start == groups[0][0] else f"{stem}_{_utc(start)}"
+            drives.append(DriveFiles(prefix + name, tuple(sorted(members))))
+    return sorted(drives, key=lambda d: d.name)
+
+
+@dataclass(frozen=True)
+class DriveJob:
+    """One task: the drive's input files and its output, absolute paths as text."""
+
+    name: str
+    inputs: tuple[str, ...]
+    output: str
+
+
+def plan_jobs(drives: Sequence[DriveFiles], out: Path) -> list[DriveJob]:
+    """One job per drive, writing ``OUT/<name>.mcap``; refuses two drives with one output and an
+    output that is an input."""
+    out = out.expanduser().absolute()
+    jobs: dict[Path, DriveJob] = {}
+    inputs = {p for d in drives for p in d.inputs}
+    for drive in drives:
+        output = out / f"{drive.name}.mcap"
+        if output in jobs:
+            raise UsageError(f"{output}: both {jobs[output].inputs[0]} and {drive.inputs[0]} "
+                             "would be written there: convert them into different --out folders")
+        if output in inputs:
+            raise UsageError(f"{output}: is an input and would be overwritten: choose another "
+                             "--out folder")
+        jobs[output] = DriveJob(drive.name, tuple(str(p) for p in drive.inputs), str(output))
+    return list(jobs.values())
+
+
+def finished(jobs: Sequence[DriveJob], *, force: bool) -> tuple[list[DriveJob], list[DriveJob]]:
+    """The jobs to run and those skipped: an output that exists is complete (it is written
+    atomically), so it is skipped unless ``force``."""
+    if force:
+        return list(jobs), []
+    done = [j for j in jobs if Path(j.output).exists()]
+    return [j for j in jobs if j not in done], done
+
+
+def input_bytes(job: DriveJob) -> int:
+    """The size of a drive's inputs, for the batch's ETA."""
+    return sum(os.path.getsize(p) for p in job.inputs if os.path.exists(p))
+
+
+# --- in the workers ------------------------------------------------------------------------------
+
+class Converted(Protocol):
+    """What a conversion tells: the frames it converted."""
+
+    frames: int
+
+
+class ConvertFunction(Protocol):
+    """``tankviz convert``'s function (:func:`bridge.apps.convert.convert`)."""
+
+    def __call__(self, inputs: Sequence[Path | str], output: Path | str,
+                 dbc_options: Sequence[str], *, profile: str | Path | None,
+                 scene_rate: float | None, force: bool,
+                 progress: Callable[[int, float | None], None] | None) -> Converted: ...
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What every drive of a batch is converted with (paths absolute: workers see them)."""
+
+    dbc_options: tuple[str, ...]
+    profile: str | None
+    scene_rate: float | None
+    force: bool
+    #: the Dask event topic each task tells its progress on (:func:`run_batch`), or None
+    progress_topic: str | None = None
+
+#: Seconds between two progress events of one task.
+PROGRESS_EVERY_S = 0.5
+
+
+@dataclass(frozen=True)
+class DriveResult:
+    """How one drive went: frames written, or its one-line error."""
+
+    job: DriveJob
+    frames: int = 0
+    seconds: float = 0.0
+    error: str | None = None
+    worker: str = ""
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().name)
+    except (ImportError, ValueError):
+        return ""
+
+
+def _progress_events(job: DriveJob, topic: str | None
+                     ) -> Callable[[int, float | None], None] | None:
+    """A progress callback that logs Dask events (``{"output", "frames", "fraction"}``) on
+    ``topic`` at most every :data:`PROGRESS_EVERY_S`; None outside a Dask worker."""
+    if topic is None:
+        return None
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+    except (ImportError, ValueError):
+        return None
+    last = [0.0]
+
+    def progress(frames: int, fraction: float | None) -> None:
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_EVERY_S or fraction == 1.0:
+            last[0] = now
+            worker.log_event(topic, {"output": job.output, "frames": frames,
+                                     "fraction": fraction})
+
+    return progress
+
+
+def convert_task(job: DriveJob, convert: ConvertFunction, settings: Settings) -> DriveResult:
+    """Convert one drive with ``convert``; any failure is the result's one-line error. In a Dask
+    worker, its progress goes out as events on ``settings.progress_topic``."""
+    started = time.perf_counter()
+    try:
+        report = convert(list(job.inputs), job.output, list(settings.dbc_options),
+                         profile=settings.profile, scene_rate=settings.scene_rate,
+                         force=settings.force,
+                         progress=_progress_events(job, settings.progress_topic))
+    except BridgeError as exc:
+        return DriveResult(job, error=str(exc), worker=_worker_name())
+    except Exception as exc:  # a bug must not stop the other drives: it is reported with them
+        return DriveResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}",
+                           worker=_worker_name())
+    return DriveResult(job, report.frames, time.perf_counter() - started,
+                       worker=_worker_name())
+
+
+# --- the batch, from the client ------------------------------------------------------------------
+
+def progress_line(*, done: int, failed: int, total: int, frames: int, elapsed: float,
+                  fraction: float | None, width: int = 20) -> str:
+    """The batch's one progress line: drives done, frames/s overall, ETA (pure, for tests)."""
+    rate = frames / elapsed if elapsed > 0 else 0.0
+    eta = "--:--"
+    filled = 0
+    if fraction is not None:
+        fraction = min(max(fraction, 0.0), 1.0)
+        filled = round(fraction * width)
+        if fraction > 0:
+            seconds = int(elapsed * (1 - fraction) / fraction)
+            eta = f"{seconds // 60:02d}:{seconds % 60:02d}"
+    failures = f" ({failed} failed)" if failed else ""
+    return (f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total} drives{failures}  "
+            f"{frames:,} frames  {rate:,.0f} frames/s  ETA {eta}")
+
+
+@contextlib.contextmanager
+def dask_client(*, workers: int | None = None, scheduler: str | None = None) -> Iterator[Client]:
+    """A Dask client: of the cluster at ``scheduler``, else of a local cluster of ``workers``
+    processes with one thread each (default: one per core), closed after the block."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise UsageError(MISSING_DASK) from None
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=30)  # type: ignore[no-untyped-call]
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise UsageError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
+        with client:
+            yield client
+        return
+    cluster = LocalCluster(  # type: ignore[no-untyped-call]
+        n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+        dashboard_address=":0", silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:  # type: ignore[no-untyped-call]
+        yield client
+
+
+def dashboard(client: Client) -> str:
+    """Where each worker's speed is seen: the Dask dashboard's link and its page of workers
+    (which works without bokeh; the dashboard's graphs need it where the scheduler runs)."""
+    services: dict[str, Any] = client.scheduler_info().get("services", {})
+    if "dashboard" not in services:
+        return "Dask dashboard: none (the scheduler serves no HTTP)"
+    link = str(client.dashboard_link)
+    workers = link.removesuffix("/status") + "/info/main/workers.html"
+    text = f"Dask dashboard: {link} (workers: {workers})"
+    if importlib.util.find_spec("bokeh") is None:
+        text += "; its graphs need bokeh where the scheduler runs: pip install 'bokeh>=3.1'"
+    return text
+
+
+def progress_topic() -> str:
+    """A Dask event topic of its own for one batch's progress events."""
+    return f"tankviz-batch-{uuid.uuid4().hex[:12]}"
+
+
+def run_batch(client: Client, jobs: Sequence[DriveJob],
+              task: Callable[[DriveJob], DriveResult],
+              on_result: Callable[[DriveResult], None] | None = None, *,
+              topic: str | None = None,
+              on_progress: Callable[[str, int, float | None], None] | None = None
+              ) -> list[DriveResult]:
+    """Run ``task`` for every job on the cluster, one Dask task each and no retries, and return
+    the results as they complete; a task that raises or whose worker dies is a failed result.
+    ``on_progress`` (output, frames, fraction) is told the progress events of ``topic`` (from
+    Dask's event loop thread)."""
+    from distributed import as_completed
+
+    if topic is not None and on_progress is not None:
+        def handler(event: tuple[float, dict[str, Any]]) -> None:
+            msg = event[1]
+            on_progress(str(msg["output"]), int(msg["frames"]), msg["fraction"])
+
+        client.subscribe_topic(topic, handler)  # type: ignore[no-untyped-call]
+    token = uuid.uuid4().hex[:8]
+    futures = {client.submit(task, job, key=f"tankviz-drive-{job.name}-{token}", pure=False,
+                             retries=0): job for job in jobs}
+    results = []
+    try:
+        for future in as_completed(futures):  # type: ignore[no-untyped-call]
+            job = futures[future]
+            try:
+                result: DriveResult = future.result()
+            except Exception as exc:  # the worker died (KilledWorker), or the task did not run
+                result = DriveResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}")
+            results.append(result)
+            if on_result is not None:
+                on_result(result)
+    finally:
+        if topic is not None and on_progress is not None:
+            client.unsubscribe_topic(topic)  # type: ignore[no-untyped-call]
+    return results

@@ -1,0 +1,666 @@
+"""The drive catalogue: what an archive of recorded drives holds, as one DuckDB file.
+
+:func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table
+(:class:`DriveRows`). It reads the file's summary (times, topics and their counts), the
+``tankviz`` metadata record (:meth:`bridge.pipeline.drive.Drive.describe`: version, profile,
+databases with their SHA-256, decode statistics, alarm events) and the messages of the
+perception topics (``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``);
+nothing is decoded again. A drive without the ``tankviz`` record (one cut short and recovered)
+takes its alarms from the ``/log`` messages of the health monitor instead (``ALARM <id>: ...``,
+``cleared <id> ...``). A file that is not MCAP, has no summary (``tankviz recover`` makes one) or
+is not a tankviz drive (neither the metadata record nor a ``tankviz.Health`` channel) is an
+:class:`~bridge.errors.InputError` naming it.
+
+Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since the epoch,
+``*_s`` seconds since the drive's first message, which is ``tankviz replay --start``):
+
+- ``drives``: one row per drive, keyed by its absolute ``path``;
+- ``databases``: the databases a drive was decoded with (name, SHA-256, buses);
+- ``alarms``: one row per time an alarm was raised (``cleared`` NULL: still raised at the end);
+- ``topics``: every channel with its schema, message count and mean rate over the drive;
+- ``objects_summary``: per object group (``/perception/<group>``, and ``lead`` for the lead
+  vehicle): messages, valid objects seen in them, the largest count at once, the smallest
+  distance and when;
+- ``lead_changes``: every time the lead vehicle's id changes (or a lead appears), with its
+  distance; ``cut_in`` when it replaced a lead that was present a moment before and is closer.
+
+:func:`index` (re)indexes a catalogue incrementally: a drive is read again only when it is new or
+its size or modification time (ns) changed; a catalogued drive whose file no longer exists is
+removed. Drives are read in this process, or by Dask workers (``workers``: a local cluster of
+that many processes; ``scheduler``: an existing cluster whose workers see the same paths): each
+worker reads drives into rows, this process alone writes the DuckDB file, one transaction per
+drive. A drive that cannot be read is reported with its one-line error and the others are
+indexed. Dask is imported only then; without it the error says what to install.
+
+:func:`query` runs SQL on a catalogue; :func:`alarm_query`, :func:`topic_query` and
+:func:`between_query` are the canned questions; :func:`open_hints` says, for every answer row with
+a drive and a log time, how to open it: the ``tankviz replay`` command and the MCAP time to jump
+to in Foxglove.
+"""
+
+from __future__ import annotations
+
+import difflib
+import glob
+import importlib
+import json
+import re
+import struct
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from bridge.errors import BridgeError, InputError, UsageError
+from bridge.frame import NS, format_time
+from bridge.pb import perception_pb2
+from bridge.sinks.mcap import METADATA_NAME
+from bridge.topics import LOG_TOPIC
+
+#: The one-line advice when Dask or DuckDB is missing.
+FLEET_EXTRA = "pip install 'tankviz[fleet]'"
+
+OBJECTS_SCHEMA = "tankviz.PerceivedObjects"
+LEAD_SCHEMA = "tankviz.LeadVehicle"
+HEALTH_SCHEMA = "tankviz.Health"
+#: The object group name of the lead vehicle in ``objects_summary``.
+LEAD = "lead"
+
+#: Every table: its columns and their DuckDB types, in the order of the rows.
+SCHEMA: dict[str, tuple[tuple[str, str], ...]] = {
+    "drives": (
+        ("path", "VARCHAR PRIMARY KEY"), ("size", "BIGINT"), ("mtime_ns", "BIGINT"),
+        ("start_time", "TIMESTAMP"), ("end_time", "TIMESTAMP"), ("start_ns", "BIGINT"),
+        ("end_ns", "BIGINT"), ("duration_s", "DOUBLE"), ("messages", "BIGINT"),
+        ("profile", "VARCHAR"), ("databases", "VARCHAR"), ("buses", "VARCHAR[]"),
+        ("frames", "BIGINT"), ("error_frames", "BIGINT"), ("unknown_ids", "BIGINT"),
+        ("decode_errors", "BIGINT"), ("truncated", "BIGINT"), ("statistics", "VARCHAR"),
+        ("tankviz_version", "VARCHAR"), ("created", "VARCHAR")),
+    "databases": (
+        ("drive", "VARCHAR"), ("name", "VARCHAR"), ("sha256", "VARCHAR"), ("buses", "VARCHAR[]")),
+    "alarms": (
+        ("drive", "VARCHAR"), ("alarm", "VARCHAR"), ("raised", "TIMESTAMP"),
+        ("cleared", "TIMESTAMP"), ("raised_ns", "BIGINT"), ("cleared_ns", "BIGINT"),
+        ("raised_s", "DOUBLE"), ("cleared_s", "DOUBLE"), ("message", "VARCHAR")),
+    "topics": (
+        ("drive", "VARCHAR"), ("topic", "VARCHAR"), ("schema", "VARCHAR"), ("encoding", "VARCHAR"),
+        ("count", "BIGINT"), ("rate_hz", "DOUBLE")),
+    "objects_summary": (
+        ("drive", "VARCHAR"), ("object_group", "VARCHAR"), ("topic", "VARCHAR"),
+        ("messages", "BIGINT"), ("valid_objects", "BIGINT"), ("max_count", "BIGINT"),
+        ("min_distance_m", "DOUBLE"), ("min_distance_ns", "BIGINT"),
+        ("min_distance_s", "DOUBLE")),
+    "lead_changes": (
+        ("drive", "VARCHAR"), ("time", "TIMESTAMP"), ("t_ns", "BIGINT"), ("t_s", "DOUBLE"),
+        ("previous_id", "BIGINT"), ("lead_id", "BIGINT"), ("distance_m", "DOUBLE"),
+        ("previous_distance_m", "DOUBLE"), ("cut_in", "BOOLEAN")),
+}
+
+Row = tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class DriveRows:
+    """The rows one drive gives each table (tuples in :data:`SCHEMA`'s column order)."""
+
+    path: str
+    tables: dict[str, list[Row]]
+
+
+def _utc(ns: int) -> datetime:
+    return datetime.fromtimestamp(ns // 1000 / 1e6, tz=timezone.utc).replace(tzinfo=None)
+
+
+def _json(values: dict[str, str], key: str, default: Any) -> Any:
+    try:
+        return json.loads(values[key])
+    except (KeyError, ValueError):
+        return default
+
+
+_RAISED = re.compile(r"ALARM (?P<id>.+?): (?P<message>.*)")
+_CLEARED = re.compile(r"cleared (?P<id>.+?)(?: \(the condition ended [^)]*\))?: was (?P<m>.*)")
+
+
+def alarm_events_from_log(messages: Iterable[tuple[int, str, str]]) -> list[dict[str, Any]]:
+    """Alarm events (as in the metadata record) from ``/log`` messages ``(t_ns, name, text)`` of
+    the health monitor (``tankviz.health``)."""
+    events: list[dict[str, Any]] = []
+    for t_ns, name, text in messages:
+        if name != "tankviz.health":
+            continue
+        if (raised := _RAISED.fullmatch(text)) is not None:
+            events.append({"alarm": raised["id"], "event": "raised", "t_ns": t_ns,
+                           "message": raised["message"]})
+        elif (cleared := _CLEARED.fullmatch(text)) is not None:
+            events.append({"alarm": cleared["id"], "event": "cleared", "t_ns": t_ns,
+                           "message": cleared["m"]})
+    return events
+
+
+def alarm_rows(drive: str, start_ns: int, events: Iterable[dict[str, Any]]) -> list[Row]:
+    """One row per raise of an alarm, with the clear that ended it (None: raised at the end)."""
+    open_: dict[str, tuple[int, str]] = {}
+    done: list[tuple[str, int, int | None, str]] = []
+    for e in sorted(events, key=lambda e: int(e["t_ns"])):
+        alarm, t_ns = str(e["alarm"]), int(e["t_ns"])
+        if e["event"] == "raised":
+            if alarm in open_:  # raised twice without a clear between: the first one ends here
+                raised_ns, message = open_.pop(alarm)
+                done.append((alarm, raised_ns, None, message))
+            open_[alarm] = (t_ns, str(e.get("message", "")))
+        elif e["event"] == "cleared" and alarm in open_:
+            raised_ns, message = open_.pop(alarm)
+            done.append((alarm, raised_ns, t_ns, message))
+    done += [(alarm, raised_ns, None, message) for alarm, (raised_ns, message) in open_.items()]
+    done.sort(key=lambda r: (r[1], r[0]))
+    return [(drive, alarm, _utc(raised), None if cleared is None else _utc(cleared), raised,
+             cleared, (raised - start_ns) / NS,
+             None if cleared is None else (cleared - start_ns) / NS, message)
+            for alarm, raised, cleared, message in done]
+
+
+@dataclass
+class _Objects:
+    topic: str
+    messages: int = 0
+    valid: int = 0
+    max_count: int = 0
+    min_distance: float | None = None
+    min_distance_ns: int | None = None
+
+    def see(self, t_ns: int, distances: Sequence[float]) -> None:
+        self.messages += 1
+        self.valid += len(distances)
+        self.max_count = max(self.max_count, len(distances))
+        if distances:
+            nearest = min(distances)
+            if self.min_distance is None or nearest < self.min_distance:
+                self.min_distance, self.min_distance_ns = nearest, t_ns
+
+
+@dataclass
+class _Lead:
+    rows: list[Row] = field(default_factory=list)
+    last_id: int | None = None
+    last_distance: float | None = None
+    present_before: bool = False
+
+    def see(self, drive: str, start_ns: int, t_ns: int, present: bool, lead_id: int,
+            distance: float) -> None:
+        if present and (not self.present_before or lead_id != self.last_id):
+            cut_in = (self.present_before and self.last_distance is not None
+                      and distance < self.last_distance)
+            self.rows.append((drive, _utc(t_ns), t_ns, (t_ns - start_ns) / NS, self.last_id,
+                              lead_id, distance, self.last_distance, cut_in))
+        if present:
+            self.last_id, self.last_distance = lead_id, distance
+        self.present_before = present
+
+
+def read_drive(path: Path | str) -> DriveRows:
+    """Every table's rows for one tankviz MCAP drive (:class:`~bridge.errors.InputError` if it
+    is none)."""
+    path = Path(path).absolute()
+    drive = str(path)
+    try:
+        stat = path.stat()
+        with path.open("rb") as stream:
+            return _read(drive, stat.st_size, stat.st_mtime_ns, stream)
+    except FileNotFoundError:
+        raise InputError(path, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, "is a folder, not an MCAP drive") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    except (McapError, ValueError, EOFError, KeyError, struct.error) as exc:
+        raise InputError(path, f"not a readable MCAP file ({exc})") from None
+
+
+def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
+    reader = make_reader(stream)
+    summary = reader.get_summary()
+    if summary is None or summary.statistics is None:
+        raise InputError(drive, "an MCAP file without a summary (a drive cut short?): "
+                         "`tankviz recover` makes a complete copy to index")
+    stats = summary.statistics
+    start_ns, end_ns = stats.message_start_time, stats.message_end_time
+    duration_s = (end_ns - start_ns) / NS if stats.message_count else 0.0
+    schemas = {i: s.name for i, s in summary.schemas.items()}
+    channels = sorted(summary.channels.values(), key=lambda c: c.topic)
+    schema_of = {c.topic: schemas.get(c.schema_id, "") for c in channels}
+    meta = next((dict(m.metadata) for m in reader.iter_metadata() if m.name == METADATA_NAME),
+                None)
+    if meta is None and HEALTH_SCHEMA not in schema_of.values():
+        raise InputError(drive, f"not a tankviz drive: no {METADATA_NAME!r} metadata record and "
+                         f"no {HEALTH_SCHEMA} channel")
+    meta = meta or {}
+    counts = stats.channel_message_counts
+    topics = [(drive, c.topic, schemas.get(c.schema_id, ""), c.message_encoding,
+               counts.get(c.id, 0), counts.get(c.id, 0) / duration_s if duration_s else None)
+              for c in channels]
+
+    objects = {t: _Objects(t) for t, s in schema_of.items() if s in (OBJECTS_SCHEMA, LEAD_SCHEMA)}
+    lead = _Lead()
+    logs: list[tuple[int, str, str]] = []
+    wanted = [*objects, *([LOG_TOPIC] if not meta and LOG_TOPIC in schema_of else [])]
+    if wanted:
+        for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            t_ns = message.log_time
+            if channel.topic == LOG_TOPIC and channel.topic not in objects:
+                logs.append(_log_entry(t_ns, message.data))
+            elif schema_of[channel.topic] == LEAD_SCHEMA:
+                v = perception_pb2.LeadVehicle.FromString(message.data)
+                objects[channel.topic].see(t_ns, [v.object.distance] if v.present else [])
+                lead.see(drive, start_ns, t_ns, v.present, v.object.id, v.object.distance)
+            else:
+                o = perception_pb2.PerceivedObjects.FromString(message.data)
+                objects[channel.topic].see(t_ns, [x.distance for x in o.objects])
+    objects_rows = [(drive, LEAD if schema_of[o.topic] == LEAD_SCHEMA else _group(o.topic),
+                     o.topic, o.messages, o.valid, o.max_count, o.min_distance, o.min_distance_ns,
+                     None if o.min_distance_ns is None else (o.min_distance_ns - start_ns) / NS)
+                    for o in objects.values()]
+
+    events = (_json(meta, "alarms", []) if "alarms" in meta else alarm_events_from_log(logs))
+    statistics = _json(meta, "statistics", {})
+    databases = _json(meta, "databases", [])
+    profile = _json(meta, "profile", None)
+
+    def total(key: str) -> int:
+        values = statistics.get(key, {})
+        return int(sum(values.values())) if isinstance(values, dict) else 0
+
+    drives_row = (
+        drive, size, mtime_ns, _utc(start_ns), _utc(end_ns), start_ns, end_ns, duration_s,
+        stats.message_count, profile.get("name") if isinstance(profile, dict) else None,
+        json.dumps([{"name": d.get("name"), "sha256": d.get("sha256"), "buses": d.get("buses")}
+                    for d in databases]),
+        sorted(statistics.get("frames", {})), total("frames"), total("error_frames"),
+        total("unknown_ids"), total("decode_errors"), total("truncated"),
+        json.dumps(statistics, sort_keys=True), meta.get("tankviz_version"), meta.get("created"))
+    return DriveRows(drive, {
+        "drives": [drives_row],
+        "databases": [(drive, d.get("name"), d.get("sha256"), list(d.get("buses", [])))
+                      for d in databases],
+        "alarms": alarm_rows(drive, start_ns, events),
+        "topics": topics,
+        "objects_summary": objects_rows,
+        "lead_changes": lead.rows,
+    })
+
+
+def _group(topic: str) -> str:
+    return topic.rsplit("/", 1)[-1]
+
+
+def _log_entry(t_ns: int, data: bytes) -> tuple[int, str, str]:
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+
+    log = Log.FromString(data)
+    return t_ns, log.name, log.message
+
+
+def read_drive_or_error(path: str) -> DriveRows | str:
+    """:func:`read_drive`, its error as its one-line message: what a Dask task returns."""
+    try:
+        return read_drive(path)
+    except BridgeError as exc:
+        return str(exc)
+    except Exception as exc:
+        return f"{path}: cannot index: {type(exc).__name__}: {exc}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Which files are drives
+
+_GLOB = re.compile(r"[*?\[]")
+
+
+def find_drives(inputs: Sequence[str]) -> list[Path]:
+    """The files ``inputs`` name: files as given, folders searched recursively for ``*.mcap``
+    (hidden files left out: a recorder's partial output), globs expanded (``**`` recursive)."""
+    found: dict[Path, None] = {}
+    for text in inputs:
+        path = Path(text)
+        if _GLOB.search(text):
+            matches = sorted(Path(p) for p in glob.glob(text, recursive=True))
+            if not matches:
+                raise InputError(text, "no file matches this pattern")
+            for m in matches:
+                if m.is_dir():
+                    found.update(dict.fromkeys(_in_folder(m)))
+                else:
+                    found[m.absolute()] = None
+        elif path.is_dir():
+            found.update(dict.fromkeys(_in_folder(path)))
+        elif path.exists():
+            found[path.absolute()] = None
+        else:
+            raise InputError(path, "no such file or folder")
+    return list(found)
+
+
+def _in_folder(folder: Path) -> Iterator[Path]:
+    for p in sorted(folder.rglob("*.mcap")):
+        if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts):
+            yield p.absolute()
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading many drives: here or on Dask workers
+
+Reader = Callable[[Sequence[str]], Iterator[DriveRows | str]]
+
+
+def read_here(paths: Sequence[str]) -> Iterator[DriveRows | str]:
+    """Read drives one after the other in this process."""
+    for p in paths:
+        yield read_drive_or_error(p)
+
+
+def dask_reader(*, workers: int | None = None, scheduler: str | None = None) -> Reader:
+    """Read drives on Dask workers: a local cluster of ``workers`` processes, or the cluster of
+    ``scheduler`` (whose workers must see the same paths)."""
+    try:  # (untyped: used through Any)
+        distributed: Any = importlib.import_module("dask.distributed")
+    except ImportError:
+        raise UsageError(f"--workers and --scheduler read drives on Dask, which is not "
+                         f"installed: {FLEET_EXTRA}") from None
+    if workers is not None and workers < 1:
+        raise UsageError(f"--workers {workers}: expected at least 1")
+
+    def read(paths: Sequence[str]) -> Iterator[DriveRows | str]:
+        if not paths:
+            return
+        if scheduler is not None:
+            try:
+                client = distributed.Client(scheduler, timeout="10s")
+            except OSError as exc:
+                raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            cluster = None
+        else:
+            cluster = distributed.LocalCluster(n_workers=workers or 1, threads_per_worker=1,
+                                   processes=True, dashboard_address=None)
+            client = distributed.Client(cluster)
+        try:
+            futures = client.map(read_drive_or_error, list(paths), pure=False)
+            for future in distributed.as_completed(futures):
+                yield future.result()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+    return read
+
+
+# ---------------------------------------------------------------------------------------------
+# The DuckDB file
+
+def connect(catalog: Path | str, *, create: bool = False) -> Any:
+    """A DuckDB connection to ``catalog`` (its tables made when ``create``)."""
+    try:
+        import duckdb
+    except ImportError:
+        raise UsageError(f"the catalogue is a DuckDB file, and duckdb is not installed: "
+                         f"{FLEET_EXTRA}") from None
+    catalog = Path(catalog)
+    if not create and not catalog.is_file():
+        raise InputError(catalog, "no such catalogue (make one with tankviz catalog DRIVES... "
+                         f"-o {catalog})")
+    try:
+        con = duckdb.connect(str(catalog), read_only=not create)
+    except duckdb.Error as exc:
+        raise InputError(catalog, f"cannot open as a DuckDB catalogue: "
+                         f"{' '.join(str(exc).split())}") from None
+    if create:
+        for table, columns in SCHEMA.items():
+            con.execute(f"CREATE TABLE IF NOT EXISTS {table} ("
+                        + ", ".join(f'"{name}" {kind}' for name, kind in columns) + ")")
+    return con
+
+
+@dataclass
+class IndexReport:
+    """What :func:`index` did."""
+
+    new: list[str] = field(default_factory=list)
+    changed: list[str] = field(default_factory=list)
+    unchanged: list[str] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)
+    #: ``(path, one-line error)`` of every drive that could not be indexed
+    failed: list[tuple[str, str]] = field(default_factory=list)
+
+    @property
+    def read(self) -> list[str]:
+        """Every drive read this time (new or changed), indexed or failed."""
+        return [*self.new, *self.changed, *(p for p, _ in self.failed)]
+
+    def summary(self, catalog: Path | str) -> str:
+        return (f"{catalog}: {len(self.new)} new, {len(self.changed)} changed, "
+                f"{len(self.unchanged)} unchanged, {len(self.removed)} removed, "
+                f"{len(self.failed)} not indexed")
+
+
+def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_here
+          ) -> IndexReport:
+    """(Re)index the drives ``inputs`` name into ``catalog``: only new or changed drives (size
+    or modification time) are read; drives whose file is gone are removed."""
+    files = find_drives(inputs)
+    con = connect(catalog, create=True)
+    report = IndexReport()
+    try:
+        known = {p: (size, mtime) for p, size, mtime in
+                 con.execute("SELECT path, size, mtime_ns FROM drives").fetchall()}
+        to_read: list[str] = []
+        for f in files:
+            key, stat = str(f), f.stat()
+            if key not in known or known[key] != (stat.st_size, stat.st_mtime_ns):
+                to_read.append(key)
+            else:
+                report.unchanged.append(key)
+        for p in sorted(known):
+            if not Path(p).exists():
+                _delete(con, p)
+                report.removed.append(p)
+        for result in reader(to_read):
+            if isinstance(result, str):
+                path = next((p for p in to_read if result.startswith(p + ":")), result)
+                report.failed.append((path, result))
+                if path in known:  # changed into something unreadable: not what it was
+                    _delete(con, path)
+                continue
+            _write(con, result)
+            (report.changed if result.path in known else report.new).append(result.path)
+    finally:
+        con.close()
+    return report
+
+
+def _delete(con: Any, drive: str) -> None:
+    con.begin()
+    for table in SCHEMA:
+        con.execute(f"DELETE FROM {table} WHERE {'path' if table == 'drives' else 'drive'} = ?",
+                    [drive])
+    con.commit()
+
+
+def _write(con: Any, rows: DriveRows) -> None:
+    con.begin()
+    try:
+        for table in SCHEMA:
+            con.execute(f"DELETE FROM {table} WHERE {'path' if table == 'drives' else 'drive'}"
+                        " = ?", [rows.path])
+            if rows.tables[table]:
+                marks = ", ".join("?" * len(SCHEMA[table]))
+                con.executemany(f"INSERT INTO {table} VALUES ({marks})", rows.tables[table])
+        con.commit()
+    except BaseException:
+        con.rollback()
+        raise
+
+
+# ---------------------------------------------------------------------------------------------
+# Questions
+
+@dataclass(frozen=True)
+class Answer:
+    """Columns and rows of a query, with the catalogue's drive start times (for open hints)."""
+
+    columns: list[str]
+    rows: list[Row]
+    starts: dict[str, int]
+
+
+def query(catalog: Path | str, sql: str, parameters: Sequence[Any] = ()) -> Answer:
+    """Run ``sql`` on ``catalog`` (read only)."""
+    import duckdb
+
+    con = connect(catalog)
+    try:
+        try:
+            result = con.execute(sql, list(parameters))
+        except duckdb.Error as exc:
+            raise UsageError(f"{catalog}: {' '.join(str(exc).split())}") from None
+        if result.description is None:
+            return Answer([], [], {})
+        columns = [d[0] for d in result.description]
+        rows = result.fetchall()
+        starts = dict(con.execute("SELECT path, start_ns FROM drives").fetchall())
+    finally:
+        con.close()
+    return Answer(columns, rows, starts)
+
+
+def _check_name(catalog: Path | str, what: str, column: str, table: str, name: str) -> None:
+    known = [r[0] for r in query(catalog, f"SELECT DISTINCT {column} FROM {table}").rows]
+    if name not in known:
+        close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
+        hint = f"; closest: {', '.join(close)}" if close else ""
+        raise UsageError(f"{catalog}: no {what} {name!r} in any drive of the catalogue{hint}")
+
+
+def _between_sql(column: str, between: tuple[str, str] | None) -> tuple[str, list[Any]]:
+    if between is None:
+        return "", []
+    return f" AND {column} >= ? AND {column} <= ?", [*_times(between)]
+
+
+def _times(between: tuple[str, str]) -> tuple[datetime, datetime]:
+    out = []
+    for text in between:
+        try:
+            t = datetime.fromisoformat(text)
+        except ValueError:
+            raise UsageError(f"--between {text}: expected a date or time such as 2026-01-01 or "
+                             "2026-01-01T12:00:00 (UTC)") from None
+        if t.tzinfo is not None:
+            t = t.astimezone(timezone.utc).replace(tzinfo=None)
+        out.append(t)
+    first, last = out
+    if len(between[1]) == 10:  # a date alone: the whole day
+        last = last.replace(hour=23, minute=59, second=59, microsecond=999999)
+    if last < first:
+        raise UsageError(f"--between {between[0]} {between[1]}: the end is before the start")
+    return first, last
+
+
+def alarm_query(catalog: Path | str, alarm: str, between: tuple[str, str] | None = None
+                ) -> Answer:
+    """Every time ``alarm`` was raised, drive by drive in the order they were recorded."""
+    _check_name(catalog, "alarm", "alarm", "alarms", alarm)
+    where, params = _between_sql("a.raised", between)
+    return query(catalog, "SELECT a.drive, a.alarm, a.raised, a.cleared, a.raised_ns, a.message "
+                 "FROM alarms a JOIN drives d ON a.drive = d.path WHERE a.alarm = ?" + where
+                 + " ORDER BY d.start_ns, a.raised_ns", [alarm, *params])
+
+
+def topic_query(catalog: Path | str, topic: str, between: tuple[str, str] | None = None
+                ) -> Answer:
+    """Every drive with ``topic``: its count and rate, in the order they were recorded."""
+    _check_name(catalog, "topic", "topic", "topics", topic)
+    where, params = ("", []) if between is None else (
+        " AND d.end_time >= ? AND d.start_time <= ?", list(_times(between)))
+    return query(catalog, "SELECT t.drive, t.topic, t.schema, t.count, t.rate_hz, d.start_time, "
+                 "d.start_ns FROM topics t JOIN drives d ON t.drive = d.path WHERE t.topic = ?"
+                 + where + " ORDER BY d.start_ns", [topic, *params])
+
+
+def between_query(catalog: Path | str, between: tuple[str, str]) -> Answer:
+    """Every drive recorded (in part) between two times."""
+    return query(catalog, "SELECT path AS drive, start_time, end_time, duration_s, profile, "
+                 "start_ns FROM drives WHERE end_time >= ? AND start_time <= ? "
+                 "ORDER BY start_ns", list(_times(between)))
+
+
+@dataclass(frozen=True)
+class OpenHint:
+    """How to open one answer: the drive, seconds into it, the log time."""
+
+    drive: str
+    start_s: float
+    t_ns: int
+
+    def command(self) -> str:
+        return f"tankviz replay {_quote(self.drive)} --start {self.start_s:.3f}"
+
+    def line(self) -> str:
+        return (f"{self.command()}    # Foxglove: jump to {format_time(self.t_ns)} "
+                f"(log time {self.t_ns // NS}.{self.t_ns % NS:09d})")
+
+
+def _quote(path: str) -> str:
+    import shlex
+
+    return shlex.quote(path)
+
+
+def open_hints(answer: Answer) -> list[OpenHint | None]:
+    """For each row with a drive (column ``drive`` or ``path``, a catalogued drive) and a log
+    time (its first ``*_ns`` column): how to open it there; None for the other rows."""
+    drive_col = next((i for i, c in enumerate(answer.columns) if c in ("drive", "path")), None)
+    time_col = next((i for i, c in enumerate(answer.columns) if c.endswith("_ns")), None)
+    hints: list[OpenHint | None] = []
+    for row in answer.rows:
+        drive = row[drive_col] if drive_col is not None else None
+        t_ns = row[time_col] if time_col is not None else None
+        if isinstance(drive, str) and drive in answer.starts and isinstance(t_ns, int):
+            start = answer.starts[drive]
+            hints.append(OpenHint(drive, max(0.0, (t_ns - start) // 1_000_000 / 1000), t_ns))
+        else:
+            hints.append(None)
+    return hints
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return "NULL"
+    if isinstance(value, float):
+        return f"{value:.3f}"
+    if isinstance(value, datetime):
+        return value.isoformat(sep=" ", timespec="milliseconds")
+    if isinstance(value, list):
+        return ", ".join(str(v) for v in value)
+    return str(value)
+
+
+def format_answer(answer: Answer) -> str:
+    """The answer as a table, then how to open each row that names a drive and a time."""
+    if not answer.columns:
+        return "(no result)"
+    cells = [[_cell(v) for v in row] for row in answer.rows]
+    widths = [max([len(c), *(len(r[i]) for r in cells)]) for i, c in enumerate(answer.columns)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(answer.columns, widths, strict=True)).rstrip(),
+             "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+              for r in cells]
+    lines.append(f"({len(answer.rows)} row{'s' if len(answer.rows) != 1 else ''})")
+    hints = [h for h in open_hints(answer) if h is not None]
+    if hints:
+        lines += ["", "open:"]
+        lines += [f"  {h.line()}" for h in hints]
+    return "\n".join(lines)
