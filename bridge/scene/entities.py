@@ -2,10 +2,17 @@
 
 The look is the Tank Viz baseline: an orange-brown ego box (placed about the vehicle origin as
 the profile's ``[vehicle] origin`` says), green camera lanes (magenta when extrapolated from
-the steering angle), small blue radar and white camera spheres, red track
-spheres labelled "TrackID: n / x: … / y: …", a green lead-vehicle box labelled "Lead Vehicle /
-x: … / y: …". Beyond it: class labels, pedestrians as tall yellow cylinders that cannot be missed,
-neighbour lane lines, sensor frames and the MIO check.
+the steering angle), small blue radar and white camera spheres, red tracks labelled
+"TrackID: n / x: … / y: …", a green lead-vehicle box labelled "Lead Vehicle / x: … / y: …".
+Beyond it: class labels, pedestrians as tall yellow cylinders that cannot be missed, neighbour
+lane lines, sensor frames and the MIO check.
+
+Where a track and the detections it was fused from meet, both stay visible and readable: a track
+is a flat red disc (a squashed sphere, wider than a detection's ball) at the height of the balls'
+centres, so a detection at its place stands out of it in its own colour; and a place has one
+label block: the track's (its id, position and class, then "group: class" for a detection of
+another class there; the lead box's when the track is the lead). A detection within
+SHARED_PLACE_M of a track has no label of its own.
 
 Foxglove decodes protobuf with defaults, and a default is invisible (alpha 0, font size 0,
 thickness 0, a zero quaternion): every visible field is set here explicitly.
@@ -14,8 +21,8 @@ thickness 0, a zero quaternion): every visible field is set here explicitly.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any, TypeAlias
 
@@ -55,7 +62,14 @@ MIO_COLOR: RGBA = (1.0, 0.55, 0.0, 1.0)  # orange
 TEXT_COLOR: RGBA = (1.0, 1.0, 1.0, 1.0)
 
 DETECTION_SIZE = 0.5  # m, sphere diameter
-TRACK_SIZE = 0.8
+OBJECT_Z = 0.5  # m, height of the centre of every object's marker
+# A track is a flat red disc (a squashed sphere) around the object's centre: a detection at the
+# same place (a ball of DETECTION_SIZE) stands out of it above and below, in its own colour.
+TRACK_SIZE = 1.1  # m, disc diameter
+TRACK_HEIGHT = 0.15  # m, disc thickness
+# A detection this close to a track (m, in the ground plane) is at the track's place: its label
+# would be drawn over the track's, so the track's one label block speaks for it.
+SHARED_PLACE_M = 2.0
 LEAD_BOX = (4.5, 1.9, 1.5)  # m
 LANE_THICKNESS = 0.15  # m
 FONT_SIZE = 14.0  # px (scale invariant)
@@ -119,11 +133,14 @@ def entity(t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
     return e
 
 
-def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: RGBA) -> None:
+def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: RGBA,
+               height: float | None = None) -> None:
+    """A sphere of diameter ``size`` (squashed to ``height`` when given)."""
     ball = e.spheres.add()
     set_pose(ball.pose, x, y, z)
     extent = ball.size
-    extent.x = extent.y = extent.z = size
+    extent.x = extent.y = size
+    extent.z = size if height is None else height
     ball.color.CopyFrom(_color(rgba))
 
 
@@ -189,11 +206,11 @@ def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectCl
     pedestrian cylinder stand at x = y = 0. Never changed, only copied."""
     e = _template("", lifetime_s)
     if track:
-        add_sphere(e, 0.0, 0.0, 0.5, TRACK_SIZE, TRACK_COLOR)
+        add_sphere(e, 0.0, 0.0, OBJECT_Z, TRACK_SIZE, TRACK_COLOR, TRACK_HEIGHT)
         if labelled:
             add_text(e, 0.0, 0.0, 1.6, "")
     else:
-        add_sphere(e, 0.0, 0.0, 0.5, DETECTION_SIZE,
+        add_sphere(e, 0.0, 0.0, OBJECT_Z, DETECTION_SIZE,
                    RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR)
         if labelled:
             add_text(e, 0.0, 0.0, 1.1, CLASS_LABELS[object_class])
@@ -205,20 +222,61 @@ def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectCl
     return e
 
 
+@dataclass(frozen=True)
+class SharedPlaces:
+    """Detections at a track's place (within SHARED_PLACE_M): one label block for the place."""
+
+    #: (group, id) of the detections whose label the track's block carries
+    covered: frozenset[tuple[str, int]] = frozenset()
+    #: (group, id) of a track -> lines its block adds: the other classes seen at its place
+    notes: Mapping[tuple[str, int], tuple[str, ...]] = field(default_factory=dict)
+
+
+def shared_places(tracks: Sequence[ObjectObservation],
+                  detections: Iterable[ObjectObservation]) -> SharedPlaces:
+    """Which labelled detections sit at a track's place (the nearest track within
+    SHARED_PLACE_M): their label is left to the track's block, which adds "group: class" for
+    a class other than its own."""
+    covered: set[tuple[str, int]] = set()
+    notes: dict[tuple[str, int], set[str]] = {}
+    limit = SHARED_PLACE_M ** 2
+    for d in detections:
+        if d.object_class not in CLASS_LABELS or not tracks:
+            continue
+        nearest = min(tracks, key=lambda t: (t.x - d.x) ** 2 + (t.y - d.y) ** 2)
+        if (nearest.x - d.x) ** 2 + (nearest.y - d.y) ** 2 >= limit:
+            continue
+        covered.add((d.group, d.object_id))
+        if d.object_class is not nearest.object_class:
+            notes.setdefault((nearest.group, nearest.object_id), set()).add(
+                f"{d.group}: {CLASS_LABELS[d.object_class]}")
+    return SharedPlaces(frozenset(covered), {k: tuple(sorted(v)) for k, v in notes.items()})
+
+
+_NOWHERE = SharedPlaces()
+
+
 def object_entities(into: Entities, objects: Iterable[ObjectObservation], kind: SensorKind,
                     group: str, t_ns: int, lifetime_s: float,
-                    lead: ObjectObservation | None = None, *, track: bool | None = None) -> None:
-    """Detections (radar blue, camera white) or tracks (red, labelled), with class labels.
+                    lead: ObjectObservation | None = None, *, track: bool | None = None,
+                    places: SharedPlaces = _NOWHERE) -> None:
+    """Detections (radar blue, camera white balls) or tracks (red discs, labelled), with class
+    labels: one label block per place.
 
     ``track``: the group's role is tracks (default: the sensor ``kind`` is fusion). The track
-    that is ``lead`` keeps its sphere; its label is the lead vehicle's (one label, not two drawn
-    over each other).
+    that is ``lead`` keeps its disc; its label is the lead vehicle's (one label, not two drawn
+    over each other). A detection at a track's place (``places``, see shared_places) has no
+    label of its own: the track's block carries it.
     """
     stamp = _stamp(t_ns)
     if track is None:
         track = kind is SensorKind.FUSION
     for o in sorted(objects, key=lambda o: o.object_id):
-        labelled = o is not lead if track else o.object_class in CLASS_LABELS
+        if track:
+            labelled = o is not lead
+        else:
+            labelled = (o.object_class in CLASS_LABELS
+                        and (o.group, o.object_id) not in places.covered)
         e = into.add()
         e.MergeFrom(_object_template(kind, lifetime_s, o.object_class, labelled, track))
         e.id = f"{group}-{o.object_id}"
@@ -229,16 +287,17 @@ def object_entities(into: Entities, objects: Iterable[ObjectObservation], kind: 
             label = e.texts[0]
             _place(label, x, y)
             if track:
-                label.text = track_label(o)
+                label.text = track_label(o, places.notes.get((o.group, o.object_id), ()))
         if o.object_class is ObjectClass.PEDESTRIAN:
             _place(e.cylinders[0], x, y)
 
 
-def track_label(o: ObjectObservation) -> str:
+def track_label(o: ObjectObservation, notes: Sequence[str] = ()) -> str:
+    """The seed's "TrackID: n / x: … / y: …", then the class, then ``notes`` (one a line)."""
     label = f"TrackID: {o.object_id}\nx: {o.x:.2f}\ny: {o.y:.2f}"
     if o.object_class in CLASS_LABELS:
         label += f"\n{CLASS_LABELS[o.object_class]}"
-    return label
+    return "\n".join([label, *notes])
 
 
 @lru_cache(maxsize=16)
@@ -254,8 +313,10 @@ def _lead_template(lifetime_s: float) -> SceneEntity:
 
 
 def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
-                  lifetime_s: float, track: ObjectObservation | None = None) -> None:
-    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``."""
+                  lifetime_s: float, track: ObjectObservation | None = None,
+                  notes: Sequence[str] = ()) -> None:
+    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``
+    and the ``notes`` of the track's place (see shared_places)."""
     if lead is None:
         return
     e = into.add()
@@ -267,6 +328,7 @@ def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
         label += f"\nTrackID: {track.object_id}"
         if track.object_class in CLASS_LABELS:
             label += f"\n{CLASS_LABELS[track.object_class]}"
+        label = "\n".join([label, *notes])
     text = e.texts[0]
     text.text = label
     _place(text, lead.x, lead.y)
@@ -341,10 +403,19 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
     lane_entities(category("lanes"), lanes, t_ns)
     # The lead that is a track is labelled once, on the lead box.
     lead_track = check.expected if check.ok and check.lead is not None else None
+    # A detection at a track's place is labelled once, in the track's block.
+    places = shared_places(
+        [o for name, g in profile.groups.items() if g.is_tracks
+         for o in world.objects[name].values()],
+        [o for name, g in profile.groups.items() if not g.is_tracks
+         for o in world.objects[name].values()])
     for name, group in profile.groups.items():
         object_entities(category(name), world.objects[name].values(), group.sensor.kind, name,
-                        t_ns, group.lifetime_s, lead_track, track=group.is_tracks)
+                        t_ns, group.lifetime_s, lead_track, track=group.is_tracks, places=places)
     if profile.lead is not None:
-        lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s, lead_track)
+        lead_notes = (() if lead_track is None
+                      else places.notes.get((lead_track.group, lead_track.object_id), ()))
+        lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s, lead_track,
+                      lead_notes)
         mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
     return {name: with_deletions(scene_topic(name), u, t_ns, state) for name, u in out.items()}
