@@ -3,7 +3,8 @@ package @foxglove/studio-base, mounted by tests/browser/host) in headless Chromi
 tankviz serves live (`tankviz demo`, `tankviz replay`) and what it records (`tankviz simulate`,
 opened as a remote file), with the bundled layouts applied through the app's own "Import
 layout" button (or preloaded into its layout storage); the checks read the screenshots' pixels
-(ego box, lanes, detections, tracks, lead box), the text labels (OCR with tesseract), the
+(ego box, lanes, detections, tracks, lead box, a detection showing inside the track at its
+place), the text labels (OCR with tesseract), the
 panels' text (plot legends, Raw Messages, Log) and the Indicator panels of the sensor health
 alarms (their label, and their colour read from the pixels).
 
@@ -179,10 +180,39 @@ def active_alarms_at(drive: Path, seconds: float) -> set[str]:
     return {alarm.id for alarm in latest.alarms if alarm.active}
 
 
-def indicators(layout: str, active: set[str]) -> dict[str, dict[str, str]]:
-    """What each Indicator panel of a layout must show: its rule for true (the alarm is active)
-    or false (label and colour), read from the layout itself."""
-    data = json.loads((LAYOUTS / layout).read_text(encoding="utf-8"))
+def track_with_its_detections_at(drive: Path, window_s: tuple[float, float],
+                                 near: tuple[float, float] = (8.0, 40.0)) -> float:
+    """Seconds into the drive of its first scene in `window_s` where a labelled track (not the
+    lead: that one is inside the see-through lead box) has a radar and a camera detection at its
+    very place (within 10 cm), `near` metres ahead: read from the drive's /scene topics."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    latest: dict[str, list[tuple[float, float]]] = {}
+    with drive.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, message, update in reader.iter_decoded_messages(
+                topics=["/scene/radar", "/scene/camera", "/scene/tracks"], log_time_order=True):
+            latest[channel.topic] = [(e.spheres[0].pose.position.x, e.spheres[0].pose.position.y)
+                                     for e in update.entities if e.spheres
+                                     and (channel.topic != "/scene/tracks" or e.texts)]
+            seconds = (message.log_time - DEFAULT_START_NS) / 1e9
+            if not window_s[0] <= seconds <= window_s[1]:
+                continue
+            for tx, ty in latest.get("/scene/tracks", []):
+                if near[0] <= tx <= near[1] and all(
+                        any(abs(tx - x) < 0.1 and abs(ty - y) < 0.1 for x, y in latest.get(t, []))
+                        for t in ("/scene/radar", "/scene/camera")):
+                    return seconds
+    raise AssertionError(f"{drive}: no labelled track with a radar and a camera detection at "
+                         f"its place, {near[0]}-{near[1]} m ahead, in {window_s} s")
+
+
+def indicators(layout: str, active: set[str], folder: Path = LAYOUTS
+               ) -> dict[str, dict[str, str]]:
+    """What each Indicator panel of a layout (in `folder`) must show: its rule for true (the
+    alarm is active) or false (label and colour), read from the layout itself."""
+    data = json.loads((folder / layout).read_text(encoding="utf-8"))
     out = {}
     for panel_id, config in data["configById"].items():
         if panel_id.startswith("Indicator!"):
@@ -320,6 +350,9 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         f"the drive's /health at {radar_out_s} s (radar dropout {radar_begin}-{radar_end} s): "
         f"active {sorted(radar_alarms)}")
     radar_out = drive_time(radar_out_s)
+    # A track and the radar and camera detections it was fused from at one place, in the healthy
+    # part of the drive (before its first fault).
+    together = drive_time(track_with_its_detections_at(drive, (5.0, begin)))
     # The live sources, each started for its shot when the browser is ready for it.
     sources = {
         "demo": ["demo", "--port", "0", "--no-record", "--scenario", f"{DEMO_SCENARIO_S:g}"],
@@ -371,10 +404,16 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
              "via": "import", "layout": str(LAYOUTS / "can-debug.json"),
              "plots": True, "plotExtent": 0.8,
              "indicators": indicators("can-debug.json", radar_alarms),
-             "panelText": {"RawMessages!frames": ["tankviz.CanFrame @", "dlc", "data"],
+             "panelText": {"RawMessages!frames-can0": ["tankviz.CanFrame @", "dlc", "data"],
                            "SourceInfo!topics": ["/can/can0/frames", "tankviz.CanFrame",
                                                  "/health", "tankviz.Health"]},
              "screenshot": str(out / "can-debug.png")},
+            # A track and its detections at one place: both drawn, each in its own colour.
+            {"name": "together", "source": {"mcap": drive.name, "time": together},
+             "via": "preload", "layout": str(LAYOUTS / "tank-viz.json"),
+             "scene": {"panel": "3D!tankviz", "expect": ["ego", "tracks"],
+                       "inside": {"red": ["blue", "white"]}},
+             "screenshot": str(out / "together.png")},
         ],
     }
     (out / "plan.json").write_text(json.dumps(plan, indent=2), encoding="utf-8")
@@ -494,11 +533,24 @@ def test_engineer_indicators_in_the_radar_dropout(e2e: dict[str, Any]) -> None:
 def test_can_debug_layout(e2e: dict[str, Any]) -> None:
     shot = shot_named(e2e, "can-debug")
     assert shot["ok"], explain(shot)
-    assert len(shot["plots"]) == 7
+    assert len(shot["plots"]) == 9  # 6 of the signals ecocar reads, 3 of the bus's health
     for plot in shot["plots"].values():
         assert plot["missingValues"] == [] and plot["extent"] >= 0.8
     assert set(shot["indicators"]) == {"Indicator!bus.can0.silent", "Indicator!bus.can0.babbling"}
     assert {i["label"] for i in shot["indicators"].values()} == {"OK"}
+
+
+def test_a_track_does_not_hide_the_detections_at_its_place(e2e: dict[str, Any]) -> None:
+    """The recorded drive where a track and the radar and camera detections it was fused from
+    are at one place: the blue and the white detection show inside the track's red region."""
+    shot = shot_named(e2e, "together")
+    assert shot["ok"], explain(shot)
+    inside = shot["reading"]["inside"]
+    for colour in ("blue", "white"):
+        (track, detection) = inside[colour][0]
+        assert track["x0"] <= detection["cx"] <= track["x1"], inside
+        assert track["y0"] <= detection["cy"] <= track["y1"], inside
+        assert detection["area"] < track["area"], inside
 
 
 def test_no_errors_in_the_app(e2e: dict[str, Any]) -> None:
@@ -506,6 +558,132 @@ def test_no_errors_in_the_app(e2e: dict[str, Any]) -> None:
         shot = shot_named(e2e, name)
         errors = [e for e in shot["errors"] if "WebGL" not in e]
         assert errors == [], f"{shot['name']}: {errors}"
+
+
+# --- layouts made for another car's profile (tankviz layouts --profile) ---------------------------
+
+#: A car that is not ecocar: GM's object bus (tests/profiles/gm_object.toml, opendbc's
+#: gm_global_a_object.dbc): radar tracks in polar coordinates, camera objects, camera lanes given
+#: as distances, the lead chosen among the tracks.
+GM_PROFILE = ROOT / "tests" / "profiles" / "gm_object.toml"
+GM_DBC = "gm_global_a_object.dbc"
+#: Seconds of the GM drive, and where it is opened (families' rates are learned in 3 s).
+GM_DRIVE_S, GM_AT_S = 10.0, 8.0
+
+
+def gm_drive_log(path: Path) -> Path:
+    """A BLF log of the GM car at 20 Hz: a track 30 m straight ahead (the lead, x 33.6 m), a
+    track 25 m away 8 degrees to the left (y +3.5 m), a camera object 40 m away 5 degrees to the
+    right, and the camera's lane lines 1.7 m left and 1.9 m right."""
+    import can
+    import cantools
+    from conftest import SHARED_DBC, message
+
+    db = cantools.database.load_file(SHARED_DBC / GM_DBC)
+    t0 = DEFAULT_START_NS / 1e9
+    with can.Logger(path) as logger:
+        for i in range(round(GM_DRIVE_S * 20)):
+            t = t0 + i * 0.05
+            for m in [
+                message(db, "LRRObject01", t, TrkRange=30.0, TrkAzimuth=0.0, TrkObjectID=7),
+                message(db, "LRRObject02", t + 0.001, TrkRange=25.0, TrkAzimuth=8.0,
+                        TrkObjectID=12),
+                message(db, "F_Vision_Obj_Track_1", t + 0.002, FwdVsnRngTrk1Rev=40.0,
+                        FwdVsnAzmthTrk1Rev=-5.0),
+                message(db, "F_Vision_Environment", t + 0.003, LnSenseDistToLLnEdge=1.7,
+                        LnSnsDistToRLnEdge=1.9, LaneSnsLLnPosValid=0, LnSnsRLnPosValid=0),
+                message(db, "F_Vision_Environment_5", t + 0.004, LnMrkg3LnSnsLnDst=5.4,
+                        LnMrkg3LnQltyConfLvl=80),
+                message(db, "F_Vision_Environment_6", t + 0.005, LnMrkg4LnSnsLnDst=-5.6,
+                        LnMrkg4LnQltyConfLvl=80),
+            ]:
+                logger.on_message_received(m)
+    return path
+
+
+@pytest.fixture(scope="module")
+def e2e_gm(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The GM car's drive, converted with its profile, opened in the browser with the layouts
+    `tankviz layouts --profile` made for it, each through the app's Import layout (preload
+    serves the repository's layouts/ only); its own browser session: two shots."""
+    from conftest import SHARED_DBC, SHARED_DBC_ORIGIN
+
+    if not (SHARED_DBC / GM_DBC).is_file():
+        pytest.skip(f"public DBCs not found at {SHARED_DBC}: {SHARED_DBC_ORIGIN}")
+    browser = chromium()
+    if browser is None:
+        unavailable("chromium is not installed (apt-get install chromium)")
+    ensure_node_modules()
+    out = Path(os.environ.get("TANKVIZ_E2E_OUT") or tmp_path_factory.mktemp("e2e-gm")) / "gm"
+    out.mkdir(parents=True, exist_ok=True)
+    log = gm_drive_log(out / "gm.blf")
+    drive = out / "gm.mcap"
+    dbc = str(SHARED_DBC / GM_DBC)
+    for args in (["convert", str(log), "-o", str(drive), "--dbc", dbc, "--profile",
+                  str(GM_PROFILE), "--force", "--quiet"],
+                 ["layouts", "--profile", str(GM_PROFILE), "--dbc", dbc, "--export",
+                  str(out / "layouts"), "--force"]):
+        subprocess.run([sys.executable, "-m", "bridge", *args], cwd=ROOT, check=True,
+                       capture_output=True)
+    layouts = out / "layouts"
+    active = active_alarms_at(drive, GM_AT_S)
+    at = drive_time(GM_AT_S)
+    plan = {
+        "chromium": browser, "dataDir": str(out), "timeoutMs": round(WAIT_S * 1000),
+        "reportMs": round(REPORT_S * 1000), "viewport": {"width": 1600, "height": 1000},
+        "shots": [
+            {"name": "gm-tank-viz", "source": {"mcap": drive.name, "time": at},
+             "via": "import", "layout": str(layouts / "tank-viz.json"),
+             "scene": {"panel": "3D!tankviz",
+                       "expect": ["ego", "greenLanes", "tracks", "camera", "lead"],
+                       "absent": ["magentaLanes", "radar"]},
+             "screenshot": str(out / "gm-tank-viz.png")},
+            {"name": "gm-engineer", "source": {"mcap": drive.name, "time": at},
+             "via": "import", "layout": str(layouts / "engineer.json"),
+             "scene": {"panel": "3D!engineer", "expect": ["ego", "greenLanes", "tracks"]},
+             "plots": True, "plotExtent": 0.5,
+             "indicators": indicators("engineer.json", active, layouts),
+             "screenshot": str(out / "gm-engineer.png")},
+        ],
+    }
+    (out / "plan.json").write_text(json.dumps(plan, indent=2), encoding="utf-8")
+    run = run_driver(out / "plan.json", {}, len(plan["shots"]))
+    (out / "driver.log").write_text("\n".join(run.log) + "\n", encoding="utf-8")
+    engineer = json.loads((layouts / "engineer.json").read_text(encoding="utf-8"))
+    return {"shots": run.shots, "problem": run.problem, "out": out, "active": active,
+            "engineer": engineer}
+
+
+def test_layouts_made_for_a_gm_car_show_its_tracks_lanes_and_alarms(
+        e2e_gm: dict[str, Any]) -> None:
+    """Another car than ecocar: its drive in the layouts `tankviz layouts --profile` made for it.
+    Its tracks (red), camera objects (white), green camera lanes and the lead box are drawn where
+    the log put them, and the engineer layout shows one Indicator per alarm of this profile
+    (none of ecocar's), each a green OK on this healthy drive."""
+    assert e2e_gm["active"] == set(), "a healthy drive: no alarm at the shot's time"
+    shot = shot_named(e2e_gm, "gm-tank-viz")
+    assert shot["ok"], explain(shot)
+    reading = shot["reading"]
+    ego_x, ego_y = reading["ego"]["cx"], reading["ego"]["cy"]
+    # The track 8 degrees to the left is left of the ego, the lead (straight ahead) above it,
+    # the camera object to the right; a lane line on each side.
+    assert any(t["cx"] < ego_x - 20 and t["cy"] < ego_y for t in reading["tracks"]), reading
+    assert any(c["cx"] > ego_x + 20 and c["cy"] < ego_y for c in reading["camera"]), reading
+    assert reading["lead"][0]["cy"] < ego_y and abs(reading["lead"][0]["cx"] - ego_x) < 60
+    lanes = reading["lanes"]["brightGreen"]
+    assert any(b["cx"] < ego_x for b in lanes) and any(b["cx"] > ego_x for b in lanes)
+    engineer = shot_named(e2e_gm, "gm-engineer")
+    assert engineer["ok"], explain(engineer)
+    shown = engineer["indicators"]
+    alarms = [k for k in e2e_gm["engineer"]["configById"] if k.startswith("Indicator!")]
+    assert set(shown) == set(alarms) and len(alarms) == 9
+    assert {"Indicator!lrr.silent", "Indicator!vision.silent", "Indicator!camera.silent",
+            "Indicator!lanes.lost", "Indicator!bus.can0.silent"} <= set(shown)
+    assert "Indicator!radar.silent" not in shown, "no ecocar alarm"
+    assert {i["label"] for i in shown.values()} == {"OK"}
+    for name in ("gm-tank-viz", "gm-engineer"):
+        errors = [e for e in shot_named(e2e_gm, name)["errors"] if "WebGL" not in e]
+        assert errors == [], f"{name}: {errors}"
 
 
 # --- conformance with Foxglove's client libraries (tools/conformance.mjs) -------------------------

@@ -1,6 +1,8 @@
 """The bundled Foxglove layouts: their format, and that every topic, frame and message path they
 name is produced by the bundled profile (resolved against bridge.topics, Perception.topics() and
-the protobuf descriptors, not against a copy of the list)."""
+the protobuf descriptors, not against a copy of the list). They are what `tankviz layouts
+--profile ecocar` makes (tests/test_layouts_generate.py checks that, and layouts made for other
+profiles)."""
 
 from __future__ import annotations
 
@@ -120,7 +122,7 @@ def test_the_bundled_layouts_with_their_previews() -> None:
     assert found["tank-viz"].summary == "3D"
     assert found["engineer"].summary == "3D, 4 plots, Raw Messages, Log, 14 Indicator panels"
     assert (found["can-debug"].summary
-            == "7 plots, 2 Indicator panels, Raw Messages, Data Source Info")
+            == "9 plots, 2 Indicator panels, Raw Messages, Data Source Info")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -176,6 +178,7 @@ def test_engineer_layout(made: Produced, alarm_ids: list[str]) -> None:
     assert {f"{LEAD_TOPIC}.object.x", f"{LEAD_TOPIC}.object.vx", f"{EGO_TOPIC}.speed",
             f"{EGO_TOPIC}.steering_wheel_angle"} <= plotted
     assert {f"{objects_topic(g)}.count" for g in ("radar", "camera", "tracks")} <= plotted
+    assert f"{EGO_TOPIC}.yaw_rate" in plotted, "ecocar maps its yaw rate: it is plotted"
     lead = resolve_path(f"{LEAD_TOPIC}.object.x", made)
     assert lead.schema == LeadVehicle.DESCRIPTOR.full_name and lead.plottable
     assert resolve_path(f"{EGO_TOPIC}.speed", made).schema == EgoState.DESCRIPTOR.full_name
@@ -213,6 +216,10 @@ def test_can_debug_layout(made: Produced) -> None:
         assert resolved.topic.startswith(f"/can/{BUS}/") and resolved.plottable
         assert resolved.schema.startswith("tankviz.dbc.ecocar.")
     assert f"{message_topic(BUS, 'EgoMotion')}.VehicleSpeed" in signals
+    # The signals the profile reads: ego, the first object of each group, lanes, lead.
+    assert {f"{message_topic(BUS, 'RadarObj0_A')}.LongDist",
+            f"{message_topic(BUS, 'CamLaneLeft')}.C0_Offset",
+            f"{message_topic(BUS, 'LeadVehicle')}.PosX"} <= set(signals)
     # The bus's health from /health: frames/s, load, error frames, unknown ids, decode errors.
     bus = [p["value"] for plot_id, plot in plots.items() for p in plot["paths"]
            if plot_id.startswith("Plot!bus-")]

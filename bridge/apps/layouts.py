@@ -1,4 +1,5 @@
-"""Bundled Foxglove layouts (``layouts/*.json``): list them, copy them out, check their format.
+"""Foxglove layouts: the bundled ones (``layouts/*.json``) listed and copied out, and layouts
+made for a profile (``tankviz layouts --profile P [--dbc ...] --export DIR``).
 
 What ``tankviz layouts`` uses. :func:`bundled_layouts` lists the ``*.json`` files of
 ``layouts/`` by name, each with the preview picture beside it if there is one (``tank-viz.png``
@@ -25,10 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.apps.options import Subparsers
+from bridge.apps.options import Subparsers, dbc_option
 from bridge.errors import BridgeError
+from bridge.pipeline.drive import load_stages
 from bridge.resources import layouts_dir
 from bridge.view.check import PANEL_NAMES, check_format, panel_type
+from bridge.view.generate import LAYOUT_NAMES, generate_layouts, layout_text
 
 
 class LayoutError(BridgeError):
@@ -103,12 +106,7 @@ def export_layouts(directory: Path, *, names: Iterable[str] | None = None,
     """
     chosen = select_layouts(names or (), source)
     targets = [(layout.path, directory / layout.path.name) for layout in chosen]
-    if not force:
-        existing = [str(target) for _, target in targets if target.exists()]
-        if existing:
-            raise BridgeError(f"{', '.join(existing)}: exists (--force overwrites)")
-    if directory.exists() and not directory.is_dir():
-        raise BridgeError(f"{directory}: not a folder")
+    _writable(directory, [target for _, target in targets], force)
     try:
         directory.mkdir(parents=True, exist_ok=True)
         for path, target in targets:
@@ -116,6 +114,42 @@ def export_layouts(directory: Path, *, names: Iterable[str] | None = None,
     except OSError as exc:
         raise BridgeError(f"{directory}: cannot write: {exc.strerror or exc}") from None
     return [target for _, target in targets]
+
+
+def _writable(directory: Path, targets: Iterable[Path], force: bool) -> None:
+    if not force:
+        existing = [str(target) for target in targets if target.exists()]
+        if existing:
+            raise BridgeError(f"{', '.join(existing)}: exists (--force overwrites)")
+    if directory.exists() and not directory.is_dir():
+        raise BridgeError(f"{directory}: not a folder")
+
+
+def select_generated(layouts: Mapping[str, dict[str, Any]], names: Iterable[str] = ()
+                     ) -> dict[str, dict[str, Any]]:
+    """The generated layouts called ``names`` in that order (all when none is named)."""
+    wanted = list(names) or list(layouts)
+    unknown = [n for n in wanted if n not in layouts]
+    if unknown:
+        raise BridgeError(f"no layout {', '.join(repr(n) for n in unknown)}; "
+                          f"made for a profile: {', '.join(LAYOUT_NAMES)}")
+    return {n: layouts[n] for n in wanted}
+
+
+def export_generated(directory: Path, layouts: Mapping[str, dict[str, Any]], *,
+                     force: bool = False) -> list[Path]:
+    """Write layouts (name -> layout) into ``directory`` (created if needed) as
+    ``<name>.json``. An existing file is not overwritten unless ``force``; nothing is written
+    then."""
+    targets = [(directory / f"{name}.json", data) for name, data in layouts.items()]
+    _writable(directory, [target for target, _ in targets], force)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        for target, data in targets:
+            target.write_text(layout_text(data), encoding="utf-8")
+    except OSError as exc:
+        raise BridgeError(f"{directory}: cannot write: {exc.strerror or exc}") from None
+    return [target for target, _ in targets]
 
 
 def load_layout(path: Path) -> dict[str, Any]:
@@ -138,21 +172,49 @@ def add_parser(sub: Subparsers) -> None:
         description="List the bundled Foxglove layouts (tank-viz: the Tank Viz 3D view; "
         "engineer: 3D, plots and the lead vehicle; can-debug: decoded signals and raw frames), "
         "or copy them into a folder with --export; import them in Foxglove from the Layouts "
-        "menu (Import layout).")
+        "menu (Import layout). With --profile, the layouts are made for that profile (its "
+        "object groups, sensor frames, buses, ego signals and alarms): "
+        "tankviz layouts --profile car.toml --dbc radar=radar.dbc --export DIR")
     parser.add_argument("names", nargs="*", metavar="NAME",
                         help="only these layouts (default: all)")
     parser.add_argument("--export", type=Path, metavar="DIR",
                         help="copy the layout files (JSON) into DIR (created if needed)")
     parser.add_argument("--force", action="store_true",
                         help="overwrite layout files that already exist in DIR")
+    parser.add_argument("--profile", metavar="NAME|PATH",
+                        help="make the layouts for this vehicle profile (a bundled name such "
+                        "as 'ecocar' works too) instead of the bundled ones")
+    parser.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
+                        help="with --profile: signal database for BUS, or for every bus "
+                        "(shown as can0) without BUS=; repeatable; default: the profile's own")
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.profile is None and args.dbc:
+        raise BridgeError("--dbc needs --profile: the layouts are made for a profile")
+    if args.profile is not None:
+        return _run_generated(args)
     if args.export is None:
         print(format_listing(select_layouts(args.names)))
         return 0
     for path in export_layouts(args.export, names=args.names, force=args.force):
         print(f"wrote {path}")
     print("import in Foxglove: Layouts menu > Import layout")
+    return 0
+
+
+def _run_generated(args: argparse.Namespace) -> int:
+    decoder, profile = load_stages([dbc_option(text) for text in args.dbc or []], args.profile)
+    assert profile is not None
+    layouts = select_generated(generate_layouts(profile, decoder), args.names)
+    if args.export is None:
+        rows = [(name, summarize(data)) for name, data in layouts.items()]
+        width = max(len(name) for name, _ in rows)
+        print("\n".join(f"{name:<{width}}  {summary}" for name, summary in rows))
+        print(f"made for profile {profile.name}; --export DIR writes them")
+        return 0
+    for path in export_generated(args.export, layouts, force=args.force):
+        print(f"wrote {path}")
+    print(f"made for profile {profile.name}; import in Foxglove: Layouts menu > Import layout")
     return 0

@@ -24,6 +24,9 @@
 //     "layout": "/abs/path/layouts/tank-viz.json", "via": "import" | "preload",
 //     "scene": {"panel": "3D!tankviz", "expect": ["ego", "greenLanes", …], "absent": [...]},
 //                                        (the 3D panel to read; keys of pixels.mjs verdict())
+//              "inside": {"red": ["blue", "white"]}   optional: pixels.mjs colour classes that
+//                                        must show inside a compact blob of another (a detection
+//                                        inside its track), read as reading.inside (insideOf)
 //     "plots": true, "plotExtent": 0.8,  every Plot panel shows a value for each of its paths
 //                                        and data lines over that share of its width
 //     "panelText": {"RawMessages!lead": ["tankviz.LeadVehicle @", …]},  text in a panel
@@ -52,7 +55,7 @@ import { chromium } from "playwright-core";
 
 import { decodePng } from "./png.mjs";
 import { encodePng } from "./pngout.mjs";
-import { blobs, readTankViz, verdict } from "./pixels.mjs";
+import { blobs, CLASSES, readTankViz, verdict } from "./pixels.mjs";
 import { startServer } from "./serve.mjs";
 
 export const CHROMIUM_ARGS = [
@@ -324,6 +327,45 @@ function legendValues(text, config) {
   return missing;
 }
 
+/**
+ * Blobs of one colour class shown inside blobs of another (`spec`: container class -> classes
+ * that must show inside it), e.g. {"red": ["blue", "white"]}: detections inside their track.
+ * A container is a compact blob (a track's disc); a blob is inside when its centre lies in the
+ * container's box and the container's colour is on at least a fifth of the ring of pixels around
+ * it (a text label beside a track is not inside it). Returns {class: [[container, blob], …]}.
+ */
+export function insideOf(image, region, spec) {
+  const found = {};
+  const summary = ({ area, cx, cy, x0, y0, x1, y1 }) => ({ area, cx, cy, x0, y0, x1, y1 });
+  for (const [outer, inner] of Object.entries(spec)) {
+    const isOuter = CLASSES[outer];
+    const containers = blobs(image, isOuter, region).filter(
+      (b) => b.area >= 20 && b.fill >= 0.45 && b.w <= 4 * b.h && b.h <= 4 * b.w,
+    );
+    for (const name of inner) {
+      found[name] = [];
+      for (const blob of blobs(image, CLASSES[name], region).filter((b) => b.area >= 4)) {
+        const box = containers.find((c) => c.area > blob.area && blob.cx >= c.x0 && blob.cx <= c.x1
+          && blob.cy >= c.y0 && blob.cy <= c.y1);
+        if (!box) continue;
+        let ring = 0;
+        let outerColour = 0;
+        for (let y = blob.y0 - 2; y <= blob.y1 + 2; y++) {
+          for (let x = blob.x0 - 2; x <= blob.x1 + 2; x++) {
+            if (x >= blob.x0 && x <= blob.x1 && y >= blob.y0 && y <= blob.y1) continue;
+            if (x < 0 || y < 0 || x >= image.width || y >= image.height) continue;
+            const i = (y * image.width + x) * 4;
+            ring++;
+            if (isOuter(image.data[i], image.data[i + 1], image.data[i + 2])) outerColour++;
+          }
+        }
+        if (outerColour >= ring / 5) found[name].push([summary(box), summary(blob)]);
+      }
+    }
+  }
+  return found;
+}
+
 /** Paint the overlays background grey so that no class matches there. */
 function maskOverlays(image, overlays) {
   for (const o of overlays) {
@@ -494,6 +536,14 @@ async function runShot(ctx, base, shot, plan) {
           }
           for (const k of scene.absent ?? []) {
             if (state.verdict[k]) state.failures.push(`${scene.panel}: ${k} on screen, should not be`);
+          }
+          if (scene.inside) {
+            state.reading.inside = insideOf(masked, info.region, scene.inside);
+            for (const [outer, inner] of Object.entries(scene.inside)) {
+              for (const k of inner) {
+                if (!state.reading.inside[k].length) state.failures.push(`${scene.panel}: no ${k} inside ${outer}`);
+              }
+            }
           }
         }
       }

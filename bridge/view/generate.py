@@ -1,0 +1,366 @@
+"""Foxglove layouts made for a profile: profile + databases -> the tank-viz, engineer and
+can-debug layouts (what ``tankviz layouts --profile P --export DIR`` writes).
+
+:func:`generate_layouts` builds the three layouts from what the bridge produces for the profile
+on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and the
+health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
+names. The look and panel settings are those of the Tank Viz view (:func:`view_3d`: camera
+behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells 70 m ahead):
+
+- ``tank-viz``: the 3D panel with every ``/scene/*`` topic the profile produces and every
+  sensor frame;
+- ``engineer``: the same 3D panel; plots of the lead vehicle (only with ``[lead]``; its
+  relative speed only where its objects have a velocity: :func:`lead_has_velocity`), of the ego
+  signals the profile maps (speed, yaw rate, steering wheel angle: no line for what it lacks),
+  of the valid objects of each object group and of each group's message rate, actual vs
+  expected; the lead vehicle and its MIO check (Raw Messages, only with ``[lead]``); the alarm
+  log; one Indicator per alarm the health monitor checks for this profile (:func:`indicator`),
+  in the monitor's order, five to a row;
+- ``can-debug``: plots of the decoded signals the profile reads (ego, the first object of each
+  group, the lane lines' offsets, the lead's own message; every signal a computed field reads)
+  on each bus whose databases define them; per bus a column of its health (its
+  ``bus.<bus>.silent`` and ``bus.<bus>.babbling`` Indicators, frames/s, load, error frames /
+  unknown ids / decode errors) and its raw frames; the Data Source Info panel.
+
+The buses are those the databases are given for (``--dbc BUS=PATH``, a profile's
+``databases = { BUS = [...] }``); databases for every bus (``--dbc PATH``) mean ``can0``, the
+bus of a log without channels and of ``tankviz demo`` (:func:`database_buses`), unless
+:func:`generate_layouts` is given the buses. :func:`layout_text` is a layout as it is
+written to a file (the bundled ``layouts/*.json`` are :func:`generate_layouts` of ecocar,
+written so).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from bridge.decode.decoder import Decoder
+from bridge.profile.model import Field, ObjectGroup, Profile
+from bridge.topics import (
+    EGO_TOPIC,
+    HEALTH_TOPIC,
+    LEAD_TOPIC,
+    LOG_TOPIC,
+    VEHICLE_FRAME,
+    frames_topic,
+    message_topic,
+    objects_topic,
+)
+from bridge.view.produced import Produced, produced
+
+#: The layouts :func:`generate_layouts` makes, in this order.
+LAYOUT_NAMES = ("tank-viz", "engineer", "can-debug")
+#: The bus of databases given for every bus (a log without channels, ``tankviz demo``).
+DEFAULT_BUS = "can0"
+#: Indicator colours: an active alarm, a cleared one, no /health yet.
+ALARM_RED, OK_GREEN, NO_DATA_GREY = "#d93025", "#1e8e3e", "#9e9e9e"
+#: Colours of the rate plot: a dark (actual) and a light (expected) shade per family.
+RATE_COLOURS = (("#1f77b4", "#9ecae1"), ("#e6550d", "#fdae6b"), ("#31a354", "#a1d99b"),
+                ("#756bb1", "#bcbddc"), ("#636363", "#bdbdbd"), ("#d6616b", "#e7969c"))
+#: Indicator panels per row in the engineer layout.
+INDICATORS_PER_ROW = 5
+#: Ego fields of ``/ego`` (tankviz.EgoState) and how the plot labels them.
+EGO_FIELDS = (("speed", "ego speed (m/s)"), ("yaw_rate", "yaw rate (rad/s)"),
+              ("steering_wheel_angle", "steering wheel angle (rad)"))
+
+
+def database_buses(decoder: Decoder) -> list[str]:
+    """The buses the decoder's databases are given for, in the order given; ``can0`` when
+    every database is for every bus."""
+    named: list[str] = []
+    for database in decoder.files:
+        for bus in decoder.buses_for(database):
+            if bus != "*" and bus not in named:
+                named.append(bus)
+    return named or [DEFAULT_BUS]
+
+
+def generate_layouts(profile: Profile, decoder: Decoder,
+                     buses: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    """The tank-viz, engineer and can-debug layouts for ``profile`` with the databases of
+    ``decoder`` on ``buses`` (default :func:`database_buses`)."""
+    buses = list(buses) if buses else database_buses(decoder)
+    made = produced(decoder, profile, buses)
+    return {
+        "tank-viz": _layout({"3D!tankviz": view_3d(made, profile)}, "3D!tankviz"),
+        "engineer": engineer(made, profile),
+        "can-debug": can_debug(made, profile, decoder, buses),
+    }
+
+
+def layout_text(layout: dict[str, Any]) -> str:
+    """A layout as the bundled files are written: JSON, indented by 2, a final newline."""
+    return json.dumps(layout, indent=2, ensure_ascii=False) + "\n"
+
+
+# --- panels --------------------------------------------------------------------------------------
+
+
+def _layout(configs: dict[str, Any], tree: Any) -> dict[str, Any]:
+    return {"configById": configs, "globalVariables": {}, "userNodes": {},
+            "playbackConfig": {"speed": 1}, "layout": tree}
+
+
+def view_3d(made: Produced, profile: Profile) -> dict[str, Any]:
+    """The Tank Viz 3D panel: every scene topic produced, every frame (vehicle, then the
+    profile's sensors), following the vehicle from behind and above."""
+    scene = [t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"]
+    frames = [VEHICLE_FRAME, *(s for s in profile.sensors if s != VEHICLE_FRAME)]
+    return {
+        "foxglovePanelTitle": "Tank Viz",
+        "cameraState": {"distance": 40, "perspective": True, "phi": 60, "thetaOffset": 90,
+                        "target": [0, 0, 0], "targetOffset": [16, 0, 0],
+                        "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5,
+                        "far": 5000},
+        "followMode": "follow-pose",
+        "followTf": VEHICLE_FRAME,
+        "scene": {"backgroundColor": "#303030", "labelScaleFactor": 1,
+                  "transforms": {"showLabel": False, "axisScale": 1, "lineWidth": 1,
+                                 "editable": False, "enablePreloading": True}},
+        "transforms": {f"frame:{f}": {"visible": True} for f in frames},
+        "topics": {t: {"visible": True} for t in scene},
+        "layers": {"tankviz-grid": {
+            "visible": True, "frameLocked": True, "label": "Grid: 10 m cells, 70 m ahead",
+            "instanceId": "tankviz-grid", "layerId": "foxglove.Grid",
+            "frameId": VEHICLE_FRAME, "size": 160, "divisions": 16, "lineWidth": 1,
+            "color": "#a0a0a4a0", "position": [70, 0, 0], "rotation": [0, 0, 0], "order": 1}},
+        "publish": {"type": "point", "poseTopic": "/move_base_simple/goal",
+                    "pointTopic": "/clicked_point", "poseEstimateTopic": "/initialpose",
+                    "poseEstimateXDeviation": 0.5, "poseEstimateYDeviation": 0.5,
+                    "poseEstimateThetaDeviation": 0.26179939},
+        "imageMode": {},
+    }
+
+
+def _path(value: str, label: str, color: str | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {"value": value, "enabled": True, "timestampMethod": "receiveTime",
+                           "label": label}
+    if color is not None:
+        out["color"] = color
+    return out
+
+
+def plot(title: str, paths: list[dict[str, Any]], *, legend: str = "floating",
+         sidebar: int = 240) -> dict[str, Any]:
+    return {"foxglovePanelTitle": title, "paths": paths, "showXAxisLabels": True,
+            "showYAxisLabels": True, "showLegend": True, "legendDisplay": legend,
+            "showPlotValuesInLegend": True, "isSynced": True, "xAxisVal": "timestamp",
+            "sidebarDimension": sidebar}
+
+
+def raw_messages(title: str, topic: str) -> dict[str, Any]:
+    return {"foxglovePanelTitle": title, "topicPath": topic, "diffEnabled": False,
+            "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False,
+            "expansion": "all"}
+
+
+def alarm_path(alarm: str) -> str:
+    """The message path of an alarm's state in ``/health``."""
+    return f'{HEALTH_TOPIC}.alarms[:]{{id=="{alarm}"}}.active'
+
+
+def indicator(alarm: str) -> dict[str, Any]:
+    """An alarm's Indicator: a green OK while inactive, red with the alarm id while active,
+    grey "no data" before the first /health."""
+    return {"foxglovePanelTitle": alarm, "path": alarm_path(alarm), "style": "background",
+            "fallbackColor": NO_DATA_GREY, "fallbackLabel": "no data",
+            "rules": [{"operator": "=", "rawValue": "true", "color": ALARM_RED, "label": alarm},
+                      {"operator": "=", "rawValue": "false", "color": OK_GREEN,
+                       "label": "OK"}]}
+
+
+def stack(ids: Sequence[Any], direction: str) -> Any:
+    """Panels (or trees) side by side (``row``) or one above the other (``column``), each the
+    same share; None for none."""
+    if not ids:
+        return None
+    if len(ids) == 1:
+        return ids[0]
+    return {"direction": direction, "first": ids[0], "second": stack(ids[1:], direction),
+            "splitPercentage": round(100 / len(ids), 1)}
+
+
+def weighted(ids: Sequence[Any], weights: Sequence[float], direction: str) -> Any:
+    """Like :func:`stack`, each panel its weight's share."""
+    if len(ids) <= 1:
+        return ids[0] if ids else None
+    share = round(100 * weights[0] / sum(weights), 1)
+    return {"direction": direction, "first": ids[0],
+            "second": weighted(ids[1:], weights[1:], direction), "splitPercentage": share}
+
+
+def split(first: Any, second: Any, direction: str, percentage: float) -> Any:
+    """``first`` and ``second`` split at ``percentage``, or whichever of them there is."""
+    if first is None or second is None:
+        return second if first is None else first
+    return {"direction": direction, "first": first, "second": second,
+            "splitPercentage": percentage}
+
+
+# --- engineer ------------------------------------------------------------------------------------
+
+
+def _group_label(group: ObjectGroup) -> str:
+    role = "tracks" if group.is_tracks else "detections"
+    return group.name if group.name == role else f"{group.name} {role}"
+
+
+def lead_has_velocity(profile: Profile) -> bool:
+    """Whether the lead's objects carry a relative velocity: its own message maps ``vx``, or
+    (``source = "tracks"``) a group of tracks does."""
+    lead = profile.lead
+    if lead is None:
+        return False
+    groups = ([lead.group] if lead.group is not None
+              else [g for g in profile.groups.values() if g.is_tracks])
+    return any(g.vx is not None for g in groups)
+
+
+def engineer(made: Produced, profile: Profile) -> dict[str, Any]:
+    """The engineer layout: the 3D view, plots, the lead, the alarm log and every alarm."""
+    health = made.samples[HEALTH_TOPIC]
+    configs: dict[str, Any] = {"3D!engineer": view_3d(made, profile)}
+    plots: list[str] = []
+    if profile.lead is not None:
+        lead = [_path(f"{LEAD_TOPIC}.object.x", "lead distance x (m)")]
+        if lead_has_velocity(profile):
+            lead.append(_path(f"{LEAD_TOPIC}.object.vx", "lead relative speed (m/s)"))
+        configs["Plot!lead"] = plot("Lead vehicle", lead)
+        plots.append("Plot!lead")
+    ego = [_path(f"{EGO_TOPIC}.{name}", label) for name, label in EGO_FIELDS
+           if getattr(profile.ego, name) is not None]
+    if ego:
+        configs["Plot!ego"] = plot("Ego", ego)
+        plots.append("Plot!ego")
+    groups = list(profile.groups.values())
+    if groups:
+        kinds = {g.is_tracks for g in groups}
+        title = ("Valid detections and tracks" if len(kinds) == 2
+                 else "Valid tracks" if True in kinds else "Valid detections")
+        configs["Plot!counts"] = plot(title, [_path(f"{objects_topic(g.name)}.count",
+                                                    _group_label(g)) for g in groups])
+        plots.append("Plot!counts")
+    right: list[str] = []
+    families = [f.name for f in health.families if f.name in profile.groups]
+    if families:
+        paths = []
+        for i, family in enumerate(families):
+            dark, light = RATE_COLOURS[i % len(RATE_COLOURS)]
+            where = f'{HEALTH_TOPIC}.families[:]{{name=="{family}"}}'
+            paths += [_path(f"{where}.actual_hz", family, dark),
+                      _path(f"{where}.expected_hz", f"{family} expected", light)]
+        configs["Plot!rates"] = plot("Message rates: actual vs expected (frames/s, /health)",
+                                     paths)
+        right.append("Plot!rates")
+    if profile.lead is not None:
+        configs["RawMessages!lead"] = raw_messages("Lead vehicle and MIO check", LEAD_TOPIC)
+        right.append("RawMessages!lead")
+    configs["RosOut!alarms"] = {"foxglovePanelTitle": "Alarms raised and cleared (/log)",
+                                "topicToRender": LOG_TOPIC, "minLogLevel": 1,
+                                "searchTerms": []}
+    right.append("RosOut!alarms")
+    alarms = [a.id for a in health.alarms]
+    for alarm in alarms:
+        configs[f"Indicator!{alarm}"] = indicator(alarm)
+    rows = [stack([f"Indicator!{a}" for a in alarms[i:i + INDICATORS_PER_ROW]], "row")
+            for i in range(0, len(alarms), INDICATORS_PER_ROW)]
+    top = split("3D!engineer", split(stack(plots, "column"), stack(right, "column"), "row",
+                                     51.6), "row", 36.0)
+    return _layout(configs, split(top, stack(rows, "column"), "column", 73.0))
+
+
+# --- can-debug -----------------------------------------------------------------------------------
+
+
+def _first(group: ObjectGroup) -> int | None:
+    indices = [m.index for m in group.members.values() if m.index is not None]
+    return min(indices) if indices else None
+
+
+def signal_families(profile: Profile) -> list[tuple[str, list[tuple[str, str]]]]:
+    """The DBC signals (message, signal) the profile reads, by what they are: the ego signals,
+    the position (and velocity) of the first object of each group, the lane lines' offsets, the
+    lead's own message. A field computed from several signals gives each of them."""
+
+    def signals(fields: Iterable[Field | None], index: int | None = None) -> list[tuple[str, str]]:
+        found = [pair for f in fields if f is not None for pair in f.at(index).signals]
+        return list(dict.fromkeys(found))
+
+    out = [("ego", signals(getattr(profile.ego, name) for name, _ in EGO_FIELDS))]
+    for group in profile.groups.values():
+        out.append((group.name, signals([group.x, group.y, group.range, group.azimuth,
+                                         group.vx], _first(group))))
+    if profile.lanes is not None:
+        out.append(("lanes", signals(line.c0 for line in profile.lanes.lines.values())))
+    if profile.lead is not None and profile.lead.group is not None:
+        lead = profile.lead.group
+        out.append(("lead", signals([lead.x, lead.range, lead.vx], _first(lead))))
+    return [(name, pairs) for name, pairs in out if pairs]
+
+
+def _units(decoder: Decoder, bus: str) -> dict[tuple[str, str], str]:
+    """(message, signal) -> unit of every signal the databases of ``bus`` define."""
+    return {(codec.message.name, signal.name): signal.unit or ""
+            for codec in decoder.codecs_for(bus) for signal in codec.message.signals}
+
+
+#: Heights of a bus's health column: its two Indicators, then frames/s, load and errors.
+BUS_HEALTH_WEIGHTS = (1.0, 1.0, 2.67, 2.67, 2.67)
+
+
+def _bus_health(bus: str) -> tuple[dict[str, Any], Any]:
+    where = f'{HEALTH_TOPIC}.buses[:]{{bus=="{bus}"}}'
+    configs = {
+        f"Indicator!bus.{bus}.silent": indicator(f"bus.{bus}.silent"),
+        f"Indicator!bus.{bus}.babbling": indicator(f"bus.{bus}.babbling"),
+        f"Plot!bus-{bus}-rate": plot(f"Bus {bus}: frames/s (/health)", [
+            _path(f"{where}.frames_per_s", f"{bus} frames/s")], legend="top", sidebar=34),
+        f"Plot!bus-{bus}-load": plot(f"Bus {bus}: load (share of the bitrate)", [
+            _path(f"{where}.load", f"{bus} load (0-1)")], legend="top", sidebar=34),
+        f"Plot!bus-{bus}-errors": plot(f"Bus {bus}: errors in the last second", [
+            _path(f"{where}.error_frames", "error frames"),
+            _path(f"{where}.unknown_ids", "frames with an unknown id"),
+            _path(f"{where}.decode_errors", "frames that do not decode")],
+            legend="top", sidebar=86),
+        f"RawMessages!frames-{bus}": raw_messages(f"Raw frames {frames_topic(bus)}",
+                                                  frames_topic(bus)),
+    }
+    health = weighted([f"Indicator!bus.{bus}.silent", f"Indicator!bus.{bus}.babbling",
+                       f"Plot!bus-{bus}-rate", f"Plot!bus-{bus}-load",
+                       f"Plot!bus-{bus}-errors"], BUS_HEALTH_WEIGHTS, "column")
+    return configs, health
+
+
+def can_debug(made: Produced, profile: Profile, decoder: Decoder,
+              buses: Iterable[str]) -> dict[str, Any]:
+    """The can-debug layout: decoded signals, each bus's health and raw frames, the topics."""
+    buses = list(buses)
+    configs: dict[str, Any] = {}
+    signal_plots = []
+    units = {bus: _units(decoder, bus) for bus in buses}
+    for name, pairs in signal_families(profile):
+        paths = []
+        for message, signal in pairs:
+            for bus in buses:
+                unit = units[bus].get((message, signal))
+                if unit is None or message_topic(bus, message) not in made.topics:
+                    continue
+                label = f"{message}.{signal}" + (f" ({unit})" if unit else "")
+                paths.append(_path(f"{message_topic(bus, message)}.{signal}",
+                                   f"{bus}: {label}" if len(buses) > 1 else label))
+        if paths:
+            messages = list(dict.fromkeys(message for message, _ in pairs))
+            configs[f"Plot!signals-{name}"] = plot(f"{name} ({', '.join(messages)})", paths)
+            signal_plots.append(f"Plot!signals-{name}")
+    columns = []
+    for bus in buses:
+        bus_configs, column = _bus_health(bus)
+        configs.update(bus_configs)
+        columns.append(column)
+    configs["SourceInfo!topics"] = {"foxglovePanelTitle": "Topics, message counts and rates"}
+    raw = stack([f"RawMessages!frames-{bus}" for bus in buses], "column")
+    rest = split(stack(columns, "row"), split(raw, "SourceInfo!topics", "column", 55.0), "row",
+                 50.0)
+    return _layout(configs, split(stack(signal_plots, "column"), rest, "row", 36.0))
