@@ -88,6 +88,10 @@ def new_health_monitor(decoder: Decoder, profile: Profile | None,
                          data_bitrates=profile.data_bitrates if profile is not None else None)
 
 
+#: The prefix of a drive's profile attachment (``profile-car.toml``).
+PROFILE_PREFIX = "profile-"
+
+
 def attachment_names(files: Iterable[DatabaseFile]) -> dict[str, str]:
     """Attachment name per database sha256: the file name, made unique where two collide."""
     names: dict[str, str] = {}
@@ -170,7 +174,7 @@ class Drive:
         for f in self.decoder.files:
             recorder.add_attachment(names[f.sha256], f.content)
         if self.profile is not None:
-            recorder.add_attachment(f"profile-{self.profile.path.name}",
+            recorder.add_attachment(f"{PROFILE_PREFIX}{self.profile.path.name}",
                                     self.profile.path.read_bytes(), media="application/toml")
 
     def describe(self, recorder: Recorder, part: Mapping[str, Any] | None = None) -> None:
@@ -191,7 +195,7 @@ class Drive:
         recorder.add_metadata({
             "tankviz_version": __version__,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "profile": ({"name": profile.name, "attachment": f"profile-{profile.path.name}",
+            "profile": ({"name": profile.name, "attachment": f"{PROFILE_PREFIX}{profile.path.name}",
                          "scene_rate_hz": self.scene_rate} if profile is not None else None),
             "databases": [{"name": f.name, "attachment": names[f.sha256], "sha256": f.sha256,
                            "path": str(f.path), "buses": decoder.buses_for(f)}
