@@ -15,7 +15,12 @@ observation always reads the newest values of every message of its family, so th
 tick is the same as if every message had been observed on arrival: the observations in between
 would have been overwritten unseen. (One exception, by design: when a sensor renumbers an object
 twice between two ticks, the number it had in between never shows.) On a busy bus this saves
-observing a message many times per tick, and an object once per message of its family.
+observing a message many times per tick, and an object once per message of its family; and an
+object whose signals did not change since its last observation is not evaluated again, only its
+time moves on (:mod:`bridge.world.observe`). The messages of a group without an index range are
+the exception: each frame may be another object (an object list sent one object per frame, its
+id signal says which), so every one of their frames is observed at the tick, in order. Health
+counts and decoding stay per frame.
 """
 
 from __future__ import annotations
@@ -75,6 +80,9 @@ class Perception:
         self.lanes: LaneModel | None = None
         #: the newest (values, time) of each message fed since the last tick, in arrival order
         self._pending: dict[str, tuple[Mapping[str, Any], int]] = {}
+        #: every frame of a list message (one object per frame) fed since the last tick
+        self._every_frame = self.observer.every_frame
+        self._pending_frames: list[tuple[str, Mapping[str, Any], int]] = []
 
     def topics(self) -> list[tuple[str, Any]]:
         """Every topic :meth:`tick` emits, with its message class (to advertise them early)."""
@@ -96,18 +104,29 @@ class Perception:
         """Take one decoded message (call :meth:`advance` with its time first); the next tick
         observes it."""
         if message in self.messages:
+            if message in self._every_frame:
+                self._pending_frames.append((message, values, t_ns))
+                return
             pending = self._pending
             pending.pop(message, None)
             pending[message] = (values, t_ns)
 
     def observe_pending(self) -> None:
-        """Observe the messages fed since the last tick into the world."""
-        pending = self._pending
+        """Observe the messages fed since the last tick into the world: the newest of each name,
+        and every frame of a list message (a group without an index range: one object per
+        frame, so the newest alone would lose the others)."""
+        pending, frames = self._pending, self._pending_frames
+        apply = self.world.apply
         if pending:
-            apply = self.world.apply
             for observation in self.observer.observe_latest(pending):
                 apply(observation)
             pending.clear()
+        if frames:
+            observe = self.observer.observe
+            for message, values, t_ns in frames:
+                for observation in observe(message, values, t_ns):
+                    apply(observation)
+            frames.clear()
 
     def due_ticks(self, t_ns: int) -> list[int]:
         """The log times of the scene ticks due before log time ``t_ns``, in order (none most
@@ -147,6 +166,8 @@ class Perception:
         self.observer.shift(shift_ns)
         self._pending = {name: (values, t + shift_ns)
                          for name, (values, t) in self._pending.items()}
+        self._pending_frames = [(name, values, t + shift_ns)
+                                for name, values, t in self._pending_frames]
         if self._started:  # the tick at or just before the frame: a clock that steps away and
             # back (one frame stamped a year off) leaves no tick of either timeline unmade
             self.next_tick_ns = t_ns // self.period_ns * self.period_ns

@@ -18,6 +18,14 @@ finite coefficients make no observation (the world keeps what it had, until it g
 other field (velocity, probability, class, id, an ego signal) is left out of its observation. The
 decoder counts such values (:mod:`bridge.decode.decoder`).
 
+An object is evaluated (its fields read, its computed values and validity rule evaluated) only
+when one of the signals it reads changed since its last observation: a message of its family that
+repeats them (a standing target, an empty slot, a frame whose rolling counter or checksum alone
+changed) makes an observation with the fields, validity and rule error of the last one at the
+time of the newest position. Values equal by ``==`` make the same observation (a field is read
+as value·scale + offset, so -0.0 reads as 0.0; a class or id as an int; a rule compares), and a
+value that is not equal to itself (NaN) is evaluated every time.
+
 A validity rule that cannot be evaluated (a division by zero: :meth:`Rule.judge
 <bridge.profile.model.Rule.judge>`) leaves the object or lane line out, as a rule that does
 not hold does; its observation says why in ``rule_error``, and the world counts it per group
@@ -27,8 +35,9 @@ not hold does; its observation says why in ``rule_error``, and the world counts 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any
 
 from bridge.profile.model import (
@@ -131,11 +140,47 @@ def _read(latest: Mapping[str, Mapping[str, Any]], ref: Field | None) -> float |
     return ref.value(latest) if ref is not None else None
 
 
+#: In an object's key: a message of its family not come yet, or a signal not in a message.
+_ABSENT = object()
+
+
+class _Part:
+    """How one message of an object's family enters the object's key: a tuple of the values
+    of the signals the object reads from it, read at C speed by an :func:`operator.itemgetter`
+    of the names the first message had; a message that lacks one of them or has one of the
+    others (``absent``: a multiplexed or truncated message) is keyed name by name."""
+
+    __slots__ = ("absent", "getter", "names", "single")
+
+    def __init__(self, names: tuple[str, ...], first: Mapping[str, Any]) -> None:
+        self.names = names
+        present = [n for n in names if n in first]
+        self.absent = frozenset(names) - frozenset(present)
+        self.single = len(present) == 1  # then the getter gives the value, not a tuple
+        self.getter: Callable[[Mapping[str, Any]], Any] = (
+            itemgetter(*present) if present else _nothing)
+
+    def key(self, values: Mapping[str, Any]) -> tuple[Any, ...]:
+        if not self.absent or self.absent.isdisjoint(values):
+            try:
+                found = self.getter(values)
+            except KeyError:
+                pass
+            else:
+                return (found,) if self.single else found
+        return (_ABSENT, *[values.get(n, _ABSENT) for n in self.names])
+
+
+def _nothing(values: Mapping[str, Any]) -> tuple[()]:
+    return ()
+
+
 class _Object:
     """One object of a group: where each of its fields is, and its latest messages."""
 
-    __slots__ = ("azimuth", "class_signal", "id", "latest", "names", "position_ns", "probability",
-                 "range", "rule", "rule_sources", "vx", "vy", "x", "y")
+    __slots__ = ("azimuth", "class_signal", "id", "index", "key", "latest", "made", "names",
+                 "parts", "position_ns", "probability", "range", "reads", "rule", "rule_sources",
+                 "vx", "vy", "x", "y")
 
     def __init__(self, group: ObjectGroup, index: int | None) -> None:
         def ref(found: Field | None) -> Field | None:
@@ -146,6 +191,7 @@ class _Object:
         self.vx, self.vy = ref(group.vx), ref(group.vy)
         self.probability, self.class_signal = ref(group.probability), ref(group.class_signal)
         self.id = ref(group.id)
+        self.index = index
         #: the messages of this object, in the family's order
         self.names = [t if index is None else expand(t, index) for t in group.templates]
         self.rule = group.valid.get(index)
@@ -155,6 +201,43 @@ class _Object:
         self.latest: dict[str, Mapping[str, Any]] = {}
         #: time of the latest position; -1 until the first
         self.position_ns = -1
+        #: every signal the observation reads, per message of the family
+        reads: dict[str, dict[str, None]] = {message: {} for message in self.names}
+        for found in (self.x, self.y, self.range, self.azimuth, self.vx, self.vy,
+                      self.probability, self.class_signal, self.id):
+            if found is not None:
+                for message, signal in found.signals:
+                    if message in reads:  # a field of another message never reads anything
+                        reads[message][signal] = None
+        if self.rule is not None:
+            for message in self.names:
+                for name in self.rule_sources:
+                    if "." not in name:
+                        reads[message][name] = None
+            for _, message, signal in self.rule.qualified:
+                if message in reads:
+                    reads[message][signal] = None
+        self.reads = [(message, tuple(signals)) for message, signals in reads.items()
+                      if signals]
+        self.parts: dict[str, _Part] = {}
+        #: the key of the latest observation (the values it read), and what it made
+        self.key: tuple[tuple[Any, ...], ...] | None = None
+        self.made: ObjectObservation | None = None
+
+    def read_key(self) -> tuple[tuple[Any, ...], ...]:
+        """The values of every signal the observation reads, from the latest messages."""
+        latest, parts = self.latest, self.parts
+        key: list[tuple[Any, ...]] = []
+        for message, names in self.reads:
+            values = latest.get(message)
+            if values is None:
+                key.append((_ABSENT,))
+                continue
+            part = parts.get(message)
+            if part is None:
+                part = parts[message] = _Part(names, values)
+            key.append(part.key(values))
+        return tuple(key)
 
     def valid(self) -> tuple[bool, str]:
         """Whether the object is valid, and why its rule could not be evaluated ("" if it
@@ -206,10 +289,30 @@ class _GroupReader:
         return self.observation(member.index, self.note(member, message, values, t_ns))
 
     def observation(self, index: int | None, obj: _Object) -> ObjectObservation | None:
-        """Object ``index`` as its latest messages describe it."""
+        """Object ``index`` as its latest messages describe it.
+
+        When none of the signals it reads changed since its last observation (a standing
+        target, an empty slot, a message re-sent with only its counter changed), the fields and
+        the validity are those of the last observation: only the time is new."""
         t_ns = obj.position_ns
         if t_ns < 0:
             return None  # no position of this object yet
+        # Values equal by == make the same observation: a field is read as value·scale + offset
+        # (so -0.0 reads as 0.0), a class or id as an int, a rule compares.
+        key = obj.read_key()
+        if key == obj.key:
+            made = obj.made
+            if made is None:
+                return None
+            return ObjectObservation(made.group, made.object_id, t_ns, made.x, made.y,
+                                     made.valid, made.vx, made.vy, made.probability,
+                                     made.object_class, made.rule_error)
+        obj.key = key
+        made = obj.made = self.evaluate(index, obj, t_ns)
+        return made
+
+    def evaluate(self, index: int | None, obj: _Object, t_ns: int) -> ObjectObservation | None:
+        """Object ``index`` at ``t_ns``, every field read and the validity rule judged."""
         latest = obj.latest
         scale = self.scale
         if self.polar:
@@ -272,7 +375,13 @@ class Observer:
         #: the latest values of each message an ego value reads
         self._ego_latest: dict[str, Mapping[str, Any]] = {}
         #: every message name this observer uses, to skip the rest cheaply
-        self.messages = frozenset(self._objects) | frozenset(self._lanes) | frozenset(self._ego)
+        self._lanes_and_ego = frozenset(self._lanes) | frozenset(self._ego)
+        self.messages = frozenset(self._objects) | self._lanes_and_ego
+        #: messages of object groups without an index range: each frame may be another object
+        #: (its id signal says which), so every frame counts, not only the newest of its name
+        self.every_frame = frozenset(
+            name for reader in readers if reader.group.name != LEAD_GROUP
+            for name, member in reader.group.members.items() if member.index is None)
 
     def shift(self, shift_ns: int) -> None:
         """The clock stepped: the time of each object's latest position moves by ``shift_ns``,
@@ -300,15 +409,17 @@ class Observer:
         family's messages came, from the newest of them all. What the last of them would
         observe one by one."""
         out: list[Observation] = []
-        touched: dict[int, tuple[_GroupReader, int | None, _Object]] = {}
-        objects = self._objects
+        touched: dict[_Object, _GroupReader] = {}
+        objects, others = self._objects, self._lanes_and_ego
         for message, (values, t_ns) in latest.items():
-            for reader, member in objects.get(message, ()):
-                obj = reader.note(member, message, values, t_ns)
-                touched[id(obj)] = (reader, member.index, obj)
-            self._observe_lanes_and_ego(message, values, t_ns, out)
-        for reader, index, obj in touched.values():
-            obs = reader.observation(index, obj)
+            pairs = objects.get(message)
+            if pairs is not None:
+                for reader, member in pairs:
+                    touched[reader.note(member, message, values, t_ns)] = reader
+            if message in others:
+                self._observe_lanes_and_ego(message, values, t_ns, out)
+        for obj, reader in touched.items():
+            obs = reader.observation(obj.index, obj)
             if obs is not None:
                 out.append(obs)
         return out

@@ -1,0 +1,284 @@
+#!/usr/bin/env python3
+"""Benchmark the world part of a scene tick: observing decoded messages into the world (a report,
+not a test).
+
+The synthetic drive of ``tools/bench_convert.py`` (its generator, imported: the ecocar on three
+buses, rolling counters and checksums, traffic coming and going) is decoded once with tankviz's
+decoder. Then, in one run, interleaved and best of ``--repeat`` (default 3), it times the world
+part of :class:`bridge.pipeline.perception.Perception` over those decoded messages with a scene
+tick every 50 ms (20 Hz): :meth:`~Perception.feed` per message, and at each tick the observing of
+what came since the last one and the expiry of stale objects (:meth:`~Perception.update_world`
+without the lane model, which is not this part's work). It does so twice:
+
+- ``reference``: ``bridge/world/observe.py`` and ``bridge/pipeline/perception.py`` as they are at
+  git revision ``--ref`` (default ``HEAD``), read with ``git show`` and imported under other
+  names;
+- ``current``: the modules of the working tree.
+
+It prints µs per frame of the drive for each, the ratio reference / current (above 1: the current
+code is faster), and how many observations each made; then checks that both worlds agree at every
+tick (the same objects, lane lines and ego state), and prints a cProfile of the current code's
+part: the share of ``observe_latest``.
+
+    python tools/bench_world.py                    # 300k frames
+    python tools/bench_world.py --frames 100000 --ref HEAD~3
+
+``--convert`` also times a whole ``tankviz convert`` with the scene of a cached synthetic BLF of
+``--frames`` frames (``bench_convert``'s cache): the working tree against a copy of it with the
+reference's observe.py and perception.py, a subprocess per run, interleaved, best of
+``--repeat``; and prints µs/frame of each, their ratio, and the share of ``observe_latest`` in
+each under cProfile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import gc
+import importlib.util
+import io
+import pstats
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import types
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+sys.path.insert(0, str(ROOT))
+
+import bench_convert  # noqa: E402  (the generator of the synthetic drive)
+
+from bridge.decode.decoder import Decoder, load_database  # noqa: E402
+from bridge.frame import NS, Frame, to_ns  # noqa: E402
+from bridge.pipeline import perception as current_perception  # noqa: E402
+from bridge.profile.loader import load_profile  # noqa: E402
+from bridge.profile.model import Profile  # noqa: E402
+
+Message = tuple[str, Any, int]
+
+
+def load_reference(ref: str) -> types.ModuleType:
+    """``bridge/pipeline/perception.py`` at git revision ``ref``, importing ``observe.py`` of the
+    same revision and the working tree's ``world/model.py`` (all three under other names)."""
+    def source(path: str) -> str:
+        return subprocess.run(["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True,
+                              capture_output=True, text=True).stdout
+
+    def module(name: str, text: str) -> types.ModuleType:
+        folder = Path(tempfile.mkdtemp(prefix="bench_world_"))
+        path = folder / f"{name}.py"
+        path.write_text(text)
+        spec = importlib.util.spec_from_file_location(name, path)
+        assert spec is not None and spec.loader is not None
+        found = importlib.util.module_from_spec(spec)
+        sys.modules[name] = found
+        spec.loader.exec_module(found)
+        return found
+
+    module("reference_observe", source("bridge/world/observe.py"))
+    # the world of the working tree (not this part's work), over the reference's observations
+    module("reference_model", (ROOT / "bridge/world/model.py").read_text().replace(
+        "from bridge.world.observe import", "from reference_observe import"))
+    text = source("bridge/pipeline/perception.py").replace(
+        "from bridge.world.observe import", "from reference_observe import").replace(
+        "from bridge.world.model import", "from reference_model import")
+    return module("reference_perception", text)
+
+
+def decoded_drive(frames: int, seed: int, profile: Profile) -> list[Message]:
+    """The first ``frames`` frames of the synthetic drive, decoded: (message, values, time) of
+    each message the profile reads, in order."""
+    database = load_database(bench_convert.ECOCAR_DBC)
+    decoder = Decoder({None: [database]})
+    wanted = current_perception.Perception(profile).messages
+    out: list[Message] = []
+    for n, msg in enumerate(bench_convert.generate_frames(database.db, seed)):
+        if n >= frames:
+            break
+        frame = Frame(to_ns(msg.timestamp), f"can{msg.channel}", msg.arbitration_id,
+                      bytes(msg.data), is_fd=msg.is_fd, dlc=msg.dlc)
+        decoded = decoder.decode(frame)
+        if decoded is not None and decoded.codec.message.name in wanted:
+            out.append((decoded.codec.message.name, decoded.signals, frame.timestamp_ns))
+    return out
+
+
+def run_world(module: types.ModuleType, profile: Profile, drive: list[Message],
+              snapshots: list[Any] | None = None) -> tuple[float, int]:
+    """Seconds the world part of ``module``'s Perception takes over ``drive``, and the number of
+    observations it applied."""
+    perception = module.Perception(profile, scene_rate=20.0)
+    world = perception.world
+    applied = 0
+    apply = world.apply
+
+    def counting(observation: Any) -> None:
+        nonlocal applied
+        applied += 1
+        apply(observation)
+
+    world.apply = counting
+    due, feed = perception.due_ticks, perception.feed
+    gc.collect()
+    started = time.perf_counter()
+    for message, values, t in drive:
+        for tick in due(t):
+            perception.observe_pending()
+            world.expire(tick)
+            if snapshots is not None:
+                snapshots.append(snapshot(world))
+        feed(message, values, t)
+    return time.perf_counter() - started, applied
+
+
+def snapshot(world: Any) -> Any:
+    return ({g: {i: (o.t_ns, o.x, o.y, o.vx, o.vy, o.probability, o.object_class, o.valid)
+                 for i, o in objects.items()} for g, objects in world.objects.items()},
+            {n: (o.t_ns, o.coefficients) for n, o in world.lanes.items()},
+            (world.ego.t_ns, world.ego.speed, world.ego.yaw_rate,
+             world.ego.steering_wheel_angle))
+
+
+def best_of(repeat: int, runs: dict[str, Callable[[], tuple[float, int]]]
+            ) -> dict[str, tuple[float, int]]:
+    """Each run ``repeat`` times, interleaved; the best time of each."""
+    best: dict[str, tuple[float, int]] = {}
+    for _ in range(repeat):
+        for name, run in runs.items():
+            seconds, applied = run()
+            if name not in best or seconds < best[name][0]:
+                best[name] = (seconds, applied)
+    return best
+
+
+def profile_share(run: Callable[[], object], names: tuple[str, ...]) -> dict[str, float]:
+    """The cumulative share of each function in ``names`` in ``run``, under cProfile."""
+    profiler = cProfile.Profile()
+    profiler.enable()
+    run()
+    profiler.disable()
+    stats = pstats.Stats(profiler, stream=io.StringIO())
+    total = stats.total_tt  # type: ignore[attr-defined]
+    shares: dict[str, float] = {}
+    for (_, _, function), (_, _, _, cumulative, _) in stats.stats.items():  # type: ignore
+        if function in names:
+            shares[function] = shares.get(function, 0.0) + cumulative / total
+    return shares
+
+
+_CONVERT = """
+import cProfile, pstats, sys, time
+sys.path.insert(0, sys.argv[1])
+from bridge.cli import main
+args = sys.argv[3:]
+if sys.argv[2] == "profile":
+    profiler = cProfile.Profile()
+    profiler.enable()
+    main(args)
+    profiler.disable()
+    stats = pstats.Stats(profiler)
+    share = sum(cum for (_, _, name), (_, _, _, cum, _) in stats.stats.items()
+                if name == "observe_latest") / stats.total_tt
+    print(share)
+else:
+    started = time.perf_counter()
+    main(args)
+    print(time.perf_counter() - started)
+"""
+
+
+def reference_tree(ref: str) -> Path:
+    """A copy of the working tree's ``bridge`` with observe.py and perception.py of ``ref``."""
+    folder = Path(tempfile.mkdtemp(prefix="bench_world_tree_"))
+    shutil.copytree(ROOT / "bridge", folder / "bridge")
+    for path in ("bridge/world/observe.py", "bridge/pipeline/perception.py"):
+        (folder / path).write_text(subprocess.run(
+            ["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True, capture_output=True,
+            text=True).stdout)
+    return folder
+
+
+def convert_figures(frames: int, seed: int, ref: str, repeat: int) -> None:
+    """A whole ``tankviz convert`` with the scene of a cached synthetic BLF, in a subprocess
+    per run (import time excluded): the working tree against the same tree with observe.py and
+    perception.py of ``ref``, interleaved, best of ``repeat``; then each under cProfile, for the
+    share of ``observe_latest``."""
+    workdir = Path(tempfile.gettempdir()) / "tankviz-bench"
+    workdir.mkdir(exist_ok=True)
+    path, _ = bench_convert.synthetic_log(workdir, frames, seed)
+    trees = {"reference": reference_tree(ref), "current": ROOT}
+
+    def run(tree: Path, mode: str) -> float:
+        output = workdir / f"bench_world_{mode}.mcap"
+        args = ["convert", str(path), "-o", str(output), "--profile", "ecocar", "--force",
+                "--quiet"]
+        done = subprocess.run([sys.executable, "-c", _CONVERT, str(tree), mode, *args],
+                              check=True, capture_output=True, text=True)
+        return float(done.stdout.strip().splitlines()[-1])
+
+    best: dict[str, float] = {}
+    try:
+        for _ in range(repeat):
+            for name, tree in trees.items():
+                seconds = run(tree, "time")
+                best[name] = min(best.get(name, seconds), seconds)
+        for name, seconds in best.items():
+            share = run(trees[name], "profile")
+            print(f"convert with the scene, {name}: {seconds / frames * 1e6:.2f} µs/frame; "
+                  f"observe_latest {share:.1%} of it under cProfile")
+    finally:
+        shutil.rmtree(trees["reference"])
+    print(f"convert ratio reference / current: {best['reference'] / best['current']:.3f} "
+          f"(best of {repeat}, interleaved)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=300_000)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--ref", default="HEAD", help="git revision of the reference modules")
+    parser.add_argument("--convert", action="store_true",
+                        help="also profile a whole convert with the scene")
+    args = parser.parse_args(argv)
+
+    profile = load_profile("ecocar", [load_database(bench_convert.ECOCAR_DBC).db])
+    reference = load_reference(args.ref)
+    drive = decoded_drive(args.frames, args.seed, profile)
+    seconds = (drive[-1][2] - drive[0][2]) / NS
+    print(f"synthetic drive: {args.frames} frames, {len(drive)} messages the profile reads, "
+          f"{seconds:.1f} s of driving, scene at 20 Hz")
+
+    old, new = [], []  # type: ignore[var-annotated]
+    run_world(reference, profile, drive, old)
+    run_world(current_perception, profile, drive, new)
+    agree = old == new
+    print(f"worlds at every tick ({len(new)} ticks): {'the same' if agree else 'DIFFERENT'}")
+
+    best = best_of(args.repeat, {
+        "reference": lambda: run_world(reference, profile, drive),
+        "current": lambda: run_world(current_perception, profile, drive),
+    })
+    for name, (t, applied) in best.items():
+        print(f"{name:>9} ({args.ref if name == 'reference' else 'working tree'}): "
+              f"{t / args.frames * 1e6:.3f} µs/frame, {applied} observations applied")
+    ratio = best["reference"][0] / best["current"][0]
+    print(f"ratio reference / current: {ratio:.2f} times (best of {args.repeat}, interleaved)")
+
+    shares = profile_share(lambda: run_world(current_perception, profile, drive),
+                                  ("observe_latest", "observe_pending", "feed", "expire"))
+    for name, share in sorted(shares.items()):
+        print(f"  current, cProfile: {name} {share:.1%} of the world part")
+    if args.convert:
+        convert_figures(args.frames, args.seed, args.ref, args.repeat)
+    return 0 if agree else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
