@@ -8,6 +8,12 @@ lanes while they are fresh, otherwise, and always for a profile without camera l
 extrapolated from the steering angle) and the MIO
 check: is the lead vehicle the closest valid track inside the ego lane?
 
+A lane line is drawn from x = 0 to length - 1 m as a polyline within :data:`LANE_TOLERANCE_M`
+(1 cm) of its cubic, with as few points as that needs (:func:`lane_xs`: 2 for a straight line,
+about 20 on a main road's bends). A line whose coefficients (camera) or curvature (steering) are
+the same as at the last tick is that tick's :class:`LaneCurve` object again, not computed anew;
+nothing is rounded to make it so.
+
 Nothing non-finite enters or leaves it: the observer makes no observation with a non-finite position
 or coefficient and leaves non-finite values out (:mod:`bridge.world.observe`), and a lane line whose
 points or coefficients overflow (absurd but finite coefficients, a steering angle at the tangent's
@@ -23,6 +29,7 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 from bridge.frame import NS
 from bridge.profile.model import LaneSpec, Profile, Sensor
@@ -53,9 +60,55 @@ def lane_to_vehicle(sensor: Sensor, c: Sequence[float]) -> tuple[float, float, f
         math.radians(sensor.mount.yaw_deg)), s * shifted[2], s * shifted[3])
 
 
+#: The drawn polyline of a lane line stays within this (m, laterally) of the line's cubic.
+LANE_TOLERANCE_M = 0.01
+#: The closest its points come (m): the spacing of old, kept for bends too tight for the
+#: tolerance (a radius under 12.5 m, a steering angle near full lock).
+LANE_MIN_STEP_M = 1.0
+
+
+#: A line is drawn in this many equal pieces, each with points evenly spaced as its bend needs.
+LANE_PIECES = 4
+
+
+def lane_xs(c2: float, c3: float, length: float) -> tuple[float, ...]:
+    """Where to draw the line y = c0 + c1 x + c2 x² + c3 x³ from x = 0 to ``length`` - 1 m.
+
+    A chord from a to b strays at most (b - a)² / 8 · max|y''| from the curve on [a, b], and
+    y'' = 2 c2 + 6 c3 x is linear in x, so its largest size on [a, b] is at an end. The line is
+    cut into :data:`LANE_PIECES` equal pieces (one for a parabola: its bend is the same all
+    along), each with as few evenly spaced points as keep that bound within
+    :data:`LANE_TOLERANCE_M`, but no closer than :data:`LANE_MIN_STEP_M`: two points for a
+    straight line, about 20 for the bends of a main road (radius 300 m), more where it bends more.
+    Costs a few operations per piece: no point is placed one by one.
+    """
+    end = float(int(length) - 1)
+    if not (math.isfinite(c2) and math.isfinite(c3)) or end <= 0:
+        return tuple(float(x) for x in range(int(length)))
+    budget = 8.0 * LANE_TOLERANCE_M
+    pieces = LANE_PIECES if c3 else 1
+    knots = [end * i / pieces for i in range(pieces + 1)]
+    bends = [abs(2.0 * c2 + 6.0 * c3 * x) for x in knots]
+    if end * end * max(bends) <= budget:
+        return (0.0, end)
+    xs: tuple[float, ...] = (0.0,)
+    for i in range(pieces):
+        span = knots[i + 1] - knots[i]
+        steps = math.ceil(span * math.sqrt(max(bends[i], bends[i + 1]) / budget))
+        xs += _evenly(knots[i], knots[i + 1], max(1, min(steps, int(span / LANE_MIN_STEP_M))))
+    return xs
+
+
+@lru_cache(maxsize=1024)
+def _evenly(start: float, stop: float, steps: int) -> tuple[float, ...]:
+    """``steps`` even steps from ``start`` (left out) to ``stop``."""
+    return (*(start + (stop - start) * k / steps for k in range(1, steps)), stop)
+
+
 @dataclass(frozen=True)
 class LaneCurve:
-    """One lane line to draw, as vehicle-frame points x = 0…length-1 m."""
+    """One lane line to draw, as vehicle-frame points from x = 0 to length-1 m ahead of where
+    its coefficients start (the camera, or the vehicle origin), as few as :func:`lane_xs` needs."""
 
     name: str
     points: tuple[tuple[float, float], ...]
@@ -94,12 +147,12 @@ def steering_curvature(steering_wheel_angle: float, wheelbase: float, ratio: flo
 
 
 def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -> LaneCurve:
-    # to_vehicle(sensor, x, polynomial(c, x)) for every metre, spelled out: 400 points a tick
+    # to_vehicle(sensor, x, polynomial(c, x)) at each of lane_xs, spelled out
     c0, c1, c2, c3 = c
     sign = sensor.lateral_sign
     mount = sensor.mount
     cos, sin = sensor.rotation
-    xs = [float(x) for x in range(int(length))]
+    xs = lane_xs(c2, c3, length)
     ys = [(c0 + x * (c1 + x * (c2 + x * c3))) * sign for x in xs]
     if mount.yaw_deg:
         points = tuple((cos * x - sin * y + mount.x, sin * x + cos * y + mount.y)
@@ -111,8 +164,7 @@ def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -
 
 def steering_curve(name: str, offset: float, curvature: float, length: float) -> LaneCurve:
     c = (offset, 0.0, curvature / 2.0, 0.0)
-    return LaneCurve(name, tuple((float(x), polynomial(c, float(x))) for x in range(int(length))),
-                     c)
+    return LaneCurve(name, tuple((x, polynomial(c, x)) for x in lane_xs(c[2], 0.0, length)), c)
 
 
 @dataclass
@@ -146,6 +198,11 @@ class World:
     rule_errors: Counter[str] = field(default_factory=Counter)
     #: the latest reason per group
     last_rule_error: dict[str, str] = field(default_factory=dict)
+    #: each line drawn last (by name; "steering " + name for the fallback), with what made it
+    #: (coefficients, or the curvature) and whether it is drawable: an unchanged line is the
+    #: same LaneCurve tick after tick, so the scene draws it once (:meth:`_held`)
+    _curves: dict[str, tuple[object, LaneCurve, bool]] = field(
+        default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.lifetimes_ns = {name: round(g.lifetime_s * NS)
@@ -214,11 +271,14 @@ class World:
         fresh = {name: obs for name, obs in self.lanes.items() if now_ns - obs.t_ns <= stale_ns}
         camera: tuple[LaneCurve, ...] = ()
         if spec.sensor is not None and "left" in fresh and "right" in fresh:
-            curves = [camera_curve(name, spec.sensor, fresh[name].coefficients, spec.length_m)
-                      for name in ("left", "right", "next_left", "next_right") if name in fresh]
-            drawable = [c.finite() for c in curves]
-            if drawable[0] and drawable[1]:  # left and right
-                camera = tuple(c for c, ok in zip(curves, drawable, strict=True) if ok)
+            made = []
+            for name in ("left", "right", "next_left", "next_right"):
+                if name in fresh:
+                    c = fresh[name].coefficients
+                    made.append(self._held(name, c) or self._hold(
+                        name, c, camera_curve(name, spec.sensor, c, spec.length_m)))
+            if made[0][1] and made[1][1]:  # left and right
+                camera = tuple(c for c, ok in made if ok)
                 self.last_camera_lanes_ns = max(fresh["left"].t_ns, fresh["right"].t_ns)
         age = ((now_ns - self.last_camera_lanes_ns) / NS
                if self.last_camera_lanes_ns is not None else -1.0)
@@ -229,11 +289,26 @@ class World:
         vehicle = self.profile.vehicle
         curvature = steering_curvature(self.ego.steering_wheel_angle, vehicle.wheelbase_m,
                                        vehicle.steering_ratio)
-        lines = (steering_curve("left", spec.fallback_left_m, curvature, spec.length_m),
-                 steering_curve("right", spec.fallback_right_m, curvature, spec.length_m))
-        if not all(line.finite() for line in lines):
+        left, left_ok = self._held("steering left", curvature) or self._hold(
+            "steering left", curvature,
+            steering_curve("left", spec.fallback_left_m, curvature, spec.length_m))
+        right, right_ok = self._held("steering right", curvature) or self._hold(
+            "steering right", curvature,
+            steering_curve("right", spec.fallback_right_m, curvature, spec.length_m))
+        if not (left_ok and right_ok):
             return LaneModel("none", (), age)
-        return LaneModel("steering", lines, age)
+        return LaneModel("steering", (left, right), age)
+
+    def _held(self, name: str, key: object) -> tuple[LaneCurve, bool] | None:
+        """The line ``name`` of an earlier tick and whether it is drawable, if it was made from
+        the same ``key`` (its coefficients, or the curvature)."""
+        held = self._curves.get(name)
+        return (held[1], held[2]) if held is not None and held[0] == key else None
+
+    def _hold(self, name: str, key: object, curve: LaneCurve) -> tuple[LaneCurve, bool]:
+        drawable = curve.finite()
+        self._curves[name] = (key, curve, drawable)
+        return curve, drawable
 
     def track_groups(self) -> list[str]:
         return [name for name, g in self.profile.groups.items() if g.is_tracks]
