@@ -8,6 +8,7 @@ import random
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import IndexType
 from mcap.writer import Writer as McapWriter
 
 from bridge.frame import Frame
@@ -17,10 +18,11 @@ from bridge.sinks.mcap import FastWriter, Recorder
 FRAME = Frame(1_000, "can0", 0x100, b"\x01\x02", dlc=2)
 
 
-def write_with(cls: type[McapWriter], fast: bool = True) -> bytes:
+def write_with(cls: type[McapWriter], fast: bool = True,
+               index_types: IndexType = IndexType.ALL) -> bytes:
     rng = random.Random(7)
     out = io.BytesIO()
-    writer = cls(out, chunk_size=4096)
+    writer = cls(out, chunk_size=4096, index_types=index_types)
     if not fast:
         writer._fast = False
     writer.start(profile="", library="test")
@@ -44,6 +46,14 @@ def test_the_fast_writer_writes_what_mcap_writes() -> None:
 
 def test_the_fallback_path_writes_the_same() -> None:
     assert write_with(FastWriter, fast=False) == write_with(McapWriter)
+
+
+def test_without_message_indexes_the_fast_writer_writes_what_mcap_writes() -> None:
+    """Chunk indexes and the summary without the per-message MessageIndex records."""
+    chunks_only = IndexType.ALL & ~IndexType.MESSAGE
+    written = write_with(FastWriter, index_types=chunks_only)
+    assert written == write_with(McapWriter, index_types=chunks_only)
+    assert len(written) < len(write_with(McapWriter)) - 16 * 3000
 
 
 def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:

@@ -2,7 +2,15 @@
 
 It takes an already-open binary writer, so tests can record into ``BytesIO``. Channels are
 registered when their first message arrives; protobuf schemas are FileDescriptorSets built the
-way mcap_protobuf builds them. Chunks are zstd-compressed.
+way mcap_protobuf builds them. Chunks are zstd-compressed (zstandard's default level 3, 4 MiB
+chunks; a live drive closes its chunk every second).
+
+Indexes: the summary (schemas, channels, statistics), a chunk index per chunk, attachment and
+metadata indexes, and after each chunk one MessageIndex record per channel (16 bytes a message,
+uncompressed: the larger part of a raw-frames archive). The message indexes stay: @mcap/core, the
+reader the Foxglove app uses for any file with chunk indexes, refuses a chunk with messages but
+no message indexes (tests/test_archive_size.py). ``index_types`` can leave them out for a reader
+that does not need them (mcap's Python reader seeks by chunk indexes alone).
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ from typing import IO, Any
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType
+from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import build_file_descriptor_set
 
@@ -241,13 +249,17 @@ class Recorder(Sink):
     carries one message type: a second one is refused (``ValueError``), as mcap_protobuf's
     writer refuses it. Attachments are stamped with the time they are added, or with
     ``attachment_time_ns`` where given (a re-derived drive: the same inputs, the same bytes).
+    ``index_types``: the indexes written, as mcap's Writer takes them (default all; see the
+    module's docstring).
     """
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD,
                  describe: Describe | None = None, attach: Describe | None = None,
-                 attachment_time_ns: int | None = None) -> None:
-        self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression)
+                 attachment_time_ns: int | None = None,
+                 index_types: IndexType = IndexType.ALL) -> None:
+        self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression,
+                                  index_types=index_types)
         #: the create time of the attachments (ns); None: when each is added
         self.attachment_time_ns = attachment_time_ns
         self._writer.start(profile="", library=f"tankviz {__version__}")
