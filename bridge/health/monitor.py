@@ -5,7 +5,9 @@ The seed's team found a radar knocked out of alignment only because the blue sph
 :class:`HealthMonitor` says so itself. It watches
 
 - every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
-  included, :func:`bridge.health.wire.frame_bits`, over the bitrate, the data phase of CAN FD
+  included, :func:`bridge.health.wire.frame_bits`, exact for the first 1024 frames of each kind
+  and a sample after them, the others the sample's mean: :class:`bridge.health.wire.FrameKind`;
+  over the bitrate, the data phase of CAN FD
   frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
   but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
   (+inf, -inf, NaN: :attr:`bridge.decode.decoder.Decoded.non_finite`), gaps (no traffic for
@@ -60,8 +62,9 @@ lateral sign looks wrong: :mod:`bridge.world.lateral`, fed at each scene tick) i
 ``/log`` once, naming the fix; :meth:`HealthMonitor.lateral_sign_records` gives every sensor's
 verdict for the drive's metadata.
 
-The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations
-and the frame's bit count); object checks run at scene ticks (:meth:`HealthMonitor.on_world`).
+The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations,
+and the frame's bits counted exactly only for a sample); object checks run at scene ticks
+(:meth:`HealthMonitor.on_world`).
 :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene overlay
 (:mod:`bridge.health.overlay`).
 """
@@ -79,7 +82,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings
-from bridge.health.wire import frame_bits
+from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile, Sensor
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
@@ -96,7 +99,7 @@ _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same ba
 class _Bus:
     __slots__ = ("bitrate", "bits", "brs_bits", "cycles", "data_bitrate", "decode_errors",
                  "error_frames", "families", "first_ns", "frames", "gap_ns", "gaps", "ids",
-                 "known", "last_ns", "name", "non_finite", "unknown")
+                 "kinds", "known", "last_ns", "name", "non_finite", "unknown")
 
     def __init__(self, name: str, t_ns: int, known: frozenset[int], bitrate: int | None,
                  data_bitrate: int | None) -> None:
@@ -118,6 +121,8 @@ class _Bus:
         self.ids: Counter[int] = Counter()
         self.cycles: dict[int, float] = {}  # id key -> database cycle time (s)
         self.families: set[str] = set()
+        #: the bits of each kind of frame (exact for a sample, else its mean: bridge.health.wire)
+        self.kinds: dict[KindKey, FrameKind] = {}
 
 
 class _Family:
@@ -360,32 +365,42 @@ class HealthMonitor:
 
     def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
         """Count one frame (call it for every frame, after decoding it)."""
-        t = frame.timestamp_ns
-        bus = self._buses.get(frame.bus)
+        t, name, ident, data, extended, fd, error, remote, brs, esi, dlc = frame
+        bus = self._buses.get(name)
         if bus is None:
-            bus = self._add_bus(frame.bus, t)
+            bus = self._add_bus(name, t)
         if t - bus.last_ns > bus.gap_ns:
             bus.gaps += 1  # a gap just ended
         bus.last_ns = t
         bus.frames += 1
-        arbitration, data_phase = frame_bits(frame)
+        # the bits on the wire: exact for a sample of each kind, else its mean (FrameKind.bits)
+        kind_key = (ident, extended, fd, error, remote, brs, esi, dlc if remote else len(data))
+        kind = bus.kinds.get(kind_key)
+        if kind is None:
+            if len(bus.kinds) >= MAX_KINDS:
+                bus.kinds.clear()
+            kind = bus.kinds[kind_key] = FrameKind(frame)
+        kind.frames += 1
+        estimate = (kind.estimates.get(data.count(0)) if kind.frames < kind.next_exact
+                    else None)
+        arbitration, data_phase = kind.count(frame) if estimate is None else estimate
         bus.bits += arbitration
         if data_phase:
             bus.brs_bits += data_phase
-        key = frame.arbitration_id | _EXTENDED if frame.is_extended else frame.arbitration_id
+        key = ident | _EXTENDED if extended else ident
         bus.ids[key] += 1
-        if decoded is not None and decoded.non_finite:
-            self._non_finite(bus, decoded)
         if decoded is None:
-            if frame.is_error:
+            if error:
                 bus.error_frames += 1
-            elif frame.is_remote:
+            elif remote:
                 pass
             elif key in bus.known:
                 bus.decode_errors += 1
             else:
                 bus.unknown += 1
             return
+        if decoded.non_finite:
+            self._non_finite(bus, decoded)
         families = self._families_of.get(decoded.codec)
         if families is None:
             families = self._resolve(bus, decoded.codec)
