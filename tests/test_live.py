@@ -113,7 +113,9 @@ def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
     with fixed.open("rb") as f:
         times = [m.log_time for _, c, m in make_reader(f).iter_messages()
                  if c.topic == "/can/can0/frames"]
-    assert len(times) > 3 * 2000  # about 2,300 frames a second were sent
+    # the recording covers the run but about its last second (the demo sends ~2,300 frames/s
+    # on an idle machine, fewer on a loaded one: the time covered is what counts)
+    assert len(times) > 1000 and max(times) - min(times) > 2.4 * NS
     assert killed_at - max(times) < 1.6 * NS
     with fixed.open("rb") as f:  # written at the start of the drive: the cut file has them
         assert {a.name for a in make_reader(f).iter_attachments()} == {"ecocar.dbc",
