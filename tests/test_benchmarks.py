@@ -1,0 +1,162 @@
+"""The benchmarks of issue #15 run and report every row (behaviour only: no timing is asserted).
+
+tools/bench_convert.py and tools/bench_report.py are reports, not tests; here they run in a tiny
+mode so that a change that breaks them (a renamed topic, a moved module) shows at once.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+import re
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import cantools
+import pytest
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+
+#: Every row of issue #15's table that bench_convert measures.
+CONVERT_ROWS = (
+    "convert with the scene, tankviz / naive (BLF, simulated)",
+    "convert with the scene, tankviz / naive (ASC, simulated)",
+    "convert raw + decoded, tankviz / naive (BLF, simulated)",
+    "convert raw + decoded, tankviz / naive (ASC, simulated)",
+    "convert raw + decoded, tankviz / naive (candump, real-format log)",
+    "convert raw + decoded, tankviz / bare LogReader (BLF)",
+    "convert raw + decoded, tankviz / bare LogReader (ASC)",
+    "archive size / BLF size, raw only",
+    "archive size / BLF size, raw + decoded",
+    "archive size / BLF size, with scene",
+    "share of a 1 s log's convert (with scene) spent importing",
+)
+
+
+def tool(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"tools_{name}", TOOLS / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
+                                                                 shared_dbc: Path) -> None:
+    report = tmp_path / "report.md"
+    run = subprocess.run(
+        [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
+         "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
+         "--workdir", str(tmp_path / "bench"),
+         "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
+        capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    # bench_convert prints the ratios first, then the details
+    printed = run.stdout
+    assert printed.index("convert with the scene, tankviz / naive") < printed.index(
+        "bare can.LogReader iteration")
+    assert "WARNING" not in printed  # naive and tankviz wrote the same messages per topic
+
+    text = report.read_text()
+    table = {cells[0]: cells[1:] for line in text.splitlines() if line.startswith("| ")
+             for cells in [[c.strip() for c in line.strip("|").split(" | ")]]}
+    for measure in CONVERT_ROWS:
+        now, goal, _ok = table[measure]
+        assert re.fullmatch(r"\d+\.\d\dx?", now), (measure, now)
+        assert goal.startswith(("≥", "≤")), (measure, goal)
+    rss = next(v for k, v in table.items() if k.startswith("peak RSS, with scene"))
+    assert re.fullmatch(r"\d+ → \d+ MB \([+-]\d+ MB\)", rss[0]), rss
+    hour = next(v for k, v in table.items() if k.startswith("1 hour of the 3-bus drive"))
+    assert re.fullmatch(r"\d+\.\d min", hour[0]), hour
+    for field in ("date", "machine", "git commit", "load average (1 min)", "runs", "commands"):
+        assert f"- **{field}:**" in text
+    assert "## Details: tools/bench_convert.py" in text
+    assert "real-format log real-gm_global_a_object-5000f" in text
+
+
+def test_real_format_log_rolls_counters_and_checks_its_sums(shared_dbc: Path) -> None:
+    bench = tool("bench_convert")
+    db = cantools.database.load_file(shared_dbc / "gm_global_a_object.dbc", strict=False)
+    assert isinstance(db, cantools.database.can.Database)
+    frames = []
+    for n, msg in enumerate(bench.real_frames(db, seed=3)):
+        if n == 3000:
+            break
+        frames.append(msg)
+    stamps = [m.timestamp for m in frames]
+    assert stamps == sorted(stamps)
+    assert {m.channel for m in frames} == {"can0"}
+    known = {m.frame_id for m in db.messages}
+    assert {m.arbitration_id for m in frames} <= known | set(bench.REAL_UNKNOWN_IDS)
+    steering = db.get_message_by_name("ASCMSteeringStatus")
+    sent = [m for m in frames if m.arbitration_id == steering.frame_id]
+    decoded: list[dict[str, Any]] = [steering.decode(bytes(m.data), decode_choices=False)
+                                     for m in sent]
+    counters = [d["RollingCounter"] for d in decoded]
+    assert len(counters) > 5
+    assert all((b - a) % 4 == 1 for a, b in itertools.pairwise(counters))
+    for m, d in zip(sent, decoded, strict=True):
+        without = steering.encode(d | {"ASCMSterringStatusChecksum": 0}, scaling=False,
+                                  padding=False, strict=False)
+        assert d["ASCMSterringStatusChecksum"] == sum(without) % 2**16, m
+    # mostly repeating: many frames carry the payload their id carried last time
+    last: dict[int, bytes] = {}
+    repeats = 0
+    for m in frames:
+        repeats += last.get(m.arbitration_id) == bytes(m.data)
+        last[m.arbitration_id] = bytes(m.data)
+    assert repeats > len(frames) // 4
+
+
+def test_naive_scene_draws_only_what_is_valid(ecocar: cantools.database.can.Database) -> None:
+    bench = tool("bench_convert")
+    latest = {
+        "CamLaneLeft": {"Source": 1, "Quality": 3, "C0_Offset": -1.7, "C1_Heading": 0.0,
+                        "C2_Curvature": 0.001, "C3_CurvatureDerivative": 0.0},
+        "CamLaneRight": {"Source": 1, "Quality": 0, "C0_Offset": 1.8, "C1_Heading": 0.0,
+                         "C2_Curvature": 0.0, "C3_CurvatureDerivative": 0.0},
+        "RadarObj0_A": {"Valid": 1, "ProbExist": 90.0, "LongDist": 30.0, "LatDist": 1.0,
+                        "LongSpeed": -2.0},
+        "RadarObj0_B": {"Length": 4.5, "Width": 1.8},
+        "RadarObj1_A": {"Valid": 1, "ProbExist": 40.0, "LongDist": 60.0, "LatDist": 0.0,
+                        "LongSpeed": 0.0},
+        "LeadVehicle": {"Valid": 0, "PosX": 30.0, "PosY": 1.0, "TimeGap": 1.5},
+    }
+    scene = dict(bench.naive_scene(latest, 1_700_000_000_050_000_000))
+    assert list(scene) == list(bench.NAIVE_SCENE_CATEGORIES)
+    assert len(scene["ego"].entities) == 1
+    (lane,) = scene["lanes"].entities  # the right lane has quality 0
+    points = lane.lines[0].points
+    assert len(points) == 100
+    assert (points[0].x, points[0].y) == (0.0, 1.7)  # the camera counts y to the right
+    assert points[-1].x == pytest.approx(100.0)
+    (radar,) = scene["radar"].entities  # object 1 is below the existence threshold
+    assert (radar.cubes[0].pose.position.x, radar.cubes[0].pose.position.y) == (30.0, 1.0)
+    assert radar.timestamp.seconds == 1_700_000_000 and radar.timestamp.nanos == 50_000_000
+    assert not scene["lead"].entities and not scene["camera"].entities
+    assert not scene["tracks"].entities
+
+
+def test_live_table_is_read_by_its_columns() -> None:
+    report = tool("bench_report")
+    printed = "\n".join([
+        "window 10.2 s (senders started → every frame processed)",
+        "metric                          value                  target     ok?",
+        "----------------------------------------------------------------------",
+        "bridge CPU (process - senders)  38.5 % of one core     < 20 %     MISSED",
+        "  reference: the pipeline alone 30.1 % (25.0 µs/frame)",
+        "latency frame → scene p99       31.0 ms                < 25 ms    MISSED",
+        "",
+        "CPU by thread over the window:",
+    ])
+    rows = report.live_table(printed)
+    assert rows == [
+        ("bridge CPU (process - senders)", "38.5 % of one core", "< 20 %", "MISSED"),
+        ("reference: the pipeline alone", "30.1 % (25.0 µs/frame)", "", ""),
+        ("latency frame → scene p99", "31.0 ms", "< 25 ms", "MISSED"),
+    ]
+    assert report.live_table("no table here") == []
