@@ -6,6 +6,11 @@ so nothing is lost. Frames shorter than their DBC length decode what fits and ar
 CAN FD frames longer than their message decode what the message defines and are counted with the
 longest length seen (``longer`` in the statistics).
 
+Decoding repeats: a payload seen before on a message returns the same :class:`Decoded` (a bounded
+cache per message, which a message whose payloads never repeat stops using for a while: see
+:class:`MessageCodec`), and a new one is encoded by the message's precompiled encoder
+(:func:`bridge.decode.proto_schema.compile_encoder`), byte for byte protobuf's own encoding.
+
 A float signal (IEEE, ``SIG_VALTYPE_``) that decodes to +inf, -inf or NaN is kept in the decoded
 message as it came, named in :attr:`Decoded.non_finite` and counted per bus, message and signal
 (``non_finite`` in the statistics); the world never takes such a value
@@ -43,6 +48,10 @@ from bridge.topics import message_topic
 _EXTENDED = 1 << 31
 #: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
 _CACHE_SIZE = 1024
+#: Misses per trial of a message's payload cache: a trial with fewer hits than misses / 8 ...
+_TRIAL_MISSES = 512
+#: ... stops caching that message for this many frames, then it is tried again.
+_REST_FRAMES = 16 * _TRIAL_MISSES
 
 _BUS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
 
@@ -123,7 +132,15 @@ class Decoded(NamedTuple):
 
 
 class MessageCodec:
-    """One DBC message as seen on one bus: cantools decoding, the protobuf type, the topic."""
+    """One DBC message as seen on one bus: cantools decoding, the protobuf type, the topic.
+
+    A decoded payload is remembered (up to ``_CACHE_SIZE`` distinct ones, then forgotten all at
+    once), and the same payload again returns the same :class:`Decoded`. A message whose
+    payloads do not repeat (a counter or a checksum in every frame, a noisy measurement) is not
+    worth it: after ``_TRIAL_MISSES`` misses with fewer than one hit per 8 misses, it stops
+    remembering (:attr:`caching` False, its memory freed) for ``_REST_FRAMES`` frames, then tries
+    again.
+    """
 
     def __init__(self, message: DbcMessage, database: DatabaseFile, schema: MessageSchema,
                  bus: str) -> None:
@@ -143,6 +160,12 @@ class MessageCodec:
         #: non-finite values per signal name
         self.non_finite: Counter[str] = Counter()
         self._cache: dict[bytes, Decoded] = {}
+        #: whether new payloads are remembered now
+        self.caching = True
+        self._misses = 0  # in this trial (caching), since ...
+        self._since = 0  # ... this many decoded frames; or (not caching) until then
+        self._decode = message.decode
+        self._encode = schema.encode
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
@@ -158,18 +181,32 @@ class MessageCodec:
             if hit.non_finite:
                 self.non_finite.update(hit.non_finite)
             return hit
-        signals: dict[str, Any] = self.message.decode(  # type: ignore[assignment]
+        signals: dict[str, Any] = self._decode(  # type: ignore[assignment]
             data, decode_choices=False, allow_truncated=True)
         bad = (tuple(n for n in self.floats if not math.isfinite(signals.get(n, 0.0)))
                if self.floats else ())
         if bad:
             self.non_finite.update(bad)
-        result = Decoded(self, signals, self.schema.serialize(signals), bad)
-        if len(self._cache) >= _CACHE_SIZE:
-            self._cache.clear()
-        self._cache[data] = result
+        result = Decoded(self, signals, self._encode(signals), bad)
         self.decoded += 1
+        if self.caching:
+            if len(self._cache) >= _CACHE_SIZE:
+                self._cache.clear()
+            self._cache[data] = result
+            self._misses += 1
+            if self._misses >= _TRIAL_MISSES:
+                self._trial_ends()
+        elif self.decoded >= self._since:
+            self.caching, self._misses, self._since = True, 0, self.decoded
         return result
+
+    def _trial_ends(self) -> None:
+        hits = self.decoded - self._since - self._misses
+        if hits * 8 < self._misses:
+            self.caching, self._since = False, self.decoded + _REST_FRAMES
+            self._cache.clear()
+        else:
+            self._misses, self._since = 0, self.decoded
 
 
 def _layout(message: DbcMessage) -> tuple[Any, ...]:

@@ -10,11 +10,20 @@ that its multiplexer does not select is simply absent:
 - an integer signal with integer scaling (cantools decodes it to ``int``) becomes the smallest of
   uint32/sint32/uint64/sint64 that holds its whole range;
 - everything else is a ``double``.
+
+:func:`compile_encoder` turns a generated type into a function that writes the protobuf wire
+format of cantools' decoded signals directly (tag, varint or zigzag varint or little-endian
+double, fields in number order, every present field written even when zero), without building a
+message object: the bytes are exactly those of ``SerializeToString``. A value protobuf would
+refuse or convert (not an ``int`` for an integer field, out of range, a key the message does not
+have) goes through the message class instead, so it fails, or encodes, just as protobuf does.
 """
 
 from __future__ import annotations
 
 import re
+import struct
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,6 +146,115 @@ def describe_message(
     return proto, fields
 
 
+#: (smallest, largest value, how it is written) of each integer field type
+_VARINTS = {
+    FieldType.TYPE_UINT32: (0, 2**32 - 1, "unsigned"),
+    FieldType.TYPE_UINT64: (0, 2**64 - 1, "unsigned"),
+    FieldType.TYPE_SINT32: (-(2**31), 2**31 - 1, "zigzag"),
+    FieldType.TYPE_SINT64: (-(2**63), 2**63 - 1, "zigzag"),
+    FieldType.TYPE_ENUM: (-(2**31), 2**31 - 1, "int32"),
+}
+#: tag bytes -> the tag followed by each one-byte varint 0..127 (shared by every message)
+_SMALL: dict[bytes, tuple[bytes, ...]] = {}
+
+Encoder = Callable[[Mapping[str, Any]], bytes]
+
+
+def _varint(value: int) -> bytes:
+    """A non-negative int as a protobuf base-128 varint."""
+    out = bytearray()
+    while value > 0x7F:
+        out.append((value & 0x7F) | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+def compile_encoder(schema: MessageSchema) -> Encoder:
+    """A function from cantools' decoded signals (keyed by signal name, ``decode_choices=False``)
+    to the serialized message, byte for byte what the message class's ``SerializeToString``
+    gives (see the module docstring); it falls back to the message class for anything else."""
+    fallback = schema.serialize_with_protobuf
+    field_of = {f.signal: f.field for f in schema.fields}
+    field_of.update(schema.renamed)  # a repeated signal name: the last one's field, as kwargs do
+    source: dict[str, str] = {}
+    for key, name in field_of.items():
+        if name in source:  # two keys for one field: only protobuf itself knows the answer
+            return fallback
+        source[name] = key
+    names: dict[str, Any] = {"F": fallback, "V": _varint,
+                             "D1": struct.Struct("<Bd").pack, "D2": struct.Struct("<BBd").pack}
+    # Every signal present (a whole frame of a message without multiplexing) with every integer
+    # below 128 as a varint: one struct.pack of the tags and values.
+    keys: list[str] = []
+    tests: list[str] = []
+    args: list[str] = []
+    formats: list[str] = []
+    # Otherwise field by field.
+    lines = ["    out = []", "    a = out.append"]
+    for n, fd in enumerate(sorted(schema.message_class.DESCRIPTOR.fields,
+                                  key=lambda fd: fd.number)):
+        src = source.get(fd.name)
+        if src is None:
+            continue
+        double = fd.type == FieldType.TYPE_DOUBLE
+        tag = _varint(fd.number << 3 | 1) if double else _varint(fd.number << 3)
+        if len(tag) > 2:
+            return fallback
+        v = f"v{n}"
+        keys.append(f"{v} = s[{src!r}]")
+        args += [str(b) for b in tag]
+        formats.append("B" * len(tag) + ("d" if double else "B"))
+        lines += [f"    v = s.get({src!r})", "    if v is not None:"]
+        if double:
+            tests.append(f"({v}.__class__ is float or {v}.__class__ is int)")
+            args.append(v)
+            pack = f"D{len(tag)}({', '.join(str(b) for b in tag)}, v)"
+            lines += ["        c = v.__class__",
+                      f"        if c is float or c is int: a({pack})",
+                      "        else: return F(s)"]
+            continue
+        lo, hi, how = _VARINTS[fd.type]
+        small = _SMALL.get(tag)
+        if small is None:
+            small = _SMALL[tag] = tuple(tag + bytes((i,)) for i in range(128))
+        names[f"S{n}"], names[f"T{n}"] = small, tag
+        if how == "zigzag":
+            tests.append(f"{v}.__class__ is int and -64 <= {v} < 64")
+            args.append(f"({v} << 1) ^ ({v} >> 63)")
+            small_case = (f"if -64 <= v < 64: a(S{n}[(v << 1) ^ (v >> 63)])",
+                          f"elif {lo} <= v <= {hi}: a(T{n} + V((v << 1) ^ (v >> 63)))")
+        elif how == "int32":
+            tests.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            args.append(v)
+            small_case = (f"if 0 <= v < 128: a(S{n}[v])",
+                          f"elif {lo} <= v <= {hi}: a(T{n} + V(v if v >= 0 else v + {2**64}))")
+        else:
+            tests.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            args.append(v)
+            small_case = (f"if 0 <= v < 128: a(S{n}[v])",
+                          f"elif {lo} <= v <= {hi}: a(T{n} + V(v))")
+        lines += ["        if v.__class__ is not int: return F(s)",
+                  f"        {small_case[0]}", f"        {small_case[1]}",
+                  "        else: return F(s)"]
+    names["P"] = struct.Struct("<" + "".join(formats)).pack
+    lines = ["def encode(s):",
+             f"    if len(s) == {len(keys)}:",
+             "        try:",
+             *(f"            {k}" for k in keys or ["pass"]),
+             "        except KeyError:",
+             "            pass",
+             "        else:",
+             f"            if {' and '.join(tests) or 'True'}:",
+             f"                return P({', '.join(args)})",
+             *lines,
+             "    if len(out) != len(s): return F(s)",
+             "    return b''.join(out)"]
+    exec("\n".join(lines), names)
+    encode: Encoder = names["encode"]
+    return encode
+
+
 class MessageSchema:
     """A DBC message's generated protobuf class and how to fill it from cantools' decoded dict."""
 
@@ -152,13 +270,19 @@ class MessageSchema:
         )
         #: signal name -> field name, only where they differ
         self.renamed = {f.signal: f.field for f in self.fields if f.signal != f.field}
+        #: cantools' decoded signals to the serialized message (:func:`compile_encoder`)
+        self.encode = compile_encoder(self)
 
     def file_descriptor_set(self) -> bytes:
         """The serialized FileDescriptorSet of this type, built as mcap_protobuf builds it."""
         return bytes(build_file_descriptor_set(self.message_class).SerializeToString())
 
-    def serialize(self, signals: dict[str, Any]) -> bytes:
+    def serialize(self, signals: Mapping[str, Any]) -> bytes:
         """Encode cantools' decoded signals (``decode_choices=False``) as this message."""
+        return self.encode(signals)
+
+    def serialize_with_protobuf(self, signals: Mapping[str, Any]) -> bytes:
+        """:meth:`serialize` the slow way: the message class from keyword arguments."""
         if self.renamed:
             signals = {self.renamed.get(k, k): v for k, v in signals.items()}
         return bytes(self.message_class(**signals).SerializeToString())

@@ -1,0 +1,238 @@
+#!/usr/bin/env python3
+"""Benchmark decoding + protobuf encoding per frame (a report, not a test).
+
+On the frames of a log, decoded and serialised as the decoded topics need them, it times in one
+process, interleaved, best of ``--repeat`` (default 3):
+
+(a) a fixed naive reference: cantools ``Database.decode_message(id, data,
+    decode_choices=False)``, then the generated protobuf message (the very types of
+    :class:`bridge.decode.proto_schema.MessageSchema`) built from keyword arguments and
+    ``SerializeToString()``;
+(b) tankviz's :class:`bridge.decode.decoder.Decoder` (a new one per round, so its caches start
+    cold);
+(c) optionally, each ``--compare NAME=PATH``: another decoder module (e.g. an old version taken
+    with ``git show HEAD:bridge/decode/decoder.py``) timed the same way as (b);
+
+and prints µs/frame of each (CPU time of this process, which a loaded machine disturbs less than
+wall time; the garbage collector off, as in ``tankviz convert``) and the ratios to (a) (lower is
+faster). It also checks that (b)
+gives the same payload bytes as (a) for every frame, and prints the share of frames whose
+``(id, payload)`` was seen before (what an ``(id, payload)`` cache can hit at best), overall and
+for the ten busiest ids.
+
+Logs:
+
+- ``synthetic`` (default): the simulated 3-bus ecocar drive of ``tools/bench_convert.py`` (its
+  generator, imported), ``--frames`` frames (default 200,000);
+- ``real-like``: traffic on the public ``ford_fusion_2018_pt.dbc`` (../shared/data/dbc) the way a
+  production power-train bus looks: every message at its cycle, most status messages repeating
+  unchanged, a 4-bit rolling counter and a checksum byte in a third of them, noisy measured
+  values in the rest (a stand-in for a real candump log, which is not in the repository).
+
+    python tools/bench_decode.py
+    python tools/bench_decode.py --log real-like
+    python tools/bench_decode.py --compare old=/tmp/me/old_decoder.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import importlib.util
+import random
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import Any, cast
+
+import cantools
+from cantools.database.can.database import Database
+from google.protobuf import descriptor_pool
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench_convert import ECOCAR_DBC, generate_frames
+
+from bridge.decode import decoder as tankviz_decoder
+from bridge.decode.proto_schema import MessageSchema
+from bridge.frame import Frame, to_ns
+
+SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
+REAL_LIKE_DBC = SHARED_DBC / "ford_fusion_2018_pt.dbc"
+
+
+def synthetic_frames(n: int, seed: int) -> list[Frame]:
+    db = cantools.database.load_file(str(ECOCAR_DBC), strict=False)
+    assert isinstance(db, Database)
+    out = []
+    for msg in generate_frames(db, seed):
+        if len(out) >= n:
+            break
+        out.append(Frame(to_ns(msg.timestamp), f"can{msg.channel}", msg.arbitration_id,
+                         bytes(msg.data), msg.is_extended_id, msg.is_fd, dlc=msg.dlc))
+    return out
+
+
+def real_like_frames(n: int, seed: int) -> list[Frame]:
+    """Production-bus-like traffic on a public DBC (see the module docstring)."""
+    db = cantools.database.load_file(str(REAL_LIKE_DBC), strict=False)
+    assert isinstance(db, Database)
+    rng = random.Random(seed)
+    kinds: list[tuple[int, int, str, bytearray]] = []  # (id, period ms, kind, payload)
+    for m in db.messages:
+        if m.length == 0:
+            continue
+        period = int(m.cycle_time or rng.choice((10, 20, 50, 100, 1000)))
+        kind = rng.choices(("static", "counter", "varying"), weights=(5, 3, 2))[0]
+        payload = bytearray(rng.randbytes(m.length))
+        kinds.append((m.frame_id, period, kind, payload))
+    out: list[Frame] = []
+    t_ms = 0
+    while len(out) < n:
+        for frame_id, period, kind, payload in kinds:
+            if t_ms % period:
+                continue
+            if kind == "counter":  # a rolling counter in byte 0's low nibble, a sum in the last
+                payload[0] = (payload[0] & 0xF0) | ((payload[0] + 1) & 0x0F)
+                payload[-1] = sum(payload[:-1]) & 0xFF
+            elif kind == "varying":  # a measured value with noise in its low byte
+                payload[0], payload[1] = rng.randrange(256), rng.randrange(256)
+            out.append(Frame(t_ms * 1_000_000, "can0", frame_id, bytes(payload)))
+        t_ms += 1
+    return out[:n]
+
+
+class Naive:
+    """(a): decode_message + protobuf from keyword args + SerializeToString, nothing cached."""
+
+    def __init__(self, path: Path) -> None:
+        db = cantools.database.load_file(str(path), strict=False)
+        assert isinstance(db, Database)
+        self.db = db
+        pool = descriptor_pool.DescriptorPool()
+        self.schemas = {(m.frame_id, bool(m.is_extended_frame)): MessageSchema(m, "db", pool)
+                        for m in db.messages}
+
+    def run(self, frames: list[Frame]) -> list[bytes | None]:
+        out: list[bytes | None] = []
+        decode, schemas = self.db.decode_message, self.schemas
+        for f in frames:
+            schema = schemas.get((f.arbitration_id, f.is_extended))
+            if schema is None or f.is_error or f.is_remote:
+                out.append(None)
+                continue
+            try:
+                signals = cast(dict[str, Any], decode(f.arbitration_id, f.data,
+                                                      decode_choices=False, allow_truncated=True))
+            except Exception:
+                out.append(None)
+                continue
+            if schema.renamed:
+                signals = {schema.renamed.get(k, k): v for k, v in signals.items()}
+            out.append(schema.message_class(**signals).SerializeToString())
+        return out
+
+
+def decoder_runner(module: ModuleType, path: Path) -> Callable[[list[Frame]], list[bytes | None]]:
+    database = module.load_database(path)
+
+    def run(frames: list[Frame]) -> list[bytes | None]:
+        decode = module.Decoder({None: [database]}).decode
+        out: list[bytes | None] = []
+        for f in frames:
+            d = decode(f)
+            out.append(None if d is None else d.payload)
+        return out
+
+    return run
+
+
+def load_module(name: str, path: Path) -> ModuleType:
+    sys.path.insert(0, str(path.parent))
+    spec = importlib.util.spec_from_file_location(f"bench_decode_{name}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def repeats(frames: list[Frame]) -> tuple[float, list[tuple[str, int, float]]]:
+    seen: set[tuple[str, int, bytes]] = set()
+    per_id: Counter[tuple[str, int]] = Counter()
+    hits: Counter[tuple[str, int]] = Counter()
+    for f in frames:
+        key = (f.bus, f.arbitration_id, f.data)
+        per_id[key[:2]] += 1
+        if key in seen:
+            hits[key[:2]] += 1
+        else:
+            seen.add(key)
+    total = sum(hits.values()) / max(1, len(frames))
+    busiest = [(f"{bus}/0x{i:X}", n, hits[(bus, i)] / n) for (bus, i), n in per_id.most_common(10)]
+    return total, busiest
+
+
+def frames_of(log: str, n: int, seed: int) -> tuple[list[Frame], Path]:
+    if log == "synthetic":
+        return synthetic_frames(n, seed), ECOCAR_DBC
+    if not REAL_LIKE_DBC.is_file():
+        raise SystemExit(f"error: {REAL_LIKE_DBC} not found: the public DBCs come from "
+                         "../shared/data/dbc (opendbc, MIT)")
+    return real_like_frames(n, seed), REAL_LIKE_DBC
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--log", choices=("synthetic", "real-like"), default="synthetic")
+    parser.add_argument("--frames", type=int, default=200_000)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--compare", action="append", default=[], metavar="NAME=PATH",
+                        help="another decoder module to time like (b)")
+    args = parser.parse_args(argv)
+
+    frames, dbc = frames_of(args.log, args.frames, args.seed)
+    runners: dict[str, Callable[[list[Frame]], list[bytes | None]]] = {
+        "a naive": Naive(dbc).run, "b tankviz": decoder_runner(tankviz_decoder, dbc)}
+    for spec in args.compare:
+        name, _, path = spec.partition("=")
+        runners[f"c {name}"] = decoder_runner(load_module(name, Path(path)), dbc)
+
+    reference = runners["a naive"](frames)
+    for name, run in runners.items():
+        got = run(frames)
+        differ = sum(1 for x, y in zip(reference, got, strict=True) if x != y)
+        if differ:
+            print(f"MISMATCH: {name} gives other payload bytes than (a) for {differ} frames")
+
+    best = dict.fromkeys(runners, float("inf"))
+    for _ in range(args.repeat):
+        for name, run in runners.items():
+            gc.collect()
+            gc.disable()  # as tankviz convert runs
+            started = time.process_time()
+            run(frames)
+            best[name] = min(best[name], time.process_time() - started)
+            gc.enable()
+
+    decodable = sum(1 for r in reference if r is not None)
+    print(f"log: {args.log}, {len(frames)} frames ({decodable} decodable), {dbc.name}; "
+          f"best of {args.repeat}, interleaved")
+    base = best["a naive"]
+    for name, seconds in best.items():
+        print(f"  ({name}): {seconds / len(frames) * 1e6:6.2f} µs/frame   "
+              f"ratio to (a) {seconds / base:.3f}")
+    total, busiest = repeats(frames)
+    print(f"(id, payload) seen before: {total:.1%} of frames; busiest ids:")
+    for key, n, rate in busiest:
+        print(f"  {key:>14}  {n:7d} frames  {rate:6.1%} repeat")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
