@@ -1,6 +1,12 @@
 """The ``tankviz`` command line: the top-level parser, with each command's own parser and
 handler loaded from its module in :mod:`bridge.apps` (as cantools' subcommands are).
 
+Only the chosen command's module is imported (with the libraries it needs): ``tankviz --help``
+lists every command from :data:`SUMMARIES` and imports none of them, so a short command does not
+spend its time importing what another command uses (cantools, python-can, mcap, Dask, DuckDB).
+The ``TANKVIZ_*`` settings are checked first, for every command and for ``--help``
+(:func:`bridge.apps.options.check_environment`).
+
 Every user error is a :class:`~bridge.errors.BridgeError`, printed as one ``error: …`` line with
 exit status 1; ``--debug`` shows the traceback instead.
 """
@@ -14,6 +20,7 @@ import traceback
 from collections.abc import Sequence
 
 from bridge import __version__
+from bridge.apps.options import check_environment
 from bridge.errors import BridgeError
 
 EXIT_ERROR = 1
@@ -23,8 +30,37 @@ EXIT_INTERRUPTED = 130
 COMMANDS = ("convert", "inspect", "live", "demo", "simulate", "replay", "recover", "layouts",
             "batch", "catalog", "profile")
 
+#: What ``tankviz --help`` says of each command without importing it: the ``help`` each module
+#: gives its parser (tests/test_startup.py checks that they agree).
+SUMMARIES = {
+    "convert": "convert CAN logs into one decoded MCAP drive archive",
+    "inspect": "show what a drive archive (MCAP) holds",
+    "live": "CAN buses in, Foxglove live, every drive recorded",
+    "demo": "the simulated ecocar drive, live: open Foxglove and watch",
+    "simulate": "write the simulated ecocar drive as a CAN log or an MCAP",
+    "replay": "serve a recorded drive or CAN logs to Foxglove in real time",
+    "recover": "salvage a drive (MCAP) cut short by a power loss or a crash",
+    "layouts": "list the bundled Foxglove layouts, or copy them out to import them",
+    "batch": "convert many drives at once, on Dask (local cores or a cluster)",
+    "catalog": "index drives into a DuckDB catalogue, or query it",
+    "profile": "start a vehicle profile from the databases, or check one",
+}
 
-def build_parser() -> argparse.ArgumentParser:
+
+def chosen_command(arguments: Sequence[str]) -> str | None:
+    """The command named in ``arguments``: the first word that is not an option (tankviz's own
+    options take no value), or None (``tankviz --help``, a mistyped command)."""
+    for argument in arguments:
+        if argument == "--":
+            break
+        if not argument.startswith("-"):
+            return argument if argument in COMMANDS else None
+    return None
+
+
+def build_parser(command: str | None = None, *, every: bool = False) -> argparse.ArgumentParser:
+    """The parser, with the full parser of ``command`` (of every command with ``every``); the
+    others are listed by their summary and loaded when chosen."""
     parser = argparse.ArgumentParser(
         prog="tankviz",
         description="CAN buses to Foxglove: decode with DBC files, draw the perception scene, "
@@ -34,14 +70,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"bridge.apps.{name}").add_parser(sub)
+        if every or name == command:
+            importlib.import_module(f"bridge.apps.{name}").add_parser(sub)
+        else:
+            sub.add_parser(name, help=SUMMARIES[name])
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = list(argv) if argv is not None else sys.argv[1:]
     try:
-        parser = build_parser()  # (reads the TANKVIZ_* settings: one may make no sense)
+        check_environment()  # a TANKVIZ_* setting may make no sense
+        parser = build_parser(chosen_command(arguments))
     except BridgeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_ERROR

@@ -17,14 +17,16 @@ time, or more than two seconds after it), the pipeline re-bases its scene ticks,
 and lifetimes at once and says so on ``/log``, the schedule takes the new offset at once, and the
 drive's metadata lists the step (``clock_steps``); every frame is recorded with its own stamp.
 When the pipeline falls behind (a loaded machine), the scenes of every tick it missed are made
-and recorded; viewers get the latest. At the end it prints how many messages slow viewers lost:
+and recorded; viewers get the latest. Once started, the garbage collector runs with
+:func:`bridge.pipeline.collector.steady_stream`'s settings (start-up frozen, rare young
+collections, a full one a minute where the loop waits), and the process's own come back at the
+end. At the end it prints how many messages slow viewers lost:
 which viewers, and of which topics.
 """
 
 from __future__ import annotations
 
 import argparse
-import gc
 import queue
 import shlex
 import sys
@@ -51,6 +53,7 @@ from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import AlarmKind
 from bridge.io.buses import BusEvent, BusLink, BusSpec, ReadSchedule, merge_batches
 from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
+from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
@@ -151,14 +154,15 @@ class Live:
     def run(self) -> LiveReport:
         """Until :meth:`stop`: read, record, serve. Files are finished cleanly on the way out."""
         self.start()
-        # What is loaded by now (databases, profile, schemas) lives as long as the process: out
-        # of the collector's way, or every full collection walks it (a 15-30 ms pause each).
-        gc.freeze()
+        # What is loaded by now (databases, profile, schemas) lives as long as the process:
+        # frozen out of the collector's way; full collections only at quiet moments.
+        collector = steady_stream()
         pipeline, events = self.pipeline, self.events
         process = pipeline.process
         schedule = ReadSchedule(round(NS / self.scene_rate))
         try:
             while not self.stopping.is_set():
+                collector.quiet()  # (where the loop waits: a full collection when one is due)
                 schedule.wait()
                 while True:
                     try:
@@ -199,6 +203,7 @@ class Live:
             if self.recorder is not None:
                 for text in self.recorder.take_notices():
                     self.say(text)
+            collector.restore()
         viewers = self.server.client_stats() if self.server else []
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
                           self.recorder.gaps if self.recorder else [],

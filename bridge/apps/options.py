@@ -3,7 +3,10 @@
 Settings come from the command line, else the environment (``TANKVIZ_*``), else a default. The
 environment is read when the parser is built: a value that makes no sense there
 (``TANKVIZ_PORT=abc``) ends the command at once, even ``--help``, with one line naming the
-variable and exit status 1.
+variable and exit status 1: :func:`check_environment` checks every one before any parser is built.
+
+This module is imported by ``tankviz --help`` itself: it imports what the options turn into
+(the decoder, the pipeline, the server) only where an option is turned into it.
 """
 
 from __future__ import annotations
@@ -18,17 +21,20 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import UsageError
-from bridge.pipeline.drive import Stages, load_stages
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.resources import bundled_database, layouts_dir
-from bridge.sinks.websocket import LiveServer
 
 if TYPE_CHECKING:
+    from bridge.pipeline.drive import Stages
+    from bridge.sinks.websocket import LiveServer
+
     Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
 else:
     Subparsers = Any
+
+
+#: The WebSocket port without ``--port`` or ``TANKVIZ_PORT``.
+DEFAULT_PORT = 8765
 
 
 def env(name: str, default: str) -> str:
@@ -64,8 +70,17 @@ def env_seconds(name: str) -> float | None:
     return seconds
 
 
+def check_environment() -> None:
+    """Every ``TANKVIZ_*`` setting that must be a number, checked at once: the first that makes
+    no sense raises its :class:`UsageError` (even for ``--help``, whatever the command)."""
+    env_port("PORT", DEFAULT_PORT)
+    env_seconds("RUN_FOR")
+
+
 def dbc_option(text: str) -> str:
     """``--dbc [BUS=]PATH``, where PATH may also name a bundled database (``ecocar``)."""
+    from bridge.decode.decoder import parse_dbc_option
+
     bus, path = parse_dbc_option(text)
     if not path.exists() and (bundled := bundled_database(str(path))) is not None:
         return f"{bus}={bundled}" if bus else str(bundled)
@@ -73,6 +88,8 @@ def dbc_option(text: str) -> str:
 
 
 def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str | None) -> None:
+    from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+
     parser.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
                         help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
                         "without BUS=; repeatable; a bundled name such as 'ecocar' works too")
@@ -88,11 +105,15 @@ def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str |
 
 def scene_rate(args: argparse.Namespace) -> float:
     """``--scene-rate``, else the default."""
+    from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+
     return DEFAULT_SCENE_RATE if args.scene_rate is None else float(args.scene_rate)
 
 
 def stages(args: argparse.Namespace) -> Stages:
     """The decoder and profile that ``--dbc`` and ``--profile`` name."""
+    from bridge.pipeline.drive import load_stages
+
     return load_stages([dbc_option(text) for text in args.dbc or []], args.profile)
 
 
@@ -100,11 +121,13 @@ def add_server_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default=env("HOST", "127.0.0.1"),
                         help="address to serve Foxglove on (default 127.0.0.1, env TANKVIZ_HOST; "
                         "0.0.0.0 serves the car network: the protocol has no authentication)")
-    parser.add_argument("--port", type=int, default=env_port("PORT", 8765),
-                        help="WebSocket port (default 8765, env TANKVIZ_PORT)")
+    parser.add_argument("--port", type=int, default=env_port("PORT", DEFAULT_PORT),
+                        help=f"WebSocket port (default {DEFAULT_PORT}, env TANKVIZ_PORT)")
 
 
 def start_server(args: argparse.Namespace, *, server_time: bool = False) -> LiveServer:
+    from bridge.sinks.websocket import LiveServer
+
     server = LiveServer(host=args.host, port=args.port, server_time=server_time)
     server.start()
     return server
