@@ -1,8 +1,5 @@
 """tankviz: CAN buses → decoded signals → Foxglove scene, live and recorded as MCAP."""
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("tankviz")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    __version__ = "0.0.0+source"
+#: The one place the version is written (pyproject.toml reads it: ``[tool.hatch.version]``);
+#: a literal, so that no command pays for importlib.metadata at start-up.
+__version__ = "0.1.0"
