@@ -166,7 +166,9 @@ def unplug_for_a_second(live: Live, source: FlakySource) -> None:
     """Run live on the flaky source, unplug its adapter for a second, plug it back, stop."""
     runner = threading.Thread(target=live.run)
     runner.start()
-    time.sleep(0.5)
+    # frames for half a second first (a loaded machine starts live slower): the bus's clock is
+    # known before it is lost
+    assert wait_for(lambda: source.sent > 500, timeout=10)
     source.broken.set()
     time.sleep(1.0)
     before_gap = source.sent

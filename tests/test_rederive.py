@@ -62,7 +62,8 @@ def messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
 def metadata(path: Path) -> dict[str, Any]:
     with path.open("rb") as f:
         record = next(m for m in make_reader(f).iter_metadata() if m.name == "tankviz")
-    return {k: json.loads(v) if v[:1] in "[{" else v for k, v in record.metadata.items()}
+    return {k: json.loads(v) if v.startswith(("[", "{")) else v
+            for k, v in record.metadata.items()}
 
 
 def radar_positions(path: Path) -> list[tuple[int, str, float, float]]:
@@ -241,6 +242,7 @@ def test_a_drive_cut_short_re_derives_what_it_holds_and_says_what_is_lost(
     assert "cut short" in str(issue) and "tankviz recover" in str(issue)
     assert messages(out)["/scene/tracks"]
     assert metadata(out)["source"]["complete"] is False
+    assert metadata(out)["created"]  # the cut drive has none to keep: the time it was made
 
 
 def test_a_drive_cut_before_its_first_frame_is_one_line(bosch_drive: Path,

@@ -11,7 +11,7 @@ databases, its own ``[profile] databases`` set aside (they were beside it when t
 recorded). An attachment that does not load is named as ``DRIVE.mcap (attached NAME)``, never by
 the temporary file it was written to. :func:`source_record` is what the new drive's metadata says
 of the one it was re-derived from (``source``: file, size, SHA-256, whether complete, and its
-metadata), and keeps its ``created``, so that the same drive re-derived with the same databases and
+metadata), and keeps its ``created`` (where it has one), so that the same drive re-derived with the same databases and
 profile gives the same bytes. :func:`recorded_scene_rate` is the rate the drive was drawn at,
 which a re-derived drive keeps unless another is given.
 """
@@ -121,9 +121,12 @@ def describe_rederive(drive: RecordedDrive, stages: Stages, dbc_options: Sequenc
 
 def source_record(drive: RecordedDrive) -> dict[str, Any]:
     """What the metadata of a re-derived drive says of the drive it was re-derived from."""
-    return {"created": drive.metadata.get("created", ""),
-            "source": {"file": drive.path.name, "size": drive.size, "sha256": drive.sha256,
-                       "complete": drive.complete, "metadata": drive.metadata}}
+    record: dict[str, Any] = {
+        "source": {"file": drive.path.name, "size": drive.size, "sha256": drive.sha256,
+                   "complete": drive.complete, "metadata": drive.metadata}}
+    if drive.metadata.get("created"):  # a drive cut before its metadata has none: now, then
+        record["created"] = drive.metadata["created"]
+    return record
 
 
 def recorded_scene_rate(drive: RecordedDrive) -> float:
