@@ -35,7 +35,7 @@ from bridge.pipeline.perception import Perception
 from bridge.profile.draft import TODO, draft_profile
 from bridge.profile.loader import load_profile
 from bridge.profile.model import Computed, ObjectGroup, Profile, ProfileError, SignalRef
-from bridge.sinks.base import Serialized
+from bridge.sinks.base import Serialized, Sink
 from bridge.world.lateral import LateralVerdict
 
 # --- profile new --------------------------------------------------------------------------------
@@ -164,7 +164,7 @@ class GroupStats:
     y: list[float] = field(default_factory=lambda: [float("inf"), float("-inf")])
 
 
-class CheckSink:
+class CheckSink(Sink):
     """A sink of a drive that watches the world at every scene tick for the object statistics of
     each group. Records nothing."""
 
@@ -172,18 +172,6 @@ class CheckSink:
         self.perception = perception
         self.groups = {name: GroupStats() for name in perception.profile.groups}
         self._last_tick: int | None = None
-
-    def on_frame(self, frame: object, payload: bytes, /) -> None:
-        return None
-
-    def on_decoded(self, t_ns: int, decoded: object, /) -> None:
-        return None
-
-    def advertise(self, channels: object, /) -> None:
-        return None
-
-    def finish(self) -> None:
-        return None
 
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
         ticks = {m.t_ns for m in messages if m.topic.startswith("/perception/")}
