@@ -11,9 +11,9 @@ databases, its own ``[profile] databases`` set aside (they were beside it when t
 recorded). An attachment that does not load is named as ``DRIVE.mcap (attached NAME)``, never by
 the temporary file it was written to. :func:`source_record` is what the new drive's metadata says
 of the one it was re-derived from (``source``: file, size, SHA-256, whether complete, and its
-metadata), and keeps its ``created`` (where it has one), so that the same drive re-derived with the same databases and
-profile gives the same bytes. :func:`recorded_scene_rate` is the rate the drive was drawn at,
-which a re-derived drive keeps unless another is given.
+metadata), and keeps its ``created`` (where it has one), so that the same drive re-derived with
+the same databases and profile gives the same bytes. :func:`recorded_scene_rate` is the rate the
+drive was drawn at, which a re-derived drive keeps unless another is given.
 """
 
 from __future__ import annotations
