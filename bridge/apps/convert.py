@@ -46,7 +46,8 @@ from bridge.apps.progress import ProgressBar
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError, InputError
 from bridge.io.drives import DriveSource, is_drive, read_drive
-from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.io.logs import LogSource, SourceIssue
+from bridge.io.readahead import ReadAhead
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import (
@@ -89,24 +90,26 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
                  profile: Profile | None = None, scene_rate: float = DEFAULT_SCENE_RATE,
                  progress: Progress | None = None, every: int = 16384,
                  extra: Mapping[str, Any] | None = None,
-                 attachment_time_ns: int | None = None) -> ConvertReport:
+                 attachment_time_ns: int | None = None,
+                 read_ahead: bool = True) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
     ``extra`` goes into the metadata record; ``attachment_time_ns`` fixes the attachments' time.
+    ``read_ahead``: a second process reads the sources where it can
+    (:class:`~bridge.io.readahead.ReadAhead`); the output is the same either way.
     """
     started = time.perf_counter()
     drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra)
     recorder = drive.record(output, attachment_time_ns=attachment_time_ns)
-    total_bytes = sum(s.progress()[1] for s in sources)
+    reading = ReadAhead(sources, ahead=read_ahead)
 
     def report_progress(frames: int) -> None:
         assert progress is not None
-        done = sum(s.progress()[0] for s in sources)
-        progress(frames, done / total_bytes if total_bytes else None)
+        done, total = reading.progress()
+        progress(frames, done / total if total else None)
 
-    frames = drive.run(merge(sources), progress=report_progress if progress else None,
-                       every=every)
+    frames = drive.run(reading, progress=report_progress if progress else None, every=every)
     if progress is not None:
         progress(frames, 1.0)
     issues = [i for s in sources for i in s.issues]
@@ -125,16 +128,19 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
             profile: str | Path | None = None, scene_rate: float | None = None,
             force: bool = False, strict: bool = False,
             progress: Progress | None = None,
-            warn: Callable[[str], None] | None = None) -> ConvertReport:
+            warn: Callable[[str], None] | None = None,
+            read_ahead: bool = True) -> ConvertReport:
     """Convert log files into ``output``; everything is checked before the output is touched.
-    ``warn`` is told the databases' warnings as soon as they are loaded."""
+    ``warn`` is told the databases' warnings as soon as they are loaded; ``read_ahead``: see
+    :func:`record_drive`."""
     drives = [Path(p) for p in inputs if is_drive(p)]
     if drives:
         if len(inputs) > 1:
             raise InputError(drives[0], "re-derive one drive at a time, without logs beside it "
                              f"({len(inputs)} inputs given)")
         return rederive(drives[0], output, dbc_options, profile=profile, scene_rate=scene_rate,
-                        force=force, strict=strict, progress=progress, warn=warn)
+                        force=force, strict=strict, progress=progress, warn=warn,
+                        read_ahead=read_ahead)
     output = Path(output)
     check_output(output, force=force)
     decoder, loaded_profile = load_stages(dbc_options, profile)
@@ -144,7 +150,8 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
     with atomic_output(output) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
-                              scene_rate=scene_rate or DEFAULT_SCENE_RATE, progress=progress)
+                              scene_rate=scene_rate or DEFAULT_SCENE_RATE, progress=progress,
+                              read_ahead=read_ahead)
     report.output = output
     return report
 
@@ -152,7 +159,8 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
 def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[str], *,
              profile: str | Path | None = None, scene_rate: float | None = None,
              force: bool = False, strict: bool = False, progress: Progress | None = None,
-             warn: Callable[[str], None] | None = None) -> ConvertReport:
+             warn: Callable[[str], None] | None = None,
+             read_ahead: bool = True) -> ConvertReport:
     """Run the raw frames of a recorded drive through the whole pipeline again, into ``output``
     (see the module's description), at ``scene_rate``, else the drive's own."""
     output = Path(output)
@@ -168,7 +176,8 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
         with atomic_output(output) as stream:
             report = record_drive(sources, stages.decoder, stream, profile=stages.profile,
                                   scene_rate=rate, progress=progress,
-                                  extra=source_record(drive), attachment_time_ns=0)
+                                  extra=source_record(drive), attachment_time_ns=0,
+                                  read_ahead=read_ahead)
     report.output = output
     report.rederived = describe_rederive(drive, stages, dbc_options, profile)
     return report
@@ -193,6 +202,9 @@ def add_parser(sub: Subparsers) -> None:
     parser.add_argument("--strict", action="store_true",
                         help="fail on the first unreadable line, damaged object or backwards "
                         "time jump instead of skipping and reporting it")
+    parser.add_argument("--no-read-ahead", dest="read_ahead", action="store_false",
+                        help="read the inputs in this process (by default a second process "
+                        "reads large inputs while this one converts: the same output, sooner)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
     parser.set_defaults(run=run)
 
@@ -215,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
                 report = convert(inputs, args.output, dbcs, profile=profile,
                                  scene_rate=args.scene_rate, force=args.force,
                                  strict=args.strict, progress=bar,
-                                 warn=lambda text: print(f"warning: {text}", file=sys.stderr))
+                                 warn=lambda text: print(f"warning: {text}", file=sys.stderr),
+                                 read_ahead=args.read_ahead)
         finally:
             if bar is not None:
                 bar.close()

@@ -1,0 +1,176 @@
+"""Read ahead: the frames of several sources, read and merged in a second process.
+
+Reading a log is a third of a conversion's time (python-can parses every object or line into a
+``can.Message``, tankviz makes a :class:`~bridge.frame.Frame` of it). :class:`ReadAhead` moves it
+to a child process, so that it runs on the second core while this process decodes, draws and
+records: the child iterates :func:`~bridge.io.logs.merge` of the sources and sends the frames in
+batches of :data:`BATCH` through a pipe, as pickled plain tuples (pickling a ``NamedTuple``
+costs six times as much; the frames are made again here). The pipe holds about one batch, so
+the child is never more than two batches ahead and memory stays flat.
+
+What the sources note while they are read is brought back: at the end, each source's
+``issues``, ``frames`` and ``backwards`` are those the child's copy of it counted, as if it had
+been read here; an :class:`~bridge.errors.InputError` the child meets (``--strict``, a log with
+no frame) is raised here after the frames before it, as reading here would raise it; any other
+failure of the child is a :class:`RuntimeError` with the child's traceback. :meth:`progress`
+tells the bytes the child has read. Stopped early (an error here, Ctrl+C, SIGTERM), the child is
+ended with it.
+
+The child is forked (it inherits the loaded databases and readers: no start-up). Where forking
+is not safe or not worth it, the sources are read here, in the same order, with the same
+results: on systems without ``fork``, in a process with other threads (a Dask worker, a live
+server), in a daemonic process (which may not have children), and for inputs smaller than
+:data:`MIN_BYTES`, where starting a process costs more than it saves.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import threading
+import traceback
+from collections.abc import Iterator, Sequence
+from functools import partial
+from typing import Any, Protocol
+
+from bridge.errors import InputError
+from bridge.frame import Frame
+from bridge.io.logs import SourceIssue, merge
+
+#: Frames per hand-over: large enough that a batch costs little per frame, small enough that
+#: the pipeline starts at once.
+BATCH = 4096
+#: Inputs smaller than this (bytes, all sources) are read in this process.
+MIN_BYTES = 256 * 1024
+
+_as_frame = partial(tuple.__new__, Frame)
+
+
+class Source(Protocol):
+    """What :class:`ReadAhead` reads: a :class:`~bridge.io.logs.LogSource` or a
+    :class:`~bridge.io.drives.DriveSource`."""
+
+    issues: list[SourceIssue]
+    frames: int
+    backwards: int
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+    def progress(self) -> tuple[int, int]: ...
+
+
+def can_fork() -> bool:
+    """Whether a child process may be forked here and now (see the module's description)."""
+    if not hasattr(os, "fork") or threading.active_count() > 1:
+        return False
+    import multiprocessing
+
+    return not multiprocessing.current_process().daemon
+
+
+class ReadAhead:
+    """The frames of ``sources`` in time order, read by a child process when ``ahead`` allows
+    it (and :func:`can_fork`, and the inputs are at least :data:`MIN_BYTES`). Iterate once."""
+
+    def __init__(self, sources: Sequence[Source], *, ahead: bool = True) -> None:
+        self.sources = list(sources)
+        self._total = sum(s.progress()[1] for s in self.sources)
+        self._done: list[int] | None = None  # bytes read per source, as the child last said
+        #: whether the frames come from a child process (decided when iteration starts)
+        self.ahead = ahead and self._total >= MIN_BYTES and can_fork()
+
+    def progress(self) -> tuple[int, int]:
+        """Bytes of all sources read so far, and their total."""
+        if self._done is None:
+            return sum(s.progress()[0] for s in self.sources), self._total
+        return sum(self._done), self._total
+
+    def __iter__(self) -> Iterator[Frame]:
+        if not self.ahead:
+            return iter(merge(self.sources))
+        return self._from_child()
+
+    def _from_child(self) -> Iterator[Frame]:
+        import multiprocessing
+
+        context = multiprocessing.get_context("fork")
+        receive, send = context.Pipe(duplex=False)
+        child = context.Process(target=_read, args=(self.sources, send), daemon=True,
+                                name="tankviz-read-ahead")
+        child.start()
+        send.close()
+        finished = False
+        try:
+            while True:
+                try:
+                    kind, *body = pickle.loads(receive.recv_bytes())
+                except EOFError:
+                    child.join()
+                    raise RuntimeError(f"the read-ahead process ended without a word (exit "
+                                       f"code {child.exitcode})") from None
+                if kind == "frames":
+                    self._done, batch = body
+                    yield from map(_as_frame, batch)
+                    continue
+                self._settle(body[0])
+                if kind == "end":
+                    finished = True
+                    return
+                if kind == "input_error":
+                    path, reason, where = body[1]
+                    raise InputError(path, reason, where=where)
+                raise RuntimeError(f"the read-ahead process failed:\n{body[1]}")
+        finally:
+            receive.close()
+            if not finished:
+                child.terminate()
+            child.join()
+
+    def _settle(self, states: list[tuple[list[SourceIssue], int, int, tuple[int, int]]]) -> None:
+        """The sources as the child left them."""
+        self._done = []
+        for source, (issues, frames, backwards, (done, _)) in zip(self.sources, states,
+                                                                  strict=True):
+            source.issues[:] = issues
+            source.frames, source.backwards = frames, backwards
+            self._done.append(done)
+
+
+def _read(sources: list[Source], send: Any) -> None:
+    """The child: every frame, in batches, then how each source ended."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the parent, which ends this
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
+
+    def states() -> list[tuple[list[SourceIssue], int, int, tuple[int, int]]]:
+        return [(s.issues, s.frames, s.backwards, s.progress()) for s in sources]
+
+    def put(*message: Any) -> None:
+        send.send_bytes(pickle.dumps(message, pickle.HIGHEST_PROTOCOL))
+
+    batch: list[tuple[Any, ...]] = []
+
+    def flush() -> None:
+        if batch:
+            put("frames", [s.progress()[0] for s in sources], batch)  # pickled now
+            batch.clear()
+
+    try:
+        try:
+            for frame in merge(sources):
+                batch.append(tuple(frame))
+                if len(batch) >= BATCH:
+                    flush()
+            flush()
+            put("end", states())
+        except InputError as exc:
+            flush()
+            put("input_error", states(), (exc.path, exc.reason, exc.where))
+        except Exception:
+            flush()
+            put("failed", states(), traceback.format_exc())
+    except BrokenPipeError:
+        pass  # the parent stopped reading: nothing to tell
+    finally:
+        send.close()

@@ -1,0 +1,168 @@
+"""Read ahead: a second process reads and merges the logs; the frames, what the sources noted
+and the errors are the same as when this process reads them."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+from conftest import T0, WriteLog, summary_counts
+
+from bridge.apps.convert import convert
+from bridge.errors import InputError
+from bridge.frame import Frame
+from bridge.io import readahead
+from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.io.readahead import ReadAhead
+from bridge.resources import data_dir
+
+
+@pytest.fixture(autouse=True)
+def any_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The small logs of these tests are read ahead too."""
+    monkeypatch.setattr(readahead, "MIN_BYTES", 0)
+
+
+class PidSource:
+    """``count`` frames whose data is the id of the process that read them; ``fail_after``: a
+    ValueError instead of the frame of that number."""
+
+    def __init__(self, count: int, fail_after: int | None = None) -> None:
+        self.count, self.fail_after = count, fail_after
+        self.issues: list[SourceIssue] = []
+        self.frames = self.backwards = 0
+
+    def progress(self) -> tuple[int, int]:
+        return self.frames, self.count
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(self.count):
+            if i == self.fail_after:
+                raise ValueError(f"frame {i} is broken")
+            self.frames += 1
+            yield Frame(i, "can0", 0x10, os.getpid().to_bytes(4, "little"))
+
+
+def frames(i: int, channel: int, step: float) -> list[can.Message]:
+    return [can.Message(timestamp=T0 + k * step, arbitration_id=0x100 + channel, channel=channel,
+                        data=bytes([k % 256] * 8), is_extended_id=False) for k in range(i)]
+
+
+def test_the_frames_are_read_in_another_process() -> None:
+    reading = ReadAhead([PidSource(10_000)])
+
+    pids = {int.from_bytes(f.data, "little") for f in reading}
+
+    assert reading.ahead
+    assert pids and os.getpid() not in pids
+    assert reading.sources[0].frames == 10_000
+    assert reading.progress() == (10_000, 10_000)
+    assert multiprocessing.active_children() == []
+
+
+def test_merged_logs_give_the_same_frames_and_the_same_notes_as_reading_here(
+        write_log: WriteLog) -> None:
+    blf = write_log("radar.blf", frames(9000, 0, 0.001))
+    asc = write_log("camera.asc", frames(3000, 1, 0.003))
+    lines = asc.read_text().splitlines(keepends=True)
+    lines[100:100] = ["1.000000 this line is garbled\n"] * 2  # python-can cannot parse them
+    asc.write_text("".join(lines))
+    here = [LogSource(blf), LogSource(asc)]
+    ahead = [LogSource(blf), LogSource(asc)]
+
+    expected = list(merge(here))
+    got = list(ReadAhead(ahead))
+
+    assert got == expected and all(type(f) is Frame for f in got)
+    assert [(s.frames, s.backwards, s.issues) for s in ahead] == \
+        [(s.frames, s.backwards, s.issues) for s in here]
+    assert len(ahead[1].issues) == 2
+
+
+def test_strict_gives_the_frames_before_the_problem_then_the_same_error(
+        write_log: WriteLog) -> None:
+    messages = frames(6000, 0, 0.001)
+    messages[5000].timestamp = T0  # back in time
+    path = write_log("drive.log", messages)
+    with pytest.raises(InputError) as here:
+        list(LogSource(path, strict=True))
+
+    got: list[Frame] = []
+    with pytest.raises(InputError) as ahead:
+        got.extend(ReadAhead([LogSource(path, strict=True)]))
+
+    assert str(ahead.value) == str(here.value)
+    assert "line 5001: time jumps backwards" in str(ahead.value)
+    assert len(got) == 5000
+
+
+def test_a_log_without_frames_is_the_same_one_line_error(tmp_path: Path) -> None:
+    path = tmp_path / "empty.log"
+    path.write_text("this is not candump\n")
+
+    with pytest.raises(InputError, match=r"empty\.log: no CAN frames in this file \(line 1: "):
+        list(ReadAhead([LogSource(path)]))
+
+
+def test_a_failure_while_reading_is_raised_here_with_the_childs_traceback() -> None:
+    reading = ReadAhead([PidSource(10_000, fail_after=7000)])
+    got: list[Frame] = []
+
+    with pytest.raises(RuntimeError, match=r"(?s)read-ahead process failed.*"
+                       r"ValueError: frame 7000 is broken"):
+        got.extend(reading)
+
+    assert len(got) == 7000
+    assert multiprocessing.active_children() == []
+
+
+def test_stopping_early_ends_the_reading_process() -> None:
+    stream = iter(ReadAhead([PidSource(10_000_000)]))
+    first = [next(stream) for _ in range(100)]
+
+    stream.close()  # type: ignore[attr-defined]
+
+    assert [f.timestamp_ns for f in first] == list(range(100))
+    assert multiprocessing.active_children() == []
+
+
+def test_small_inputs_and_processes_with_threads_are_read_here(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    assert not ReadAhead([PidSource(100)], ahead=False).ahead
+    monkeypatch.setattr(readahead, "MIN_BYTES", 101)
+    assert not ReadAhead([PidSource(100)]).ahead
+    monkeypatch.setattr(readahead, "MIN_BYTES", 0)
+    busy = threading.Event()
+    worker = threading.Thread(target=busy.wait)
+    worker.start()
+    try:
+        reading = ReadAhead([PidSource(100)])
+        pids = {int.from_bytes(f.data, "little") for f in reading}
+    finally:
+        busy.set()
+        worker.join()
+    assert not reading.ahead and pids == {os.getpid()}
+
+
+def test_convert_writes_the_same_drive_either_way(tmp_path: Path) -> None:
+    sample = data_dir() / "ecocar_sample.blf"
+    ahead = convert([sample], tmp_path / "ahead.mcap", [], profile="ecocar")
+    here = convert([sample], tmp_path / "here.mcap", [], profile="ecocar", read_ahead=False)
+
+    assert summary_counts(tmp_path / "ahead.mcap") == summary_counts(tmp_path / "here.mcap")
+    assert (ahead.frames, ahead.statistics, ahead.issues) == \
+        (here.frames, here.statistics, here.issues)
+    assert messages(tmp_path / "ahead.mcap") == messages(tmp_path / "here.mcap")
+
+
+def messages(path: Path) -> list[tuple[str, int, bytes]]:
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        return [(c.topic, m.log_time, m.data)
+                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
