@@ -8,7 +8,9 @@ longest length seen (``longer`` in the statistics).
 
 Decoding repeats: a payload seen before on a message returns the same :class:`Decoded` (a bounded
 cache per message, which a message whose payloads never repeat stops using for a while: see
-:class:`MessageCodec`), and a new one is encoded by the message's precompiled encoder
+:class:`MessageCodec`). A new one is decoded by the message's precompiled decoder where it has
+one (:func:`bridge.decode.compiled.compile_decoder`: cantools' own formats and conversions, its
+very result), else by cantools, and encoded by the message's precompiled encoder
 (:func:`bridge.decode.proto_schema.compile_encoder`), byte for byte protobuf's own encoding.
 
 A float signal (IEEE, ``SIG_VALTYPE_``) that decodes to +inf, -inf or NaN is kept in the decoded
@@ -28,8 +30,9 @@ import hashlib
 import math
 import re
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -39,6 +42,7 @@ from cantools.database.can.message import Message as DbcMessage
 from cantools.database.errors import Error as CantoolsError
 from google.protobuf import descriptor_pool
 
+from bridge.decode.compiled import compile_decoder
 from bridge.decode.proto_schema import MessageSchema, identifier
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import Frame
@@ -164,7 +168,8 @@ class MessageCodec:
         self.caching = True
         self._misses = 0  # in this trial (caching), since ...
         self._since = 0  # ... this many decoded frames; or (not caching) until then
-        self._decode = message.decode
+        self._decode: Callable[[bytes], Any] = compile_decoder(message) or partial(
+            message.decode, decode_choices=False, allow_truncated=True)
         self._encode = schema.encode
 
     def decode(self, data: bytes) -> Decoded:
@@ -181,8 +186,7 @@ class MessageCodec:
             if hit.non_finite:
                 self.non_finite.update(hit.non_finite)
             return hit
-        signals: dict[str, Any] = self._decode(  # type: ignore[assignment]
-            data, decode_choices=False, allow_truncated=True)
+        signals: dict[str, Any] = self._decode(data)
         bad = (tuple(n for n in self.floats if not math.isfinite(signals.get(n, 0.0)))
                if self.floats else ())
         if bad:

@@ -1,0 +1,85 @@
+"""A precompiled decoder per DBC message: cantools' own decoding, without its per-signal calls.
+
+cantools decodes a payload in two steps: its compiled bitstruct formats unpack every raw value
+(C, fast), then a Python loop calls each signal's conversion (``raw * scale + offset``) and fills
+a dict, about two thirds of its time. :func:`compile_decoder` writes that loop out once per
+message as one generated function: the same bitstruct formats of the message (cantools' own
+objects, taken from the message), and each signal's scale and offset (the very objects of its
+conversion, so an ``int`` scaling stays ``int`` arithmetic) in one dict literal in cantools'
+signal order. The result is equal to ``message.decode(data, decode_choices=False,
+allow_truncated=True)``, key order and value types included (tests/test_decode_compiled.py
+checks it on every message of the bundled and public DBCs, with random payloads).
+
+Only the plain case is compiled: a message that is not multiplexed and not a container, a
+payload of exactly the message's length, and conversions of the three kinds cantools uses for
+numbers (identity, linear, linear integer, also under a value table). Everything else (a
+multiplexed message, a short or long payload, a conversion of another kind, cantools' internals
+not as expected) is cantools' own ``decode``: :func:`compile_decoder` returns None for a message
+it cannot compile, and the function it returns hands any payload of another length to cantools.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from cantools.database.can.message import Message as DbcMessage
+from cantools.database.conversion import (
+    IdentityConversion,
+    LinearConversion,
+    LinearIntegerConversion,
+    NamedSignalConversion,
+)
+
+Decode = Callable[[bytes], dict[str, Any]]
+
+
+def _conversion(signal: Any) -> Any:
+    """The numeric conversion cantools applies with ``decode_choices=False``, or None."""
+    conversion = signal.conversion
+    if isinstance(conversion, NamedSignalConversion):
+        conversion = getattr(conversion, "_conversion", None)
+    if type(conversion) in (IdentityConversion, LinearConversion, LinearIntegerConversion):
+        return conversion
+    return None
+
+
+def compile_decoder(message: DbcMessage) -> Decode | None:
+    """``data -> signals`` for ``message``, equal to cantools' ``decode(data,
+    decode_choices=False, allow_truncated=True)``; None where only cantools can decode it."""
+    codecs = getattr(message, "_codecs", None)
+    if (message.is_container or message.is_multiplexed() or not isinstance(codecs, dict)
+            or codecs.get("multiplexers") or "formats" not in codecs):
+        return None
+    signals = codecs.get("signals") or []
+    formats = codecs["formats"]
+    big = getattr(formats, "big_endian", None)
+    little = getattr(formats, "little_endian", None)
+    if big is None or little is None:
+        return None
+    names: dict[str, Any] = {"BE": big.unpack, "LE": little.unpack, "SLOW": message.decode}
+    values = []
+    for i, signal in enumerate(signals):
+        conversion = _conversion(signal)
+        if conversion is None:
+            return None
+        raw = f"u[{signal.name!r}]"
+        if type(conversion) is IdentityConversion:
+            values.append(f"{signal.name!r}: {raw}")
+        else:
+            names[f"K{i}"], names[f"O{i}"] = conversion.scale, conversion.offset
+            values.append(f"{signal.name!r}: {raw} * K{i} + O{i}")
+    has_big = any(s.byte_order == "big_endian" for s in signals)
+    has_little = any(s.byte_order == "little_endian" for s in signals)
+    unpack = ("{**BE(data), **LE(data[::-1])}" if has_big and has_little
+              else "BE(data)" if has_big else "LE(data[::-1])" if has_little else "{}")
+    source = "\n".join([
+        "def decode(data):",
+        f"    if len(data) != {message.length}:",
+        "        return SLOW(data, decode_choices=False, allow_truncated=True)",
+        f"    u = {unpack}",
+        "    return {" + ", ".join(values) + "}",
+    ])
+    exec(source, names)
+    decode: Decode = names["decode"]
+    return decode
