@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -166,3 +167,26 @@ def messages(path: Path) -> list[tuple[str, int, bytes]]:
     with path.open("rb") as f:
         return [(c.topic, m.log_time, m.data)
                 for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+class Stubborn(PidSource):
+    """Frames from a reading process that does not die of SIGTERM (it has not yet set its
+    handlers, or is busy in C code)."""
+
+    def __iter__(self) -> Iterator[Frame]:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        return super().__iter__()
+
+
+def test_a_reader_that_outlives_sigterm_is_still_ended_when_reading_stops() -> None:
+    stream = iter(ReadAhead([Stubborn(10_000_000)]))
+    [next(stream) for _ in range(100)]
+    closing = threading.Thread(target=stream.close, daemon=True)  # type: ignore[attr-defined]
+
+    closing.start()
+    closing.join(timeout=30)
+
+    leftover = multiprocessing.active_children()
+    for child in leftover:
+        child.kill()
+    assert not closing.is_alive() and leftover == []

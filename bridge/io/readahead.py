@@ -14,7 +14,8 @@ been read here; an :class:`~bridge.errors.InputError` the child meets (``--stric
 no frame) is raised here after the frames before it, as reading here would raise it; any other
 failure of the child is a :class:`RuntimeError` with the child's traceback. :meth:`progress`
 tells the bytes the child has read. Stopped early (an error here, Ctrl+C, SIGTERM), the child is
-ended with it.
+ended with it: it holds no read end of the pipe, so a write it is blocked in fails once this
+side closes its end, and it is sent SIGTERM, then SIGKILL if it is still there a second later.
 
 The child is forked (it inherits the loaded databases and readers: no start-up). Where forking
 is not safe or not worth it, the sources are read here, in the same order, with the same
@@ -43,6 +44,11 @@ from bridge.io.logs import SourceIssue, merge
 BATCH = 4096
 #: Inputs smaller than this (bytes, all sources) are read in this process.
 MIN_BYTES = 256 * 1024
+
+#: The signals that stop a conversion (blocked while the child is forked).
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+#: Seconds a child stopped early has to end on SIGTERM before it is killed.
+_GRACE_S = 1.0
 
 _as_frame = partial(tuple.__new__, Frame)
 
@@ -96,12 +102,18 @@ class ReadAhead:
 
         context = multiprocessing.get_context("fork")
         receive, send = context.Pipe(duplex=False)
-        child = context.Process(target=_read, args=(self.sources, send), daemon=True,
+        child = context.Process(target=_read, args=(self.sources, send, receive), daemon=True,
                                 name="tankviz-read-ahead")
-        child.start()
-        send.close()
+        # The child must never run this process's signal handlers (convert's raise Stopped, and
+        # through it this process's clean-up): the stop signals wait until it has its own.
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        try:
+            child.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         finished = False
         try:
+            send.close()
             while True:
                 try:
                     kind, *body = pickle.loads(receive.recv_bytes())
@@ -122,9 +134,12 @@ class ReadAhead:
                     raise InputError(path, reason, where=where)
                 raise RuntimeError(f"the read-ahead process failed:\n{body[1]}")
         finally:
-            receive.close()
+            receive.close()  # the last read end: a child still writing gets EPIPE
             if not finished:
                 child.terminate()
+                child.join(_GRACE_S)
+                if child.is_alive():  # it outlived SIGTERM (busy in C code, handlers not set)
+                    child.kill()
             child.join()
 
     def _settle(self, states: list[tuple[list[SourceIssue], int, int, tuple[int, int]]]) -> None:
@@ -137,11 +152,13 @@ class ReadAhead:
             self._done.append(done)
 
 
-def _read(sources: list[Source], send: Any) -> None:
+def _read(sources: list[Source], send: Any, receive: Any) -> None:
     """The child: every frame, in batches, then how each source ended."""
+    receive.close()  # the parent's end: once the parent closes it, a write here fails at once
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the parent, which ends this
     for signum in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # blocked by the parent's fork
 
     def states() -> list[tuple[list[SourceIssue], int, int, tuple[int, int]]]:
         return [(s.issues, s.frames, s.backwards, s.progress()) for s in sources]
