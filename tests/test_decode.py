@@ -188,3 +188,42 @@ def test_generated_schemas_are_self_contained_file_descriptor_sets(
     cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.full_name))
     assert schema.full_name == "tankviz.dbc.ecocar.CamLaneLeft"
     assert "C2_Curvature" in cls.DESCRIPTOR.fields_by_name
+
+
+def test_a_message_is_prepared_when_it_first_comes_not_with_its_bus(
+        ecocar: cantools.database.can.Database, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bridge.decode import decoder as module
+
+    made: list[str] = []
+
+    class Counted(MessageSchema):
+        def __init__(self, message: object, *args: object) -> None:
+            made.append(message.name)  # type: ignore[attr-defined]
+            super().__init__(message, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(module, "MessageSchema", Counted)
+    d = decoder()
+    for bus in ("radar", "camera", "chassis"):
+        d.decode(frame(ecocar, "EgoMotion", bus, Speed=10))
+    d.decode(frame(ecocar, "Steering", "chassis"))
+
+    assert made == ["EgoMotion", "Steering"]  # one type per message, shared by the buses
+    assert len(d.codecs_for("radar")) == len(ecocar.messages)  # every codec is there to use
+    assert made == ["EgoMotion", "Steering"]
+
+
+def test_databases_of_the_same_name_are_told_apart_in_the_order_given(tmp_path: Path) -> None:
+    first, second = tmp_path / "a" / "car.dbc", tmp_path / "b" / "car.dbc"
+    for path, name in ((first, "Speed"), (second, "Brake")):
+        path.parent.mkdir()
+        path.write_text(f'VERSION ""\nBS_:\nBU_: X\nBO_ {256 if name == "Speed" else 257} '
+                        f'{name}: 8 X\n SG_ V : 0|16@1+ (0.01,0) [0|655] "" X\n')
+    a, b = load_database(first), load_database(second)
+    d = Decoder({None: [a, b]})
+
+    brake = d.decode(Frame(1, "can0", 257, bytes(8)))  # the second database's message first
+    speed = d.decode(Frame(2, "can0", 256, bytes(8)))
+
+    assert speed is not None and brake is not None
+    assert speed.codec.schema.full_name == "tankviz.dbc.car.Speed"
+    assert brake.codec.schema.full_name == f"tankviz.dbc.car_{b.sha256[:8]}.Brake"

@@ -32,7 +32,7 @@ import re
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from functools import partial
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -144,13 +144,20 @@ class MessageCodec:
     worth it: after ``_TRIAL_MISSES`` misses with fewer than one hit per 8 misses, it stops
     remembering (:attr:`caching` False, its memory freed) for ``_REST_FRAMES`` frames, then tries
     again.
+
+    What a message costs to prepare (its protobuf type and encoder, ``schema()``; its compiled
+    decoder, ``decoder()``: both shared by every bus the message is on) is made when it is first
+    needed: a database of a hundred messages on three buses, of which each bus carries a few,
+    does not make them all before its first frame.
     """
 
-    def __init__(self, message: DbcMessage, database: DatabaseFile, schema: MessageSchema,
-                 bus: str) -> None:
+    def __init__(self, message: DbcMessage, database: DatabaseFile,
+                 schema: Callable[[], MessageSchema], bus: str,
+                 decoder: Callable[[], Callable[[bytes], Any]]) -> None:
         self.message = message
         self.database = database
-        self.schema = schema
+        self._schema = schema
+        self._decoder = decoder
         self.bus = bus
         self.topic = message_topic(bus, message.name)
         self.length = message.length
@@ -168,9 +175,21 @@ class MessageCodec:
         self.caching = True
         self._misses = 0  # in this trial (caching), since ...
         self._since = 0  # ... this many decoded frames; or (not caching) until then
-        self._decode: Callable[[bytes], Any] = compile_decoder(message) or partial(
-            message.decode, decode_choices=False, allow_truncated=True)
-        self._encode = schema.encode
+        self._decode: Callable[[bytes], Any] = self._first_decode
+        self._encode: Callable[[Mapping[str, Any]], bytes] = self._first_encode
+
+    @cached_property
+    def schema(self) -> MessageSchema:
+        """The message's protobuf type (made on first use)."""
+        return self._schema()
+
+    def _first_decode(self, data: bytes) -> Any:
+        self._decode = self._decoder()
+        return self._decode(data)
+
+    def _first_encode(self, signals: Mapping[str, Any]) -> bytes:
+        self._encode = self.schema.encode
+        return self._encode(signals)
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
@@ -274,6 +293,8 @@ class Decoder:
         self._databases = {bus: list(files) for bus, files in databases.items()}
         self._pool = descriptor_pool.DescriptorPool()
         self._schemas: dict[tuple[str, str], MessageSchema] = {}
+        #: compiled decoders by id of the DBC message (the databases keep the messages alive)
+        self._decoders: dict[int, Callable[[bytes], Any]] = {}
         self._tables: dict[str, dict[int, MessageCodec]] = {}
         self._database_names: dict[str, str] = {}
         self.stats = DecodeStats()
@@ -346,26 +367,41 @@ class Decoder:
                     )
                 names.setdefault(message.name, (f, message))
 
-    def _schema(self, database: DatabaseFile, message: DbcMessage) -> MessageSchema:
+    def _database_name(self, database: DatabaseFile) -> str:
+        """The database's part of its types' names, unique among the databases (named in the
+        order their buses' tables are made)."""
         name = self._database_names.get(database.sha256)
         if name is None:
             name = identifier(database.name)
             if name in self._database_names.values():
                 name = f"{name}_{database.sha256[:8]}"
             self._database_names[database.sha256] = name
+        return name
+
+    def _schema(self, database: DatabaseFile, message: DbcMessage) -> MessageSchema:
+        name = self._database_name(database)
         key = (name, message.name)
         schema = self._schemas.get(key)
         if schema is None:
             schema = self._schemas[key] = MessageSchema(message, name, self._pool)
         return schema
 
+    def _decoder(self, message: DbcMessage) -> Callable[[bytes], Any]:
+        decode = self._decoders.get(id(message))
+        if decode is None:
+            decode = self._decoders[id(message)] = compile_decoder(message) or partial(
+                message.decode, decode_choices=False, allow_truncated=True)
+        return decode
+
     def _table(self, bus: str) -> dict[int, MessageCodec]:
         table: dict[int, MessageCodec] = {}
         for f in self._files_for(bus if bus in self._databases else None):
+            self._database_name(f)
             for message in f.db.messages:
                 key = _key(message.frame_id, message.is_extended_frame)
                 if key not in table:
-                    table[key] = MessageCodec(message, f, self._schema(f, message), bus)
+                    table[key] = MessageCodec(message, f, partial(self._schema, f, message), bus,
+                                              partial(self._decoder, message))
         self._tables[bus] = table
         return table
 
