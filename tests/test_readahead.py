@@ -15,7 +15,7 @@ import pytest
 from conftest import T0, WriteLog, summary_counts
 
 from bridge.apps.convert import convert
-from bridge.errors import InputError
+from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.logs import LogSource, SourceIssue, merge
@@ -120,6 +120,22 @@ def test_a_failure_while_reading_is_raised_here_with_the_childs_traceback() -> N
 
     assert len(got) == 7000
     assert multiprocessing.active_children() == []
+
+
+class Killed(PidSource):
+    """A reading process that dies without a word (the kernel's OOM killer) after 5000 frames."""
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in super().__iter__():
+            if self.frames > 5000:
+                os._exit(137)
+            yield frame
+
+
+def test_a_reading_process_that_dies_is_one_line_not_a_short_drive() -> None:
+    with pytest.raises(BridgeError, match=r"^the process reading the inputs ahead ended without "
+                       r"a word \(exit code 137; out of memory\?\); --no-read-ahead"):
+        list(ReadAhead([Killed(10_000)]))
 
 
 def test_stopping_early_ends_the_reading_process() -> None:

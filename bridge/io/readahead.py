@@ -11,8 +11,10 @@ the child is never more than two batches ahead and memory stays flat.
 What the sources note while they are read is brought back: at the end, each source's
 ``issues``, ``frames`` and ``backwards`` are those the child's copy of it counted, as if it had
 been read here; an :class:`~bridge.errors.InputError` the child meets (``--strict``, a log with
-no frame) is raised here after the frames before it, as reading here would raise it; any other
-failure of the child is a :class:`RuntimeError` with the child's traceback. :meth:`progress`
+no frame) is raised here after the frames before it, as reading here would raise it; an
+exception in the child is a :class:`RuntimeError` with the child's traceback (a bug), and a
+child that dies without a word (the kernel's out-of-memory killer) a one-line
+:class:`~bridge.errors.BridgeError`. :meth:`progress`
 tells the bytes the child has read. Stopped early (an error here, Ctrl+C, SIGTERM), the child is
 ended with it: it holds no read end of the pipe, so a write it is blocked in fails once this
 side closes its end, and it is sent SIGTERM, then SIGKILL if it is still there a second later.
@@ -35,7 +37,7 @@ from collections.abc import Iterator, Sequence
 from functools import partial
 from typing import Any, Protocol
 
-from bridge.errors import InputError
+from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io.logs import SourceIssue, merge
 
@@ -83,7 +85,7 @@ class ReadAhead:
         self.sources = list(sources)
         self._total = sum(s.progress()[1] for s in self.sources)
         self._done: list[int] | None = None  # bytes read per source, as the child last said
-        #: whether the frames come from a child process (decided when iteration starts)
+        #: whether the frames come from a child process
         self.ahead = ahead and self._total >= MIN_BYTES and can_fork()
 
     def progress(self) -> tuple[int, int]:
@@ -119,8 +121,12 @@ class ReadAhead:
                     kind, *body = pickle.loads(receive.recv_bytes())
                 except EOFError:
                     child.join()
-                    raise RuntimeError(f"the read-ahead process ended without a word (exit "
-                                       f"code {child.exitcode})") from None
+                    code = child.exitcode or 0
+                    how = (f"killed by {signal.Signals(-code).name}" if code < 0
+                           else f"exit code {code}")
+                    raise BridgeError(f"the process reading the inputs ahead ended without a word "
+                                      f"({how}; out of memory?); --no-read-ahead reads them in "
+                                      "this process") from None
                 if kind == "frames":
                     self._done, batch = body
                     yield from map(_as_frame, batch)
