@@ -19,14 +19,17 @@ from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.logs import LogSource, SourceIssue, merge
-from bridge.io.readahead import ReadAhead
+from bridge.io.readahead import ReadAhead, can_fork
 from bridge.resources import data_dir
 
 
 @pytest.fixture(autouse=True)
-def any_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The small logs of these tests are read ahead too."""
+def always_ahead(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The small logs of these tests are read ahead too, even in a test process where earlier
+    tests left threads behind (a server's, a Dask client's), where tankviz would read them in
+    the process itself."""
     monkeypatch.setattr(readahead, "MIN_BYTES", 0)
+    monkeypatch.setattr(readahead, "can_fork", lambda: True)
 
 
 class PidSource:
@@ -123,11 +126,18 @@ def test_a_failure_while_reading_is_raised_here_with_the_childs_traceback() -> N
 
 
 class Killed(PidSource):
-    """A reading process that dies without a word (the kernel's OOM killer) after 5000 frames."""
+    """A reading process that dies without a word (the kernel's OOM killer) after 5000 frames;
+    read in this process, it only stops there."""
+
+    def __init__(self, count: int) -> None:
+        super().__init__(count)
+        self.test_process = os.getpid()
 
     def __iter__(self) -> Iterator[Frame]:
         for frame in super().__iter__():
             if self.frames > 5000:
+                if os.getpid() == self.test_process:
+                    return
                 os._exit(137)
             yield frame
 
@@ -150,6 +160,7 @@ def test_stopping_early_ends_the_reading_process() -> None:
 
 def test_small_inputs_and_processes_with_threads_are_read_here(
         monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(readahead, "can_fork", can_fork)  # the real one
     assert not ReadAhead([PidSource(100)], ahead=False).ahead
     monkeypatch.setattr(readahead, "MIN_BYTES", 101)
     assert not ReadAhead([PidSource(100)]).ahead
