@@ -41,8 +41,13 @@ script's main thread (the harness: it sleeps and samples backlogs every 50 ms)``
 from just before the senders start until everything is processed and passed on (above), divided
 by that wall time: % of one core. The clients' process is not included. A cross-check sums
 ``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (pipeline, bus openers,
-server) over the same window; the per-thread breakdown is printed. The reference, measured in
-the same run just before the bridge starts (in a process of its own): the same pipeline alone in
+server) over the same window; the per-thread breakdown is printed. The fixed reference of issue
+#15, measured in the same run just before the bridge starts (in a process of its own): bare
+python-can receive of the same traffic on the same virtual buses (one thread per bus calling
+``recv`` in a loop while the same senders send, the best of three 5 s passes), as % of one core; the
+ratio bridge / bare receive says what tankviz costs beyond taking the frames in. The target,
+< 20 % of one core, is a third of what the bridge took when issue #15 was filed (57 %). Two
+more references, tankviz's own code: the same pipeline alone in
 one thread, without buses, threads or clients (the best of three passes over 24,000 frames of
 the same traffic at the same rate), as % of one core; and the same pipeline paced as live reads
 (in real time, the frames stamped by then taken three times per scene period by live's own
@@ -122,7 +127,8 @@ BUSES = ("radar", "camera", "chassis")
 SCENE_RATE = 50.0
 WARMUP_S = 0.5
 TAIL_S = 0.1
-CPU_TARGET = 35.0
+#: Issue #15: a third of the 57 % of one core the bridge took when it was filed.
+CPU_TARGET = 20.0
 REFERENCE_FRAMES = 24_000
 LATENCY_MARGIN_MS = 5.0
 SUBPROTOCOL = "foxglove.websocket.v1"
@@ -555,10 +561,10 @@ def run(args: argparse.Namespace) -> None:
 
     # The reference, measured now on this machine as it is: the same work without live (in a
     # process of its own, so that its memory is not this one's).
-    reference_us, paced_us = map(float, subprocess.run(
+    reference_us, paced_us, bare_pct = map(float, subprocess.run(
         [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
-         str(args.traffic_s), "--rate", str(args.rate)], check=True,
-        capture_output=True, text=True).stdout.split())
+         str(args.traffic_s), "--rate", str(args.rate), "--batch-ms", str(args.batch_ms)],
+        check=True, capture_output=True, text=True).stdout.split())
     reference_pct = reference_us * len(BUSES) * args.rate / 1e4
     paced_pct = paced_us * len(BUSES) * args.rate / 1e4
     # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
@@ -731,6 +737,8 @@ def run(args: argparse.Namespace) -> None:
     row("bridge CPU (process - senders - harness)", f"{bridge_pct:.1f} % of one core",
         f"< {CPU_TARGET:g} %", bridge_pct < CPU_TARGET)
     row("  cross-check: bridge threads (/proc)", f"{100 * bridge_threads / wall:.1f} %")
+    row("  reference: bare python-can receive, same run", f"{bare_pct:.1f} %; bridge / bare "
+        f"receive = {bridge_pct / bare_pct:.2f}")
     row("  reference: the pipeline alone, same run", f"{reference_pct:.1f} % ({reference_us:.1f} "
         f"µs/frame); bridge / reference = {bridge_pct / reference_pct:.2f}")
     row("  reference paced as live reads, same run", f"{paced_pct:.1f} % ({paced_us:.1f} "
@@ -940,6 +948,52 @@ def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True
     return (time.thread_time() - start) / len(frames) * 1e6
 
 
+def bare_receive_pct(messages: dict[str, list[Any]], rate: float, seconds: float,
+                     batch_s: float) -> float:
+    """The fixed reference of issue #15: bare python-can receive of the same traffic on the same
+    virtual buses, as % of one core: one thread per bus calling ``bus.recv`` in a loop, while
+    the benchmark's own senders send at ``rate`` for ``seconds``; the receivers' thread CPU
+    time over the wall time."""
+    import can
+
+    pid = os.getpid()
+    go, start_at = threading.Event(), [0.0]
+    opened = threading.Barrier(2 * len(BUSES) + 1)
+    done = threading.Event()
+    cpu: list[float] = []
+
+    def receive(bus_name: str) -> None:
+        bus = can.Bus(interface="virtual", channel=f"bench-bare-{pid}-{bus_name}")
+        opened.wait()
+        go.wait()
+        start = time.thread_time()
+        recv = bus.recv
+        while not done.is_set():
+            recv(0.1)  # a frame, or None after 0.1 s without one
+        cpu.append(time.thread_time() - start)
+        bus.shutdown()
+
+    receivers = [threading.Thread(target=receive, args=(b,), daemon=True) for b in BUSES]
+    senders = [Sender(b, f"bench-bare-{pid}-{b}", messages[b], rate, seconds, batch_s)
+               for b in BUSES]
+    for thread in receivers:
+        thread.start()
+    for sender in senders:
+        sender.start(go, start_at, opened)
+    opened.wait()
+    start_at[0] = time.monotonic()
+    go.set()
+    for sender in senders:
+        assert sender.thread is not None
+        sender.thread.join()
+    wall = time.monotonic() - start_at[0]
+    time.sleep(0.05)  # the last frames are received
+    done.set()
+    for thread in receivers:
+        thread.join(timeout=5)
+    return 100 * sum(cpu) / wall
+
+
 def stage_costs(frames_count: int) -> None:
     """The pipeline alone in this thread, no other thread: µs per frame as stages are added."""
     frames = pipeline_frames(traffic(60.0), frames_count)
@@ -987,7 +1041,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  len(BUSES) * args.rate)
         gc.freeze()
         print(min(pipeline_cost(frames) for _ in range(3)),
-              min(pipeline_cost(frames, paced=True) for _ in range(3)))
+              min(pipeline_cost(frames, paced=True) for _ in range(3)),
+              min(bare_receive_pct(traffic(args.traffic_s), args.rate, 5.0, args.batch_ms / 1e3)
+                  for _ in range(3)))
         return 0
     if args.stages:
         stage_costs(args.stages)
