@@ -149,10 +149,10 @@ class MessageCodec:
     remembering (:attr:`caching` False, its memory freed) for ``_REST_FRAMES`` frames, then tries
     again.
 
-    What a message costs to prepare (its protobuf type and encoder, ``schema()``; its compiled
-    decoder, ``decoder()``: both shared by every bus the message is on) is made when it is first
-    needed: a database of a hundred messages on three buses, of which each bus carries a few,
-    does not make them all before its first frame.
+    What a message costs to prepare (its protobuf type and encoder, :attr:`schema`; its compiled
+    decoder; both shared by every bus the message is on) is made when it is first needed: a
+    database of a hundred messages on three buses, of which each bus carries a few, does not make
+    them all before its first frame.
     """
 
     def __init__(self, message: DbcMessage, database: DatabaseFile,
