@@ -3,23 +3,28 @@ and the errors are the same as when this process reads them."""
 
 from __future__ import annotations
 
+import errno
+import io
 import multiprocessing
 import os
 import signal
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import can
+import cantools
 import pytest
-from conftest import T0, WriteLog, summary_counts
+from conftest import ECOCAR_DBC, T0, WriteLog, summary_counts
 
-from bridge.apps.convert import convert
+from bridge.apps.convert import convert, record_drive
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.logs import LogSource, SourceIssue, merge
 from bridge.io.readahead import ReadAhead, can_fork
+from bridge.pipeline.drive import load_stages
 from bridge.resources import data_dir
 
 
@@ -217,3 +222,60 @@ def test_a_reader_that_outlives_sigterm_is_still_ended_when_reading_stops() -> N
     for child in leftover:
         child.kill()
     assert not closing.is_alive() and leftover == []
+
+
+def gm_drive_with_a_clock_step_cut_short(dbc: Path, write_log: WriteLog) -> Path:
+    """A car unlike ecocar (the public GM object DBC: polar radar tracks numbered by slot) whose
+    clock steps 30 s back halfway, logged as a BLF that ends in the middle of an object."""
+    db = cantools.database.load_file(dbc)
+    messages = []
+    for i in range(1500):
+        t = T0 + i * 0.01 - (30.0 if i >= 750 else 0.0)
+        for slot in (1, 2, 3):
+            m = db.get_message_by_name(f"LRRObject{slot:02d}")
+            values = {s.name: 0 for s in m.signals} | {
+                "TrkRange": 20 + slot * 10 - i * 0.01, "TrkAzimuth": slot - 2,
+                "TrkRangeRate": -1.5, "TrkObjectID": slot + 4}
+            data = m.encode(values, strict=False)
+            messages.append(can.Message(timestamp=t + slot * 1e-4, arbitration_id=m.frame_id,
+                                        data=data, channel=0, is_extended_id=False))
+    log = write_log("gm.blf", messages)
+    log.write_bytes(log.read_bytes()[:-7])
+    return log
+
+
+def test_a_car_unlike_ecocar_with_a_clock_step_and_a_cut_log_converts_the_same_ahead(
+        shared_dbc: Path, write_log: WriteLog, tmp_path: Path) -> None:
+    dbc = shared_dbc / "gm_global_a_object.dbc"
+    log = gm_drive_with_a_clock_step_cut_short(dbc, write_log)
+    profile = Path(__file__).resolve().parent / "profiles" / "gm_object.toml"
+
+    ahead = convert([log], tmp_path / "ahead.mcap", [str(dbc)], profile=profile)
+    here = convert([log], tmp_path / "here.mcap", [str(dbc)], profile=profile, read_ahead=False)
+
+    assert [str(i) for i in ahead.issues] == [str(i) for i in here.issues]
+    assert any("ends in the middle of an object" in str(i) for i in ahead.issues)
+    assert ahead.statistics == here.statistics
+    got = messages(tmp_path / "ahead.mcap")
+    assert got == messages(tmp_path / "here.mcap")
+    assert any(topic == "/log" and b"clock" in data for topic, _, data in got)
+    assert any(topic == "/scene/tracks" for topic, _, _ in got)
+
+
+class FullDisk(io.BytesIO):
+    """An output whose disk fills after 256 KiB."""
+
+    def write(self, data: Any) -> int:
+        if self.tell() + len(data) > 256 * 1024:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return super().write(data)
+
+
+def test_a_disk_that_fills_while_reading_ahead_stops_the_reader_too(write_log: WriteLog) -> None:
+    log = write_log("long.blf", frames(60_000, 0, 0.001))
+    decoder, _ = load_stages([str(ECOCAR_DBC)], None)
+
+    with pytest.raises(OSError, match="No space left on device"):
+        record_drive([LogSource(log)], decoder, FullDisk())
+
+    assert multiprocessing.active_children() == []
