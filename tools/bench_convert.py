@@ -1284,15 +1284,15 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     # -- the table
     rows: list[Row] = []
 
-    def best(fmt: str, key: str) -> Contender:
+    def contender(fmt: str, key: str) -> Contender:
         return contenders[(fmt, key)]
 
     for fmt in ("BLF", "ASC"):
         _speed_row(rows, f"convert with the scene, tankviz / naive ({fmt}, simulated)",
-                   best(fmt, "tankviz_scene"), best(fmt, "naive_scene"), 3.0)
+                   contender(fmt, "tankviz_scene"), contender(fmt, "naive_scene"), 3.0)
     for fmt in ("BLF", "ASC"):
         _speed_row(rows, f"convert raw + decoded, tankviz / naive ({fmt}, simulated)",
-                   best(fmt, "tankviz"), best(fmt, "naive"), 3.0)
+                   contender(fmt, "tankviz"), contender(fmt, "naive"), 3.0)
     if real is not None:
         _speed_row(rows, "convert raw + decoded, tankviz / naive (candump, real-format log)",
                    real["tankviz"], real["naive"], 3.0)
@@ -1301,7 +1301,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                         "skipped (no ../shared/data/dbc)", "≥ 3x"))
     for fmt in ("BLF", "ASC"):
         _speed_row(rows, f"convert raw + decoded, tankviz / bare LogReader ({fmt})",
-                   best(fmt, "tankviz"), best(fmt, "bare"), 0.5)
+                   contender(fmt, "tankviz"), contender(fmt, "bare"), 0.5)
     for label, goal in (("raw only", 1.2), ("raw + decoded", 3.0), ("with scene", 3.0)):
         _ratio_row(rows, f"archive size / BLF size, {label}", sizes[label] / blf_bytes, goal,
                    at_most=True)

@@ -44,12 +44,12 @@ by that wall time: % of one core. The clients' process is not included. A cross-
 server) over the same window; the per-thread breakdown is printed. The fixed reference of issue
 #15, measured in the same run just before the bridge starts (in a process of its own): bare
 python-can receive of the same traffic on the same virtual buses (one thread per bus calling
-``recv`` in a loop while the same senders send, the best of three 5 s passes), as % of one core; the
-ratio bridge / bare receive says what tankviz costs beyond taking the frames in. The target,
-< 20 % of one core, is a third of what the bridge took when issue #15 was filed (57 %). Two
-more references, tankviz's own code: the same pipeline alone in
-one thread, without buses, threads or clients (the best of three passes over 24,000 frames of
-the same traffic at the same rate), as % of one core; and the same pipeline paced as live reads
+``recv`` in a loop while the same senders send, the best of three 5 s passes), as % of one
+core; the ratio bridge / bare receive says what tankviz costs beyond taking the frames in. The
+target, < 20 % of one core, is a third of what the bridge took when issue #15 was filed (57 %).
+Two more references, tankviz's own code: the same pipeline alone in one thread, without buses,
+threads or clients (the best of three passes over 24,000 frames of the same traffic at the
+same rate), as % of one core; and the same pipeline paced as live reads
 (in real time, the frames stamped by then taken three times per scene period by live's own
 ReadSchedule, sleeping between: the best of three passes). How fast this machine is varies
 from hour to hour (the same code has measured 34 % and 45 %); the ratio bridge / reference tells
@@ -1038,12 +1038,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=argparse.SUPPRESS)  # (the reference, in its own process)
     args = parser.parse_args(argv)
     if args.reference:
-        frames = pipeline_frames(traffic(args.traffic_s), args.reference,
-                                 len(BUSES) * args.rate)
+        messages = traffic(args.traffic_s)
+        frames = pipeline_frames(messages, args.reference, len(BUSES) * args.rate)
         gc.freeze()
         print(min(pipeline_cost(frames) for _ in range(3)),
               min(pipeline_cost(frames, paced=True) for _ in range(3)),
-              min(bare_receive_pct(traffic(args.traffic_s), args.rate, 5.0, args.batch_ms / 1e3)
+              min(bare_receive_pct(messages, args.rate, 5.0, args.batch_ms / 1e3)
                   for _ in range(3)))
         return 0
     if args.stages:

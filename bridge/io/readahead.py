@@ -14,8 +14,8 @@ been read here; an :class:`~bridge.errors.InputError` the child meets (``--stric
 no frame) is raised here after the frames before it, as reading here would raise it; an
 exception in the child is a :class:`RuntimeError` with the child's traceback (a bug), and a
 child that dies without a word (the kernel's out-of-memory killer) a one-line
-:class:`~bridge.errors.BridgeError`. :meth:`progress`
-tells the bytes the child has read. Stopped early (an error here, Ctrl+C, SIGTERM), the child is
+:class:`~bridge.errors.BridgeError`. :meth:`progress` tells the bytes the child has read.
+Stopped early (an error here, Ctrl+C, SIGTERM), the child is
 ended with it: it holds no read end of the pipe, so a write it is blocked in fails once this
 side closes its end, and it is sent SIGTERM, then SIGKILL if it is still there a second later.
 
