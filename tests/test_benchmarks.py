@@ -162,3 +162,15 @@ def test_live_table_is_read_by_its_columns() -> None:
         ("latency frame → scene p99", "31.0 ms", "< 25 ms", "MISSED"),
     ]
     assert report.live_table("no table here") == []
+
+
+def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
+    """``bench_live.py --stages`` adds the stages one by one, from a pipeline with no sink at all
+    (decoding only) to the server: every row is a cost."""
+    bench = tool("bench_live")
+    frames = bench.pipeline_frames(bench.traffic(0.5), 600)
+    for stages in itertools.product((False, True), repeat=4):
+        record, health, profile, serve = stages
+        cost = bench.pipeline_cost(frames, record=record, health=health, profile=profile,
+                                   serve=serve)
+        assert cost > 0, stages

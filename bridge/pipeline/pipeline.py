@@ -14,7 +14,7 @@ frames and decoded signals only to viewers that subscribed to them.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from functools import partial
 from typing import Any
 
@@ -22,7 +22,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge.decode.decoder import Decoder, MessageCodec
+from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
@@ -66,6 +66,8 @@ class Pipeline:
         #: sinks that may get fewer scenes (live viewers): not those of a catch-up
         self.viewers: list[Sink] = []
         self._archives: list[Sink] = []
+        self._on_frame: list[Callable[[Frame, bytes], None]] = []
+        self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
 
