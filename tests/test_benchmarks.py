@@ -77,6 +77,7 @@ def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
     for field in ("date", "machine", "git commit", "load average (1 min)", "runs", "commands"):
         assert f"- **{field}:**" in text
     assert "## Details: tools/bench_convert.py" in text
+    assert "of which message indexes" in text
     assert "real-format log real-gm_global_a_object-5000f" in text
 
 
@@ -174,3 +175,20 @@ def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
         cost = bench.pipeline_cost(frames, record=record, health=health, profile=profile,
                                    serve=serve)
         assert cost > 0, stages
+
+
+def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path: Path) -> None:
+    from mcap.records import MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    from bridge.apps.convert import convert
+    from bridge.resources import data_dir
+
+    drive = tmp_path / "sample.mcap"
+    report = convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+    with drive.open("rb") as f:
+        indexes = [r for r in StreamReader(f).records if isinstance(r, MessageIndex)]
+
+    # opcode (1) + record length (8) + channel id (2) + array length (4), then (time, offset)s
+    assert tool("bench_convert").index_bytes(drive) == 15 * len(indexes) + 16 * report.messages
+    assert sum(len(r.records) for r in indexes) == report.messages

@@ -1087,6 +1087,18 @@ def topic_counts(path: Path) -> dict[str, int]:
             for cid, n in summary.statistics.channel_message_counts.items()}
 
 
+def index_bytes(path: Path) -> int:
+    """Bytes of an MCAP's MessageIndex records (the chunk indexes' ``message_index_length``):
+    16 bytes per message (log time, offset), never compressed. ``@mcap/core``'s indexed reader
+    (Foxglove's) refuses a chunk of messages without them, so they are the archive's floor."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None, f"{path}: no summary"
+    return sum(c.message_index_length for c in summary.chunk_indexes)
+
+
 def compare_outputs(naive: Path, ours: Path) -> list[str]:
     """Topics the naive converter wrote whose message counts differ in tankviz's MCAP (tankviz's
     extra topics - perception, health, /tf, /ego - are not compared; a scene category may
@@ -1237,6 +1249,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
              "with scene": (out / "tankviz-scene-BLF.mcap").stat().st_size,
              "naive raw + decoded": (out / "naive-BLF.mcap").stat().st_size,
              "naive with scene": (out / "naive-scene-BLF.mcap").stat().st_size}
+    indexes = {k: index_bytes(out / f"tankviz{tag}-BLF.mcap") for k, tag in
+               (("raw only", "-raw"), ("raw + decoded", ""), ("with scene", "-scene"))}
     say(f"tankviz raw only (one run, BLF): {raw_only.seconds:.2f} s {CLOCK}")
 
     # -- the public real-format log: raw + decoded, tankviz vs naive
@@ -1336,6 +1350,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 f"{rss:>10}")
     say(f"archive sizes (simulated drive, {sim_seconds:.0f} s; BLF {blf_bytes / MB:.2f} MB): "
         + ", ".join(f"{k} {v / MB:.2f} MB ({v / blf_bytes:.2f}x)" for k, v in sizes.items()))
+    say("  of which message indexes (16 bytes per message, uncompressed; Foxglove's reader needs "
+        "them): " + ", ".join(f"{k} {v / MB:.2f} MB ({v / blf_bytes:.2f}x the BLF)"
+                              for k, v in indexes.items()))
     say(f"start-up, best of {args.runs}, {CLOCK} time: python -c pass {interpreter:.2f} s; "
         f"import bridge.cli + convert {imports:.2f} s; tankviz --help {help_s:.2f} s; "
         f"1 s log ({ONE_SECOND_FRAMES:,} frames) converted with the scene {short:.2f} s, "
