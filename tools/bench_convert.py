@@ -43,7 +43,8 @@ Also measured in the same run:
 - start-up: ``python -c pass``, importing what ``convert`` imports, ``tankviz --help``, and a 1 s
   log (2,400 frames) converted with the scene; the share of that convert spent importing;
 - archive size / BLF size for tankviz raw only (one more run, no ``--dbc``), raw + decoded and
-  with the scene (and the naive converter's, for comparison);
+  with the scene (and the naive converter's, for comparison), and how much of each is message
+  indexes (:func:`index_bytes`: the floor no compression lowers);
 - memory: tankviz with the scene on a longer drive (``--frames2``, one run): peak RSS against
   the main drive's, and the time of one hour of driving, extrapolated.
 
