@@ -134,16 +134,18 @@ def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: 
     assert (position.x, position.y) == (30.0, 0.5)  # the camera's y points right: flipped
     assert camera.entities[0].spheres[0].color.r == 1.0 == camera.entities[0].spheres[0].color.b
 
+    # One block per place: track 7 stands where the (wrong) lead is, track 9 is where the MIO
+    # check points: each track's label is a line of that block.
     (tracks,) = drive.scene("tracks")
-    assert [e.texts[0].text for e in tracks.entities] == [
-        "TrackID: 7\nx: 30.00\ny: 0.50\ncar", "TrackID: 9\nx: 20.00\ny: 0.25\ncar"]
+    assert [(e.id, len(e.texts)) for e in tracks.entities] == [("tracks-7", 0), ("tracks-9", 0)]
     assert tracks.entities[0].lifetime.nanos == 300 * MS
 
     (lead,) = drive.scene("lead")
-    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.00\ny: 0.50"
+    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.00\ny: 0.50\nTrackID: 7 · 30 m"
     (mio,) = drive.scene("mio")
     assert mio.entities[0].texts[0].text == (
-        "MIO CHECK: lead #7 at 30.0 m is not the closest in-lane track #9 at 20.0 m")
+        "MIO CHECK: lead #7 at 30.0 m is not the closest in-lane track #9 at 20.0 m\n"
+        "TrackID: 9 · 20 m")
 
     (lane_update,) = drive.scene("lanes")
     left = lane_update.entities[0].lines[0]
@@ -172,7 +174,7 @@ def test_the_lead_track_is_labelled_once_on_the_lead_box(
     assert [(e.id, len(e.spheres), [t.text for t in e.texts]) for e in tracks.entities] == [
         ("tracks-7", 1, []), ("tracks-9", 1, ["TrackID: 9\nx: 60.00\ny: 5.00\ncar"])]
     (lead,) = drive.scene("lead")
-    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.50\ny: 0.50\nTrackID: 7\ncar"
+    assert lead.entities[0].texts[0].text == "Lead Vehicle · TrackID: 7\nx: 30.50\ny: 0.50\ncar"
 
 
 def test_every_visible_field_is_set(db: cantools.database.can.Database, profile: Profile) -> None:

@@ -211,8 +211,14 @@ def test_a_detection_away_from_every_track_keeps_its_class_label(made_up: Any) -
         ("DET_1", {"DET_X": 36.5, "DET_Y": 8.0, "DET_KIND": 12, "DET_OK": 1}),
     ])
     assert texts_at(updates, 15.0, 1.0) == ["car"]
-    assert texts_at(updates, 40.0, 8.0) == ["stationary"]
     assert texts_at(updates, 40.0, 4.0) == ["TrackID: 3\nx: 40.00\ny: 4.00\ncar"]
+    # 4 m from the track, 40 m ahead: on screen its label would cover the track's block, so it
+    # is moved aside, with a leader line from where it would have stood
+    (far,) = [e for e in updates[scene_topic("hits")].entities if e.lines]
+    assert [t.text for t in far.texts] == ["stationary"]
+    (leader,) = far.lines
+    assert (leader.points[0].x, leader.points[0].y) == (40.0, 8.0)
+    assert leader.points[1].y == far.texts[0].pose.position.y != 8.0
 
 
 def test_gm_object_tracks_and_camera_objects_at_one_place(shared_dbc: Path) -> None:
@@ -281,4 +287,4 @@ def test_ecocar_lead_track_and_its_detection_show_the_lead_block_only(ecocar: An
         ("LeadVehicle", {"Valid": 1, "TrackID": 8, "PosX": 30.0, "PosY": 0.5}),
     ])
     assert texts_at(updates, 30.0, 0.5) == [
-        "Lead Vehicle\nx: 30.00\ny: 0.50\nTrackID: 8\ncar"]
+        "Lead Vehicle · TrackID: 8\nx: 30.00\ny: 0.50\ncar"]

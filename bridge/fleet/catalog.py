@@ -21,8 +21,10 @@ Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since 
 - ``objects_summary``: per object group (``/perception/<group>``, and ``lead`` for the lead
   vehicle): messages, valid objects seen in them, the largest count at once, the smallest
   distance and when;
-- ``lead_changes``: every time the lead vehicle's id changes (or a lead appears), with its
-  distance; ``cut_in`` when it replaced a lead that was present a moment before and is closer.
+- ``lead_changes``: every real lead change (a lead appears, or another object becomes the lead:
+  ``/perception/lead``'s ``lead_number`` goes up; a twin taking over the lead's slot is none;
+  in a drive recorded before that field, every change of the lead's id), with its distance;
+  ``cut_in`` when it replaced a lead that was present a moment before and is closer.
 
 :func:`index` (re)indexes a catalogue incrementally: a drive is read again only when it is new or
 its size or modification time (ns) changed; a catalogued drive whose file no longer exists is
@@ -187,18 +189,23 @@ class _Objects:
 class _Lead:
     rows: list[Row] = field(default_factory=list)
     last_id: int | None = None
+    last_number: int = 0
     last_distance: float | None = None
     present_before: bool = False
 
     def see(self, drive: str, start_ns: int, t_ns: int, present: bool, lead_id: int,
-            distance: float) -> None:
-        if present and (not self.present_before or lead_id != self.last_id):
+            distance: float, number: int = 0) -> None:
+        """One /perception/lead message. ``number``: its lead_number, which counts the real
+        lead changes (a twin taking over the lead's slot changes the id, not the number);
+        drives recorded before it (0) count every change of id."""
+        changed = number != self.last_number if number else lead_id != self.last_id
+        if present and (not self.present_before or changed):
             cut_in = (self.present_before and self.last_distance is not None
                       and distance < self.last_distance)
             self.rows.append((drive, _utc(t_ns), t_ns, (t_ns - start_ns) / NS, self.last_id,
                               lead_id, distance, self.last_distance, cut_in))
         if present:
-            self.last_id, self.last_distance = lead_id, distance
+            self.last_id, self.last_distance, self.last_number = lead_id, distance, number
         self.present_before = present
 
 
@@ -256,7 +263,8 @@ def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
             elif schema_of[channel.topic] == LEAD_SCHEMA:
                 v = perception_pb2.LeadVehicle.FromString(message.data)
                 objects[channel.topic].see(t_ns, [v.object.distance] if v.present else [])
-                lead.see(drive, start_ns, t_ns, v.present, v.object.id, v.object.distance)
+                lead.see(drive, start_ns, t_ns, v.present, v.object.id, v.object.distance,
+                         v.lead_number)
             else:
                 o = perception_pb2.PerceivedObjects.FromString(message.data)
                 objects[channel.topic].see(t_ns, [x.distance for x in o.objects])

@@ -21,7 +21,7 @@ OBJECT_CLASS_PEDESTRIAN: ObjectClass
 OBJECT_CLASS_STATIONARY: ObjectClass
 
 class PerceivedObject(_message.Message):
-    __slots__ = ("id", "x", "y", "vx", "vy", "probability", "object_class", "distance", "age")
+    __slots__ = ("id", "x", "y", "vx", "vy", "probability", "object_class", "distance", "age", "twins")
     ID_FIELD_NUMBER: _ClassVar[int]
     X_FIELD_NUMBER: _ClassVar[int]
     Y_FIELD_NUMBER: _ClassVar[int]
@@ -31,6 +31,7 @@ class PerceivedObject(_message.Message):
     OBJECT_CLASS_FIELD_NUMBER: _ClassVar[int]
     DISTANCE_FIELD_NUMBER: _ClassVar[int]
     AGE_FIELD_NUMBER: _ClassVar[int]
+    TWINS_FIELD_NUMBER: _ClassVar[int]
     id: int
     x: float
     y: float
@@ -40,7 +41,8 @@ class PerceivedObject(_message.Message):
     object_class: ObjectClass
     distance: float
     age: float
-    def __init__(self, id: _Optional[int] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., probability: _Optional[float] = ..., object_class: _Optional[_Union[ObjectClass, str]] = ..., distance: _Optional[float] = ..., age: _Optional[float] = ...) -> None: ...
+    twins: _containers.RepeatedScalarFieldContainer[int]
+    def __init__(self, id: _Optional[int] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., vx: _Optional[float] = ..., vy: _Optional[float] = ..., probability: _Optional[float] = ..., object_class: _Optional[_Union[ObjectClass, str]] = ..., distance: _Optional[float] = ..., age: _Optional[float] = ..., twins: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class PerceivedObjects(_message.Message):
     __slots__ = ("timestamp", "frame_id", "group", "sensor", "count", "objects")
@@ -59,7 +61,7 @@ class PerceivedObjects(_message.Message):
     def __init__(self, timestamp: _Optional[_Union[_timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., group: _Optional[str] = ..., sensor: _Optional[str] = ..., count: _Optional[int] = ..., objects: _Optional[_Iterable[_Union[PerceivedObject, _Mapping]]] = ...) -> None: ...
 
 class LeadVehicle(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "present", "object", "expected_present", "expected", "mio_ok", "mio_reason")
+    __slots__ = ("timestamp", "frame_id", "present", "object", "expected_present", "expected", "mio_ok", "mio_reason", "lead_number", "change")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     PRESENT_FIELD_NUMBER: _ClassVar[int]
@@ -68,6 +70,8 @@ class LeadVehicle(_message.Message):
     EXPECTED_FIELD_NUMBER: _ClassVar[int]
     MIO_OK_FIELD_NUMBER: _ClassVar[int]
     MIO_REASON_FIELD_NUMBER: _ClassVar[int]
+    LEAD_NUMBER_FIELD_NUMBER: _ClassVar[int]
+    CHANGE_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     present: bool
@@ -76,7 +80,9 @@ class LeadVehicle(_message.Message):
     expected: PerceivedObject
     mio_ok: bool
     mio_reason: str
-    def __init__(self, timestamp: _Optional[_Union[_timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., present: bool = ..., object: _Optional[_Union[PerceivedObject, _Mapping]] = ..., expected_present: bool = ..., expected: _Optional[_Union[PerceivedObject, _Mapping]] = ..., mio_ok: bool = ..., mio_reason: _Optional[str] = ...) -> None: ...
+    lead_number: int
+    change: str
+    def __init__(self, timestamp: _Optional[_Union[_timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., present: bool = ..., object: _Optional[_Union[PerceivedObject, _Mapping]] = ..., expected_present: bool = ..., expected: _Optional[_Union[PerceivedObject, _Mapping]] = ..., mio_ok: bool = ..., mio_reason: _Optional[str] = ..., lead_number: _Optional[int] = ..., change: _Optional[str] = ...) -> None: ...
 
 class LaneLine(_message.Message):
     __slots__ = ("name", "c0", "c1", "c2", "c3")

@@ -37,6 +37,7 @@ from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObje
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.scene import semantic
+from bridge.scene.camera import camera_for, view_range
 from bridge.topics import (
     EGO_TOPIC,
     LANES_TOPIC,
@@ -46,6 +47,7 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
+from bridge.world.lead import twin_sets
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import Observer
 
@@ -71,6 +73,8 @@ class Perception:
         self.observer = Observer(profile)
         self.world = World(profile)
         self.scene_state = scene.SceneState({})
+        #: the view the scene's marks and labels are made for (the generated layouts' camera)
+        self.camera = camera_for(view_range(profile))
         #: log time of the next scene; frames at or after it make it happen
         self.next_tick_ns: int | float = float("-inf")
         self._started = False
@@ -185,15 +189,21 @@ class Perception:
         """Scene, semantic topics and frames at log time ``t_ns``."""
         lanes = self.update_world(t_ns)
         world, profile = self.world, self.profile
-        check = world.mio_check(lanes)
+        steady = world.lead(lanes, t_ns)
+        check = world.mio_check(lanes, steady.lead)
+        twins = {name: twin_sets(world.objects[name].values()) for name in profile.groups}
+        from_tracks = profile.lead is not None and profile.lead.source == "tracks"
         out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
-               in scene.scene_updates(world, lanes, check, t_ns, self.scene_state).items()]
+               in scene.scene_updates(world, lanes, check, t_ns, self.scene_state,
+                                      lead_track=steady.lead if from_tracks else None,
+                                      twins=twins, camera=self.camera).items()]
         out.append(TopicMessage(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
         for name, group in profile.groups.items():
             out.append(TopicMessage(objects_topic(name), semantic.objects(
-                name, group.sensor.name, world.objects[name].values(), t_ns), t_ns))
+                name, group.sensor.name, world.objects[name].values(), t_ns, twins[name]),
+                t_ns))
         if profile.lead is not None:
-            out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns), t_ns))
+            out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns, steady), t_ns))
         if profile.lanes is not None:
             out.append(TopicMessage(LANES_TOPIC, semantic.lanes(lanes, t_ns), t_ns))
         out.append(TopicMessage(EGO_TOPIC, semantic.ego(world, profile, t_ns), t_ns))

@@ -45,6 +45,8 @@ from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 
 from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
+from bridge.scene.camera import ViewCamera, camera_for, view_range
+from bridge.scene.labels import Block, Label, lay_out
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
 from bridge.world.observe import ObjectObservation
@@ -61,6 +63,8 @@ LEAD_COLOR: RGBA = (0.0, 0.85, 0.2, 0.55)  # green, see-through so the track ins
 PEDESTRIAN_COLOR: RGBA = (1.0, 0.85, 0.0, 1.0)  # yellow
 MIO_COLOR: RGBA = (1.0, 0.55, 0.0, 1.0)  # orange
 TEXT_COLOR: RGBA = (1.0, 1.0, 1.0, 1.0)
+LEADER_COLOR: RGBA = (0.8, 0.8, 0.8, 0.8)  # the thin line from a raised label to its object
+LEADER_PX = 1.0
 
 DETECTION_SIZE = 0.5  # m, sphere diameter
 OBJECT_Z = 0.5  # m, height of the centre of every object's marker
@@ -233,19 +237,15 @@ def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
 
 @lru_cache(maxsize=256)
 def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
-                     labelled: bool, track: bool) -> SceneEntity:
-    """What every object entity of this kind, role and class shares; its sphere, label and
-    pedestrian cylinder stand at x = y = 0. Never changed, only copied."""
+                     track: bool) -> SceneEntity:
+    """What every object entity of this kind, role and class shares; its sphere and pedestrian
+    cylinder stand at x = y = 0, at their base size. Never changed, only copied."""
     e = _template("", lifetime_s)
     if track:
         add_sphere(e, 0.0, 0.0, OBJECT_Z, TRACK_SIZE, TRACK_COLOR, TRACK_HEIGHT)
-        if labelled:
-            add_text(e, 0.0, 0.0, 1.6, "")
     else:
         add_sphere(e, 0.0, 0.0, OBJECT_Z, DETECTION_SIZE,
                    RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR)
-        if labelled:
-            add_text(e, 0.0, 0.0, 1.1, CLASS_LABELS[object_class])
     if object_class is ObjectClass.PEDESTRIAN:
         e.cylinders.append(CylinderPrimitive(
             pose=pose(0.0, 0.0, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
@@ -287,99 +287,174 @@ def shared_places(tracks: Sequence[ObjectObservation],
 
 _NOWHERE = SharedPlaces()
 
+#: Label priorities (lower first), then nearer first: see bridge.scene.labels.
+MIO_FIRST, LEAD_NEXT, TRACKS_NEXT, DETECTIONS_LAST = 0, 1, 2, 3
 
-def object_entities(into: Entities, objects: Iterable[ObjectObservation], kind: SensorKind,
-                    group: str, t_ns: int, lifetime_s: float,
-                    lead: ObjectObservation | None = None, *, track: bool | None = None,
-                    places: SharedPlaces = _NOWHERE) -> None:
-    """Detections (radar blue, camera white balls) or tracks (red discs, labelled), with class
-    labels: one label block per place.
 
-    ``track``: the group's role is tracks (default: the sensor ``kind`` is fusion). The track
-    that is ``lead`` keeps its disc; its label is the lead vehicle's (one label, not two drawn
-    over each other). A detection at a track's place (``places``, see shared_places) has no
-    label of its own: the track's block carries it.
-    """
+@dataclass(frozen=True)
+class Drawn:
+    """One object as drawn: a set of twins (or one object alone) at its mean place."""
+
+    group: str
+    ids: tuple[int, ...]
+    x: float
+    y: float
+    first: ObjectObservation  # the member with the lowest id: class, velocity
+
+    @property
+    def id_text(self) -> str:
+        """The ids, as a label names them: ``2/8`` for twins."""
+        return "/".join(str(i) for i in self.ids)
+
+
+def drawn_objects(objects: Mapping[int, ObjectObservation],
+                  twins: Mapping[int, tuple[int, ...]]) -> list[Drawn]:
+    """The objects of one group as drawn: each set of ``twins`` (id -> the ids of its set) as
+    one object at the mean of its members' places, by lowest id."""
+    out = []
+    for i in sorted(objects):
+        ids = twins.get(i, (i,))
+        if ids[0] != i:
+            continue  # drawn with the set's lowest id
+        members = [objects[m] for m in ids if m in objects]
+        out.append(Drawn(objects[i].group, ids, sum(o.x for o in members) / len(members),
+                         sum(o.y for o in members) / len(members), objects[i]))
+    return out
+
+
+def object_entities(into: Entities, objects: Iterable[Drawn], kind: SensorKind, t_ns: int,
+                    lifetime_s: float, camera: ViewCamera, *, track: bool,
+                    lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
+    """Detections (radar blue, camera white balls) or tracks (red discs), each set of twins as
+    one object, each mark at least MIN_MARK_PX wide from the generated camera (its size, and
+    heights, grow with the distance: :meth:`ViewCamera.scale`); returns their labels to lay out
+    (:func:`bridge.scene.labels.lay_out`).
+
+    A track's label is "TrackID: n / x: … / y: …" and its class (``2/8`` for twins); the track
+    that is ``lead`` has none (the lead's label names it). A detection's label is its class,
+    where known, unless the detection is at a track's place (``places``: the track's block
+    carries it). Each entity's metadata holds its ids, place and velocity."""
     stamp = _stamp(t_ns)
-    if track is None:
-        track = kind is SensorKind.FUSION
-    for o in sorted(objects, key=lambda o: o.object_id):
-        if track:
-            labelled = o is not lead
-        else:
-            labelled = (o.object_class in CLASS_LABELS
-                        and (o.group, o.object_id) not in places.covered)
+    labels = []
+    for o in objects:
+        first = o.first
         e = into.add()
-        e.MergeFrom(_object_template(kind, lifetime_s, o.object_class, labelled, track))
-        e.id = f"{group}-{o.object_id}"
+        e.MergeFrom(_object_template(kind, lifetime_s, first.object_class, track))
+        e.id = f"{o.group}-{o.ids[0]}"
         e.timestamp.CopyFrom(stamp)
         x, y = o.x, o.y
-        _place(e.spheres[0], x, y)
-        if labelled:
-            label = e.texts[0]
-            _place(label, x, y)
-            if track:
-                label.text = track_label(o, places.notes.get((o.group, o.object_id), ()))
-        if o.object_class is ObjectClass.PEDESTRIAN:
+        f = camera.scale(x, y, DETECTION_SIZE)
+        mark = e.spheres[0]
+        position = mark.pose.position
+        position.x, position.y, position.z = x, y, OBJECT_Z * f
+        size = mark.size
+        size.x *= f
+        size.y *= f
+        size.z *= f
+        if first.object_class is ObjectClass.PEDESTRIAN:
             _place(e.cylinders[0], x, y)
+        e.metadata.add(key="ids", value=o.id_text)
+        e.metadata.add(key="place", value=f"x {x:.2f} m, y {y:.2f} m")
+        if first.vx is not None:
+            e.metadata.add(key="vx", value=f"{first.vx:.2f} m/s")
+        distance = f"{math.hypot(x, y):.0f} m"
+        if track:
+            if o is lead:
+                continue
+            full = track_label(o, place_notes(places, o))
+            compact = f"TrackID: {o.id_text} \u00b7 {distance}"
+            labels.append(Label(e, x, y, 1.6 * f, full, compact, compact,
+                                (TRACKS_NEXT, x)))
+        elif (first.object_class in CLASS_LABELS
+              and (o.group, o.ids[0]) not in places.covered):
+            name = CLASS_LABELS[first.object_class]
+            labels.append(Label(e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
+                                (DETECTIONS_LAST, x)))
+    return labels
 
 
-def track_label(o: ObjectObservation, notes: Sequence[str] = ()) -> str:
+def place_notes(places: SharedPlaces, o: Drawn) -> tuple[str, ...]:
+    """The notes of the places of every twin of ``o``, each once."""
+    return tuple(sorted({n for i in o.ids for n in places.notes.get((o.group, i), ())}))
+
+
+def track_label(o: Drawn, notes: Sequence[str] = ()) -> str:
     """The seed's "TrackID: n / x: … / y: …", then the class, then ``notes`` (one a line)."""
-    label = f"TrackID: {o.object_id}\nx: {o.x:.2f}\ny: {o.y:.2f}"
-    if o.object_class in CLASS_LABELS:
-        label += f"\n{CLASS_LABELS[o.object_class]}"
+    label = f"TrackID: {o.id_text}\nx: {o.x:.2f}\ny: {o.y:.2f}"
+    if o.first.object_class in CLASS_LABELS:
+        label += f"\n{CLASS_LABELS[o.first.object_class]}"
     return "\n".join([label, *notes])
 
 
 @lru_cache(maxsize=16)
 def _lead_template(lifetime_s: float) -> SceneEntity:
-    """The lead box at x = y = 0 with an empty label. Never changed, only copied."""
+    """The lead box at x = y = 0. Never changed, only copied."""
     e = _template("lead", lifetime_s)
     length, width, height = LEAD_BOX
     e.cubes.append(CubePrimitive(pose=pose(length / 2, 0.0, height / 2),
                                  size=Vector3(x=length, y=width, z=height),
                                  color=color(LEAD_COLOR)))
-    add_text(e, 0.0, 0.0, height + 1.4, "")
     return e
 
 
 def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
-                  lifetime_s: float, track: ObjectObservation | None = None,
-                  notes: Sequence[str] = ()) -> None:
-    """The lead box, labelled "Lead Vehicle / x / y", then the id and class of its ``track``
-    and the ``notes`` of the track's place (see shared_places)."""
+                  lifetime_s: float, track: Drawn | None = None,
+                  notes: Sequence[str] = ()) -> list[Label]:
+    """The lead box; its label "Lead Vehicle · TrackID: n / x / y" names its ``track`` (the
+    track's own label is not drawn), then the track's class and the ``notes`` of its place."""
     if lead is None:
-        return
+        return []
     e = into.add()
     e.MergeFrom(_lead_template(lifetime_s))
     e.timestamp.CopyFrom(_stamp(t_ns))
     _place(e.cubes[0], lead.x + LEAD_BOX[0] / 2, lead.y)
-    label = f"Lead Vehicle\nx: {lead.x:.2f}\ny: {lead.y:.2f}"
+    title = "Lead Vehicle"
     if track is not None:
-        label += f"\nTrackID: {track.object_id}"
-        if track.object_class in CLASS_LABELS:
-            label += f"\n{CLASS_LABELS[track.object_class]}"
-        label = "\n".join([label, *notes])
-    text = e.texts[0]
-    text.text = label
-    _place(text, lead.x, lead.y)
+        title += f" \u00b7 TrackID: {track.id_text}"
+    label = f"{title}\nx: {lead.x:.2f}\ny: {lead.y:.2f}"
+    if track is not None and track.first.object_class in CLASS_LABELS:
+        label += f"\n{CLASS_LABELS[track.first.object_class]}"
+    label = "\n".join([label, *notes])
+    e.metadata.add(key="label", value=label)
+    compact = f"Lead \u00b7 {lead.x:.0f} m" + (f" \u00b7 TrackID: {track.id_text}"
+                                            if track is not None else "")
+    return [Label(e, lead.x, lead.y, LEAD_BOX[2] + 1.4, label, compact, compact,
+                  (LEAD_NEXT, lead.x))]
 
 
-def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) -> None:
+def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) -> list[Label]:
     """Nothing when the lead is the closest in-lane track; otherwise a ring and the reason."""
     if check.ok:
-        return
+        return []
     e = entity(t_ns, "mio-check", lifetime_s)
     target = check.expected or check.lead
     if target is not None:
         e.cylinders.append(CylinderPrimitive(
             pose=pose(target.x, target.y, 0.02), size=Vector3(x=3.0, y=3.0, z=0.04),
             bottom_scale=1.0, top_scale=1.0, color=color(MIO_COLOR)))
-        add_text(e, target.x, target.y, 3.2, f"MIO CHECK: {check.reason}")
+        x, y = target.x, target.y
     else:
-        add_text(e, 5.0, 0.0, 3.2, f"MIO CHECK: {check.reason}")
+        x, y = 5.0, 0.0
     into.append(e)  # (rare: a copy costs nothing here)
+    words = f"MIO CHECK: {check.reason}"
+    return [Label(into[-1], x, y, 3.2, words, "MIO CHECK", "MIO CHECK", (MIO_FIRST, x))]
+
+
+def draw_labels(blocks: Iterable[Block]) -> None:
+    """Each laid-out block as a text of the entity that carries it; a block moved off its
+    place with a thin leader line from where its label would have stood."""
+    for b in blocks:
+        owner = b.owner
+        assert isinstance(owner, SceneEntity)
+        add_text(owner, b.x, b.y, b.z, b.text)
+        if b.anchor is not None:
+            leader = owner.lines.add(type=LinePrimitive.LINE_STRIP, thickness=LEADER_PX,
+                                     scale_invariant=True)
+            set_pose(leader.pose, 0.0, 0.0, 0.0)
+            ax, ay, az = b.anchor
+            leader.points.add(x=ax, y=ay, z=az)
+            leader.points.add(x=b.x, y=b.y, z=b.z)
+            leader.color.CopyFrom(_color(LEADER_COLOR))
 
 
 def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
@@ -422,9 +497,19 @@ def with_deletions(topic: str, scene_update: SceneUpdate, t_ns: int,
 
 
 def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
-                  state: SceneState) -> dict[str, SceneUpdate]:
-    """Every category's SceneUpdate at ``t_ns`` (category -> update)."""
+                  state: SceneState, *, lead_track: ObjectObservation | None = None,
+                  twins: Mapping[str, Mapping[int, tuple[int, ...]]] | None = None,
+                  camera: ViewCamera | None = None) -> dict[str, SceneUpdate]:
+    """Every category's SceneUpdate at ``t_ns`` (category -> update).
+
+    ``lead_track``: the track that is the lead (default: the MIO check's track, when the check
+    holds); ``twins``: each group's sets of twins (:func:`bridge.world.lead.twin_sets`), drawn
+    as one object; ``camera``: the view the marks and labels are made for (default the
+    profile's, :func:`bridge.scene.camera.camera_for`)."""
     profile = world.profile
+    twins = twins or {}
+    if camera is None:
+        camera = camera_for(view_range(profile))
     out: dict[str, SceneUpdate] = {}
 
     def category(name: str) -> Entities:
@@ -433,21 +518,27 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
 
     ego_entities(category("ego"), profile, t_ns)
     lane_entities(category("lanes"), lanes, t_ns)
-    # The lead that is a track is labelled once, on the lead box.
-    lead_track = check.expected if check.ok and check.lead is not None else None
+    if lead_track is None and check.ok and check.lead is not None:
+        lead_track = check.expected
+    drawn = {name: drawn_objects(world.objects[name], twins.get(name, {}))
+             for name in profile.groups}
+    lead_drawn = None if lead_track is None else next(
+        (o for o in drawn.get(lead_track.group, ()) if lead_track.object_id in o.ids), None)
     # A detection at a track's place is labelled once, in the track's block.
     places = shared_places(
         [o for name, g in profile.groups.items() if g.is_tracks
          for o in world.objects[name].values()],
         [o for name, g in profile.groups.items() if not g.is_tracks
          for o in world.objects[name].values()])
+    labels: list[Label] = []
     for name, group in profile.groups.items():
-        object_entities(category(name), world.objects[name].values(), group.sensor.kind, name,
-                        t_ns, group.lifetime_s, lead_track, track=group.is_tracks, places=places)
+        labels += object_entities(category(name), drawn[name], group.sensor.kind, t_ns,
+                                  group.lifetime_s, camera, track=group.is_tracks,
+                                  lead=lead_drawn, places=places)
     if profile.lead is not None:
-        lead_notes = (() if lead_track is None
-                      else places.notes.get((lead_track.group, lead_track.object_id), ()))
-        lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s, lead_track,
-                      lead_notes)
-        mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
+        lead_notes = () if lead_drawn is None else place_notes(places, lead_drawn)
+        labels += lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s,
+                                lead_drawn, lead_notes)
+        labels += mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
+    draw_labels(lay_out(labels, camera))
     return {name: with_deletions(scene_topic(name), u, t_ns, state) for name, u in out.items()}

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 
 from bridge.frame import NS, timestamp
 from bridge.pb.perception_pb2 import (
@@ -18,6 +18,7 @@ from bridge.pb.perception_pb2 import (
 from bridge.profile.model import ObjectClass as Kind
 from bridge.profile.model import Profile
 from bridge.topics import VEHICLE_FRAME
+from bridge.world.lead import SteadyLead
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
 from bridge.world.observe import ObjectObservation
 
@@ -30,9 +31,11 @@ _CLASSES = {
 }
 
 
-def perceived(o: ObjectObservation, t_ns: int) -> PerceivedObject:
+def perceived(o: ObjectObservation, t_ns: int, twins: Sequence[int] = ()) -> PerceivedObject:
+    """One object; ``twins``: its set of twins (itself included, as twin_sets gives it)."""
     msg = PerceivedObject(id=o.object_id, x=o.x, y=o.y, object_class=_CLASSES[o.object_class],
-                          distance=math.hypot(o.x, o.y), age=(t_ns - o.t_ns) / NS)
+                          distance=math.hypot(o.x, o.y), age=(t_ns - o.t_ns) / NS,
+                          twins=[i for i in twins if i != o.object_id])
     if o.vx is not None:
         msg.vx = o.vx
     if o.vy is not None:
@@ -42,17 +45,23 @@ def perceived(o: ObjectObservation, t_ns: int) -> PerceivedObject:
     return msg
 
 
-def objects(group: str, sensor: str, found: Iterable[ObjectObservation],
-            t_ns: int) -> PerceivedObjects:
-    items = [perceived(o, t_ns) for o in sorted(found, key=lambda o: o.object_id)]
+def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: int,
+            twins: Mapping[int, Sequence[int]] | None = None) -> PerceivedObjects:
+    """Every object of a group, each with its twins (id -> its set, :func:`twin_sets`)."""
+    twins = twins or {}
+    items = [perceived(o, t_ns, twins.get(o.object_id, ()))
+             for o in sorted(found, key=lambda o: o.object_id)]
     return PerceivedObjects(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, group=group,
                             sensor=sensor, count=len(items), objects=items)
 
 
-def lead(check: MioCheck, t_ns: int) -> LeadVehicle:
+def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVehicle:
+    """The lead and its MIO check; ``steady`` gives its serial number and why it changed."""
     msg = LeadVehicle(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME,
                       present=check.lead is not None, expected_present=check.expected is not None,
                       mio_ok=check.ok, mio_reason=check.reason)
+    if steady is not None:
+        msg.lead_number, msg.change = steady.serial, steady.change
     if check.lead is not None:
         msg.object.CopyFrom(perceived(check.lead, t_ns))
     if check.expected is not None:

@@ -33,6 +33,7 @@ from functools import lru_cache
 
 from bridge.frame import NS
 from bridge.profile.model import LaneSpec, Profile, Sensor
+from bridge.world.lead import LeadKeeper, SteadyLead, key
 from bridge.world.observe import (
     LEAD_GROUP,
     EgoObservation,
@@ -140,6 +141,14 @@ class LaneModel:
             return False
         return right.lateral_at(x) < y < left.lateral_at(x)
 
+    def outside_by(self, x: float, y: float) -> float | None:
+        """How far (m) the point lies outside the ego lane's lines (0 inside); None where there
+        is no ego lane (no lines, or behind the vehicle)."""
+        left, right = self.line("left"), self.line("right")
+        if left is None or right is None or x < 0:
+            return None
+        return max(0.0, right.lateral_at(x) - y, y - left.lateral_at(x))
+
 
 def steering_curvature(steering_wheel_angle: float, wheelbase: float, ratio: float) -> float:
     """Path curvature (1/m, left positive) of a bicycle model from the steering wheel angle."""
@@ -211,6 +220,10 @@ class World:
             self.lifetimes_ns[LEAD_GROUP] = round(self.profile.lead.lifetime_s * NS)
         for name in self.lifetimes_ns:
             self.objects.setdefault(name, {})
+        #: the lead chosen from tracks, kept steady (``[lead] source = "tracks"``)
+        self.keeper = LeadKeeper()
+        #: the reported lead's id and serial (``[lead]`` from its own message)
+        self._reported: tuple[int | None, int] = (None, 0)
 
     def apply(self, observation: Observation) -> None:
         if isinstance(observation, ObjectObservation):
@@ -262,6 +275,7 @@ class World:
             self.ego.t_ns += shift_ns
         if self.last_camera_lanes_ns is not None:
             self.last_camera_lanes_ns += shift_ns
+        self.keeper.shift(shift_ns)
 
     def lane_model(self, now_ns: int) -> LaneModel:
         spec: LaneSpec | None = self.profile.lanes
@@ -319,18 +333,37 @@ class World:
                       if lanes.in_ego_lane(o.x, o.y)]
         return min(candidates, key=lambda o: o.x, default=None)
 
-    def lead(self, lanes: LaneModel) -> ObjectObservation | None:
+    def lead(self, lanes: LaneModel, t_ns: int) -> SteadyLead:
+        """The lead vehicle at the tick at log time ``t_ns`` (call once per tick): chosen from
+        the tracks and kept steady (:class:`bridge.world.lead.LeadKeeper`), or the one its own
+        message reports (the closest, if several), whose serial goes up when its id changes."""
         spec = self.profile.lead
         if spec is None:
-            return None
+            return SteadyLead(None, 0)
         if spec.source == "tracks":
-            return self.closest_in_lane(lanes)
+            tracks = {key(o): o for name in self.track_groups()
+                      for o in self.objects[name].values()}
+            outside = {k: d for k, o in tracks.items()
+                       if (d := lanes.outside_by(o.x, o.y)) is not None}
+            in_lane = [k for k, o in tracks.items() if lanes.in_ego_lane(o.x, o.y)]
+            return self.keeper.update(tracks, in_lane, outside, t_ns)
         objects = self.objects.get(LEAD_GROUP, {})
-        return min(objects.values(), key=lambda o: o.x, default=None)
+        reported = min(objects.values(), key=lambda o: o.x, default=None)
+        last_id, serial = self._reported
+        now_id = None if reported is None else reported.object_id
+        if now_id is not None and now_id != last_id:
+            serial += 1
+        self._reported = (now_id, serial)
+        return SteadyLead(reported, serial)
 
-    def mio_check(self, lanes: LaneModel) -> MioCheck:
-        lead = self.lead(lanes)
-        if self.profile.lead is None or not self.track_groups() or lanes.source == "none":
+    def mio_check(self, lanes: LaneModel, lead: ObjectObservation | None) -> MioCheck:
+        """The ``lead`` of this tick (:meth:`lead`) against the closest valid track in the ego
+        lane. A lead chosen from the tracks is the check's own choice: always ok."""
+        spec = self.profile.lead
+        if spec is not None and spec.source == "tracks":
+            return MioCheck(lead, lead, True, "no track in the ego lane" if lead is None
+                            else f"lead is track #{lead.object_id} (chosen from the tracks)")
+        if spec is None or not self.track_groups() or lanes.source == "none":
             return MioCheck(lead, None, True, "not checked (needs lead, tracks and lanes)")
         expected = self.closest_in_lane(lanes)
         if lead is None and expected is None:

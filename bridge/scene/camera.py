@@ -1,0 +1,119 @@
+"""The camera a profile is viewed from: framed for its sensors' reach, and how big a metre looks.
+
+A long-range radar sees 200 m ahead; a camera that follows the car from just behind shows about
+60 m of that and squeezes the rest into a band at the horizon. :func:`camera_for` frames the
+road from just behind the ego vehicle to the profile's farthest sensor range
+(:func:`view_range`) in the generated layouts' 3D panel: looking :data:`DEPRESSION_DEG` down from
+the horizon, with the bottom edge of the view :data:`BEHIND_M` behind the vehicle origin and the
+top edge just beyond the range. The generated layouts (:mod:`bridge.view.generate`) use it as
+the panel's default camera; the scene uses it to keep every mark visible
+(:meth:`ViewCamera.scale`) and to lay out labels that do not cover each other
+(:mod:`bridge.scene.labels`), for a panel :data:`PANEL_HEIGHT_PX` high (the Tank Viz panel on
+a 1600 x 1000 screen). Moving the camera in Foxglove is still possible; these are the defaults.
+
+Foxglove's camera state: ``distance`` from the eye to the target, ``phi`` the angle of the
+line of sight from straight down (degrees), ``targetOffset`` the target in the followed frame,
+``fovy`` the vertical field of view.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+from bridge.profile.model import Profile
+
+#: The line of sight's angle below the horizon (degrees).
+DEPRESSION_DEG = 40.0
+#: Foxglove's default vertical field of view (degrees).
+FOVY_DEG = 45.0
+#: The bottom edge of the view meets the ground this far (m) behind the vehicle origin.
+BEHIND_M = 6.0
+#: The top edge of the view lies this much beyond the range (share of the range).
+BEYOND = 0.05
+#: The height (px) of the panel the scene is laid out for.
+PANEL_HEIGHT_PX = 900.0
+#: The width-to-height ratio of that panel.
+PANEL_ASPECT = 1.65
+#: The view covers at least this much road (m), however short the sensors' reach.
+MIN_RANGE_M = 60.0
+#: A mark is drawn at least this many pixels wide on that panel (a detection ball, at its
+#: base size DETECTION_SIZE; every other mark grows with it).
+MIN_MARK_PX = 6.0
+
+
+@dataclass(frozen=True)
+class ViewCamera:
+    """A camera behind the vehicle, looking forward and down (vehicle frame)."""
+
+    eye_x: float  # m, behind the origin: negative
+    eye_z: float  # m, above the ground
+    depression_deg: float = DEPRESSION_DEG
+    fovy_deg: float = FOVY_DEG
+    height_px: float = PANEL_HEIGHT_PX
+
+    @property
+    def distance(self) -> float:
+        """From the eye to the target, where the line of sight meets the ground."""
+        return self.eye_z / math.sin(math.radians(self.depression_deg))
+
+    @property
+    def target_x(self) -> float:
+        return self.eye_x + self.eye_z / math.tan(math.radians(self.depression_deg))
+
+    @property
+    def focal_px(self) -> float:
+        """Pixels per unit of tangent: a metre at depth d is focal_px / d pixels."""
+        return self.height_px / 2 / math.tan(math.radians(self.fovy_deg) / 2)
+
+    def depth(self, x: float, y: float, z: float) -> float:
+        """How far (m) the point lies ahead of the eye along the line of sight."""
+        a = math.radians(self.depression_deg)
+        return (x - self.eye_x) * math.cos(a) - (z - self.eye_z) * math.sin(a)
+
+    def project(self, x: float, y: float, z: float) -> tuple[float, float] | None:
+        """The point on the panel (px from its centre: right, down), None behind the eye."""
+        a = math.radians(self.depression_deg)
+        d = self.depth(x, y, z)
+        if d <= 0.1:
+            return None
+        up = (x - self.eye_x) * math.sin(a) + (z - self.eye_z) * math.cos(a)
+        return -y * self.focal_px / d, -up * self.focal_px / d
+
+    def px_per_m(self, x: float, y: float, z: float = 0.0) -> float:
+        """How many pixels a metre across the line of sight takes at the point."""
+        return self.focal_px / max(self.depth(x, y, z), 0.1)
+
+    def scale(self, x: float, y: float, base_m: float, min_px: float = MIN_MARK_PX) -> float:
+        """The factor (>= 1) that makes a mark of ``base_m`` at (x, y) at least ``min_px``
+        wide on the panel."""
+        return max(1.0, min_px / (base_m * self.px_per_m(x, y)))
+
+    def foxglove_state(self) -> dict[str, object]:
+        """The 3D panel's ``cameraState`` for this camera (following the vehicle frame)."""
+        return {"distance": round(self.distance, 2), "perspective": True,
+                "phi": round(90.0 - self.depression_deg, 2), "thetaOffset": 90,
+                "target": [0, 0, 0], "targetOffset": [round(self.target_x, 2), 0, 0],
+                "targetOrientation": [0, 0, 0, 1], "fovy": self.fovy_deg, "near": 0.5,
+                "far": 5000}
+
+
+def view_range(profile: Profile) -> float:
+    """How far ahead (m) the view must reach: the largest sensor range of the profile (fov
+    range), at least :data:`MIN_RANGE_M`."""
+    ranges = [s.fov_range for s in profile.sensors.values() if s.fov_range is not None]
+    return max([MIN_RANGE_M, *ranges])
+
+
+@lru_cache(maxsize=16)
+def camera_for(range_m: float) -> ViewCamera:
+    """The camera whose view reaches from :data:`BEHIND_M` behind the origin (bottom edge) to
+    ``range_m`` and a little beyond (top edge)."""
+    a = math.radians(DEPRESSION_DEG)
+    half = math.radians(FOVY_DEG) / 2
+    low, high = math.tan(a + half), math.tan(a - half)  # slopes of the bottom and top rays
+    far = range_m * (1 + BEYOND)
+    # eye at (-b, h): h = low * (b - BEHIND_M) = high * (b + far)
+    b = (high * far + low * BEHIND_M) / (low - high)
+    return ViewCamera(-b, high * (b + far))

@@ -1,0 +1,157 @@
+"""Labels: one text block per place, and no block drawn over another.
+
+Every label the scene would draw is first a :class:`Label` request: where it stands, its full
+text, a one-line compact text and a priority (the MIO check first, then the lead vehicle, then
+tracks, then detections; nearer before farther). :func:`lay_out` turns the requests of one tick
+into the text blocks to draw:
+
+1. **One block per place.** Requests whose anchors lie within :data:`PLACE_M` (2.5 m, in the
+   ground plane) of each other, directly or through a chain of such neighbours, are one place.
+   A place has one block, at its first request's anchor: that request's full text, then one line
+   per other request of the place (e.g. ``TrackID: 12 · 41 m``, ``radar: car``; a line once).
+   So no two blocks of a tick stand within 2.5 m of each other.
+2. **No block covers another on screen.** Seen from the generated layout's camera
+   (:mod:`bridge.scene.camera`), a label of fixed pixel size covers many metres far away, where
+   objects a lane apart lie a few pixels apart. Places are drawn in order of priority; a block
+   whose box on the panel (:func:`box`: its lines at :data:`CHAR_PX` x :data:`LINE_PX` each,
+   centred above its anchor) would overlap one already drawn is drawn compact (its first
+   request's compact text alone); where that overlaps too, the compact block is moved off its
+   anchor: one block width to the right, then to the left, then up by one, two and three
+   block heights (:data:`MAX_RAISES`), the first place where it covers no other block and
+   stands :data:`PLACE_M` from every other block; a thin leader line joins it to its object.
+   Where none fits, it is not drawn: its objects keep their marks, and their full details stay
+   in each entity's metadata, which Foxglove shows when the object is clicked.
+
+The result is a list of :class:`Block`: the text, where it stands, where its label would have
+stood (``anchor``, when it was moved), and which request's entity carries it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+from bridge.scene.camera import ViewCamera
+
+#: Labels anchored this close (m, ground plane) share one block.
+PLACE_M = 2.5
+#: Width of a character and height of a line of a label (px, font size 14, on the panel).
+CHAR_PX = 9.0
+LINE_PX = 17.0
+#: Room kept free around each block (px).
+MARGIN_PX = 4.0
+#: A block that covers another may be raised by up to this many times its height.
+MAX_RAISES = 3
+
+
+@dataclass(frozen=True)
+class Label:
+    """A label the scene would draw for one thing (an object, the lead, the MIO check)."""
+
+    owner: object  # who carries the block's text (the scene's entity key)
+    x: float
+    y: float
+    z: float
+    text: str  # the full text, one line per "\n"
+    compact: str  # one line, drawn where the full text does not fit
+    line: str  # one line, added to the block of another label at its place
+    priority: tuple[int, float]  # lower first: (kind, distance ahead)
+
+
+@dataclass(frozen=True)
+class Block:
+    """A text block to draw: carried by ``owner``'s entity at (x, y, z)."""
+
+    owner: object
+    x: float
+    y: float
+    z: float
+    text: str
+    #: the owners of the other labels of its place (drawn in this block)
+    merged: tuple[object, ...] = ()
+    #: where its label would have stood, when the block was moved off it (a leader line)
+    anchor: tuple[float, float, float] | None = None
+
+
+def places(labels: Sequence[Label]) -> list[list[Label]]:
+    """The labels grouped by place (anchors within PLACE_M, transitively), each place in order
+    of priority and the places by their first label's priority."""
+    order = sorted(labels, key=lambda label: label.priority)
+    parent = list(range(len(order)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    limit = PLACE_M ** 2
+    for i, a in enumerate(order):
+        for j in range(i + 1, len(order)):
+            b = order[j]
+            if (a.x - b.x) ** 2 + (a.y - b.y) ** 2 < limit:
+                parent[root(j)] = root(i)
+    grouped: dict[int, list[Label]] = {}
+    for i, label in enumerate(order):
+        grouped.setdefault(root(i), []).append(label)
+    return sorted(grouped.values(), key=lambda place: place[0].priority)
+
+
+Box = tuple[float, float, float, float]  # left, top, right, bottom (px from the panel's centre)
+
+
+def box(camera: ViewCamera, x: float, y: float, z: float, text: str) -> Box | None:
+    """Where a block of ``text`` anchored at (x, y, z) lies on the panel, with MARGIN_PX around
+    it; None where the anchor is behind the camera."""
+    at = camera.project(x, y, z)
+    if at is None:
+        return None
+    lines = text.split("\n")
+    half = max(len(line) for line in lines) * CHAR_PX / 2 + MARGIN_PX
+    return (at[0] - half, at[1] - len(lines) * LINE_PX - MARGIN_PX, at[0] + half,
+            at[1] + MARGIN_PX)
+
+
+def _overlaps(a: Box, b: Box) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+Place = tuple[str, float, float, float]  # a text and where it stands
+
+
+def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterator[Place]:
+    """The texts and places to try for a place's block, in order (see the module's rules)."""
+    x, y, z = first.x, first.y, first.z
+    yield "\n".join([first.text, *dict.fromkeys(o.line for o in others)]), x, y, z
+    yield first.compact, x, y, z
+    metre = camera.px_per_m(x, y, z)
+    aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
+    up = (LINE_PX + 2 * MARGIN_PX) / metre  # one line's height, m
+    yield first.compact, x, y - aside, z  # to the right on the panel (y points left)
+    yield first.compact, x, y + aside, z
+    for k in range(1, MAX_RAISES + 1):
+        yield first.compact, x, y, z + k * up
+
+
+def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
+    """The blocks to draw for one tick's ``labels`` (see the module's rules)."""
+    drawn: list[Box] = []
+    blocks: list[Block] = []
+    for place in places(labels):
+        first, others = place[0], place[1:]
+        for text, x, y, z in _tries(first, others, camera):
+            at = box(camera, x, y, z, text)
+            if at is None:
+                continue
+            if any(_overlaps(at, other) for other in drawn):
+                continue
+            if any((b.x - x) ** 2 + (b.y - y) ** 2 < PLACE_M ** 2 for b in blocks):
+                continue
+            break
+        else:
+            continue
+        drawn.append(at)
+        moved = (x, y, z) != (first.x, first.y, first.z)
+        blocks.append(Block(first.owner, x, y, z, text, tuple(o.owner for o in others),
+                            (first.x, first.y, first.z) if moved else None))
+    return blocks

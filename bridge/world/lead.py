@@ -1,0 +1,187 @@
+"""Twins and a steady lead: one object seen in two slots is one object, and the lead changes
+only when another object clearly is the lead.
+
+**Twins.** A radar often reports one object in two track slots at once (a real Denso radar:
+56 % of its detections have a twin within a metre). Two objects of one group at one tick are
+twins when they lie within :data:`TWIN_DISTANCE_M` of each other in the ground plane and, where
+both report a longitudinal velocity, their velocities differ by at most :data:`TWIN_SPEED_MPS`
+(two cars side by side in adjacent lanes are 3 m or more apart; a car passing a standing one
+differs in speed). Twins are grouped transitively: :func:`twin_sets` gives each object of a set
+of two or more the ids of the whole set. The world keeps every object; the scene draws a set as
+one object and ``/perception`` says which objects are twins.
+
+**A steady lead** (``[lead] source = "tracks"``: the lead is chosen from the tracks).
+:class:`LeadKeeper` keeps the lead it has until another object clearly is the lead:
+
+- the lead is followed through its twins: when its slot goes and a twin of it stays (within
+  :data:`TWIN_DISTANCE_M` of where the lead would be by its velocity, at the same speed), the
+  lead is that twin, with the same serial number (not a change);
+- it **left the ego lane**: its centre is more than :data:`LEAVE_MARGIN_M` outside the lane
+  lines;
+- it **vanished**: no observation of it (nor of a twin) for more than :data:`GRACE_S`; until
+  then the last observation stands for it;
+- **another object is nearer** by more than :func:`nearer_margin` (:data:`NEARER_MARGIN_M`, or
+  :data:`NEARER_SHARE` of the lead's distance, whichever is larger) in the ego lane, for
+  :data:`NEARER_S` without a break (a car cutting in; a twin of the lead never counts).
+
+Then the new lead is the closest valid track ahead in the ego lane, and the serial number goes
+up by one: every change of ``serial`` is a real lead change (``/perception/lead``'s
+``lead_number``, the catalogue's ``lead_changes`` and cut-ins). With no lead, the closest
+in-lane track becomes the lead at once.
+
+The margins were chosen on the simulated highway drive (``tankviz simulate --car highway``,
+modelled on the real radar): its twins lie within 1 m and 0.3 m/s of each other, a cut-in car is
+20 m nearer than the lead it replaces, and a slot drops out for up to a few radar cycles (50 ms
+each). 0.5 s of grace bridges such dropouts and a twin's hand-over; 0.5 s of being nearer by
+5 m is long enough that a twin's jitter (cm) or a car touching the lane line once never takes
+the lead, short enough that the box follows a cut-in while it happens.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from bridge.frame import NS
+from bridge.world.observe import ObjectObservation
+
+#: Two objects of one group this close (m, ground plane) ...
+TWIN_DISTANCE_M = 1.5
+#: ... whose longitudinal velocities (where both have one) differ by at most this (m/s) are twins.
+TWIN_SPEED_MPS = 1.0
+#: The lead has left the ego lane when its centre is this far (m) outside a lane line.
+LEAVE_MARGIN_M = 0.3
+#: The lead vanished when neither it nor a twin of it was seen for longer than this (s).
+GRACE_S = 0.5
+#: Another in-lane object takes the lead when it is nearer by more than nearer_margin() ...
+NEARER_MARGIN_M = 5.0
+NEARER_SHARE = 0.1
+#: ... for this long without a break (s).
+NEARER_S = 0.5
+
+Key = tuple[str, int]
+
+
+def key(o: ObjectObservation) -> Key:
+    return o.group, o.object_id
+
+
+def are_twins(a: ObjectObservation, b: ObjectObservation) -> bool:
+    """Whether ``a`` and ``b`` (of one group) look like one object seen twice."""
+    if (a.x - b.x) ** 2 + (a.y - b.y) ** 2 > TWIN_DISTANCE_M ** 2:
+        return False
+    return a.vx is None or b.vx is None or abs(a.vx - b.vx) <= TWIN_SPEED_MPS
+
+
+def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]]:
+    """Object id -> the sorted ids of its set of twins (itself included), for every object of
+    one group that has a twin (transitively: a chain of twins is one set)."""
+    found = sorted(objects, key=lambda o: o.x)
+    parent = {o.object_id: o.object_id for o in found}
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for n, a in enumerate(found):  # sorted by x: only neighbours within the distance compare
+        for b in found[n + 1:]:
+            if b.x - a.x > TWIN_DISTANCE_M:
+                break
+            if are_twins(a, b):
+                parent[root(a.object_id)] = root(b.object_id)
+    sets: dict[int, list[int]] = {}
+    for i in parent:
+        sets.setdefault(root(i), []).append(i)
+    return {i: tuple(sorted(members)) for members in sets.values() if len(members) > 1
+            for i in members}
+
+
+def nearer_margin(lead_x: float) -> float:
+    """How much nearer (m) than a lead at ``lead_x`` another object must be to take the lead."""
+    return max(NEARER_MARGIN_M, NEARER_SHARE * lead_x)
+
+
+@dataclass(frozen=True)
+class SteadyLead:
+    """The lead of one tick: its latest observation (or None), and its serial number, which goes
+    up by one at every real lead change (0 before the first lead)."""
+
+    lead: ObjectObservation | None
+    serial: int
+    #: why it changed at this tick ("" when it did not)
+    change: str = ""
+
+
+class LeadKeeper:
+    """The lead chosen from tracks, kept until another object clearly is the lead (see the
+    module's rules). Call :meth:`update` once per tick, in log time order."""
+
+    def __init__(self) -> None:
+        self.lead: ObjectObservation | None = None
+        self.serial = 0
+        self._seen_ns = 0  # the last tick the lead (or a twin of it) was seen
+        self._nearer: Key | None = None  # an in-lane object nearer than the lead ...
+        self._nearer_since_ns = 0  # ... since this tick
+
+    def shift(self, shift_ns: int) -> None:
+        """The clock stepped: the times held move with it."""
+        self._seen_ns += shift_ns
+        self._nearer_since_ns += shift_ns
+
+    def update(self, tracks: Mapping[Key, ObjectObservation], in_lane: Iterable[Key],
+               outside_by: Mapping[Key, float], t_ns: int) -> SteadyLead:
+        """The lead at log time ``t_ns``.
+
+        - ``tracks``: every valid track now, by (group, id);
+        - ``in_lane``: the tracks ahead inside the ego lane;
+        - ``outside_by``: how far (m) each track's centre lies outside the ego lane (0 inside;
+          a track with no lane there is missing).
+        """
+        candidates = sorted((tracks[k] for k in in_lane), key=lambda o: o.x)
+        lead = self.lead
+        if lead is None:
+            return self._take(candidates[0] if candidates else None, t_ns, "appeared")
+        now = self._follow(lead, tracks, t_ns)
+        if now is None:
+            if (t_ns - self._seen_ns) / NS > GRACE_S:
+                return self._take(candidates[0] if candidates else None, t_ns,
+                                  f"vanished for over {GRACE_S:g} s")
+            return SteadyLead(lead, self.serial)
+        self.lead, self._seen_ns = now, t_ns
+        if outside_by.get(key(now), math.inf) > LEAVE_MARGIN_M:
+            return self._take(candidates[0] if candidates else None, t_ns, "left the ego lane")
+        nearer = next((o for o in candidates if o.x < now.x - nearer_margin(now.x)
+                       and not (o.group == now.group and are_twins(o, now))), None)
+        if nearer is None:
+            self._nearer = None
+        elif self._nearer != key(nearer):
+            self._nearer, self._nearer_since_ns = key(nearer), t_ns
+        elif (t_ns - self._nearer_since_ns) / NS >= NEARER_S:
+            return self._take(nearer, t_ns, f"#{nearer.object_id} nearer by over "
+                              f"{nearer_margin(now.x):.0f} m for {NEARER_S:g} s")
+        return SteadyLead(now, self.serial)
+
+    def _follow(self, lead: ObjectObservation, tracks: Mapping[Key, ObjectObservation],
+                t_ns: int) -> ObjectObservation | None:
+        """The lead's observation now: its own, else a twin where it would be by now."""
+        own = tracks.get(key(lead))
+        if own is not None:
+            return own
+        dt = (t_ns - lead.t_ns) / NS
+        ahead = ObjectObservation(lead.group, lead.object_id, t_ns,
+                                  lead.x + (lead.vx or 0.0) * dt,
+                                  lead.y + (lead.vy or 0.0) * dt, True, lead.vx)
+        twins = [o for k, o in tracks.items() if k[0] == lead.group and are_twins(o, ahead)]
+        return min(twins, key=lambda o: (o.x - ahead.x) ** 2 + (o.y - ahead.y) ** 2,
+                   default=None)
+
+    def _take(self, lead: ObjectObservation | None, t_ns: int, why: str) -> SteadyLead:
+        changed = lead is not None
+        self.lead, self._nearer = lead, None
+        if lead is not None:
+            self.serial += 1
+            self._seen_ns = t_ns
+        return SteadyLead(lead, self.serial, why if changed else "")
