@@ -37,7 +37,7 @@ SUMMARIES = {
     "inspect": "show what a drive archive (MCAP) holds",
     "live": "CAN buses in, Foxglove live, every drive recorded",
     "demo": "the simulated ecocar drive, live: open Foxglove and watch",
-    "simulate": "write the simulated ecocar drive as a CAN log or an MCAP",
+    "simulate": "write a simulated drive (ecocar, or the highway car) as a CAN log or an MCAP",
     "replay": "serve a recorded drive or CAN logs to Foxglove in real time",
     "recover": "salvage a drive (MCAP) cut short by a power loss or a crash",
     "layouts": "list the bundled Foxglove layouts, or copy them out to import them",

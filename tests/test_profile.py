@@ -382,11 +382,11 @@ def test_a_missing_file_or_an_unknown_bundled_name(car: Path, ecocar: Database) 
     with pytest.raises(ProfileError) as info:
         load_profile("car.toml", [ecocar])
     assert one_line(info.value) == ("car.toml: no such profile file, and no bundled profile of "
-                                    "that name (bundled: ecocar)")
+                                    "that name (bundled: ecocar, highway)")
     with pytest.raises(ProfileError) as info:
         load_profile("ecocr", [ecocar])
     assert one_line(info.value) == ("ecocr: no such profile file, and no bundled profile of "
-                                    "that name (bundled: ecocar)")
+                                    "that name (bundled: ecocar, highway)")
 
 
 def test_an_unreadable_file(car: Path, ecocar: Database, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -1,12 +1,19 @@
-"""``tankviz simulate``: the simulated ecocar drive written as a file.
+"""``tankviz simulate``: a simulated drive written as a file.
 
-``.mcap`` is the drive converted as ``tankviz convert`` would convert it (ecocar profile, the
-simulation's seed and duration in the metadata); any other suffix that python-can writes
-(.blf .asc .log .csv .db, the text formats also gzipped) is a CAN log of the same frames, each
-of them: read back, the log gives exactly the frames written, as many as the command says.
+``--car`` chooses the car (:data:`CARS`): ``ecocar`` (the default: the student test car, one bus
+``can0``, :func:`bridge.sim.drive.simulate`) or ``highway`` (a production car at highway range,
+radar bus ``can1`` and car bus ``can0``, :func:`bridge.sim.highway.simulate_highway`).
+``.mcap`` is the drive converted as ``tankviz convert`` would convert it (with the car's bundled
+profile, the simulation's seed and duration, and a car other than ecocar, in the metadata); any
+other suffix that python-can writes (.blf .asc .log .csv .db, the text formats also gzipped) is a
+CAN log of the same frames, each of them: read back, the log gives exactly the frames written, as
+many as the command says, on the same buses (a bus ``can<N>`` is log channel N, which BLF and ASC
+number from 1). CSV and SQLite have no channel column: a drive on two buses reads back as one
+``can0``, and the command warns about it.
 
 A format that cannot hold the drive is refused before anything is simulated, saying why
-(:data:`CANNOT_HOLD`: python-can's TRC writer skips CAN FD frames, and it cannot gzip BLF).
+(:data:`CANNOT_HOLD`: python-can's TRC writer skips CAN FD frames, and it cannot gzip BLF;
+:data:`CANNOT_HOLD_BUSES`: TRC reads a bus back as the next one).
 CSV and SQLite have no column for the CAN FD flags: their frames keep id, time and every data
 byte, and the command warns about the flags it leaves out. The output is checked before anything
 is simulated and appears only complete: a log is written under a hidden name
@@ -19,9 +26,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import can
@@ -32,6 +40,7 @@ from bridge.frame import Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
+from bridge.sim.highway import simulate_highway
 from bridge.sinks.mcap import atomic_output, check_output
 
 #: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
@@ -40,17 +49,33 @@ CANNOT_HOLD = {
     ".trc.gz": "python-can's TRC writer cannot write CAN FD frames, and the drive has them",
     ".blf.gz": "python-can cannot write BLF into gzip",
 }
+#: ... and why they cannot hold a drive on several buses (the highway car's).
+CANNOT_HOLD_BUSES = {
+    ".trc": "python-can's TRC writer adds 1 to each bus number and its reader keeps it: "
+            "every bus would be read back as the next one",
+    ".trc.gz": "python-can's TRC writer adds 1 to each bus number and its reader keeps it: "
+               "every bus would be read back as the next one",
+}
 #: Log formats without a column for the CAN FD flags (FD, bitrate switch).
 NO_FD_FLAGS = {".csv": "CSV", ".csv.gz": "CSV", ".db": "SQLite"}
+#: Log formats without a column for the channel: every frame is read back on can0.
+NO_CHANNEL = NO_FD_FLAGS
 _HOLDS = ".blf, .asc, .log, .csv, .db (or .asc.gz, .log.gz, .csv.gz) or .mcap"
+#: The cars that can be simulated; each is also the name of its bundled profile.
+CARS = ("ecocar", "highway")
 
 
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
-        "simulate", help="write the simulated ecocar drive as a CAN log or an MCAP",
-        description="Write the simulated ecocar drive: a CAN log (.blf .asc .log .csv .db) "
-        "or a converted drive (.mcap with the ecocar profile).")
+        # the summary is also cli.SUMMARIES["simulate"] (tankviz --help loads no command)
+        "simulate",
+        help="write a simulated drive (ecocar, or the highway car) as a CAN log or an MCAP",
+        description="Write a simulated drive: a CAN log (.blf .asc .log .csv .db) "
+        "or a converted drive (.mcap with the car's profile).")
     parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("--car", choices=CARS, default="ecocar",
+                        help="ecocar (default: the student test car, one bus) or highway (a "
+                        "production car with a 16-slot radar on can1, chassis on can0)")
     parser.add_argument("--duration", default="60", metavar="S",
                         help="seconds of driving (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
@@ -69,9 +94,9 @@ def duration_seconds(text: str) -> float:
     return seconds
 
 
-def log_format(output: Path) -> str:
+def log_format(output: Path, car: str = "ecocar") -> str:
     """The log suffix of ``output`` (``.asc.gz`` for a gzipped one), refused where python-can
-    cannot write the drive into it."""
+    cannot write the drive of ``car`` into it."""
     name = output.name.lower()
     suffix = next((s for s in sorted(supported_suffixes(), key=len, reverse=True)
                    if name.endswith(s)), None)
@@ -79,8 +104,9 @@ def log_format(output: Path) -> str:
         suffix = next((s for s in CANNOT_HOLD if name.endswith(s)), None)
     if suffix is None:
         raise OutputError(output, f"unknown log format; write {_HOLDS}")
-    if suffix in CANNOT_HOLD:
-        raise OutputError(output, f"{CANNOT_HOLD[suffix]}; write {_HOLDS}")
+    cannot = CANNOT_HOLD if car == "ecocar" else {**CANNOT_HOLD, **CANNOT_HOLD_BUSES}
+    if suffix in cannot:
+        raise OutputError(output, f"{cannot[suffix]}; write {_HOLDS}")
     return suffix
 
 
@@ -96,6 +122,18 @@ class _CompleteSqliteWriter(can.SqliteWriter):
         while not self.buffer.empty() and thread.is_alive():
             time.sleep(0.01)
         super().stop()
+
+
+def log_channel(bus: str) -> int | str:
+    """The python-can channel a bus is written on: N for ``can<N>`` (read back as ``can<N>``:
+    :func:`bridge.io.logs.bus_name`), else the bus name itself."""
+    return int(bus[3:]) if re.fullmatch(r"can\d+", bus) else bus
+
+
+def _noting_buses(frames: Iterable[Frame], buses: set[str]) -> Iterator[Frame]:
+    for frame in frames:
+        buses.add(frame.bus)
+        yield frame
 
 
 def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, int]:
@@ -116,7 +154,8 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, 
                 writer.on_message_received(can.Message(
                     timestamp=frame.timestamp_ns / 1e9, arbitration_id=frame.arbitration_id,
                     data=frame.data, is_extended_id=frame.is_extended, is_fd=frame.is_fd,
-                    bitrate_switch=frame.bitrate_switch, dlc=frame.dlc, channel=0))
+                    bitrate_switch=frame.bitrate_switch, dlc=frame.dlc,
+                    channel=log_channel(frame.bus)))
                 count += 1
                 fd += frame.is_fd
         finally:
@@ -135,21 +174,26 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, 
 def run(args: argparse.Namespace) -> int:
     output: Path = args.output
     duration = duration_seconds(args.duration)
-    suffix = None if output.suffix.lower() == ".mcap" else log_format(output)
+    car: str = args.car
+    suffix = None if output.suffix.lower() == ".mcap" else log_format(output, car)
     check_output(output, force=args.force)
-    frames = simulate(duration_s=duration, seed=args.seed)
+    frames = (simulate(duration_s=duration, seed=args.seed) if car == "ecocar"
+              else simulate_highway(duration_s=duration, seed=args.seed))
+    simulated: dict[str, object] = {"seed": args.seed, "duration_s": duration}
+    if car != "ecocar":  # an ecocar drive's metadata stays as it was
+        simulated["car"] = car
     fd = 0
+    buses: set[str] = set()
     try:
         with stopped_by_signals():
             if suffix is None:
-                drive = Drive(load_stages([], "ecocar"),
-                              extra={"simulated": {"seed": args.seed, "duration_s": duration}})
+                drive = Drive(load_stages([], car), extra={"simulated": simulated})
                 with atomic_output(output) as stream:
                     drive.record(stream)
                     count = drive.run(frames)
                     drive.finish()
             else:
-                count, fd = write_log(frames, output, suffix)
+                count, fd = write_log(_noting_buses(frames, buses), output, suffix)
     except Stopped as stop:
         print(f"{stop}: {output} not written", file=sys.stderr)
         return 128 + stop.signum
@@ -157,6 +201,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {output}: {NO_FD_FLAGS[suffix]} has no column for the CAN FD flags: "
               f"its {fd:,} CAN FD frames are read back without the FD flag and the bitrate "
               "switch (id, time and data are kept)", file=sys.stderr)
-    print(f"wrote {output}: {count:,} frames, {duration:g} s of the simulated ecocar drive "
+    if suffix in NO_CHANNEL and len(buses) > 1:
+        print(f"warning: {output}: {NO_CHANNEL[suffix]} has no column for the bus: the frames "
+              f"of {', '.join(sorted(buses))} are all read back on can0", file=sys.stderr)
+    print(f"wrote {output}: {count:,} frames, {duration:g} s of the simulated {car} drive "
           f"(seed {args.seed})")
     return 0

@@ -1,0 +1,301 @@
+"""The highway car: a production car at highway range, its factory radar and its chassis bus.
+
+:func:`simulate_highway` yields, in non-decreasing timestamp order, every frame of a simulated
+drive of a 2017 compact SUV (modelled on a Toyota RAV4 with its factory Denso radar) on two
+buses, encoded with cantools against the bundled databases:
+
+- ``can1``, the radar bus (``highway_radar.dbc``): every 50 ms a cycle of the 16 track slots,
+  ``TRACK_A_0..15`` (ids 0x210..0x21F: LONG_DIST, LAT_DIST, REL_SPEED, VALID, NEW_TRACK) then
+  ``TRACK_B_0..15`` (0x220..0x22F: SCORE, REL_ACCEL), 32 frames back to back (250 to 289 us
+  apart), every slot every cycle: an empty slot, or one the radar drops for a cycle, sends
+  VALID = 0 and every other signal 0 but the cycle counter and the checksum. A cycle whose last
+  frame would fall at or after the end of the run is not sent (no cycle is cut short).
+- ``can0``, the car bus (``highway_car.dbc``): ``KINEMATICS`` (yaw rate, accelerations) and
+  ``STEER_ANGLE_SENSOR`` (STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION in 0.1 deg steps)
+  every 10 ms, ``WHEEL_SPEEDS`` (four wheels, km/h) every 12 ms, ``SPEED`` (the speedometer,
+  km/h, 1.5 % high) every 20 ms.
+
+Each message family sends at its DBC cycle time: cycle k measures the world at ``k * cycle``
+after the start and is sent at the start + the family's phase (drawn once) + ``k * cycle`` + a
+little jitter; every timestamp is ``start_ns`` plus whole microseconds. Radar cycle k measures at
+``k * 50 ms`` and is sent 2 to 6.3 ms later, its last frame within 15.3 ms of the measurement.
+Checksums (TRACK_A/B, SPEED): ``(id & 0xFF) + (id >> 8) + length + every byte before it``, & 0xFF.
+
+**The lateral sign.** LAT_DIST is written positive to the RIGHT (the radar's convention, which
+its DBC does not state): the vehicle frame's y (left) is ``-LAT_DIST``. The highway profile says
+so (``lateral = "right"``).
+
+**The scenario** (:mod:`bridge.sim.highway_world`; its numbers in :data:`HIGHWAY`), at fixed
+seconds since the start (a shorter run stops early; after 60 s the traffic drives on as it is,
+the twins and dropouts go on, nothing else happens):
+
+- the ego drives at 30 m/s (+-0.25 m/s) in the middle lane of a three-lane highway (lanes
+  3.6 m), its rear axle within about 5 cm of the lane centre. Straight until 20 s; from 20 s a
+  left-hand curve: the curvature rises over 2 s of driving to 1/(800 m), holds, and falls over 2 s
+  to 0 at 40 s; straight again after. Yaw rate and steering wheel angle follow the path
+  curvature (bicycle model: steering wheel angle = 15.4 * atan(2.66 m * curvature), about
+  2.9 deg in the curve), so lanes extrapolated from the steering angle follow the road;
+- seven cars (gaps: metres ahead of the radar along the road): ``lead`` in the ego lane, 49 to
+  55 m; ``cut_in`` in the right lane, 10 m at the start, closing in at 0.55 m/s; ``left_near``
+  14 to 22 m in the left lane; ``right_80`` 75 to 85 m; ``left_120`` 114 to 126 m;
+  ``left_far`` 150 m at the start, pulling away at 1.2 m/s, out of range (200 m) at 41.7 s;
+  ``right_190`` 177 to 193 m: an object beyond 150 m is in view at every time;
+- the cut-in: from 36 s to 39 s ``cut_in`` changes into the ego lane (its centre crosses the
+  lane line at 37.5 s) and slows to the ego's speed by 42 s, about 31 m ahead: the lead from
+  37.5 s on, 17.5 to 24 m nearer than the old lead, which drives on in the ego lane. ``lead`` is
+  the lead for the first 37.5 s;
+- slots: at the first cycle the seven cars take slots 0 to 6 nearest first (``cut_in`` 0,
+  ``left_near`` 1, ``lead`` 2, ``right_80`` 3, ``left_120`` 4, ``left_far`` 5, ``right_190``
+  6); an object keeps its slot while it is in view; a new object takes the slot free for
+  longest; NEW_TRACK = 1 on a slot's first cycle with a new object;
+- twins: every car but ``left_far`` is at times reported in a second slot too (its twin), for
+  1 to 6 s, then not for 1 to 5 s, and so on (in steps of 0.5 s, a fixed sequence per car):
+  about half the time each; the lead's twin comes six times in its 37.5 s as the lead (and
+  goes five times). A twin is the same car 0.2 to 0.5 m ahead or behind and up to 0.25 m to
+  the side (the same offset during one episode), with a relative speed within 0.1 m/s, each
+  with its own measurement noise: the two lie within 1.5 m (nearly always within 1 m) and
+  0.3 m/s of each other. A twin has a lower score (58 to 85 %, the car's own slot 91 to 100 %);
+- dropouts: once in every 10 s, each car's own slot is sent invalid for 1 to 3 cycles (VALID =
+  0; the slot stays the car's: no NEW_TRACK after it);
+- measurement noise (standard deviations; position and speed cut at 2.5 of them): position
+  0.06 m + 0.05 % (longitudinal) or 0.07 % (lateral) of the range, relative speed 0.04 m/s,
+  relative acceleration 0.15 m/s^2; a new track's score starts at 40 % and rises by 15 % a
+  cycle.
+
+Ground truth without simulating: :func:`slots_at`, :func:`twins_at`, :func:`lead_at`,
+:func:`objects_at`, :func:`ego_at` (:mod:`bridge.sim.highway_world`). The same seed gives
+byte-identical frames; the seed changes measurement noise, jitter, phases and counter start
+values, never the scenario (positions, slots, twins, dropouts).
+"""
+
+from __future__ import annotations
+
+import functools
+import heapq
+import math
+import random
+from collections.abc import Callable, Iterator
+
+import cantools
+
+from bridge.frame import NS, Frame
+from bridge.resources import data_dir
+from bridge.sim.frames import MS, US, Codec, Out
+from bridge.sim.highway_world import (
+    HIGHWAY,
+    RADAR_X_M,
+    SLOT_COUNT,
+    TRACK_WIDTH_M,
+    EgoTruth,
+    Highway,
+    ObjectTruth,
+    SlotTruth,
+    ego_at,
+    lead_at,
+    objects_at,
+    slots_at,
+    twin_episode,
+    twins_at,
+)
+from bridge.sim.scenario import DEFAULT_START_NS
+
+__all__ = ["CAR_BUS", "HIGHWAY", "RADAR_BUS", "EgoTruth", "Highway", "ObjectTruth", "SlotTruth",
+           "ego_at", "lead_at", "objects_at", "simulate_highway", "slots_at", "twins_at"]
+
+#: The buses of the highway car: the radar's and the car's own.
+RADAR_BUS = "can1"
+CAR_BUS = "can0"
+#: The speedometer reads this much high.
+SPEEDOMETER_GAIN = 1.015
+#: Each wheel's rolling radius against the mean (FL, FR, RL, RR): their mean is 1.
+_TYRES = (1.002, 0.999, 1.001, 0.998)
+KMH = 3.6
+
+
+@functools.lru_cache(maxsize=2)
+def highway_database(name: str) -> cantools.database.can.Database:
+    """A bundled highway database, ``radar`` or ``car`` (``highway_<name>.dbc``), loaded once."""
+    path = data_dir() / f"highway_{name}.dbc"
+    database = cantools.database.load_file(path)
+    if not isinstance(database, cantools.database.can.Database):
+        raise TypeError(f"{path} is not a CAN database")
+    return database
+
+
+def _with_checksum(codec: Codec, data: bytes) -> bytes:
+    """``data`` with its last byte the checksum of the others (Toyota's rule)."""
+    fid = codec.frame_id
+    total = (fid & 0xFF) + (fid >> 8) + len(data) + sum(data[:-1])
+    return data[:-1] + bytes((total & 0xFF,))
+
+
+def _noise(rng: random.Random, sigma: float) -> float:
+    """Gaussian measurement noise, cut at 2.5 sigma (a radar's errors have no long tails)."""
+    return max(-2.5 * sigma, min(2.5 * sigma, rng.gauss(0.0, sigma)))
+
+
+class _Run:
+    """The timing and randomness the families of one run share."""
+
+    def __init__(self, seed: int, start_ns: int, duration_s: float) -> None:
+        self.seed = seed
+        self.start_ns = start_ns
+        self.end_ns = start_ns + round(duration_s * NS)
+
+    def rng(self, family: str) -> random.Random:
+        return random.Random(f"tankviz-simulate-highway:{self.seed}:{family}")
+
+    def ticks(self, rng: random.Random, cycle_ms: int, phase_us: tuple[int, int],
+              jitter_us: int = 200) -> Iterator[tuple[int, int]]:
+        """``(tick_ns, transmit_ns)`` per cycle: the measurement time since the start, and the
+        absolute transmit time (phase + jitter, whole microseconds)."""
+        phase = rng.randrange(*phase_us) * US
+        cycle = cycle_ms * MS
+        k = 0
+        while True:
+            tick = k * cycle
+            if tick >= self.end_ns - self.start_ns:
+                return
+            yield tick, self.start_ns + phase + tick + rng.randrange(jitter_us) * US
+            k += 1
+
+
+# ---------------------------------------------------------------------------------------------
+# The radar bus
+# ---------------------------------------------------------------------------------------------
+
+
+def _radar(run: _Run, db: cantools.database.can.Database) -> Iterator[Frame]:
+    rng = run.rng("radar")
+    out = Out(RADAR_BUS)
+    codecs_a = [Codec(db, f"TRACK_A_{i}") for i in range(SLOT_COUNT)]
+    codecs_b = [Codec(db, f"TRACK_B_{i}") for i in range(SLOT_COUNT)]
+    counter = rng.randrange(256)
+    empty: dict[tuple[int, int], bytes] = {}
+    age = [0] * SLOT_COUNT
+    top = [100] * SLOT_COUNT
+
+    def blank(codec: Codec) -> bytes:
+        data = empty.get((codec.frame_id, counter))
+        if data is None:
+            values: dict[str, float] = {s.name: 0 for s in codec.message.signals}
+            values["COUNTER"] = counter
+            data = empty[(codec.frame_id, counter)] = _with_checksum(codec, codec.encode(values))
+        return data
+
+    for tick, ts in run.ticks(rng, 50, (2000, 6000), 300):
+        times = [ts]
+        for _ in range(2 * SLOT_COUNT - 1):
+            times.append(times[-1] + (250 + rng.randrange(40)) * US)
+        if times[-1] >= run.end_ns:
+            return
+        t = tick / NS
+        slots = slots_at(t)
+        truth = {o.name: o for o in objects_at(t)}
+        part_a: list[bytes] = []
+        part_b: list[bytes] = []
+        for i, slot in enumerate(slots):
+            if slot is None or not slot.valid:
+                if slot is None:
+                    age[i] = 0
+                part_a.append(blank(codecs_a[i]))
+                part_b.append(blank(codecs_b[i]))
+                continue
+            if slot.new:
+                age[i] = 0
+                top[i] = rng.randint(60, 85) if slot.twin else rng.randint(93, 100)
+            age[i] += 1
+            o = truth[slot.name]
+            x, y, vx, ax = o.x - RADAR_X_M, o.y, o.vx, o.ax
+            if slot.twin:
+                episode = twin_episode(slot.name, t)
+                if episode is not None:
+                    x, y, vx = x + episode.dx, y + episode.dy, vx + episode.dv
+            r = math.hypot(x, y)
+            x += _noise(rng, 0.06 + 0.0005 * r)
+            y += _noise(rng, 0.06 + 0.0007 * r)
+            vx += _noise(rng, 0.04)
+            ax += rng.gauss(0.0, 0.15)
+            score = min(top[i], 25 + 15 * age[i]) - rng.randrange(3)
+            a, b = codecs_a[i], codecs_b[i]
+            part_a.append(_with_checksum(a, a.encode({
+                "COUNTER": counter, "LONG_DIST": x, "LAT_DIST": -y,  # positive to the RIGHT
+                "REL_SPEED": vx, "VALID": 1, "NEW_TRACK": int(slot.new), "CHECKSUM": 0})))
+            part_b.append(_with_checksum(b, b.encode({
+                "COUNTER": counter, "SCORE": score, "REL_ACCEL": ax, "CHECKSUM": 0})))
+        codecs = codecs_a + codecs_b
+        for when, codec, data in zip(times, codecs, part_a + part_b, strict=True):
+            yield out.frame(when, codec, data)
+        counter = (counter + 1) % 256
+
+
+# ---------------------------------------------------------------------------------------------
+# The car bus
+# ---------------------------------------------------------------------------------------------
+
+Values = Callable[[EgoTruth, random.Random], dict[str, float]]
+
+
+def _kinematics(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+    return {"YAW_RATE": math.degrees(ego.yaw_rate) + rng.gauss(0.0, 0.03),
+            "ACCEL_X": ego.accel + rng.gauss(0.0, 0.03),
+            "ACCEL_Y": ego.lateral_accel + rng.gauss(0.0, 0.03)}
+
+
+def _steering(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+    tenths = round((math.degrees(ego.steering_wheel_angle) + rng.gauss(0.0, 0.04)) * 10)
+    coarse = round(tenths / 15)
+    rate = math.degrees(ego_at(ego.t + 0.01).steering_wheel_angle
+                        - ego_at(ego.t - 0.01).steering_wheel_angle) / 0.02
+    return {"STEER_ANGLE": coarse * 1.5, "STEER_FRACTION": (tenths - 15 * coarse) / 10,
+            "STEER_RATE": rate + rng.gauss(0.0, 0.5)}
+
+
+def _wheel_speeds(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+    side = ego.curvature * TRACK_WIDTH_M / 2  # the outer wheels run faster
+    out = {}
+    for name, lateral, tyre in (("FL", -side, _TYRES[0]), ("FR", side, _TYRES[1]),
+                                ("RL", -side, _TYRES[2]), ("RR", side, _TYRES[3])):
+        kmh = ego.speed * (1.0 + lateral) / tyre * KMH
+        out[f"WHEEL_SPEED_{name}"] = kmh + rng.gauss(0.0, 0.04)
+    return out
+
+
+def _speed(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+    return {"SPEED": ego.speed * KMH * SPEEDOMETER_GAIN + rng.gauss(0.0, 0.02), "CHECKSUM": 0}
+
+
+def _car(run: _Run, db: cantools.database.can.Database, name: str, cycle_ms: int,
+         values: Values, checksum: bool = False) -> Iterator[Frame]:
+    rng = run.rng(name)
+    codec = Codec(db, name)
+    out = Out(CAR_BUS)
+    for tick, ts in run.ticks(rng, cycle_ms, (0, cycle_ms * 1000 // 2)):
+        if ts >= run.end_ns:
+            return
+        data = codec.encode(values(ego_at(tick / NS), rng))
+        yield out.frame(ts, codec, _with_checksum(codec, data) if checksum else data)
+
+
+def simulate_highway(*, duration_s: float = 60.0, seed: int = 0,
+                     start_ns: int = DEFAULT_START_NS) -> Iterator[Frame]:
+    """Frames of the simulated highway drive on ``can1`` (radar) and ``can0`` (car), in
+    non-decreasing timestamp order, ``start_ns <= timestamp < start_ns + duration``.
+
+    - ``duration_s``: seconds of driving; the scenario's events are at fixed seconds (module
+      docstring), so a run shorter than 60 s has only those before its end.
+    - ``seed``: noise, jitter, phases and counters; the same seed gives identical frames.
+    - ``start_ns``: the start of the run (default: 2026-01-01T12:00:00Z).
+    """
+    if not duration_s > 0 or not math.isfinite(duration_s):
+        raise ValueError(f"duration_s must be a positive number of seconds, not {duration_s!r}")
+    run = _Run(seed, start_ns, duration_s)
+    car = highway_database("car")
+    families = [
+        _radar(run, highway_database("radar")),
+        _car(run, car, "KINEMATICS", 10, _kinematics),
+        _car(run, car, "STEER_ANGLE_SENSOR", 10, _steering),
+        _car(run, car, "WHEEL_SPEEDS", 12, _wheel_speeds),
+        _car(run, car, "SPEED", 20, _speed, checksum=True),
+    ]
+    return heapq.merge(*families)
