@@ -22,6 +22,11 @@ and recorded; viewers get the latest. Once started, the garbage collector runs w
 collections, a full one a minute where the loop waits), and the process's own come back at the
 end. At the end it prints how many messages slow viewers lost:
 which viewers, and of which topics.
+
+At start it names the layout to import (:func:`layout_hint`): the bundled one for the bundled
+ecocar profile; for another profile the layouts made for it and these buses, written into
+``DRIVES/layouts/<profile>/`` when recording (never over a file, never failing the drive), else
+the ``tankviz layouts`` command that writes them.
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ from bridge.apps.options import (
     add_stage_options,
     install_stop_signals,
 )
+from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import AlarmKind
@@ -59,6 +65,7 @@ from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
 from bridge.sinks.websocket import ClientStats, LiveServer
 from bridge.topics import LOG_TOPIC, TopicMessage
+from bridge.view.generate import DEFAULT_BUS, generate_layouts, layout_text
 
 
 def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
@@ -304,12 +311,20 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             timer.start()
         print(f"buses: {', '.join(str(b) for b in buses)}")
         if server is not None:
-            print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
-            print(f"layout:   import {options.layout_hint()} (Layouts menu)")
+            print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)",
+                  flush=True)
+        live.start()  # before the layouts are written: a bus that cannot work records nothing
+        try:
+            hint = layout_hint(args, stages, [b.name for b in buses],
+                               recording=live.recorder is not None)
+        except Exception as exc:  # the buses are open: a layout never stops the drive
+            hint = options.LayoutHint([], [f"no layout to name: {exc}"])
+        if server is not None or hint.written:
+            hint.say()
         if live.recorder is not None:
             print(f"recording into {args.drives}/")
-        print("Ctrl+C stops and finishes the recording.", flush=True)
-        live.start()
+        print("Ctrl+C stops and finishes the recording." if live.recorder is not None else
+              "Ctrl+C stops.", flush=True)
         if start_feed is not None:
             start_feed()
         report = live.run()
@@ -321,6 +336,44 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
     print(f"{report.frames:,} frames; {len(report.gaps)} bus gaps; "
           f"{dropped_report(report.viewers)}")
     return 0
+
+
+def layout_hint(args: argparse.Namespace, stages: Stages, buses: Sequence[str], *,
+                recording: bool) -> options.LayoutHint:
+    """The layout to import (:func:`bridge.apps.options.layout_hint`): the layouts made for a
+    profile other than the bundled one are written into ``DRIVES/layouts/<profile>/`` when
+    recording (for these buses), else the command that writes them is printed."""
+    profile = stages.profile
+    folder = (args.drives / "layouts" / options.layout_folder(profile.name)
+              if recording and profile is not None else None)
+    return options.layout_hint(stages, layout_files, profile=args.profile,
+                               dbcs=command_dbcs(args.dbc or [], stages, buses),
+                               folder=folder, buses=buses, write=folder is not None)
+
+
+def layout_files(stages: Stages, buses: Sequence[str] | None) -> dict[str, str]:
+    """The layouts made for the profile of ``stages`` on ``buses``, as files (name -> text)."""
+    assert stages.profile is not None
+    return {f"{name}.json": layout_text(data) for name, data
+            in generate_layouts(stages.profile, stages.decoder, buses).items()}
+
+
+def command_dbcs(given: Sequence[str], stages: Stages, buses: Sequence[str]) -> list[str]:
+    """The ``--dbc`` arguments of ``tankviz layouts`` for the databases live decodes these
+    buses with: as given, but a database for every bus (which ``tankviz layouts`` shows on
+    ``can0``) on each bus live reads, unless that is just ``can0``; without ``--dbc``, the
+    profile's own databases, named the same way where they are for every bus."""
+    if list(buses) == [DEFAULT_BUS]:
+        return list(given)
+    if given:
+        return [word for text in given
+                for word in ([text] if parse_dbc_option(text)[0] else
+                             [f"{bus}={text}" for bus in buses])]
+    own = stages.profile.databases if stages.profile is not None else {}
+    if "*" not in own:
+        return []  # (a profile's databases, each for its bus: `tankviz layouts` reads them)
+    return [f"{name}={path}" for bus, paths in own.items() for path in paths
+            for name in (buses if bus == "*" else [bus])]
 
 
 def systemd_unit(argv: Sequence[str]) -> str:

@@ -7,20 +7,30 @@ CAN log goes through the pipeline (decode, profile, scene) as if it came from th
 given databases and profile or else the attached ones (as ``tankviz convert DRIVE.mcap`` does,
 :func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
 protocol's ``time`` capability), so viewers follow log time.
+
+The layout to import is named as live names it (:func:`bridge.apps.options.layout_hint`); for a
+drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
+when they are there, else the ``tankviz layouts`` command with what the drive was recorded with.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import sys
 import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Attachment, Chunk, DataEnd, Footer, Message
+from mcap.stream_reader import StreamReader
 
 from bridge.apps import options
 from bridge.apps.convert import Source
@@ -31,14 +41,16 @@ from bridge.apps.options import (
     add_stage_options,
     install_stop_signals,
 )
-from bridge.errors import InputError, UsageError
+from bridge.decode.decoder import parse_dbc_option
+from bridge.errors import BridgeError, InputError, UsageError
 from bridge.frame import NS
-from bridge.io.drives import DriveSource, read_drive
+from bridge.io.drives import METADATA_NAME, DriveSource, RecordedDrive, read_drive
 from bridge.io.logs import LogSource, merge
-from bridge.pipeline.drive import Drive, Stages
+from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
 from bridge.sinks.websocket import LiveServer
+from bridge.view.generate import generate_layouts, layout_text
 
 #: Server time is published at least this often (ns of log time).
 TIME_EVERY_NS = 50_000_000
@@ -210,27 +222,120 @@ def run(args: argparse.Namespace) -> int:
     if mcap and len(args.files) > 1:
         raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
     if not mcap:
-        return _serve(args, mcap, options.stages(args))
-    if not (args.rederive or args.profile or args.dbc):
-        return _serve(args, mcap, None)
+        stages = options.stages(args)
+        return _serve(args, mcap, stages, options.layout_hint(
+            stages, layout_files, profile=args.profile, dbcs=args.dbc or []))
     with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
+        if not (args.rederive or args.profile or args.dbc):
+            return _serve(args, mcap, None, _recorded_hint(mcap[0], Path(folder)))
         drive = read_drive(mcap[0])
         dbcs = [options.dbc_option(text) for text in args.dbc or []]
         stages = rederive_stages(drive, dbcs, args.profile, Path(folder))
         print(describe_rederive(drive, stages, dbcs, args.profile))
         if args.scene_rate is None:
             args.scene_rate = recorded_scene_rate(drive)
-        return _serve(args, mcap, stages)
+        try:
+            hint: options.LayoutHint | None = drive_layout_hint(drive, stages, args.profile,
+                                                                args.dbc or [])
+        except BridgeError:  # (a recorded path that is no path): no hint, the replay goes on
+            hint = None
+        return _serve(args, mcap, stages, hint)
 
 
-def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None) -> int:
+def drive_layout_hint(drive: RecordedDrive, stages: Stages, profile: str | None,
+                      dbcs: Sequence[str]) -> options.LayoutHint:
+    """The layout to import for a recorded drive decoded with ``stages``: those made for its
+    profile in ``layouts/<profile>/`` beside it (where ``tankviz live`` writes them) when they
+    are there, else the command that writes them there, naming the profile and databases
+    given, else those the drive was recorded with (it holds them as attachments)."""
+    loaded = stages.profile
+    if loaded is None or options.is_bundled(stages):
+        return options.layout_hint(stages, layout_files, profile=profile,
+                                   dbcs=dbcs or recorded_dbcs(drive))
+    recorded = [] if dbcs else recorded_dbcs(drive)
+    missing = any(not parse_dbc_option(text)[1].exists() for text in recorded)
+    what = (f"{loaded.path.name} and the databases: those" if profile is None and missing else
+            f"{loaded.path.name}: the profile" if profile is None else
+            "the databases: those" if missing else None)
+    note = f"({what} {drive.path} was recorded with, attached to it)" if what else None
+    return options.layout_hint(
+        stages, layout_files, profile=profile if profile is not None else loaded.path.name,
+        dbcs=list(dbcs) or recorded,
+        folder=drive.path.parent / "layouts" / options.layout_folder(loaded.name), note=note)
+
+
+def layout_files(stages: Stages, buses: Sequence[str] | None) -> dict[str, str]:
+    """The layouts made for the profile of ``stages`` on ``buses``, as files (name -> text)."""
+    assert stages.profile is not None
+    return {f"{name}.json": layout_text(data) for name, data
+            in generate_layouts(stages.profile, stages.decoder, buses).items()}
+
+
+def recorded_dbcs(drive: RecordedDrive) -> list[str]:
+    """The ``--dbc`` arguments a drive was recorded with (its metadata: each database's path
+    and buses), else the names of its database attachments."""
+    entries = drive.metadata.get("databases")
+    if not isinstance(entries, list):
+        return [name for name in drive.attachments if not name.startswith(PROFILE_PREFIX)]
+    return [str(entry.get("path")) if bus == "*" else f"{bus}={entry.get('path')}"
+            for entry in entries if isinstance(entry, dict)
+            for bus in entry.get("buses") or ["*"]]
+
+
+def _recorded_hint(path: Path, folder: Path) -> options.LayoutHint | None:
+    """The layout hint of a drive served as recorded: its attached profile and databases
+    loaded for it (read through the file's indexes: a drive of hours is not read through);
+    None for a file whose profile cannot be told."""
+    try:
+        drive = _attached(path)
+        if not (drive.metadata or drive.attachments):
+            return None  # not a drive tankviz recorded: nothing tells its profile
+        stages = rederive_stages(drive, [], None, folder)
+        return drive_layout_hint(drive, stages, None, [])
+    except Exception:  # an MCAP tankviz did not write, a profile of another version: no hint
+        return None
+
+
+def _attached(path: Path) -> RecordedDrive:
+    """The attachments and ``tankviz`` metadata of an MCAP, read through its summary (a drive
+    cut short has none: its attachments are read at its start, where tankviz writes them)."""
+    attachments: dict[str, bytes] = {}
+    metadata: dict[str, Any] = {}
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        try:
+            summary = reader.get_summary()
+        except Exception:  # a file cut short: mcap raises many types
+            summary = None
+        if summary is None:
+            stream.seek(0)
+            with contextlib.suppress(Exception):  # (where the file was cut)
+                for record in StreamReader(stream, emit_chunks=True).records:
+                    if isinstance(record, Attachment):
+                        attachments.setdefault(record.name, bytes(record.data))
+                    elif isinstance(record, (Chunk, Message, DataEnd, Footer)):
+                        break
+            return RecordedDrive(path, 0, "", metadata, attachments, complete=False)
+        for a in reader.iter_attachments():
+            attachments.setdefault(a.name, bytes(a.data))
+        for m in reader.iter_metadata():
+            if m.name == METADATA_NAME:
+                metadata = {key: json.loads(text) if text[:1] in "[{" or text == "null" else text
+                            for key, text in m.metadata.items()}
+    return RecordedDrive(path, 0, "", metadata, attachments)
+
+
+def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
+           hint: options.LayoutHint | None) -> int:
     stopping = threading.Event()
     server = options.start_server(args, server_time=True)
     install_stop_signals(stopping.set)
     if args.run_for:
         threading.Timer(args.run_for, stopping.set).start()
     print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
-    print(f"layout:   import {options.layout_hint()} (Layouts menu)", flush=True)
+    if hint is not None:
+        hint.say()
+    sys.stdout.flush()
     try:
         if stages is None:
             report = replay_mcap(mcap[0], server, speed=args.speed, loop=args.loop,
