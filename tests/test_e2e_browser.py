@@ -492,7 +492,7 @@ def test_lane_dropout_shows_magenta_lanes(e2e: dict[str, Any]) -> None:
     assert len(shot["reading"]["lanes"]["magenta"]) >= 2
 
 
-ENGINEER_PLOTS = {"Plot!lead", "Plot!ego", "Plot!counts", "Plot!rates"}
+ENGINEER_PLOTS = {"Plot!lead", "Plot!ego", "Plot!ego-angles", "Plot!counts", "Plot!rates"}
 
 
 def test_engineer_layout_plots_and_raw_messages(e2e: dict[str, Any]) -> None:

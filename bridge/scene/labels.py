@@ -14,7 +14,8 @@ into the text blocks to draw:
    (:mod:`bridge.scene.camera`), a label of fixed pixel size covers many metres far away, where
    objects a lane apart lie a few pixels apart. Places are drawn in order of priority; a block
    whose box on the panel (:func:`box`: its lines at :data:`CHAR_PX` x :data:`LINE_PX` each,
-   centred above its anchor) would overlap one already drawn is drawn compact (its first
+   centred on its anchor, which stands high enough above the object's mark that the block does
+   not cover it: :func:`lifted`) would overlap one already drawn is drawn compact (its first
    request's compact text alone); where that overlaps too, the compact block is moved off its
    anchor: one block width to the right, then to the left, then up by one, two and three
    block heights (:data:`MAX_RAISES`), the first place where it covers no other block and
@@ -28,6 +29,7 @@ stood (``anchor``, when it was moved), and which request's entity carries it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -101,15 +103,23 @@ Box = tuple[float, float, float, float]  # left, top, right, bottom (px from the
 
 
 def box(camera: ViewCamera, x: float, y: float, z: float, text: str) -> Box | None:
-    """Where a block of ``text`` anchored at (x, y, z) lies on the panel, with MARGIN_PX around
-    it; None where the anchor is behind the camera."""
+    """Where a block of ``text`` anchored at (x, y, z) lies on the panel (Foxglove centres it
+    on its anchor), with MARGIN_PX around it; None where the anchor is behind the camera."""
     at = camera.project(x, y, z)
     if at is None:
         return None
     lines = text.split("\n")
     half = max(len(line) for line in lines) * CHAR_PX / 2 + MARGIN_PX
-    return (at[0] - half, at[1] - len(lines) * LINE_PX - MARGIN_PX, at[0] + half,
-            at[1] + MARGIN_PX)
+    tall = len(lines) * LINE_PX / 2 + MARGIN_PX
+    return at[0] - half, at[1] - tall, at[0] + half, at[1] + tall
+
+
+def lifted(camera: ViewCamera, x: float, y: float, z: float, text: str) -> float:
+    """The height of the anchor that puts the bottom of a block of ``text`` at height ``z``
+    (on the panel): Foxglove centres a block on its anchor, which would cover the mark below."""
+    rows = text.count("\n") + 1
+    vertical = math.cos(math.radians(camera.depression_deg))  # a vertical metre on the panel
+    return z + (rows * LINE_PX / 2 + MARGIN_PX) / (camera.px_per_m(x, y, z) * vertical)
 
 
 def _overlaps(a: Box, b: Box) -> bool:
@@ -121,8 +131,10 @@ Place = tuple[str, float, float, float]  # a text and where it stands
 
 def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterator[Place]:
     """The texts and places to try for a place's block, in order (see the module's rules)."""
-    x, y, z = first.x, first.y, first.z
-    yield "\n".join([first.text, *dict.fromkeys(o.line for o in others)]), x, y, z
+    x, y = first.x, first.y
+    full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)])
+    yield full, x, y, lifted(camera, x, y, first.z, full)
+    z = lifted(camera, x, y, first.z, first.compact)
     yield first.compact, x, y, z
     metre = camera.px_per_m(x, y, z)
     aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
@@ -151,7 +163,7 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
         else:
             continue
         drawn.append(at)
-        moved = (x, y, z) != (first.x, first.y, first.z)
+        moved = (x, y) != (first.x, first.y) or z != lifted(camera, x, y, first.z, text)
         blocks.append(Block(first.owner, x, y, z, text, tuple(o.owner for o in others),
                             (first.x, first.y, first.z) if moved else None))
     return blocks
