@@ -148,7 +148,7 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
     camera = panel["cameraState"]
     assert camera["perspective"] is True
     assert camera["thetaOffset"] == 90, "looking along +x (ahead)"
-    assert 0 < camera["targetOffset"][0] < 80 and camera["targetOffset"][1:] == [0, 0]
+    assert 0 < camera["targetOffset"][0] < 50 and camera["targetOffset"][1:] == [0, 0]
     assert 30 <= camera["phi"] <= 75, "behind and above the vehicle"
     # Every scene topic the bridge produces is explicitly visible (the 3D panel hides
     # SceneUpdate topics unless told), and nothing else is listed.
@@ -162,13 +162,11 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
     # Every frame transform is visible.
     assert {f"frame:{f}" for f in made.frames} == set(panel["transforms"])
     assert all(t["visible"] is True for t in panel["transforms"].values())
-    # The grid: 10 m cells from 10 m behind the vehicle to beyond the radar's 160 m, in the
-    # vehicle frame.
+    # The grid: 10 m cells, shifted 70 m ahead, in the vehicle frame.
     (grid,) = [g for g in panel["layers"].values() if g["layerId"] == "foxglove.Grid"]
     assert grid["visible"] is True and grid["frameId"] == VEHICLE_FRAME
     assert grid["size"] / grid["divisions"] == 10
-    assert grid["position"][0] - grid["size"] / 2 == -10
-    assert grid["position"][0] + grid["size"] / 2 >= 160
+    assert grid["position"] == [70, 0, 0]
 
 
 def test_engineer_layout(made: Produced, alarm_ids: list[str]) -> None:

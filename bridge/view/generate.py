@@ -5,8 +5,7 @@ can-debug layouts (what ``tankviz layouts --profile P --export DIR`` writes).
 on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and the
 health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
 names. The look and panel settings are those of the Tank Viz view (:func:`view_3d`: camera
-behind and above the ``vehicle`` frame, framed for the profile's sensor range, dark
-background, a grid of 10 m cells):
+behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells 70 m ahead):
 
 - ``tank-viz``: the 3D panel with every ``/scene/*`` topic the profile produces and every
   sensor frame;
@@ -35,13 +34,11 @@ written so).
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 from bridge.decode.decoder import Decoder
 from bridge.profile.model import Field, ObjectGroup, Profile
-from bridge.scene.camera import camera_for, view_range
 from bridge.topics import (
     EGO_TOPIC,
     HEALTH_TOPIC,
@@ -109,17 +106,18 @@ def _layout(configs: dict[str, Any], tree: Any) -> dict[str, Any]:
 
 def view_3d(made: Produced, profile: Profile) -> dict[str, Any]:
     """The Tank Viz 3D panel: every scene topic produced, every frame (vehicle, then the
-    profile's sensors), following the vehicle from behind and above with the camera framed
-    for the profile's sensor range (:func:`bridge.scene.camera.camera_for`: the scene keeps
-    its marks visible and its labels apart for it), on a grid of 10 m cells from 10 m behind
-    the vehicle to beyond that range."""
+    profile's sensors), following the vehicle from behind and above (the seed's close camera:
+    the camera framed for the sensor range, :func:`bridge.scene.camera.camera_for`, is what
+    the scene's marks and labels are made for, but it is not yet the panel's default: see
+    issue #22)."""
     scene = [t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"]
-    reach = view_range(profile)
-    grid = 10 * math.ceil((reach + 20) / 10)  # 10 m behind the origin to beyond the range
     frames = [VEHICLE_FRAME, *(s for s in profile.sensors if s != VEHICLE_FRAME)]
     return {
         "foxglovePanelTitle": "Tank Viz",
-        "cameraState": camera_for(reach).foxglove_state(),
+        "cameraState": {"distance": 40, "perspective": True, "phi": 60, "thetaOffset": 90,
+                        "target": [0, 0, 0], "targetOffset": [16, 0, 0],
+                        "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5,
+                        "far": 5000},
         "followMode": "follow-pose",
         "followTf": VEHICLE_FRAME,
         "scene": {"backgroundColor": "#303030", "labelScaleFactor": 1,
@@ -128,11 +126,10 @@ def view_3d(made: Produced, profile: Profile) -> dict[str, Any]:
         "transforms": {f"frame:{f}": {"visible": True} for f in frames},
         "topics": {t: {"visible": True} for t in scene},
         "layers": {"tankviz-grid": {
-            "visible": True, "frameLocked": True, "label": f"Grid: 10 m cells, {grid:g} m",
+            "visible": True, "frameLocked": True, "label": "Grid: 10 m cells, 70 m ahead",
             "instanceId": "tankviz-grid", "layerId": "foxglove.Grid",
-            "frameId": VEHICLE_FRAME, "size": grid, "divisions": round(grid / 10),
-            "lineWidth": 1, "color": "#a0a0a4a0", "position": [grid / 2 - 10, 0, 0],
-            "rotation": [0, 0, 0], "order": 1}},
+            "frameId": VEHICLE_FRAME, "size": 160, "divisions": 16, "lineWidth": 1,
+            "color": "#a0a0a4a0", "position": [70, 0, 0], "rotation": [0, 0, 0], "order": 1}},
         "publish": {"type": "point", "poseTopic": "/move_base_simple/goal",
                     "pointTopic": "/clicked_point", "poseEstimateTopic": "/initialpose",
                     "poseEstimateXDeviation": 0.5, "poseEstimateYDeviation": 0.5,
