@@ -158,6 +158,23 @@ class Ids:
             del self.ids[key]
 
 
+def ticks(rng: random.Random, start_ns: int, end_ns: int, cycle_ms: int,
+          phase_us: tuple[int, int], jitter_us: int = 200) -> Iterator[tuple[int, int]]:
+    """``(tick_ns, transmit_ns)`` per cycle of a family sent every ``cycle_ms`` from
+    ``start_ns`` until ``end_ns``: the nominal measurement time since the start, and the
+    absolute transmit time (a phase drawn once from ``phase_us``, plus up to ``jitter_us`` of
+    jitter; whole microseconds)."""
+    phase = rng.randrange(*phase_us) * US
+    cycle = cycle_ms * MS
+    k = 0
+    while True:
+        tick = k * cycle
+        if tick >= end_ns - start_ns:
+            return
+        yield tick, start_ns + phase + tick + rng.randrange(jitter_us) * US
+        k += 1
+
+
 # ---------------------------------------------------------------------------------------------
 # One run: what the message families share (timing, randomness, codecs, faults)
 # ---------------------------------------------------------------------------------------------
@@ -187,17 +204,8 @@ class Run:
 
     def ticks(self, rng: random.Random, cycle_ms: int, phase_us: tuple[int, int],
               jitter_us: int = 200) -> Iterator[tuple[int, int]]:
-        """``(tick_ns, transmit_ns)`` per cycle: the nominal measurement time since the start of
-        the run, and the absolute transmit time (phase + jitter, whole microseconds)."""
-        phase = rng.randrange(*phase_us) * US
-        cycle = cycle_ms * MS
-        k = 0
-        while True:
-            tick = k * cycle
-            if tick >= self.end_ns - self.start_ns:
-                return
-            yield tick, self.start_ns + phase + tick + rng.randrange(jitter_us) * US
-            k += 1
+        """:func:`ticks` of this run."""
+        return ticks(rng, self.start_ns, self.end_ns, cycle_ms, phase_us, jitter_us)
 
     @staticmethod
     def burst(rng: random.Random, ts: int, count: int) -> list[int]:

@@ -80,7 +80,7 @@ import cantools
 
 from bridge.frame import NS, Frame
 from bridge.resources import data_dir
-from bridge.sim.frames import MS, US, Codec, Out
+from bridge.sim.frames import US, Codec, Out, ticks
 from bridge.sim.highway_world import (
     HIGHWAY,
     RADAR_X_M,
@@ -147,17 +147,8 @@ class _Run:
 
     def ticks(self, rng: random.Random, cycle_ms: int, phase_us: tuple[int, int],
               jitter_us: int = 200) -> Iterator[tuple[int, int]]:
-        """``(tick_ns, transmit_ns)`` per cycle: the measurement time since the start, and the
-        absolute transmit time (phase + jitter, whole microseconds)."""
-        phase = rng.randrange(*phase_us) * US
-        cycle = cycle_ms * MS
-        k = 0
-        while True:
-            tick = k * cycle
-            if tick >= self.end_ns - self.start_ns:
-                return
-            yield tick, self.start_ns + phase + tick + rng.randrange(jitter_us) * US
-            k += 1
+        """:func:`bridge.sim.frames.ticks` of this run."""
+        return ticks(rng, self.start_ns, self.end_ns, cycle_ms, phase_us, jitter_us)
 
 
 # ---------------------------------------------------------------------------------------------
