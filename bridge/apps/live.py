@@ -45,7 +45,7 @@ from typing import Any
 import can
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.apps import options
+from bridge.apps import hints, options
 from bridge.apps.options import (
     Subparsers,
     add_record_options,
@@ -318,7 +318,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             hint = layout_hint(args, stages, [b.name for b in buses],
                                recording=live.recorder is not None)
         except Exception as exc:  # the buses are open: a layout never stops the drive
-            hint = options.LayoutHint([], [f"no layout to name: {exc}"])
+            hint = hints.LayoutHint([], [f"no layout to name: {exc}"])
         if server is not None or hint.written:
             hint.say()
         if live.recorder is not None:
@@ -339,14 +339,14 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
 
 
 def layout_hint(args: argparse.Namespace, stages: Stages, buses: Sequence[str], *,
-                recording: bool) -> options.LayoutHint:
-    """The layout to import (:func:`bridge.apps.options.layout_hint`): the layouts made for a
+                recording: bool) -> hints.LayoutHint:
+    """The layout to import (:func:`bridge.apps.hints.layout_hint`): the layouts made for a
     profile other than the bundled one are written into ``DRIVES/layouts/<profile>/`` when
     recording (for these buses), else the command that writes them is printed."""
     profile = stages.profile
-    folder = (args.drives / "layouts" / options.layout_folder(profile.name)
+    folder = (args.drives / "layouts" / hints.layout_folder(profile.name)
               if recording and profile is not None else None)
-    return options.layout_hint(stages, layout_files, profile=args.profile,
+    return hints.layout_hint(stages, layout_files, profile=args.profile,
                                dbcs=command_dbcs(args.dbc or [], stages, buses),
                                folder=folder, buses=buses, write=folder is not None)
 

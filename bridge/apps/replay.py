@@ -8,7 +8,7 @@ given databases and profile or else the attached ones (as ``tankviz convert DRIV
 :func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
 protocol's ``time`` capability), so viewers follow log time.
 
-The layout to import is named as live names it (:func:`bridge.apps.options.layout_hint`); for a
+The layout to import is named as live names it (:func:`bridge.apps.hints.layout_hint`); for a
 drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
 when they are there, else the ``tankviz layouts`` command with what the drive was recorded with.
 """
@@ -32,7 +32,7 @@ from mcap.reader import make_reader
 from mcap.records import Attachment, Chunk, DataEnd, Footer, Message
 from mcap.stream_reader import StreamReader
 
-from bridge.apps import options
+from bridge.apps import hints, options
 from bridge.apps.convert import Source
 from bridge.apps.options import (
     Subparsers,
@@ -223,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
     if not mcap:
         stages = options.stages(args)
-        return _serve(args, mcap, stages, options.layout_hint(
+        return _serve(args, mcap, stages, hints.layout_hint(
             stages, layout_files, profile=args.profile, dbcs=args.dbc or []))
     with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
         if not (args.rederive or args.profile or args.dbc):
@@ -235,7 +235,7 @@ def run(args: argparse.Namespace) -> int:
         if args.scene_rate is None:
             args.scene_rate = recorded_scene_rate(drive)
         try:
-            hint: options.LayoutHint | None = drive_layout_hint(drive, stages, args.profile,
+            hint: hints.LayoutHint | None = drive_layout_hint(drive, stages, args.profile,
                                                                 args.dbc or [])
         except BridgeError:  # (a recorded path that is no path): no hint, the replay goes on
             hint = None
@@ -243,14 +243,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def drive_layout_hint(drive: RecordedDrive, stages: Stages, profile: str | None,
-                      dbcs: Sequence[str]) -> options.LayoutHint:
+                      dbcs: Sequence[str]) -> hints.LayoutHint:
     """The layout to import for a recorded drive decoded with ``stages``: those made for its
     profile in ``layouts/<profile>/`` beside it (where ``tankviz live`` writes them) when they
     are there, else the command that writes them there, naming the profile and databases
     given, else those the drive was recorded with (it holds them as attachments)."""
     loaded = stages.profile
-    if loaded is None or options.is_bundled(stages):
-        return options.layout_hint(stages, layout_files, profile=profile,
+    if loaded is None or hints.is_bundled(stages):
+        return hints.layout_hint(stages, layout_files, profile=profile,
                                    dbcs=dbcs or recorded_dbcs(drive))
     recorded = [] if dbcs else recorded_dbcs(drive)
     missing = any(not parse_dbc_option(text)[1].exists() for text in recorded)
@@ -258,10 +258,10 @@ def drive_layout_hint(drive: RecordedDrive, stages: Stages, profile: str | None,
             f"{loaded.path.name}: the profile" if profile is None else
             "the databases: those" if missing else None)
     note = f"({what} {drive.path} was recorded with, attached to it)" if what else None
-    return options.layout_hint(
+    return hints.layout_hint(
         stages, layout_files, profile=profile if profile is not None else loaded.path.name,
         dbcs=list(dbcs) or recorded,
-        folder=drive.path.parent / "layouts" / options.layout_folder(loaded.name), note=note)
+        folder=drive.path.parent / "layouts" / hints.layout_folder(loaded.name), note=note)
 
 
 def layout_files(stages: Stages, buses: Sequence[str] | None) -> dict[str, str]:
@@ -282,7 +282,7 @@ def recorded_dbcs(drive: RecordedDrive) -> list[str]:
             for bus in entry.get("buses") or ["*"]]
 
 
-def _recorded_hint(path: Path, folder: Path) -> options.LayoutHint | None:
+def _recorded_hint(path: Path, folder: Path) -> hints.LayoutHint | None:
     """The layout hint of a drive served as recorded: its attached profile and databases
     loaded for it (read through the file's indexes: a drive of hours is not read through);
     None for a file whose profile cannot be told."""
@@ -326,7 +326,7 @@ def _attached(path: Path) -> RecordedDrive:
 
 
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
-           hint: options.LayoutHint | None) -> int:
+           hint: hints.LayoutHint | None) -> int:
     stopping = threading.Event()
     server = options.start_server(args, server_time=True)
     install_stop_signals(stopping.set)
