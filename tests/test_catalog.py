@@ -473,3 +473,19 @@ def test_without_dask_the_workers_option_says_what_to_install(
     monkeypatch.setitem(sys.modules, "dask.distributed", None)
     with pytest.raises(UsageError, match=r"pip install 'tankviz\[fleet\]'"):
         catalog.dask_reader(workers=2)
+
+
+def test_lead_changes_count_the_lead_number_and_old_drives_the_id() -> None:
+    from bridge.fleet.catalog import _Lead
+
+    def changes(seen: list[tuple[int, float, int]]) -> list[tuple[int | None, int, bool]]:
+        lead = _Lead()
+        for t, (lead_id, distance, number) in enumerate(seen):
+            lead.see("d", 0, t, True, lead_id, distance, number)
+        return [(row[4], row[5], row[8]) for row in lead.rows]
+
+    # the lead's twins take turns in its slot (ids 2 and 8, lead_number 1), then a car cuts in
+    twins = [(2, 50.0, 1), (8, 50.4, 1), (2, 50.1, 1), (8, 50.3, 1), (0, 31.0, 2)]
+    assert changes(twins) == [(None, 2, False), (8, 0, True)]
+    # a drive recorded before lead_number: every change of id
+    assert len(changes([(i, d, 0) for i, d, _ in twins])) == 5

@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from bridge.scene.camera import MIN_MARK_PX, camera_for
-from bridge.scene.labels import PLACE_M, Label, _overlaps, box, lay_out
+from bridge.scene.camera import BEYOND, MIN_MARK_PX, camera_for
+from bridge.scene.labels import LINE_PX, PLACE_M, Label, _overlaps, box, lay_out
 
 CAMERA = camera_for(200.0)
 
@@ -32,8 +32,10 @@ def test_labels_within_a_place_share_one_block() -> None:
 
 def test_the_camera_frames_the_range_and_keeps_marks_visible() -> None:
     assert CAMERA.project(-6.0, 0.0, 0.0) == pytest.approx((0.0, 450.0))  # the bottom edge
-    top = CAMERA.project(210.0, 0.0, 0.0)
+    top = CAMERA.project(200.0 * (1 + BEYOND), 0.0, 0.0)
     assert top is not None and top[1] == pytest.approx(-450.0)  # the top edge, beyond 200 m
+    far = CAMERA.project(200.0, 0.0, 0.0)
+    assert far is not None and far[1] > -450.0 + 2 * LINE_PX  # room for a compact label above
     for x in (10.0, 50.0, 100.0, 200.0):
         assert 0.5 * CAMERA.scale(x, 0.0, 0.5) * CAMERA.px_per_m(x, 0.0) >= MIN_MARK_PX - 1e-9
     assert camera_for(60.0).scale(5.0, 0.0, 0.5) == 1.0  # near: the seed's sizes
@@ -46,14 +48,14 @@ def test_far_labels_are_made_compact_moved_or_left_to_the_metadata() -> None:
     labels = [track(i, 120.0 + 10 * (i // 3), 3.6 * (i % 3 - 1)) for i in range(24)]
     blocks = lay_out(labels, CAMERA)
     boxes = [box(CAMERA, b.x, b.y, b.z, b.text) for b in blocks]
-    assert all(b is not None for b in boxes)
+    assert all(b is not None and CAMERA.on_panel(*b) for b in boxes)
     for (a, b), (p, q) in zip(itertools.combinations(boxes, 2),
                               itertools.combinations(blocks, 2), strict=True):
         assert a is not None and b is not None and not _overlaps(a, b), (p.text, q.text)
         assert math.hypot(p.x - q.x, p.y - q.y) >= PLACE_M
     assert any("\n" not in b.text for b in blocks)  # compact where the full one does not fit
     assert len(blocks) < len(labels)  # and some left to the metadata
-    moved = [b for b in blocks if b.anchor is not None]
+    moved = [b for b in blocks if b.leader is not None]
     assert all(b.owner in {label.owner for label in labels} for b in moved)
 
 
@@ -61,4 +63,4 @@ def test_near_labels_are_drawn_in_full() -> None:
     blocks = lay_out([track(1, 15.0, 7.2), track(2, 20.0, -7.2), track(3, 40.0, 0.0)], CAMERA)
     assert sorted(b.text.split("\n")[0] for b in blocks) == [
         "TrackID: 1", "TrackID: 2", "TrackID: 3"]
-    assert all(b.anchor is None for b in blocks)
+    assert all(b.leader is None for b in blocks)

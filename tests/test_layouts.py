@@ -119,7 +119,7 @@ def test_the_bundled_layouts_with_their_previews() -> None:
         assert b.preview == LAYOUTS / f"{b.name}.png", f"{b.name}: no preview picture"
         data = b.preview.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, f"{b.preview}: not a screenshot"
-    assert found["tank-viz"].summary == "3D"
+    assert found["tank-viz"].summary == "2 3D panels"
     assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, 14 Indicator panels"
     assert (found["can-debug"].summary
             == "9 plots, 2 Indicator panels, Raw Messages, Data Source Info")
@@ -143,7 +143,15 @@ def test_everything_a_layout_names_is_produced(name: str, made: Produced) -> Non
 
 def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> None:
     _, profile = stages
-    (panel,) = panels(layout("tank-viz"), "3D").values()
+    chase, whole = layout("tank-viz")["configById"]["3D!tankviz"], layout("tank-viz")[
+        "configById"]["3D!tankviz-range"]
+    # The range view shows the same scene as the chase view, from farther, over a longer grid.
+    assert {k: v for k, v in whole.items() if k not in ("cameraState", "layers",
+                                                         "foxglovePanelTitle")} == {
+        k: v for k, v in chase.items() if k not in ("cameraState", "layers",
+                                                    "foxglovePanelTitle")}
+    assert whole["cameraState"]["distance"] > chase["cameraState"]["distance"]
+    panel = chase
     assert panel["followTf"] == VEHICLE_FRAME and panel["followMode"] == "follow-pose"
     camera = panel["cameraState"]
     assert camera["perspective"] is True
@@ -172,8 +180,8 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
 def test_engineer_layout(made: Produced, alarm_ids: list[str]) -> None:
     data = layout("engineer")
     (view,) = panels(data, "3D").values()
-    (tank,) = panels(layout("tank-viz"), "3D").values()
-    assert view == tank, "the engineer's 3D view is the Tank Viz view"
+    tank = layout("tank-viz")["configById"]["3D!tankviz"]
+    assert view == tank, "the engineer's 3D view is the Tank Viz chase view"
     plotted = {p["value"] for plot in panels(data, "Plot").values() for p in plot["paths"]}
     assert {f"{LEAD_TOPIC}.object.x", f"{LEAD_TOPIC}.object.vx", f"{EGO_TOPIC}.speed",
             f"{EGO_TOPIC}.steering_wheel_angle"} <= plotted

@@ -7,6 +7,7 @@ the profile cannot produce."""
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.pipeline.drive import load_stages
 from bridge.resources import layouts_dir
+from bridge.scene.camera import view_range
 from bridge.topics import EGO_TOPIC, LEAD_TOPIC, frames_topic, objects_topic
 from bridge.view.check import check_layout, panel_type
 from bridge.view.generate import (
@@ -95,7 +97,19 @@ def test_generated_layouts_name_only_what_the_profile_produces(car: str) -> None
     for name, data in layouts.items():
         assert check_layout(data, made) == [], f"{car}: {name}"
     # The 3D view: every scene topic and every frame of this profile, nothing else.
-    (view,) = panels(layouts["tank-viz"], "3D").values()
+    chase, view = panels(layouts["tank-viz"], "3D").values()
+    assert chase["topics"] == view["topics"] and chase["transforms"] == view["transforms"]
+    # The range view frames the profile's reach: from behind the vehicle to its farthest sensor.
+    reach = view_range(profile)
+    state = view["cameraState"]
+    eye_x = state["targetOffset"][0] - state["distance"] * math.sin(math.radians(state["phi"]))
+    eye_z = state["distance"] * math.cos(math.radians(state["phi"]))
+    top = math.radians(90 - state["phi"] - state["fovy"] / 2)  # the top edge, below horizon
+    bottom = math.radians(90 - state["phi"] + state["fovy"] / 2)
+    assert eye_x + eye_z / math.tan(top) >= reach, f"{car}: {reach} m not in view"
+    assert eye_x + eye_z / math.tan(bottom) < 0, f"{car}: the ego vehicle not in view"
+    (grid,) = view["layers"].values()
+    assert grid["position"][0] + grid["size"] / 2 >= reach
     scene = {t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"}
     assert set(view["topics"]) == scene
     assert {f"/scene/{g}" for g in profile.groups} <= scene
@@ -202,7 +216,7 @@ def test_a_two_bus_car_without_camera_or_lead(two_bus: tuple[Path, list[str]]) -
     made = produced(decoder, profile, ["front_radar", "chassis"])
     for data in layouts.values():
         assert check_layout(data, made) == []
-    (view,) = panels(layouts["tank-viz"], "3D").values()
+    view = layouts["tank-viz"]["configById"]["3D!tankviz-range"]
     assert set(view["topics"]) == {"/scene/ego", "/scene/lanes", "/scene/slots",
                                    "/scene/health"}
     assert set(view["transforms"]) == {"frame:vehicle", "frame:front"}

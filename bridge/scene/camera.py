@@ -30,12 +30,13 @@ DEPRESSION_DEG = 40.0
 FOVY_DEG = 45.0
 #: The bottom edge of the view meets the ground this far (m) behind the vehicle origin.
 BEHIND_M = 6.0
-#: The top edge of the view lies this much beyond the range (share of the range).
-BEYOND = 0.05
+#: The top edge of the view lies this much beyond the range (share of the range): room for the
+#: labels above the farthest objects.
+BEYOND = 0.12
 #: The height (px) of the panel the scene is laid out for.
 PANEL_HEIGHT_PX = 900.0
-#: The width-to-height ratio of that panel.
-PANEL_ASPECT = 1.65
+#: The width-to-height ratio of that panel (the range view, beside the chase view).
+PANEL_ASPECT = 0.78
 #: The view covers at least this much road (m), however short the sensors' reach.
 MIN_RANGE_M = 60.0
 #: A mark is drawn at least this many pixels wide on that panel (a detection ball, at its
@@ -52,6 +53,7 @@ class ViewCamera:
     depression_deg: float = DEPRESSION_DEG
     fovy_deg: float = FOVY_DEG
     height_px: float = PANEL_HEIGHT_PX
+    aspect: float = PANEL_ASPECT
 
     @property
     def distance(self) -> float:
@@ -80,6 +82,11 @@ class ViewCamera:
             return None
         up = (x - self.eye_x) * math.sin(a) + (z - self.eye_z) * math.cos(a)
         return -y * self.focal_px / d, -up * self.focal_px / d
+
+    def on_panel(self, left: float, top: float, right: float, bottom: float) -> bool:
+        """Whether a box (px from the panel's centre: right, down) lies wholly on the panel."""
+        half_h, half_w = self.height_px / 2, self.height_px * self.aspect / 2
+        return -half_w <= left and right <= half_w and -half_h <= top and bottom <= half_h
 
     def px_per_m(self, x: float, y: float, z: float = 0.0) -> float:
         """How many pixels a metre across the line of sight takes at the point."""

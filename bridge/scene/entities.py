@@ -442,18 +442,17 @@ def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) 
 
 def draw_labels(blocks: Iterable[Block]) -> None:
     """Each laid-out block as a text of the entity that carries it; a block moved off its
-    place with a thin leader line from where its label would have stood."""
+    place with a thin leader line from where its label would have stood to its edge."""
     for b in blocks:
         owner = b.owner
         assert isinstance(owner, SceneEntity)
         add_text(owner, b.x, b.y, b.z, b.text)
-        if b.anchor is not None:
+        if b.leader is not None:
             leader = owner.lines.add(type=LinePrimitive.LINE_STRIP, thickness=LEADER_PX,
                                      scale_invariant=True)
             set_pose(leader.pose, 0.0, 0.0, 0.0)
-            ax, ay, az = b.anchor
-            leader.points.add(x=ax, y=ay, z=az)
-            leader.points.add(x=b.x, y=b.y, z=b.z)
+            for x, y, z in b.leader:
+                leader.points.add(x=x, y=y, z=z)
             leader.color.CopyFrom(_color(LEADER_COLOR))
 
 

@@ -10,21 +10,22 @@ into the text blocks to draw:
    A place has one block, at its first request's anchor: that request's full text, then one line
    per other request of the place (e.g. ``TrackID: 12 · 41 m``, ``radar: car``; a line once).
    So no two blocks of a tick stand within 2.5 m of each other.
-2. **No block covers another on screen.** Seen from the generated layout's camera
+2. **No block covers another on screen.** Seen from the range view's camera
    (:mod:`bridge.scene.camera`), a label of fixed pixel size covers many metres far away, where
-   objects a lane apart lie a few pixels apart. Places are drawn in order of priority; a block
+   objects a lane apart lie a few pixels apart. Places are drawn in order of priority. A block
    whose box on the panel (:func:`box`: its lines at :data:`CHAR_PX` x :data:`LINE_PX` each,
-   centred on its anchor, which stands high enough above the object's mark that the block does
-   not cover it: :func:`lifted`) would overlap one already drawn is drawn compact (its first
-   request's compact text alone); where that overlaps too, the compact block is moved off its
-   anchor: one block width to the right, then to the left, then up by one, two and three
-   block heights (:data:`MAX_RAISES`), the first place where it covers no other block and
-   stands :data:`PLACE_M` from every other block; a thin leader line joins it to its object.
-   Where none fits, it is not drawn: its objects keep their marks, and their full details stay
-   in each entity's metadata, which Foxglove shows when the object is clicked.
+   centred on its anchor, which stands high enough above the object's mark not to cover it:
+   :func:`lifted`) would overlap one already drawn, or leave the panel, is drawn compact (its
+   first request's compact text alone); where that does too, the compact block is moved off its
+   anchor: one block width aside (towards the middle of the view first), then up by one, two
+   and three block heights (:data:`MAX_RAISES`), to the first place where it covers no other
+   block, stays on the panel and stands :data:`PLACE_M` from every other block; a thin leader
+   line joins it to its object. Where none fits, it is not drawn: its objects keep their marks,
+   and their full details stay in each entity's metadata, which Foxglove shows when the object
+   is clicked.
 
-The result is a list of :class:`Block`: the text, where it stands, where its label would have
-stood (``anchor``, when it was moved), and which request's entity carries it.
+The result is a list of :class:`Block`: the text, where it stands, its leader line (when it
+was moved), and which request's entity carries it.
 """
 
 from __future__ import annotations
@@ -71,8 +72,9 @@ class Block:
     text: str
     #: the owners of the other labels of its place (drawn in this block)
     merged: tuple[object, ...] = ()
-    #: where its label would have stood, when the block was moved off it (a leader line)
-    anchor: tuple[float, float, float] | None = None
+    #: a block moved off its place: a leader line from where its label would have stood to the
+    #: edge of the block (not across its text)
+    leader: tuple[Point, Point] | None = None
 
 
 def places(labels: Sequence[Label]) -> list[list[Label]]:
@@ -100,6 +102,7 @@ def places(labels: Sequence[Label]) -> list[list[Label]]:
 
 
 Box = tuple[float, float, float, float]  # left, top, right, bottom (px from the panel's centre)
+Point = tuple[float, float, float]
 
 
 def box(camera: ViewCamera, x: float, y: float, z: float, text: str) -> Box | None:
@@ -139,8 +142,8 @@ def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterato
     metre = camera.px_per_m(x, y, z)
     aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
     up = (LINE_PX + 2 * MARGIN_PX) / metre  # one line's height, m
-    yield first.compact, x, y - aside, z  # to the right on the panel (y points left)
-    yield first.compact, x, y + aside, z
+    for side in (1, -1) if y < 0 else (-1, 1):  # towards the middle first (y points left)
+        yield first.compact, x, y + side * aside, z
     for k in range(1, MAX_RAISES + 1):
         yield first.compact, x, y, z + k * up
 
@@ -153,7 +156,7 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
         first, others = place[0], place[1:]
         for text, x, y, z in _tries(first, others, camera):
             at = box(camera, x, y, z, text)
-            if at is None:
+            if at is None or not camera.on_panel(*at):
                 continue
             if any(_overlaps(at, other) for other in drawn):
                 continue
@@ -164,6 +167,20 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
             continue
         drawn.append(at)
         moved = (x, y) != (first.x, first.y) or z != lifted(camera, x, y, first.z, text)
+        own = (first.x, first.y, first.z)
         blocks.append(Block(first.owner, x, y, z, text, tuple(o.owner for o in others),
-                            (first.x, first.y, first.z) if moved else None))
+                            (own, _edge(camera, own, (x, y, z), text)) if moved else None))
     return blocks
+
+
+def _edge(camera: ViewCamera, start: Point, centre: Point, text: str) -> Point:
+    """Where the line from ``start`` to the ``centre`` of a block of ``text`` meets the block's
+    edge on the panel (its start, where the block covers it)."""
+    a, b = camera.project(*start), camera.project(*centre)
+    if a is None or b is None:
+        return start
+    lines = text.split("\n")
+    half_w, half_h = max(len(line) for line in lines) * CHAR_PX / 2, len(lines) * LINE_PX / 2
+    dx, dy = abs(a[0] - b[0]), abs(a[1] - b[1])
+    share = min(half_w / dx if dx else math.inf, half_h / dy if dy else math.inf, 1.0)
+    return tuple(c + (s - c) * share for s, c in zip(start, centre, strict=True))  # type: ignore[return-value]

@@ -5,11 +5,12 @@ can-debug layouts (what ``tankviz layouts --profile P --export DIR`` writes).
 on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and the
 health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
 names. The look and panel settings are those of the Tank Viz view (:func:`view_3d`: camera
-behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells 70 m ahead):
+behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells):
 
-- ``tank-viz``: the 3D panel with every ``/scene/*`` topic the profile produces and every
-  sensor frame;
-- ``engineer``: the same 3D panel; plots of the lead vehicle (only with ``[lead]``; its
+- ``tank-viz``: two 3D panels with every ``/scene/*`` topic the profile produces and every
+  sensor frame: the seed's close chase view, and beside it the range view, framed from just
+  behind the vehicle to the profile's largest sensor range;
+- ``engineer``: the chase view; plots of the lead vehicle (only with ``[lead]``; its
   relative speed only where its objects have a velocity: :func:`lead_has_velocity`), of the ego
   signals the profile maps (speed on its own plot, yaw rate and steering wheel angle on another:
   no line, and no plot, for what it lacks),
@@ -34,11 +35,13 @@ written so).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 from bridge.decode.decoder import Decoder
 from bridge.profile.model import Field, ObjectGroup, Profile
+from bridge.scene.camera import camera_for, view_range
 from bridge.topics import (
     EGO_TOPIC,
     HEALTH_TOPIC,
@@ -85,7 +88,7 @@ def generate_layouts(profile: Profile, decoder: Decoder,
     buses = list(buses) if buses else database_buses(decoder)
     made = produced(decoder, profile, buses)
     return {
-        "tank-viz": _layout({"3D!tankviz": view_3d(made, profile)}, "3D!tankviz"),
+        "tank-viz": tank_viz(made, profile),
         "engineer": engineer(made, profile),
         "can-debug": can_debug(made, profile, decoder, buses),
     }
@@ -104,20 +107,37 @@ def _layout(configs: dict[str, Any], tree: Any) -> dict[str, Any]:
             "playbackConfig": {"speed": 1}, "layout": tree}
 
 
-def view_3d(made: Produced, profile: Profile) -> dict[str, Any]:
-    """The Tank Viz 3D panel: every scene topic produced, every frame (vehicle, then the
-    profile's sensors), following the vehicle from behind and above (the seed's close camera:
-    the camera framed for the sensor range, :func:`bridge.scene.camera.camera_for`, is what
-    the scene's marks and labels are made for, but it is not yet the panel's default: see
-    issue #22)."""
+#: The seed's camera: close behind and above the vehicle, about 60 m of road in view.
+CHASE_CAMERA = {"distance": 40, "perspective": True, "phi": 60, "thetaOffset": 90,
+                "target": [0, 0, 0], "targetOffset": [16, 0, 0],
+                "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5, "far": 5000}
+#: Share of the tank-viz layout's width the chase view takes (the range view the rest).
+CHASE_SHARE = 55.0
+
+
+def view_3d(made: Produced, profile: Profile, *, whole_range: bool = False) -> dict[str, Any]:
+    """A Tank Viz 3D panel: every scene topic produced, every frame (vehicle, then the
+    profile's sensors), following the vehicle from behind and above, on a dark background with
+    a grid of 10 m cells.
+
+    The chase view (default) has the seed's close camera and grid (160 m, 70 m ahead). The
+    range view (``whole_range``) frames the road from just behind the vehicle to the profile's
+    largest sensor range (:func:`bridge.scene.camera.camera_for`, the camera the scene keeps
+    its marks visible and its labels apart for), on a grid from 10 m behind to beyond it."""
     scene = [t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"]
     frames = [VEHICLE_FRAME, *(s for s in profile.sensors if s != VEHICLE_FRAME)]
+    if whole_range:
+        reach = view_range(profile)
+        grid = 10 * math.ceil((reach + 20) / 10)  # 10 m behind the origin to beyond the range
+        title, camera = f"Tank Viz: the sensors' range, {reach:g} m", camera_for(
+            reach).foxglove_state()
+        where, label = [grid / 2 - 10, 0, 0], f"Grid: 10 m cells, {grid - 10:g} m ahead"
+    else:
+        grid, title, camera = 160, "Tank Viz", CHASE_CAMERA
+        where, label = [70, 0, 0], "Grid: 10 m cells, 70 m ahead"
     return {
-        "foxglovePanelTitle": "Tank Viz",
-        "cameraState": {"distance": 40, "perspective": True, "phi": 60, "thetaOffset": 90,
-                        "target": [0, 0, 0], "targetOffset": [16, 0, 0],
-                        "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5,
-                        "far": 5000},
+        "foxglovePanelTitle": title,
+        "cameraState": camera,
         "followMode": "follow-pose",
         "followTf": VEHICLE_FRAME,
         "scene": {"backgroundColor": "#303030", "labelScaleFactor": 1,
@@ -126,16 +146,24 @@ def view_3d(made: Produced, profile: Profile) -> dict[str, Any]:
         "transforms": {f"frame:{f}": {"visible": True} for f in frames},
         "topics": {t: {"visible": True} for t in scene},
         "layers": {"tankviz-grid": {
-            "visible": True, "frameLocked": True, "label": "Grid: 10 m cells, 70 m ahead",
+            "visible": True, "frameLocked": True, "label": label,
             "instanceId": "tankviz-grid", "layerId": "foxglove.Grid",
-            "frameId": VEHICLE_FRAME, "size": 160, "divisions": 16, "lineWidth": 1,
-            "color": "#a0a0a4a0", "position": [70, 0, 0], "rotation": [0, 0, 0], "order": 1}},
+            "frameId": VEHICLE_FRAME, "size": grid, "divisions": grid // 10, "lineWidth": 1,
+            "color": "#a0a0a4a0", "position": where, "rotation": [0, 0, 0], "order": 1}},
         "publish": {"type": "point", "poseTopic": "/move_base_simple/goal",
                     "pointTopic": "/clicked_point", "poseEstimateTopic": "/initialpose",
                     "poseEstimateXDeviation": 0.5, "poseEstimateYDeviation": 0.5,
                     "poseEstimateThetaDeviation": 0.26179939},
         "imageMode": {},
     }
+
+
+def tank_viz(made: Produced, profile: Profile) -> dict[str, Any]:
+    """The tank-viz layout: the chase view (near objects readable) beside the range view
+    (everything up to the sensors' reach in view)."""
+    return _layout({"3D!tankviz": view_3d(made, profile),
+                    "3D!tankviz-range": view_3d(made, profile, whole_range=True)},
+                   split("3D!tankviz", "3D!tankviz-range", "row", CHASE_SHARE))
 
 
 def _path(value: str, label: str, color: str | None = None) -> dict[str, Any]:

@@ -166,6 +166,9 @@ export function readTankViz(image, region) {
     radar: summary(spheres(found.blue)),
     camera: summary(whiteSpheres),
     tracks: summary(spheres(found.red)),
+    // every red and blue blob away from the ego (not only the first 12), to count places
+    redBlobs: away(found.red).map(({ area, cx, cy, x0, y0, x1, y1 }) => ({ area, cx, cy, x0, y0, x1, y1 })),
+    blueBlobs: away(found.blue).map(({ area, cx, cy, x0, y0, x1, y1 }) => ({ area, cx, cy, x0, y0, x1, y1 })),
     lead: summary(leadBoxes),
     pedestrians: summary(away(found.yellow).filter((b) => b.area >= 20)),
     counts: Object.fromEntries(
