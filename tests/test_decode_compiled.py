@@ -47,7 +47,9 @@ def test_every_message_decodes_as_cantools_decodes_it(path: Path) -> None:
     for message in db.messages:
         decode = compile_decoder(message)
         if decode is None:
-            assert message.is_multiplexed() or message.is_container, message.name
+            # (or, like PCS_HUD of a real Toyota's DBC, its signals overlap: nothing decodes)
+            assert (message.is_multiplexed() or message.is_container or isinstance(
+                cantools_decode(message, bytes(message.length)), Exception)), message.name
             continue
         compiled += 1
         n = message.length

@@ -126,7 +126,7 @@ def test_live_that_cannot_write_the_layouts_warns_once_and_records_anyway(
     drives.mkdir()
     (drives / "layouts").write_text("not a folder")
     # the demo's car sends frames (ecocar's: recorded raw) while live runs with this profile
-    assert main(["demo", "--port", "0", "--for", "0.5", "--profile", str(PROFILE),
+    assert main(["demo", "--port", "0", "--for", "3", "--profile", str(PROFILE),
                  "--dbc", str(mazda_dbc), "--drives", str(drives)]) == 0
     captured = capsys.readouterr()
     warnings = [line for line in captured.err.splitlines() if "layouts" in line]
@@ -283,7 +283,7 @@ def test_replay_of_a_log_with_another_profile_prints_the_command(
 def test_replay_of_a_drive_live_recorded_points_at_the_layouts_live_wrote(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drives = tmp_path / "drives"
-    assert main(["demo", "--port", "0", "--for", "0.5", "--profile", str(PROFILE),
+    assert main(["demo", "--port", "0", "--for", "3", "--profile", str(PROFILE),
                  "--dbc", str(mazda_dbc), "--drives", str(drives)]) == 0
     (recorded,) = drives.glob("*.mcap")
     capsys.readouterr()

@@ -14,7 +14,8 @@ Only the plain case is compiled: a message that is not multiplexed and not a con
 payload of exactly the message's length, and conversions of the three kinds cantools uses for
 numbers (identity, linear, linear integer, also under a value table). Everything else (a
 multiplexed message, a short or long payload, a conversion of another kind, cantools' internals
-not as expected) is cantools' own ``decode``: :func:`compile_decoder` returns None for a message
+not as expected, a message whose formats cannot unpack a payload because its signals overlap) is
+cantools' own ``decode``: :func:`compile_decoder` returns None for a message
 it cannot compile, and the function it returns hands any payload of another length to cantools.
 """
 
@@ -82,4 +83,8 @@ def compile_decoder(message: DbcMessage) -> Decode | None:
     ])
     exec(source, names)
     decode: Decode = names["decode"]
+    try:  # formats cantools built for signals that overlap cannot unpack any payload
+        decode(bytes(message.length))
+    except Exception:
+        return None  # cantools' own decode says why, frame by frame
     return decode

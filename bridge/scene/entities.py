@@ -63,7 +63,7 @@ LEAD_COLOR: RGBA = (0.0, 0.85, 0.2, 0.55)  # green, see-through so the track ins
 PEDESTRIAN_COLOR: RGBA = (1.0, 0.85, 0.0, 1.0)  # yellow
 MIO_COLOR: RGBA = (1.0, 0.55, 0.0, 1.0)  # orange
 TEXT_COLOR: RGBA = (1.0, 1.0, 1.0, 1.0)
-LEADER_COLOR: RGBA = (0.8, 0.8, 0.8, 0.8)  # the thin line from a raised label to its object
+LEADER_COLOR: RGBA = (0.8, 0.8, 0.8, 0.8)  # the thin line from an object to its moved label
 LEADER_PX = 1.0
 
 DETECTION_SIZE = 0.5  # m, sphere diameter
