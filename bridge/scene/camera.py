@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 from bridge.profile.model import Profile
 
@@ -64,23 +64,34 @@ class ViewCamera:
     def target_x(self) -> float:
         return self.eye_x + self.eye_z / math.tan(math.radians(self.depression_deg))
 
-    @property
+    @cached_property
     def focal_px(self) -> float:
         """Pixels per unit of tangent: a metre at depth d is focal_px / d pixels."""
         return self.height_px / 2 / math.tan(math.radians(self.fovy_deg) / 2)
 
+    @cached_property
+    def _sight(self) -> tuple[float, float]:
+        """Cosine and sine of the line of sight's angle below the horizon."""
+        a = math.radians(self.depression_deg)
+        return math.cos(a), math.sin(a)
+
+    @property
+    def vertical(self) -> float:
+        """How much of a vertical metre shows on the panel (a share of a metre across)."""
+        return self._sight[0]
+
     def depth(self, x: float, y: float, z: float) -> float:
         """How far (m) the point lies ahead of the eye along the line of sight."""
-        a = math.radians(self.depression_deg)
-        return (x - self.eye_x) * math.cos(a) - (z - self.eye_z) * math.sin(a)
+        cos, sin = self._sight
+        return (x - self.eye_x) * cos - (z - self.eye_z) * sin
 
     def project(self, x: float, y: float, z: float) -> tuple[float, float] | None:
         """The point on the panel (px from its centre: right, down), None behind the eye."""
-        a = math.radians(self.depression_deg)
-        d = self.depth(x, y, z)
+        cos, sin = self._sight
+        d = (x - self.eye_x) * cos - (z - self.eye_z) * sin
         if d <= 0.1:
             return None
-        up = (x - self.eye_x) * math.sin(a) + (z - self.eye_z) * math.cos(a)
+        up = (x - self.eye_x) * sin + (z - self.eye_z) * cos
         return -y * self.focal_px / d, -up * self.focal_px / d
 
     def on_panel(self, left: float, top: float, right: float, bottom: float) -> bool:

@@ -121,8 +121,8 @@ def lifted(camera: ViewCamera, x: float, y: float, z: float, text: str) -> float
     """The height of the anchor that puts the bottom of a block of ``text`` at height ``z``
     (on the panel): Foxglove centres a block on its anchor, which would cover the mark below."""
     rows = text.count("\n") + 1
-    vertical = math.cos(math.radians(camera.depression_deg))  # a vertical metre on the panel
-    return z + (rows * LINE_PX / 2 + MARGIN_PX) / (camera.px_per_m(x, y, z) * vertical)
+    vertical = camera.px_per_m(x, y, z) * camera.vertical  # px per vertical metre there
+    return z + (rows * LINE_PX / 2 + MARGIN_PX) / vertical
 
 
 def _overlaps(a: Box, b: Box) -> bool:
