@@ -115,6 +115,12 @@ class Perception:
             pending.pop(message, None)
             pending[message] = (values, t_ns)
 
+    @property
+    def pending(self) -> bool:
+        """Whether messages were fed since the last tick (at the end of the input: a final tick
+        draws them)."""
+        return bool(self._pending or self._pending_frames)
+
     def observe_pending(self) -> None:
         """Observe the messages fed since the last tick into the world: the newest of each name,
         and every frame of a list message (a group without an index range: one object per

@@ -4,7 +4,8 @@
 assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets every raw frame, every decoded
 message, and the scene, perception and health messages made at each tick, in the order the sinks
 were given (the live server first: viewers wait for a scene, the recorder does not). Every scene
-tick of log time is made and recorded; when the pipeline catches up several ticks at once (it fell
+tick of log time is made and recorded (at the end of the input, a final tick draws the frames
+after the last one); when the pipeline catches up several ticks at once (it fell
 behind), viewers (:meth:`Pipeline.add_viewer`) get the latest only. A clock step (a frame stamped
 far before or after log time, :mod:`bridge.pipeline.clock`) re-bases scene ticks, health windows
 and lifetimes at once, is said on ``/log`` and noted in :attr:`Pipeline.steps`; frames keep their
@@ -159,10 +160,15 @@ class Pipeline:
         return TopicMessage(topic, update, t_ns)
 
     def finish(self) -> None:
-        """Emit what is still due at the end of the drive (the sinks are not stopped)."""
+        """Emit what is still due at the end of the drive (the sinks are not stopped), and a
+        final scene tick for the messages after the last one: the next tick of the grid, which
+        the next frame would have made (else up to one period of frames reach no scene)."""
         if self.last_ns is None:
             return
         self.advance(self.last_ns + 1)
+        perception = self.perception
+        if perception is not None and perception.pending:
+            self.advance(int(perception.next_tick_ns))
 
     def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False) -> None:
         """Scene, perception and other messages to every sink, serialized once (``catching_up``:
