@@ -18,7 +18,9 @@ group's messages (of the lane line's message), ``Message.Signal`` names one of t
 names ``Message.Signal`` of any message.
 
 Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
-value of the wrong type or out of range, a message or signal not in the databases) raises
+value of the wrong type or out of range (times at most :data:`MAX_SECONDS`, distances at most
+:data:`MAX_METRES`, the vehicle's sizes and offsets at most :data:`MAX_VEHICLE_METRES`,
+bitrates at most :data:`MAX_BITRATE`), a message or signal not in the databases) raises
 :class:`~bridge.profile.model.ProfileError` naming the profile file, the key (for an error in
 one), the bad name and, when some are close, the closest existing names. A profile drafted by
 ``tankviz profile new`` (:mod:`bridge.profile.draft`) that fails while it still has ``# TODO:``
@@ -78,6 +80,21 @@ _ROLES = ("detections", "tracks")
 _TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
+
+#: The largest time a profile may give (a lifetime, a lane's stale_after), in seconds: longer
+#: would outlast any drive, and its nanoseconds would not fit the 64-bit times of the scene.
+MAX_SECONDS = 3600.0
+#: The largest distance a profile may give (a lane drawn ahead, a sensor's range), in metres:
+#: the scene samples lanes along it, so a longer one would never be drawn.
+MAX_METRES = 1000.0
+#: The largest size of the ego vehicle, a sensor's mounting offset or a lane fallback, in metres.
+MAX_VEHICLE_METRES = 100.0
+#: The largest bitrate of a bus, in bit/s (CAN XL reaches 20 Mbit/s).
+MAX_BITRATE = 100_000_000
+_SECONDS: dict[str, Any] = {"at_most": MAX_SECONDS, "unit": " s"}
+_DISTANCE: dict[str, Any] = {"at_most": MAX_METRES, "unit": " m"}
+_VEHICLE: dict[str, Any] = {"at_most": MAX_VEHICLE_METRES, "unit": " m"}
+_BITRATE: dict[str, Any] = {"at_most": MAX_BITRATE, "unit": " bit/s"}
 #: A mapped field written as one name ("Signal", "Message.Signal", "Obj{i}_A.X"): no operator, space
 #: or parenthesis. Anything else is an expression.
 _ONE_NAME = re.compile(r"[^\s()+\-*/,<>=!&|]*")
@@ -208,7 +225,10 @@ class _Loader:
         return value
 
     def number(self, table: Mapping[str, Any], key: str, name: str, default: float | None = None,
-               *, positive: bool = False, non_negative: bool = False) -> float:
+               *, positive: bool = False, non_negative: bool = False,
+               at_most: float | None = None, unit: str = "") -> float:
+        """A number of the table: finite, and within ``at_most`` (of either sign) where it is a
+        time or a distance the drive computes with (:data:`MAX_SECONDS`, :data:`MAX_METRES`)."""
         value = table.get(name, default)
         full = f"{key}.{name}"
         if value is None:
@@ -228,6 +248,10 @@ class _Loader:
             raise self.fail(full, f"must be greater than 0, got {value}")
         if non_negative and value < 0:
             raise self.fail(full, f"must not be negative, got {value}")
+        if at_most is not None and abs(value) > at_most:
+            raise self.fail(full, f"must be at most {at_most:g}{unit}"
+                            f"{' either way' if not (positive or non_negative) else ''}, "
+                            f"got {value:g}")
         return float(value)
 
     def string(self, table: Mapping[str, Any], key: str, name: str, default: str | None = None,
@@ -454,19 +478,20 @@ class _Loader:
         for bus, spec in self.section(value, "buses").items():
             key = f"buses.{bus}"
             t = self.table(spec, key, {"bitrate", "data_bitrate"}, required=["bitrate"])
-            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True))
+            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True, **_BITRATE))
             if "data_bitrate" in t:
-                data_bitrates[bus] = round(self.number(t, key, "data_bitrate", positive=True))
+                data_bitrates[bus] = round(self.number(t, key, "data_bitrate", positive=True,
+                                                          **_BITRATE))
         return bitrates, data_bitrates
 
     def vehicle(self, value: Any) -> Vehicle:
         t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",
                                           "height", "origin", "rear_overhang"})
         d = Vehicle()
-        length = self.number(t, "vehicle", "length", d.length_m, positive=True)
+        length = self.number(t, "vehicle", "length", d.length_m, positive=True, **_VEHICLE)
         origin = self.string(t, "vehicle", "origin", d.origin, choices=Vehicle.ORIGINS)
         overhang = self.number(t, "vehicle", "rear_overhang", d.rear_overhang_m,
-                               non_negative=True)
+                               non_negative=True, **_VEHICLE)
         if "rear_overhang" in t and origin != "rear_axle":
             raise self.fail("vehicle.rear_overhang",
                             f'only for origin = "rear_axle", the origin is {origin!r}')
@@ -474,11 +499,11 @@ class _Loader:
             raise self.fail("vehicle.rear_overhang",
                             f"must be less than the length {length}, got {overhang}")
         return Vehicle(
-            self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True),
+            self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True, **_VEHICLE),
             self.number(t, "vehicle", "steering_ratio", d.steering_ratio, positive=True),
             length,
-            self.number(t, "vehicle", "width", d.width_m, positive=True),
-            self.number(t, "vehicle", "height", d.height_m, positive=True),
+            self.number(t, "vehicle", "width", d.width_m, positive=True, **_VEHICLE),
+            self.number(t, "vehicle", "height", d.height_m, positive=True, **_VEHICLE),
             origin=origin,
             rear_overhang_m=overhang,
         )
@@ -489,10 +514,11 @@ class _Loader:
                                     "distance_scale", "fov"}, required=["kind"])
         kind = SensorKind(self.string(t, key, "kind", choices=[k.value for k in SensorKind]))
         mount_doc = self.table(t.get("mount", {}), f"{key}.mount", {"x", "y", "z", "yaw"})
-        mount = Mount(*(self.number(mount_doc, f"{key}.mount", axis, 0.0)
+        mount = Mount(*(self.number(mount_doc, f"{key}.mount", axis, 0.0,
+                                    **(_VEHICLE if axis != "yaw" else {}))
                         for axis in ("x", "y", "z", "yaw")))
         fov_doc = self.table(t.get("fov", {}), f"{key}.fov", {"range", "azimuth"})
-        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True)
+        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True, **_DISTANCE)
                      if "range" in fov_doc else None)
         fov_azimuth = (self.number(fov_doc, f"{key}.fov", "azimuth", positive=True)
                        if "azimuth" in fov_doc else None)
@@ -637,7 +663,7 @@ class _Loader:
             name, sensor, tuple(templates), members,
             ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
             ref("probability"), ref("class"), classes, ref("id"), rules,
-            self.number(t, key, "lifetime", lifetime, non_negative=True),
+            self.number(t, key, "lifetime", lifetime, non_negative=True, **_SECONDS),
             role=role,
         )
 
@@ -656,7 +682,7 @@ class _Loader:
             self.string(value, key, "source", choices=["message", "tracks"])
         if isinstance(value, dict) and value.get("source") == "tracks":
             t = self.table(value, key, {"source", "lifetime"})
-            return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3,
+            return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3, **_SECONDS,
                                                         non_negative=True))
         if isinstance(value, dict):
             value = {k: v for k, v in value.items() if k != "source"}
@@ -701,10 +727,10 @@ class _Loader:
         fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
         return LaneSpec(
             sensor, lines,
-            self.number(t, key, "stale_after", 0.5, positive=True),
-            self.number(t, key, "length", 100.0, positive=True),
-            self.number(fallback, f"{key}.fallback", "left", 1.8),
-            self.number(fallback, f"{key}.fallback", "right", -1.8),
+            self.number(t, key, "stale_after", 0.5, positive=True, **_SECONDS),
+            self.number(t, key, "length", 100.0, positive=True, **_DISTANCE),
+            self.number(fallback, f"{key}.fallback", "left", 1.8, **_VEHICLE),
+            self.number(fallback, f"{key}.fallback", "right", -1.8, **_VEHICLE),
         )
 
     def ego(self, value: Any) -> EgoSpec:
