@@ -7,11 +7,18 @@ task running :func:`bridge.apps.convert.convert`, the very function of ``tankviz
 local cluster (``--workers`` processes, one per core by default) or on the cluster at
 ``--scheduler``.
 
-It prints one line per drive (``wrote``, ``skipped``: finished already, ``failed`` with its
-one-line error) and a summary on stdout; on stderr where the work runs, the Dask dashboard's link
-and, on a terminal, one progress line for the batch (drives done, frames/s overall, ETA by input
-bytes), fed by the drives' results and by the progress events of the drives under way. The exit
-status is 0 when every drive is written or skipped, else 1 after ``error: N of M drives failed``.
+It prints one line per drive (``wrote``, with the count of its input issues (a damaged BLF
+container skipped, a line python-can cannot parse, ...) and any warning that its inputs are one
+log twice over; ``skipped``: finished already; ``failed`` with its one-line error) and a summary
+on stdout, which names every drive with input issues, with their count, the first and
+``tankviz inspect OUTPUT`` for all of them
+(:func:`~bridge.fleet.batch.input_issue_lines`); on stderr where the work runs, the Dask
+dashboard's link and, on a terminal, one progress line for the batch (drives done, frames/s
+overall, ETA by input bytes, and the drives under way that take far longer than their size
+allows: :func:`~bridge.fleet.batch.slow_drives`), fed by the drives' results and by the progress
+events of the drives under way. An output that is one of the inputs by any name is refused
+before anything runs. The exit status is 0 when every drive is written or skipped, else 1 after
+``error: N of M drives failed``.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from bridge.errors import OutputError, UsageError
 from bridge.fleet.batch import (
     DriveJob,
     DriveResult,
+    Running,
     Settings,
     convert_task,
     dashboard,
@@ -40,10 +48,12 @@ from bridge.fleet.batch import (
     finished,
     group_drives,
     input_bytes,
+    input_issue_lines,
     plan_jobs,
     progress_line,
     progress_topic,
     run_batch,
+    slow_drives,
 )
 from bridge.io.logs import supported_suffixes
 
@@ -124,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
     rate = frames / seconds if seconds > 0 else 0.0
     print(f"{_drives(len(jobs))}: {len(results) - len(failed)} written, {len(skipped)} skipped, "
           f"{len(failed)} failed; {frames:,} frames in {seconds:.1f} s ({rate:,.0f} frames/s)")
+    for line in input_issue_lines(results):
+        print(line)
     if failed:
         print(f"error: {len(failed)} of {_drives(len(jobs))} failed", file=sys.stderr)
         return 1
@@ -140,10 +152,16 @@ class _BatchProgress:
         self.tty = self.stream.isatty()
         self.total = len(todo)
         self.sizes = {j.output: input_bytes(j) for j in todo}
+        self.names = {j.output: j.name for j in todo}
         self.total_bytes = sum(self.sizes.values()) or 1
         self.running: dict[str, tuple[int, float]] = {}
+        #: when each drive under way sent its first event
+        self.since: dict[str, float] = {}
         self.finished: set[str] = set()
         self.done = self.failed = self.frames = self.bytes = 0
+        #: input bytes and seconds (on their workers) of the drives written: their throughput
+        self.written_bytes = 0
+        self.written_seconds = 0.0
         self.started = time.monotonic()
         self._interval = 1.0 / hz
         self._last = 0.0
@@ -153,9 +171,14 @@ class _BatchProgress:
         frames = self.frames + sum(f for f, _ in self.running.values())
         done_bytes = self.bytes + sum(fraction * self.sizes.get(output, 0)
                                       for output, (_, fraction) in self.running.items())
+        now = time.monotonic()
+        slow = slow_drives([Running(self.names.get(output, output), now - since,
+                                    self.sizes.get(output, 0))
+                            for output, since in self.since.items()],
+                           done_bytes=self.written_bytes, done_seconds=self.written_seconds)
         return progress_line(done=self.done, failed=self.failed, total=self.total,
-                             frames=frames, elapsed=time.monotonic() - self.started,
-                             fraction=done_bytes / self.total_bytes)
+                             frames=frames, elapsed=now - self.started,
+                             fraction=done_bytes / self.total_bytes, slow=slow)
 
     def _draw(self) -> None:
         if self.tty:
@@ -168,6 +191,7 @@ class _BatchProgress:
                 return
             self.running[output] = (frames, fraction or 0.0)
             now = time.monotonic()
+            self.since.setdefault(output, now)
             if now - self._last >= self._interval:
                 self._last = now
                 self._draw()
@@ -176,6 +200,7 @@ class _BatchProgress:
         job = result.job
         with self._lock:
             self.running.pop(job.output, None)
+            self.since.pop(job.output, None)
             self.finished.add(job.output)
             self.done += 1
             self.frames += result.frames
@@ -184,9 +209,17 @@ class _BatchProgress:
                 self.stream.write("\r\033[K")
                 self.stream.flush()
             if result.error is None:
+                self.written_bytes += self.sizes.get(job.output, 0)
+                self.written_seconds += result.seconds
                 worker = f" on worker {result.worker}" if result.worker else ""
+                damaged = (f"; {result.issues:,} input "
+                           f"{'issue' if result.issues == 1 else 'issues'}"
+                           if result.issues else "")
                 print(f"wrote {job.output}: {result.frames:,} frames from "
-                      f"{', '.join(job.inputs)} in {result.seconds:.1f} s{worker}", flush=True)
+                      f"{', '.join(job.inputs)} in {result.seconds:.1f} s{worker}{damaged}",
+                      flush=True)
+                for text in result.warnings:
+                    print(f"  warning: {text}", flush=True)
             else:
                 self.failed += 1
                 print(f"failed {job.output}: {result.error}", flush=True)

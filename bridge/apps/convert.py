@@ -19,7 +19,18 @@ drive's own under ``source`` (with its file name, size and SHA-256) and its ``cr
 attachments carry a fixed time: the same drive with the same databases and profile gives the same
 bytes. One drive at a time, without logs beside it.
 
-A conversion that fails leaves no output file (:func:`bridge.sinks.mcap.atomic_output`). Stopped
+The output is an MCAP: its name must end in ``.mcap``. It is never one of the inputs, by any
+name (a symbolic or hard link), with ``--force`` or not (:func:`bridge.sinks.outputs.check_output`).
+One file given twice (by the same name or another: the same real path or inode) is refused: its
+frames would be recorded twice. Inputs that are one log twice over (the same drive saved as BLF
+and as ASC: their first :data:`OVERLAP_FRAMES` frames, all of them for a shorter log, match one
+for one in id, extended flag and data, with times at most :data:`OVERLAP_TOLERANCE_NS` apart)
+are converted, with a warning naming both (printed, in the summary and in the metadata's
+``warnings``). The check is cheap (only the first frames of each input are read for it), and the
+bus files or parts of one drive never meet it: they do not start with the same frames. ``--sample``
+converts the bundled sample drive alone: with logs it is refused.
+
+A conversion that fails leaves no output file (:func:`bridge.sinks.outputs.atomic_output`). Stopped
 by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`~bridge.apps.options.Stopped`): no file
 is left behind, and the command says so and exits with 128 + the signal's number.
 """
@@ -27,10 +38,12 @@ is left behind, and the command says so and exits with 128 + the signal's number
 from __future__ import annotations
 
 import argparse
+import itertools
+import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -44,7 +57,7 @@ from bridge.apps.options import (
 )
 from bridge.apps.progress import ProgressBar
 from bridge.decode.decoder import Decoder
-from bridge.errors import BridgeError, InputError
+from bridge.errors import BridgeError, InputError, OutputError, UsageError
 from bridge.io.drives import DriveSource, is_drive, read_drive
 from bridge.io.logs import LogSource, SourceIssue
 from bridge.io.readahead import ReadAhead
@@ -58,7 +71,7 @@ from bridge.pipeline.rederive import (
 )
 from bridge.profile.model import Profile
 from bridge.resources import data_dir
-from bridge.sinks.mcap import atomic_output, check_output
+from bridge.sinks.outputs import atomic_output, check_output, refuse_inputs, same_file
 
 #: How many source issues are kept in the metadata (all are counted).
 MAX_ISSUES_RECORDED = 1000
@@ -68,6 +81,63 @@ Progress = Callable[[int, float | None], None]
 
 #: Where frames come from: CAN logs, or a recorded drive's raw frames.
 Source = LogSource | DriveSource
+
+#: How many first frames of two inputs are compared to tell one log given twice.
+OVERLAP_FRAMES = 16
+#: How far apart two frames' times may be and still be one frame (text formats keep µs and
+#: round; BLF keeps ns).
+OVERLAP_TOLERANCE_NS = 1_000_000
+
+#: A frame as compared for overlap: time (ns), id, extended, data.
+FrameKey = tuple[int, int, bool, bytes]
+
+
+def refuse_repeated(inputs: Sequence[Path | str]) -> None:
+    """Refuse a file given twice among ``inputs``, by one name or two (:func:`same_file`)."""
+    for i, path in enumerate(inputs):
+        for earlier in inputs[:i]:
+            if same_file(earlier, path) and os.path.exists(path):
+                how = ("is given twice" if str(earlier) == str(path)
+                       else f"is the same file as the input {earlier} (given twice)")
+                raise InputError(path, f"{how}: its frames would be recorded twice; name it "
+                                 "once")
+
+
+def same_frames(a: Sequence[FrameKey], b: Sequence[FrameKey], *,
+                tolerance_ns: int = OVERLAP_TOLERANCE_NS) -> bool:
+    """Whether two inputs' first frames are one log's: as many, none missing, each pair with one
+    id, extended flag and data, and times at most ``tolerance_ns`` apart (pure)."""
+    return bool(a) and len(a) == len(b) and all(
+        abs(x[0] - y[0]) <= tolerance_ns and x[1:] == y[1:] for x, y in zip(a, b, strict=True))
+
+
+def first_frames(path: Path, n: int = OVERLAP_FRAMES) -> list[FrameKey]:
+    """The first ``n`` frames of a log, as compared for overlap; none where it cannot be read
+    (the conversion itself says why)."""
+    try:
+        return [(f.timestamp_ns, f.arbitration_id, f.is_extended, f.data)
+                for f in itertools.islice(LogSource(path), n)]
+    except BridgeError:
+        return []
+
+
+def overlapping_inputs(inputs: Sequence[Path],
+                       head: Callable[[Path], Sequence[FrameKey]] = first_frames) -> list[str]:
+    """One warning per pair of inputs that are one log given twice (:func:`same_frames` of
+    their ``head``), naming both."""
+    heads = [head(p) for p in inputs]
+    return [f"{inputs[i]} and {inputs[j]} hold the same frames (their first {len(heads[i])} "
+            "match in id, data and time): the drive records each of them twice; convert one of "
+            "the two"
+            for i, j in itertools.combinations(range(len(inputs)), 2)
+            if same_frames(heads[i], heads[j])]
+
+
+def check_mcap_output(output: Path) -> None:
+    """The output of convert is an MCAP drive archive: its name ends in ``.mcap``."""
+    if output.suffix.lower() != ".mcap":
+        raise OutputError(output, "convert writes an MCAP drive archive: the output's name must "
+                          "end in .mcap")
 
 
 @dataclass
@@ -84,6 +154,8 @@ class ConvertReport:
     warnings: list[str] = field(default_factory=list)
     #: a re-derived drive: what it was re-derived from and with
     rederived: str = ""
+    #: inputs that are one log given twice (:func:`overlapping_inputs`), also in ``warnings``
+    input_warnings: list[str] = field(default_factory=list)
 
 
 def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes], *,
@@ -91,11 +163,13 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
                  progress: Progress | None = None, every: int = 16384,
                  extra: Mapping[str, Any] | None = None,
                  attachment_time_ns: int | None = None,
-                 read_ahead: bool = True) -> ConvertReport:
+                 read_ahead: bool = True,
+                 input_warnings: Iterable[str] = ()) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
-    ``extra`` goes into the metadata record; ``attachment_time_ns`` fixes the attachments' time.
+    ``extra`` goes into the metadata record; ``attachment_time_ns`` fixes the attachments' time;
+    ``input_warnings`` join the decoder's warnings (in the metadata and the report).
     ``read_ahead``: a second process reads the sources where it can
     (:class:`~bridge.io.readahead.ReadAhead`); the output is the same either way.
     """
@@ -113,6 +187,10 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     if progress is not None:
         progress(frames, 1.0)
     issues = [i for s in sources for i in s.issues]
+    said = list(input_warnings)
+    warnings = [*decoder.warnings(), *said]
+    if said:
+        drive.extra["warnings"] = warnings
     drive.extra.update({
         "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
                     "backwards_jumps": s.backwards} for s in sources],
@@ -121,7 +199,7 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     })
     drive.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
-                         drive.statistics, issues, decoder.warnings())
+                         drive.statistics, issues, warnings, input_warnings=said)
 
 
 def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Sequence[str], *,
@@ -133,6 +211,10 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
     """Convert log files into ``output``; everything is checked before the output is touched.
     ``warn`` is told the databases' warnings as soon as they are loaded; ``read_ahead``: see
     :func:`record_drive`."""
+    output = Path(output)
+    refuse_inputs(output, inputs)
+    check_mcap_output(output)
+    refuse_repeated(inputs)
     drives = [Path(p) for p in inputs if is_drive(p)]
     if drives:
         if len(inputs) > 1:
@@ -141,17 +223,20 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
         return rederive(drives[0], output, dbc_options, profile=profile, scene_rate=scene_rate,
                         force=force, strict=strict, progress=progress, warn=warn,
                         read_ahead=read_ahead)
-    output = Path(output)
-    check_output(output, force=force)
+    check_output(output, force=force, inputs=inputs)
     decoder, loaded_profile = load_stages(dbc_options, profile)
     if warn is not None:
         for text in decoder.warnings():
             warn(text)
     sources = [LogSource(Path(p), strict=strict) for p in inputs]
-    with atomic_output(output) as stream:
+    overlaps = overlapping_inputs([s.path for s in sources]) if len(sources) > 1 else []
+    if warn is not None:
+        for text in overlaps:
+            warn(text)
+    with atomic_output(output, force=force) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
                               scene_rate=scene_rate or DEFAULT_SCENE_RATE, progress=progress,
-                              read_ahead=read_ahead)
+                              read_ahead=read_ahead, input_warnings=overlaps)
     report.output = output
     return report
 
@@ -164,7 +249,8 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
     """Run the raw frames of a recorded drive through the whole pipeline again, into ``output``
     (see the module's description), at ``scene_rate``, else the drive's own."""
     output = Path(output)
-    check_output(output, force=force)
+    check_mcap_output(output)
+    check_output(output, force=force, inputs=[drive_path])
     drive = read_drive(drive_path)
     with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
         stages = rederive_stages(drive, dbc_options, profile, Path(folder))
@@ -173,7 +259,7 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
                 warn(text)
         sources = [DriveSource(drive.path, strict=strict)]
         rate = scene_rate if scene_rate is not None else recorded_scene_rate(drive)
-        with atomic_output(output) as stream:
+        with atomic_output(output, force=force) as stream:
             report = record_drive(sources, stages.decoder, stream, profile=stages.profile,
                                   scene_rate=rate, progress=progress,
                                   extra=source_record(drive), attachment_time_ns=0,
@@ -197,7 +283,8 @@ def add_parser(sub: Subparsers) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, help="the MCAP to write")
     add_stage_options(parser, profile_default=None)
     parser.add_argument("--sample", action="store_true",
-                        help="also convert the bundled sample drive (with the ecocar profile)")
+                        help="convert the bundled sample drive (with the ecocar profile), "
+                        "alone: not with logs")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
     parser.add_argument("--strict", action="store_true",
                         help="fail on the first unreadable line, damaged object or backwards "
@@ -214,10 +301,16 @@ def run(args: argparse.Namespace) -> int:
     dbcs = [dbc_option(text) for text in args.dbc or []]
     profile = args.profile
     if args.sample:
+        if inputs:
+            raise UsageError(f"convert: --sample converts the bundled sample drive alone; it "
+                             f"cannot be merged into {inputs[0]} (convert each on its own)")
         inputs.append(data_dir() / "ecocar_sample.blf")
         profile = profile or "ecocar"
     if not inputs:
         raise BridgeError("convert: name at least one input log (or --sample)")
+    refuse_inputs(args.output, inputs)  # (convert checks them too: here before any warning)
+    check_mcap_output(args.output)
+    refuse_repeated(inputs)
     if not dbcs and profile is None and not any(is_drive(p) for p in inputs):
         print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
     bar = ProgressBar(sys.stderr) if not args.quiet else None

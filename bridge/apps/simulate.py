@@ -16,9 +16,12 @@ A format that cannot hold the drive is refused before anything is simulated, say
 :data:`CANNOT_HOLD_BUSES`: TRC reads a bus back as the next one).
 CSV and SQLite have no column for the CAN FD flags: their frames keep id, time and every data
 byte, and the command warns about the flags it leaves out. The output is checked before anything
-is simulated and appears only complete: a log is written under a hidden name
-(``.NAME_partial.SUFFIX``) and renamed when python-can has written every frame. Stopped by
-SIGTERM or SIGHUP, it leaves nothing behind, as on Ctrl+C.
+is simulated and appears only complete: a log is written under a hidden name of the run's own
+(``.NAME_partial_<pid>-<random>.SUFFIX``) and given its name when python-can has written every
+frame (an MCAP: :func:`bridge.sinks.outputs.atomic_output`). Two runs writing one output never mix
+their bytes: with ``--force`` the last to finish wins, without it the second keeps the first's
+file and fails saying so (:func:`bridge.sinks.outputs.publish`). Stopped by SIGTERM or SIGHUP, it
+leaves nothing behind, as on Ctrl+C.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import argparse
 import math
 import os
 import re
+import secrets
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -41,7 +45,7 @@ from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sim.highway import simulate_highway
-from bridge.sinks.mcap import atomic_output, check_output
+from bridge.sinks.outputs import atomic_output, check_output, publish
 
 #: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
 CANNOT_HOLD = {
@@ -136,12 +140,16 @@ def _noting_buses(frames: Iterable[Frame], buses: set[str]) -> Iterator[Frame]:
         yield frame
 
 
-def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, int]:
-    """Write ``frames`` with python-can's writer for ``suffix``, under a hidden name renamed when
-    every frame is written. Returns how many frames, and how many of them CAN FD."""
+def write_log(frames: Iterator[Frame], output: Path, suffix: str, *,
+              force: bool | None = None) -> tuple[int, int]:
+    """Write ``frames`` with python-can's writer for ``suffix``, under a hidden name of its own
+    given its name when every frame is written (``force``: as
+    :func:`bridge.sinks.outputs.atomic_output` takes it). Returns how many frames, and how many of
+    them CAN FD."""
+    replace = os.path.lexists(output) if force is None else force
     # python-can chooses its writer by the suffixes (exactly two for gzip): keep only those
-    partial = output.with_name(f".{output.name[:-len(suffix)].replace('.', '_')}_partial{suffix}")
-    partial.unlink(missing_ok=True)  # SQLite would add to the table of an old file
+    base = output.name[:-len(suffix)].replace('.', '_')
+    partial = output.with_name(f".{base}_partial_{os.getpid()}-{secrets.token_hex(4)}{suffix}")
     count = fd = 0
     try:
         try:
@@ -163,7 +171,7 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str) -> tuple[int, 
         if isinstance(writer, can.SqliteWriter) and writer.num_frames != count:
             raise OutputError(output, f"python-can's SQLite writer wrote {writer.num_frames:,} "
                               f"of {count:,} frames")
-        os.replace(partial, output)
+        publish(partial, output, replace=replace)
     except OSError as exc:
         raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
     finally:
@@ -188,12 +196,13 @@ def run(args: argparse.Namespace) -> int:
         with stopped_by_signals():
             if suffix is None:
                 drive = Drive(load_stages([], car), extra={"simulated": simulated})
-                with atomic_output(output) as stream:
+                with atomic_output(output, force=args.force) as stream:
                     drive.record(stream)
                     count = drive.run(frames)
                     drive.finish()
             else:
-                count, fd = write_log(_noting_buses(frames, buses), output, suffix)
+                count, fd = write_log(_noting_buses(frames, buses), output, suffix,
+                                      force=args.force)
     except Stopped as stop:
         print(f"{stop}: {output} not written", file=sys.stderr)
         return 128 + stop.signum

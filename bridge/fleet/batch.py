@@ -17,15 +17,22 @@ one conversion per drive on a Dask cluster (``tankviz batch``).
 - **Outputs** (:func:`plan_jobs`): ``OUT/<subfolder>/<stem>.mcap``, the subfolder being where the
   drive sits under a folder given as input; a stem that is several drives names each after its
   UTC start (``<stem>_2026-10-02T08-15-00Z.mcap``). Two drives with one output name, or an output
-  that is one of the inputs, are refused before anything runs.
+  that is one of the inputs by any name (the same real path, or a hard link: the same device and
+  inode), are refused before anything runs.
 - **The run** (:func:`run_batch`): one Dask task per drive, without retries, each calling the
   conversion function it is given (``tankviz convert``'s own, :func:`convert_task`) with the
-  drive's inputs, which writes the output atomically. A drive that fails (an error of its input
-  or database, any exception, its worker dying) gives a :class:`DriveResult` with its one-line
-  error; the others go on. Outputs that exist already are skipped (:func:`finished`) unless
-  forced, so a batch that was interrupted resumes. Each task tells its progress (frames, fraction
-  of its input read) as Dask events on a topic of its batch (``Worker.log_event``), which the
-  client subscribes to for the batch's progress line (:func:`progress_line`).
+  drive's inputs, which writes the output atomically (and refuses one file given twice, and warns
+  about inputs that are one log twice over, e.g. ``trip.blf`` and ``trip.asc``: see
+  :mod:`bridge.apps.convert`). A drive that fails (an error of its input or database, any
+  exception, its worker dying) gives a :class:`DriveResult` with its one-line error; the others
+  go on. A drive written from inputs with issues (damaged or unreadable parts skipped, times
+  that jump back) gives how many and the first (the batch's summary names each such drive:
+  :func:`input_issue_lines`). Outputs that exist already
+  are skipped (:func:`finished`) unless forced, so a batch that was interrupted resumes. Each
+  task tells its progress (frames, fraction of its input read) as Dask events on a topic of its
+  batch (``Worker.log_event``), the first as it starts, which the client subscribes to for the
+  batch's progress line (:func:`progress_line`). That line names the drives under way that take
+  far longer than their size allows (:func:`slow_drives`).
 
 Dask (``distributed``) is imported only to run (:func:`dask_client`); without it the error says
 what to install (:data:`MISSING_DASK`).
@@ -214,17 +221,30 @@ def plan_jobs(drives: Sequence[DriveFiles], out: Path) -> list[DriveJob]:
     output that is an input."""
     out = out.expanduser().absolute()
     jobs: dict[Path, DriveJob] = {}
-    inputs = {p for d in drives for p in d.inputs}
+    inputs = _identities(p for d in drives for p in d.inputs)
     for drive in drives:
         output = out / f"{drive.name}.mcap"
         if output in jobs:
             raise UsageError(f"{output}: both {jobs[output].inputs[0]} and {drive.inputs[0]} "
                              "would be written there: convert them into different --out folders")
-        if output in inputs:
-            raise UsageError(f"{output}: is an input and would be overwritten: choose another "
-                             "--out folder")
+        for key in _identities([output]):
+            if key in inputs:
+                raise UsageError(f"{output}: is an input ({inputs[key]}) and would be "
+                                 "overwritten: choose another --out folder")
         jobs[output] = DriveJob(drive.name, tuple(str(p) for p in drive.inputs), str(output))
     return list(jobs.values())
+
+
+def _identities(paths: Iterable[Path]) -> dict[object, Path]:
+    """Each path's real path and, for a file that exists, its device and inode (the same file
+    by any name: a symbolic or hard link), to the path."""
+    keys: dict[object, Path] = {}
+    for path in paths:
+        keys.setdefault(os.path.realpath(path), path)
+        with contextlib.suppress(OSError):
+            info = os.stat(path)
+            keys.setdefault((info.st_dev, info.st_ino), path)
+    return keys
 
 
 def finished(jobs: Sequence[DriveJob], *, force: bool) -> tuple[list[DriveJob], list[DriveJob]]:
@@ -244,9 +264,17 @@ def input_bytes(job: DriveJob) -> int:
 # --- in the workers ------------------------------------------------------------------------------
 
 class Converted(Protocol):
-    """What a conversion tells: the frames it converted."""
+    """What a conversion tells: the frames it converted, what it skipped in the inputs (each
+    with its place), and the inputs that are one log twice over."""
 
-    frames: int
+    @property
+    def frames(self) -> int: ...
+
+    @property
+    def issues(self) -> Sequence[object]: ...
+
+    @property
+    def input_warnings(self) -> Sequence[str]: ...
 
 
 class ConvertFunction(Protocol):
@@ -282,6 +310,11 @@ class DriveResult:
     seconds: float = 0.0
     error: str | None = None
     worker: str = ""
+    #: the issues of the inputs (damaged or unreadable parts skipped, ...): how many, the first
+    issues: int = 0
+    first_issue: str = ""
+    #: inputs that are one log twice over (:func:`bridge.apps.convert.overlapping_inputs`)
+    warnings: tuple[str, ...] = ()
 
 
 def _worker_name() -> str:
@@ -321,25 +354,92 @@ def convert_task(job: DriveJob, convert: ConvertFunction, settings: Settings) ->
     """Convert one drive with ``convert``; any failure is the result's one-line error. In a Dask
     worker, its progress goes out as events on ``settings.progress_topic``."""
     started = time.perf_counter()
+    progress = _progress_events(job, settings.progress_topic)
+    if progress is not None:
+        progress(0, 0.0)  # under way: the client times the drive from here
     try:
         report = convert(list(job.inputs), job.output, list(settings.dbc_options),
                          profile=settings.profile, scene_rate=settings.scene_rate,
-                         force=settings.force,
-                         progress=_progress_events(job, settings.progress_topic))
+                         force=settings.force, progress=progress)
     except BridgeError as exc:
         return DriveResult(job, error=str(exc), worker=_worker_name())
     except Exception as exc:  # a bug must not stop the other drives: it is reported with them
         return DriveResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}",
                            worker=_worker_name())
     return DriveResult(job, report.frames, time.perf_counter() - started,
-                       worker=_worker_name())
+                       worker=_worker_name(), issues=len(report.issues),
+                       first_issue=str(report.issues[0]) if report.issues else "",
+                       warnings=tuple(report.input_warnings))
+
+
+def input_issue_lines(results: Sequence[DriveResult]) -> list[str]:
+    """The batch summary's lines on input issues: how many drives, then each written drive whose
+    inputs had issues, with their count, the first and where all are listed (pure, for tests)."""
+    written = [r for r in results if r.error is None]
+    damaged = [r for r in written if r.issues]
+    if not damaged:
+        return []
+    lines = [f"input issues in {len(damaged)} of {len(written)} drives written (what a log "
+             "could not give was skipped, the rest converted):"]
+    for r in sorted(damaged, key=lambda r: r.job.name):
+        lines.append(f"  {r.job.name}: {r.issues:,} {'issue' if r.issues == 1 else 'issues'}, "
+                     f"the first {r.first_issue}; tankviz inspect {r.job.output} lists them")
+    return lines
 
 
 # --- the batch, from the client ------------------------------------------------------------------
 
+#: A drive under way is slow when it has taken this many times what its size allows at the
+#: throughput of the drives done so far...
+SLOW_FACTOR = 5.0
+#: ... and at least this long (seconds): a small drive a little late is not named.
+SLOW_AFTER_S = 30.0
+
+
+@dataclass(frozen=True)
+class Running:
+    """A drive under way, as the progress line sees it."""
+
+    name: str
+    seconds: float
+    bytes: int
+
+
+def slow_drives(running: Sequence[Running], *, done_bytes: int, done_seconds: float,
+                factor: float = SLOW_FACTOR, after_s: float = SLOW_AFTER_S) -> list[str]:
+    """The drives under way that take far longer than their size allows, as the progress line
+    names them (``trip7 (4 min, 12 MB)``), slowest first (pure, for tests). What a drive's size
+    allows: its input bytes at the throughput of the drives done so far (their input bytes over
+    the seconds each took on its worker); far longer: more than ``factor`` times that, and more
+    than ``after_s``. Nothing is slow before a drive is done."""
+    if done_bytes <= 0 or done_seconds <= 0:
+        return []
+    per_byte = done_seconds / done_bytes
+    slow = [r for r in running
+            if r.seconds > after_s and r.seconds > factor * r.bytes * per_byte]
+    return [f"{r.name} ({_duration(r.seconds)}, {_size(r.bytes)})"
+            for r in sorted(slow, key=lambda r: -r.seconds)]
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _size(n: int) -> str:
+    for unit, scale in (("GB", 10**9), ("MB", 10**6), ("kB", 10**3)):
+        if n >= scale:
+            return f"{n / scale:.0f} {unit}"
+    return f"{n} B"
+
+
 def progress_line(*, done: int, failed: int, total: int, frames: int, elapsed: float,
-                  fraction: float | None, width: int = 20) -> str:
-    """The batch's one progress line: drives done, frames/s overall, ETA (pure, for tests)."""
+                  fraction: float | None, width: int = 20, slow: Sequence[str] = ()) -> str:
+    """The batch's one progress line: drives done, frames/s overall, ETA, and the drives under
+    way that are slow (:func:`slow_drives`) (pure, for tests)."""
     rate = frames / elapsed if elapsed > 0 else 0.0
     eta = "--:--"
     filled = 0
@@ -350,8 +450,9 @@ def progress_line(*, done: int, failed: int, total: int, frames: int, elapsed: f
             seconds = int(elapsed * (1 - fraction) / fraction)
             eta = f"{seconds // 60:02d}:{seconds % 60:02d}"
     failures = f" ({failed} failed)" if failed else ""
+    slow_text = f"; slow: {', '.join(slow)}" if slow else ""
     return (f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total} drives{failures}  "
-            f"{frames:,} frames  {rate:,.0f} frames/s  ETA {eta}")
+            f"{frames:,} frames  {rate:,.0f} frames/s  ETA {eta}{slow_text}")
 
 
 @contextlib.contextmanager

@@ -22,8 +22,7 @@ import struct
 import sys
 import time
 from array import array
-from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
+from collections.abc import Callable, Sequence
 from typing import IO, Any
 
 from mcap.opcode import Opcode
@@ -35,7 +34,6 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
 from bridge.decode.decoder import Decoded, MessageCodec
-from bridge.errors import OutputError
 from bridge.frame import Frame
 from bridge.pb.can_frame_pb2 import CanFrame
 from bridge.sinks.base import Serialized, Sink
@@ -173,36 +171,6 @@ class FastWriter(McapWriter):
         buffer.write(data)
         if offset + _MESSAGE_HEADER.size + n > self._chunk_size:
             self._settle_and_finalize()
-
-
-@contextlib.contextmanager
-def atomic_output(path: Path) -> Iterator[IO[bytes]]:
-    """An output file that appears only complete: written as ``.<name>.partial`` and renamed
-    when the block succeeds; after any failure no file is left behind."""
-    partial = path.with_name(f".{path.name}.partial")
-    try:
-        with partial.open("wb") as stream:
-            yield stream
-        os.replace(partial, path)
-    except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise OutputError(path, f"cannot write: {exc.strerror or exc}") from exc
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
-
-
-def check_output(path: Path, *, force: bool) -> None:
-    """Refuse an output that exists (unless ``force``) or that cannot be written."""
-    if path.is_dir():
-        raise OutputError(path, "is a directory")
-    if path.exists() and not force:
-        raise OutputError(path, "exists already; use --force to overwrite it")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(path, f"cannot write: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise OutputError(path, f"cannot write: folder {parent} is not writable")
 
 
 _FRAME_HEADS: dict[tuple[Any, ...], bytes] = {}

@@ -124,7 +124,7 @@ BO_ 1056 DoorState: 8 Door
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signum: int) -> None:
     """As Ctrl+C already did: SIGTERM (systemd, docker stop) and SIGHUP (the terminal closed)
-    end the conversion with no ``.OUT.mcap.partial`` left over."""
+    end the conversion with no partial file (``.OUT.mcap.<pid>-<random>.partial``) left over."""
     log = tmp_path / "door.log"
     log.write_text("".join(f"({1_700_000_000 + i / 1000:.6f}) can0 420#{i % 256:02X}{'00' * 7}\n"
                            for i in range(400_000)))
@@ -133,9 +133,9 @@ def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signu
     process = subprocess.Popen([sys.executable, "-m", "bridge", "convert", str(log), "-o",
                                 str(out), "--dbc", str(tmp_path / "door.dbc"), "--quiet"],
                                stderr=subprocess.PIPE, text=True)
-    partial = tmp_path / ".door.mcap.partial"
     until = time.monotonic() + 60
-    while not partial.exists() and process.poll() is None and time.monotonic() < until:
+    while (not list(tmp_path.glob(".door.mcap.*.partial")) and process.poll() is None
+           and time.monotonic() < until):
         time.sleep(0.01)
     assert process.poll() is None, "finished before it could be stopped: make the log longer"
     process.send_signal(signum)
@@ -145,16 +145,16 @@ def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signu
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
 
 
-@pytest.mark.parametrize(("name", "partial"), [("drive.mcap", ".drive.mcap.partial"),
-                                               ("drive.blf", ".drive_partial.blf"),
-                                               ("drive.db", ".drive_partial.db")])
+@pytest.mark.parametrize(("name", "partial"), [("drive.mcap", ".drive.mcap.*.partial"),
+                                               ("drive.blf", ".drive_partial_*.blf"),
+                                               ("drive.db", ".drive_partial_*.db")])
 def test_simulate_stopped_by_sigterm_leaves_nothing_behind(tmp_path: Path, name: str,
                                                            partial: str) -> None:
     process = subprocess.Popen([sys.executable, "-m", "bridge", "simulate", "-o", name,
                                 "--duration", "3600"], cwd=tmp_path, stderr=subprocess.PIPE,
                                text=True)
     until = time.monotonic() + 60
-    while (not (tmp_path / partial).exists() and process.poll() is None
+    while (not list(tmp_path.glob(partial)) and process.poll() is None
            and time.monotonic() < until):
         time.sleep(0.01)
     assert process.poll() is None, process.stderr

@@ -1,0 +1,133 @@
+"""What ``tankviz batch`` says about its drives (issue #23, item 12 and the tail of item 3).
+
+- A damaged BLF in a batch was salvaged, but the batch said only ``wrote broken.mcap: 29,678
+  frames``. Now the drive's line counts its input issues, and the summary names every drive
+  with input issues, with their count, the first (the damaged container, its byte) and where all
+  are listed.
+- One log in two formats (``trip.blf`` + ``trip.asc``) is one drive that records every frame
+  twice: its line warns, naming both files.
+- A drive that takes far longer than its size allows is named in the progress line.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import can
+import pytest
+from conftest import T0, WriteLog
+
+from bridge.apps.convert import convert
+from bridge.cli import main
+from bridge.fleet.batch import (
+    DriveJob,
+    DriveResult,
+    Running,
+    Settings,
+    convert_task,
+    input_issue_lines,
+    progress_line,
+    slow_drives,
+)
+
+MB = 10**6
+
+
+def frames(n: int) -> list[can.Message]:
+    """``n`` classic frames, 1 ms apart, each carrying its number."""
+    return [can.Message(timestamp=T0 + i * 0.001, arbitration_id=0x100 + i % 64,
+                        data=i.to_bytes(4, "big") * 2, channel=0, is_extended_id=False)
+            for i in range(n)]
+
+
+def damage(path: Path) -> Path:
+    """Overwrite 200 bytes in the middle of the file, as a bad sector or copy would."""
+    blob = bytearray(path.read_bytes())
+    middle = len(blob) // 2
+    blob[middle:middle + 200] = random.Random(7).randbytes(200)
+    path.write_bytes(blob)
+    return path
+
+
+@pytest.fixture
+def broken(write_log: WriteLog) -> Path:
+    return damage(write_log("broken.blf", frames(20_000)))
+
+
+def job(tmp_path: Path, name: str, *inputs: Path) -> DriveJob:
+    return DriveJob(name, tuple(map(str, inputs)), str(tmp_path / "out" / f"{name}.mcap"))
+
+
+# --- damaged inputs -----------------------------------------------------------------------------
+
+def test_a_drive_converted_from_a_damaged_blf_says_how_much_was_skipped(
+        broken: Path, tmp_path: Path) -> None:
+    (tmp_path / "out").mkdir()
+    result = convert_task(job(tmp_path, "broken", broken), convert, Settings((), None, None, False))
+    assert result.error is None and result.frames > 0
+    assert result.issues == 1
+    assert result.first_issue.startswith(f"{broken}:byte ") and "damaged" in result.first_issue
+
+
+def test_the_summary_names_every_drive_with_damaged_inputs(tmp_path: Path) -> None:
+    good = DriveResult(job(tmp_path, "good", tmp_path / "good.blf"), frames=100, seconds=1.0)
+    bad = DriveResult(job(tmp_path, "week/bad", tmp_path / "bad.blf"), frames=90, seconds=1.0,
+                      issues=3, first_issue="bad.blf:byte 4096: the container is damaged")
+    failed = DriveResult(job(tmp_path, "gone", tmp_path / "gone.blf"), error="gone.blf: no such")
+    assert input_issue_lines([good, failed]) == []
+    assert input_issue_lines([good, bad, failed]) == [
+        "input issues in 1 of 2 drives written (what a log could not give was skipped, the rest "
+        "converted):",
+        "  week/bad: 3 issues, the first bad.blf:byte 4096: the container is damaged; "
+        f"tankviz inspect {tmp_path / 'out' / 'week' / 'bad.mcap'} lists them"]
+
+
+def test_a_batch_names_its_damaged_drive_and_warns_of_one_log_in_two_formats(
+        broken: Path, write_log: WriteLog, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    trip = [write_log("trip.blf", frames(3000)), write_log("trip.asc", frames(3000))]
+    write_log("good.blf", frames(3000))
+    out = tmp_path / "out"
+    assert main(["batch", "convert", str(tmp_path), "--out", str(out), "--workers", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    (wrote_broken,) = [line for line in lines if line.startswith(f"wrote {out / 'broken.mcap'}")]
+    assert wrote_broken.endswith("; 1 input issue")
+    (wrote_good,) = [line for line in lines if line.startswith(f"wrote {out / 'good.mcap'}")]
+    assert "issue" not in wrote_good
+    at = lines.index("input issues in 1 of 3 drives written (what a log could not give was "
+                     "skipped, the rest converted):")
+    assert lines[at + 1].startswith(f"  broken: 1 issue, the first {broken}:byte ")
+    assert lines[at + 1].endswith(f"; tankviz inspect {out / 'broken.mcap'} lists them")
+    (wrote_trip,) = [i for i, line in enumerate(lines)
+                     if line.startswith(f"wrote {out / 'trip.mcap'}")]
+    assert lines[wrote_trip + 1] == (
+        f"  warning: {trip[1]} and {trip[0]} hold the same frames (their first 16 match in id, "
+        "data and time): the drive records each of them twice; convert one of the two")
+
+
+# --- slow drives --------------------------------------------------------------------------------
+
+def test_a_drive_far_slower_than_its_size_allows_is_named() -> None:
+    # drives done so far: 100 MB in 100 s, 1 MB/s; a 12 MB drive should take about 12 s
+    done = {"done_bytes": 100 * MB, "done_seconds": 100.0}
+    assert slow_drives([Running("trip7", 240.0, 12 * MB)], **done) == ["trip7 (4 min, 12 MB)"]
+    assert slow_drives([Running("trip7", 59.0, 12 * MB)], **done) == []  # under 5 x 12 s
+    assert slow_drives([Running("tiny", 29.0, MB // 10)], **done) == []  # 290 x, under 30 s
+    assert slow_drives([Running("tiny", 31.0, MB // 10)], **done) == ["tiny (31 s, 100 kB)"]
+    # slowest first
+    assert slow_drives([Running("a", 100.0, MB), Running("b", 200.0, MB)], **done) == [
+        "b (3 min, 1 MB)", "a (100 s, 1 MB)"]
+
+
+def test_nothing_is_slow_before_a_drive_is_done() -> None:
+    assert slow_drives([Running("trip7", 3600.0, MB)], done_bytes=0, done_seconds=0.0) == []
+
+
+def test_the_progress_line_ends_with_the_slow_drives() -> None:
+    line = progress_line(done=5, failed=0, total=6, frames=1000, elapsed=100.0, fraction=1.0,
+                         slow=["trip7 (4 min, 12 MB)"])
+    assert line.endswith("5/6 drives  1,000 frames  10 frames/s  ETA 00:00; slow: trip7 "
+                         "(4 min, 12 MB)")
+    assert "slow" not in progress_line(done=5, failed=0, total=6, frames=1000, elapsed=100.0,
+                                       fraction=1.0)
