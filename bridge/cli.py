@@ -85,7 +85,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BridgeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_ERROR
-    args = parser.parse_args(arguments)
+    try:
+        args = parser.parse_args(arguments)  # an option's value may be a one-line error
+    except BridgeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
     args.argv = arguments
     try:
         code: int = args.run(args)

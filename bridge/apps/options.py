@@ -98,9 +98,20 @@ def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str |
                         "scene and perception topics; a bundled name such as 'ecocar' works too; "
                         "without --dbc the profile's own databases are used"
                         + (f" (default {profile_default})" if profile_default else ""))
-    parser.add_argument("--scene-rate", type=float, metavar="HZ",
+    parser.add_argument("--scene-rate", type=_scene_rate, metavar="HZ",
                         help=f"scene updates per second of log time (default "
                         f"{DEFAULT_SCENE_RATE:g}, or a re-derived drive's own; at most 50)")
+
+
+def _scene_rate(text: str) -> float:
+    """``--scene-rate``'s value, checked as it is parsed (0 is no default: it is refused)."""
+    from bridge.pipeline.perception import check_scene_rate
+
+    try:
+        rate = float(text)
+    except ValueError:
+        raise UsageError(f"--scene-rate {text}: expected a number of Hz") from None
+    return check_scene_rate(rate)
 
 
 def scene_rate(args: argparse.Namespace) -> float:

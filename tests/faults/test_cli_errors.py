@@ -56,3 +56,15 @@ def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
     line = one_error_line(tankviz("inspect", "drives", cwd=tmp_path))
     assert line.startswith("error: drives: is a folder")
     assert "drives/*.mcap" in line
+
+
+@pytest.mark.parametrize("rate", ["0", "-1", "100"])
+@pytest.mark.parametrize("command", ["convert", "batch"])
+def test_a_scene_rate_of_zero_is_refused_as_any_other_out_of_range(
+        tmp_path: Path, rate: str, command: str) -> None:
+    """``--scene-rate 0`` was quietly the default, while 100 was refused."""
+    argv = (["convert", "--sample", "-o", "x.mcap"] if command == "convert"
+            else ["batch", "convert", "nothing/*.blf", "--out", "out"])
+    line = one_error_line(tankviz(*argv, f"--scene-rate={rate}", cwd=tmp_path))
+    assert line == f"error: --scene-rate {rate}: must be above 0 and at most 50 Hz"
+    assert list(tmp_path.iterdir()) == []
