@@ -34,7 +34,7 @@ from bridge.pb import health_pb2
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sim.scenario import DEFAULT_START_NS
-from bridge.sinks.mcap import atomic_output
+from bridge.sinks.outputs import atomic_output
 
 VENV_BIN = Path(sys.executable).parent
 DAY_NS = 86_400 * NS
@@ -489,3 +489,25 @@ def test_lead_changes_count_the_lead_number_and_old_drives_the_id() -> None:
     assert changes(twins) == [(None, 2, False), (8, 0, True)]
     # a drive recorded before lead_number: every change of id
     assert len(changes([(i, d, 0) for i, d, _ in twins])) == 5
+
+
+# --- the command line ---------------------------------------------------------------------------
+
+def test_the_usage_says_both_forms_and_query_help_is_the_querys(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["catalog", "--help"])
+    assert done.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(
+        "usage: tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]\n"
+        '       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] '
+        "[--between T1 T2]\n")
+    assert "DRIVES | query" not in out and "--workers" in out
+    with pytest.raises(SystemExit) as done:
+        main(["catalog", "query", "--help"])
+    assert done.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith('usage: tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | '
+                          "--topic T] [--between T1 T2]\n")
+    assert "--alarm ID" in out and "--workers" not in out and "-o CATALOG" not in out

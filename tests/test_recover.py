@@ -23,7 +23,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 
-from bridge.apps.inspect import summarize_file
+from bridge.apps.inspect import format_summary, summarize_file
 from bridge.apps.recover import METADATA_NAME, RecoverReport, format_report, recover, recover_file
 from bridge.errors import InputError, OutputError
 from bridge.frame import Frame
@@ -275,6 +275,19 @@ def test_the_report_of_a_cut_drive(tmp_path: Path) -> None:
     assert summary.messages == report.messages
     assert summary.metadata[METADATA_NAME]["stopped_at"] == str(start)
     assert summary.metadata[METADATA_NAME]["source"] == str(broken)
+
+
+def test_inspect_prints_a_recovered_drives_counts_per_topic_a_line_each(tmp_path: Path) -> None:
+    d = drive()
+    _, end, _ = d.chunks[5]
+    broken, fixed = tmp_path / "broken.mcap", tmp_path / "fixed.mcap"
+    broken.write_bytes(d.data[:end - 100])
+    report = recover_file(broken, fixed)
+    lines = format_summary(str(fixed), summarize_file(fixed)).splitlines()
+    at = lines.index(f"  messages_per_topic ({len(report.per_topic)}):")
+    assert [line.split() for line in lines[at + 1:at + 1 + len(report.per_topic)]] == [
+        [topic, f"{n:,}"] for topic, n in report.per_topic.items()]
+    assert not any(line.lstrip().startswith("messages_per_topic: {") for line in lines)
 
 
 def test_zeros_where_the_data_never_reached_the_disk() -> None:

@@ -6,7 +6,8 @@ prints one line per drive that could not be indexed (``skipped: <error>``) and a
 exit status 1 when a drive was not indexed. ``tankviz catalog query CATALOG "SQL"`` (or
 ``--alarm ID``, ``--topic T``, ``--between T1 T2``) prints the answer as a table, then, for every
 row with a drive and a log time, the ``tankviz replay`` command and the Foxglove time to open it.
-(A drive file named ``query`` is given as ``./query``.)
+(A drive file named ``query`` is given as ``./query``.) ``tankviz catalog --help`` shows the
+indexing options, ``tankviz catalog query --help`` the query's.
 """
 
 from __future__ import annotations
@@ -19,15 +20,59 @@ from bridge.apps.options import Subparsers
 from bridge.errors import UsageError
 from bridge.fleet import catalog
 
+USAGE = """tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]
+       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] [--between T1 T2]"""
+QUERY_USAGE = ('tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] '
+               "[--between T1 T2]")
+
+
+def query_parser() -> argparse.ArgumentParser:
+    """What ``tankviz catalog query --help`` shows (the query's own arguments)."""
+    parser = argparse.ArgumentParser(
+        prog="tankviz catalog query", usage=QUERY_USAGE,
+        description="Ask a catalogue: SQL on its tables (drives, databases, alarms, topics, "
+        "objects_summary, lead_changes), or a canned question; each answer row with a drive "
+        "and a log time comes with the tankviz replay command that opens it there.")
+    parser.add_argument("catalog", metavar="CATALOG.duckdb", help="the catalogue to ask")
+    parser.add_argument("sql", nargs="?", metavar="SQL", help="a query (read only)")
+    _add_query_options(parser)
+    return parser
+
+
+def _add_query_options(parser: argparse.ArgumentParser, prefix: str = "") -> None:
+    parser.add_argument("--alarm", metavar="ID", help=f"{prefix}every time alarm ID was raised")
+    parser.add_argument("--topic", metavar="T", help=f"{prefix}every drive with topic T")
+    parser.add_argument("--between", nargs=2, metavar=("T1", "T2"),
+                        help=f"{prefix}drives recorded between two UTC times (2026-01-01 or "
+                        "2026-01-01T12:00:00); narrows --alarm and --topic")
+
+
+class _Help(argparse.Action):
+    """``-h``: the query's help after ``query``, else the indexing help."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="show this help message and exit (after query: the query's)")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        items = getattr(namespace, "items", None) or []
+        (query_parser() if items[:1] == ["query"] else parser).print_help()
+        parser.exit()
+
 
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
-        "catalog", help="index drives into a DuckDB catalogue, or query it",
+        "catalog", help="index drives into a DuckDB catalogue, or query it", usage=USAGE,
+        add_help=False,
         description="tankviz catalog DRIVES... -o CATALOG.duckdb: (re)index drives (files, "
         "folders searched recursively for *.mcap, globs); only new or changed drives are read. "
         "tankviz catalog query CATALOG.duckdb \"SQL\" (or --alarm/--topic/--between): ask it, "
-        "with the tankviz replay command that opens each answer.")
-    parser.add_argument("items", nargs="+", metavar="DRIVES | query CATALOG [SQL]")
+        "with the tankviz replay command that opens each answer (tankviz catalog query --help).")
+    parser.add_argument("-h", "--help", action=_Help)
+    parser.add_argument("items", nargs="+", metavar="DRIVES",
+                        help="drive files, folders (searched recursively for *.mcap) or globs; "
+                        "or query, the catalogue and the SQL")
     parser.add_argument("-o", "--output", type=Path, metavar="CATALOG.duckdb",
                         help="the catalogue to (re)index")
     parser.add_argument("--workers", type=int, metavar="N",
@@ -35,11 +80,7 @@ def add_parser(sub: Subparsers) -> None:
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="read the drives on an existing Dask cluster (tcp://host:8786); "
                         "its workers must see the same paths")
-    parser.add_argument("--alarm", metavar="ID", help="query: every time alarm ID was raised")
-    parser.add_argument("--topic", metavar="T", help="query: every drive with topic T")
-    parser.add_argument("--between", nargs=2, metavar=("T1", "T2"),
-                        help="query: drives recorded between two UTC times (2026-01-01 or "
-                        "2026-01-01T12:00:00)")
+    _add_query_options(parser, "query: ")
     parser.set_defaults(run=run)
 
 
@@ -68,8 +109,7 @@ def _query(args: argparse.Namespace, rest: list[str]) -> int:
     if args.output is not None or args.workers is not None or args.scheduler is not None:
         raise UsageError("-o, --workers and --scheduler are for indexing, not for query")
     if not rest or len(rest) > 2:
-        raise UsageError('usage: tankviz catalog query CATALOG.duckdb ["SQL"] '
-                         "[--alarm ID | --topic T | --between T1 T2]")
+        raise UsageError(f"usage: {QUERY_USAGE}")
     path = Path(rest[0])
     sql = rest[1] if len(rest) == 2 else None
     between: tuple[str, str] | None = (

@@ -1,12 +1,16 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
 Besides times, topics, attachments and the decode statistics it prints what the ``tankviz``
-metadata record says of the drive: inputs, databases, clock steps, recording gaps, warnings, the
-alarms raised and cleared, and each sensor's lateral sign verdict (``ok``, ``flipped`` or
-``unknown``, one line per sensor: :mod:`bridge.world.lateral`).
+metadata record says of the drive: inputs, databases, clock steps, bus gaps (a bus lost and back,
+live), recording pauses (the disk was full: when, why, and what was not recorded), warnings, the
+alarms raised and cleared, each sensor's lateral sign verdict (``ok``, ``flipped`` or
+``unknown``, one line per sensor: :mod:`bridge.world.lateral`) and what the inputs could not give
+(:func:`bridge.io.issues.summarize_issues`: a stop first, repeated issues counted together).
+Other metadata records (``tankviz.recover``'s) are printed one entry a line, a JSON map (every
+item) or list as a line per item. Every list that is cut short ends with ``… and N more``.
 
 A file that is missing, unreadable, a folder or not MCAP is an :class:`~bridge.errors.InputError`
-naming it (one line).
+naming it and saying why (one line: :func:`bridge.io.unreadable.why_unreadable`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ from mcap.reader import make_reader
 from bridge.apps.options import Subparsers
 from bridge.errors import InputError
 from bridge.frame import format_time
+from bridge.io.issues import summarize_issues
+from bridge.io.unreadable import why_unreadable
 from bridge.sinks.mcap import METADATA_NAME
 
 
@@ -96,8 +102,8 @@ def summarize_file(path: Path | str) -> DriveSummary:
                          f"({path / '*.mcap'})") from None
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-    except (McapError, ValueError, EOFError) as exc:  # mcap raises these for damaged files
-        raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
+    except (McapError, ValueError, EOFError, RuntimeError) as exc:  # mcap's, for damaged files
+        raise InputError(path, why_unreadable(path, exc)) from None
 
 
 def _json(text: str) -> Any:
@@ -105,6 +111,58 @@ def _json(text: str) -> Any:
         return json.loads(text)
     except ValueError:
         return text
+
+
+#: How many entries of a list are printed (the rest: ``… and N more``).
+LIMIT = 20
+
+
+def _cut(lines: list[str], total: int | None = None, limit: int = LIMIT,
+         indent: str = "  ") -> list[str]:
+    """The first ``limit`` of ``lines`` (of ``total``), and how many are left out."""
+    left = (len(lines) if total is None else total) - min(limit, len(lines))
+    return lines[:limit] + ([f"{indent}… and {left:,} more"] if left > 0 else [])
+
+
+def _span(from_ns: int, to_ns: int | None) -> str:
+    if to_ns is None:
+        return f"{format_time(from_ns)} -> (not over)"
+    return f"{format_time(from_ns)} -> {format_time(to_ns)} ({(to_ns - from_ns) / 1e9:,.1f} s)"
+
+
+def _recording_gap(g: dict[str, Any], part: str) -> str:
+    """One pause of the recording: when, why, and what it did not record."""
+    if g.get("to_ns") is None:
+        return (f"  {format_time(g['from_ns'])}: recording stopped: {g['reason']} (what it did "
+                "not record is in the next part's metadata)")
+    if "frames_not_recorded" in g:
+        where = g.get("resumed_in")
+        kept = "this part" if where in (None, part) else where
+        lost = (f"{g['frames_not_recorded'] or 0:,} frames not recorded (backlog full), "
+                f"{g.get('frames_kept') or 0:,} recorded at the start of {kept}, "
+                f"{g.get('messages_not_recorded') or 0:,} decoded messages and scenes not "
+                "recorded")
+    else:  # recorded before these counts had their names
+        lost = (f"{g.get('frames_dropped', 0):,} frames dropped, "
+                f"{g.get('messages_lost', 0):,} messages not recorded")
+    return f"  {_span(g['from_ns'], g['to_ns'])}: {g['reason']}: {lost}"
+
+
+def _bus_gap(g: dict[str, Any]) -> str:
+    return f"  {g.get('bus', '?')}: {_span(g['from_ns'], g.get('to_ns'))}: {g.get('reason', '')}"
+
+
+def _entry(key: str, text: str) -> list[str]:
+    """A metadata entry: one line, or a JSON map or list as a line per item."""
+    value = _json(text)
+    if isinstance(value, dict) and value:
+        width = max(len(str(k)) for k in value)
+        items = [f"    {k!s:<{width}}  {v:>12,}" if isinstance(v, int) and not isinstance(
+            v, bool) else f"    {k!s:<{width}}  {v}" for k, v in value.items()]
+        return [f"  {key} ({len(value)}):", *items]
+    if isinstance(value, list) and value:
+        return [f"  {key} ({len(value)}):", *_cut([f"    {v}" for v in value], indent="    ")]
+    return [f"  {key}: {text}"]
 
 
 def format_summary(path: str, s: DriveSummary) -> str:
@@ -142,10 +200,13 @@ def format_summary(path: str, s: DriveSummary) -> str:
                            ("short frames (decoded what fits)", "truncated")):
             entries = stats.get(key, {})
             total = sum(entries.values())
+            top = sorted(entries.items(), key=lambda kv: -kv[1])
+            more = f", … and {len(top) - 12:,} more" if len(top) > 12 else ""
             lines.append(f"  {title}: {total:,}" + ("" if not entries else " — " + ", ".join(
-                f"{k} ({v})" for k, v in sorted(entries.items(), key=lambda kv: -kv[1])[:12])))
-        for k, text in list(stats.get("last_decode_error", {}).items())[:12]:
-            lines.append(f"    {k}: {text}")
+                f"{k} ({v})" for k, v in top[:12]) + more))
+        last_errors = stats.get("last_decode_error", {})
+        lines += _cut([f"    {k}: {text}" for k, text in last_errors.items()], limit=12,
+                      indent="    ")
         longer = stats.get("longer", {})
         lines.append("  CAN FD frames longer than their message (decoded what it defines): "
                      f"{sum(v['frames'] for v in longer.values()):,}")
@@ -161,35 +222,37 @@ def format_summary(path: str, s: DriveSummary) -> str:
         steps = _json(ours.get("clock_steps", "[]"))
         if steps:
             lines += ["", f"clock steps ({len(steps)}; frames recorded with their own stamps):"]
-            lines += [f"  {format_time(s['from_ns'])} -> {format_time(s['to_ns'])} "
-                      f"({s['step_s']:+,.3f} s)" for s in steps[:20]]
+            lines += _cut([f"  {format_time(s['from_ns'])} -> {format_time(s['to_ns'])} "
+                           f"({s['step_s']:+,.3f} s)" for s in steps])
+        bus_gaps = _json(ours.get("bus_gaps", "[]"))
+        if bus_gaps:
+            lines += ["", f"bus gaps ({len(bus_gaps)}; a bus lost and back):"]
+            lines += _cut([_bus_gap(g) for g in bus_gaps])
         gaps = _json(ours.get("recording_gaps", "[]"))
         if gaps:
             lines += ["", f"recording paused ({len(gaps)}):"]
-            lines += [f"  {format_time(g['from_ns'])}: {g['reason']} "
-                      f"({g.get('frames_dropped', 0):,} frames dropped, "
-                      f"{g.get('messages_lost', 0):,} messages not recorded)" for g in gaps]
+            lines += _cut([_recording_gap(g, Path(path).name) for g in gaps])
         warnings = _json(ours.get("warnings", "[]"))
         if warnings:
             lines += ["", f"warnings ({len(warnings)}):"]
             lines += [f"  {text}" for text in warnings]
         alarms = _json(ours.get("alarms", "[]"))
         lines += ["", f"alarms ({sum(a['event'] == 'raised' for a in alarms)} raised):"]
-        lines += [f"  {format_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: {a['message']}"
-                  for a in alarms[:50]]
-        if len(alarms) > 50:
-            lines.append(f"  … {len(alarms) - 50} more in the metadata")
+        lines += _cut([f"  {format_time(a['t_ns'])}  {a['event']:<7} {a['alarm']}: "
+                       f"{a['message']}" for a in alarms], limit=50)
         lateral = _json(ours.get("lateral_sign", "[]"))
         if lateral:  # each sensor's verdict: bridge.world.lateral
             lines += ["", "lateral sign (stationary objects against the turn):"]
             lines += [f"  {v['verdict']:<7}  {v['message']}" for v in lateral]
         issues = _json(ours.get("input_issues", "{}"))
         if issues.get("count"):
-            lines += ["", f"skipped in the inputs ({issues['count']}):"]
-            lines += [f"  {text}" for text in issues.get("first", [])[:20]]
+            lines += ["", f"skipped in the inputs ({issues['count']:,}):"]
+            lines += [f"  {text}" for text in summarize_issues(
+                issues.get("first", []), total=issues["count"], limit=LIMIT)]
     for name, values in sorted(meta.items()):
         lines += ["", f"metadata {name}:"]
-        lines += [f"  {k}: {v}" for k, v in sorted(values.items())]
+        for k, v in sorted(values.items()):
+            lines += _entry(k, v)
     lines += ["", f"attachments ({len(s.attachments)}):"]
     lines += [f"  {name}  {media}  {size:,} bytes" for name, media, size in s.attachments]
     return "\n".join(lines)

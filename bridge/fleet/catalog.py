@@ -6,15 +6,24 @@
 databases with their SHA-256, decode statistics, alarm events) and the messages of the
 perception topics (``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``);
 nothing is decoded again. A drive without the ``tankviz`` record (one cut short and recovered)
-takes its alarms from the ``/log`` messages of the health monitor instead (``ALARM <id>: ...``,
-``cleared <id> ...``). A file that is not MCAP, has no summary (``tankviz recover`` makes one) or
+takes what it holds from the file instead (:mod:`bridge.fleet.held`): its alarms from the
+``/log`` messages of the health monitor (``ALARM <id>: ...``, ``cleared <id> ...``), its frames
+per bus from the counts of its raw-frame channels (``/can/<bus>/frames``), its databases (name,
+SHA-256; buses unknown: empty) and profile from its attachments, and what ``tankviz recover``
+says of it (its ``tankviz.recover`` record) into ``statistics`` (``recovered``). A recovered
+drive that kept its ``tankviz`` record counts its frames per bus the same way (the record counts
+those cut off too). A file that is not MCAP, has no summary (``tankviz recover`` makes one) or
 is not a tankviz drive (neither the metadata record nor a ``tankviz.Health`` channel) is an
-:class:`~bridge.errors.InputError` naming it.
+:class:`~bridge.errors.InputError` naming it, with why it cannot be read
+(:func:`bridge.io.unreadable.why_unreadable`: empty, not MCAP, cut at which byte, …).
+
+A drive is keyed by its resolved path (symbolic links and ``..`` followed), so one file named two
+ways is indexed once.
 
 Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since the epoch,
 ``*_s`` seconds since the drive's first message, which is ``tankviz replay --start``):
 
-- ``drives``: one row per drive, keyed by its absolute ``path``;
+- ``drives``: one row per drive, keyed by its resolved ``path``;
 - ``databases``: the databases a drive was decoded with (name, SHA-256, buses);
 - ``alarms``: one row per time an alarm was raised (``cleared`` NULL: still raised at the end);
 - ``topics``: every channel with its schema, message count and mean rate over the drive;
@@ -58,7 +67,9 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from bridge.errors import BridgeError, InputError, UsageError
+from bridge.fleet.held import RECOVER_RECORD, held_metadata
 from bridge.frame import NS, format_time
+from bridge.io.unreadable import why_unreadable
 from bridge.pb import perception_pb2
 from bridge.sinks.mcap import METADATA_NAME
 from bridge.topics import LOG_TOPIC
@@ -212,7 +223,7 @@ class _Lead:
 def read_drive(path: Path | str) -> DriveRows:
     """Every table's rows for one tankviz MCAP drive (:class:`~bridge.errors.InputError` if it
     is none)."""
-    path = Path(path).absolute()
+    path = Path(path).resolve()
     drive = str(path)
     try:
         stat = path.stat()
@@ -224,29 +235,33 @@ def read_drive(path: Path | str) -> DriveRows:
         raise InputError(path, "is a folder, not an MCAP drive") from None
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-    except (McapError, ValueError, EOFError, KeyError, struct.error) as exc:
-        raise InputError(path, f"not a readable MCAP file ({exc})") from None
+    except (McapError, ValueError, EOFError, KeyError, struct.error, RuntimeError) as exc:
+        raise InputError(path, why_unreadable(path, exc)) from None
 
 
 def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
     reader = make_reader(stream)
     summary = reader.get_summary()
     if summary is None or summary.statistics is None:
-        raise InputError(drive, "an MCAP file without a summary (a drive cut short?): "
-                         "`tankviz recover` makes a complete copy to index")
+        raise InputError(drive, why_unreadable(drive))
     stats = summary.statistics
     start_ns, end_ns = stats.message_start_time, stats.message_end_time
     duration_s = (end_ns - start_ns) / NS if stats.message_count else 0.0
     schemas = {i: s.name for i, s in summary.schemas.items()}
     channels = sorted(summary.channels.values(), key=lambda c: c.topic)
     schema_of = {c.topic: schemas.get(c.schema_id, "") for c in channels}
-    meta = next((dict(m.metadata) for m in reader.iter_metadata() if m.name == METADATA_NAME),
-                None)
+    records = {m.name: dict(m.metadata) for m in reversed(list(reader.iter_metadata()))}
+    meta = records.get(METADATA_NAME)
     if meta is None and HEALTH_SCHEMA not in schema_of.values():
         raise InputError(drive, f"not a tankviz drive: no {METADATA_NAME!r} metadata record and "
                          f"no {HEALTH_SCHEMA} channel")
-    meta = meta or {}
     counts = stats.channel_message_counts
+    if meta is None:  # cut short (and recovered): what the file holds
+        meta = held_metadata(reader, channels, counts, records.get(RECOVER_RECORD))
+    elif RECOVER_RECORD in records:  # recovered: its frames are those it holds, not all it had
+        held = _json(held_metadata(None, channels, counts, records[RECOVER_RECORD]),
+                     "statistics", {})
+        meta = {**meta, "statistics": json.dumps({**_json(meta, "statistics", {}), **held})}
     topics = [(drive, c.topic, schemas.get(c.schema_id, ""), c.message_encoding,
                counts.get(c.id, 0), counts.get(c.id, 0) / duration_s if duration_s else None)
               for c in channels]
@@ -254,7 +269,8 @@ def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
     objects = {t: _Objects(t) for t, s in schema_of.items() if s in (OBJECTS_SCHEMA, LEAD_SCHEMA)}
     lead = _Lead()
     logs: list[tuple[int, str, str]] = []
-    wanted = [*objects, *([LOG_TOPIC] if not meta and LOG_TOPIC in schema_of else [])]
+    from_log = "alarms" not in meta
+    wanted = [*objects, *([LOG_TOPIC] if from_log and LOG_TOPIC in schema_of else [])]
     if wanted:
         for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
             t_ns = message.log_time
@@ -330,7 +346,8 @@ _GLOB = re.compile(r"[*?\[]")
 
 def find_drives(inputs: Sequence[str]) -> list[Path]:
     """The files ``inputs`` name: files as given, folders searched recursively for ``*.mcap``
-    (hidden files left out: a recorder's partial output), globs expanded (``**`` recursive)."""
+    (hidden files left out: a recorder's partial output), globs expanded (``**`` recursive);
+    each resolved (links and ``..`` followed) and named once."""
     found: dict[Path, None] = {}
     for text in inputs:
         path = Path(text)
@@ -342,11 +359,11 @@ def find_drives(inputs: Sequence[str]) -> list[Path]:
                 if m.is_dir():
                     found.update(dict.fromkeys(_in_folder(m)))
                 else:
-                    found[m.absolute()] = None
+                    found[m.resolve()] = None
         elif path.is_dir():
             found.update(dict.fromkeys(_in_folder(path)))
         elif path.exists():
-            found[path.absolute()] = None
+            found[path.resolve()] = None
         else:
             raise InputError(path, "no such file or folder")
     return list(found)
@@ -355,7 +372,7 @@ def find_drives(inputs: Sequence[str]) -> list[Path]:
 def _in_folder(folder: Path) -> Iterator[Path]:
     for p in sorted(folder.rglob("*.mcap")):
         if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts):
-            yield p.absolute()
+            yield p.resolve()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -457,7 +474,8 @@ class IndexReport:
 def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_here
           ) -> IndexReport:
     """(Re)index the drives ``inputs`` name into ``catalog``: only new or changed drives (size
-    or modification time) are read; drives whose file is gone are removed."""
+    or modification time) are read; drives whose file is gone are removed (and those indexed
+    under a path that was not resolved, which are read again under their resolved path)."""
     files = find_drives(inputs)
     con = connect(catalog, create=True)
     report = IndexReport()
@@ -472,8 +490,8 @@ def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_h
             else:
                 report.unchanged.append(key)
         for p in sorted(known):
-            if not Path(p).exists():
-                _delete(con, p)
+            if not Path(p).exists() or str(Path(p).resolve()) != p:  # gone, or not resolved
+                _delete(con, p)  # (indexed before paths were: the resolved one is read now)
                 report.removed.append(p)
         for result in reader(to_read):
             if isinstance(result, str):

@@ -4,26 +4,48 @@ A drive is named by its UTC start time (:func:`drive_name`); parts after the fir
 ``_partNNN``. :class:`DriveRecorder` is the pipeline's :class:`~bridge.sinks.base.Sink` for
 ``tankviz live``: it opens the first part at the first frame, starts each part with the drive's
 attachments (databases, profile: a part cut short still has them), describes and finishes each
-part when it is closed, and notes the bus gaps of the drive.
+part when it is closed, and notes the bus gaps of the drive. A part's decode statistics
+(``statistics``: frames per bus, decoded messages, unknown ids, …) count that part alone: what
+the describe callback gives (counted from the drive's start) less what the part before ended
+with, so summing over the parts gives the drive.
 
 A full disk never stops the drive. The drives folder is checked when the recorder is made (a
 folder that cannot be written is an :class:`~bridge.errors.OutputError`), and a reserve file
-(``.tankviz-reserve``, ``reserve`` bytes) is kept in it. A write that finds the disk full frees
-the reserve and is retried, so the part is then finished cleanly (its summary fits in the
-reserve); so is it, now and then (every ``check_interval_s``), when the free space is below
-``min_free``. Recording then stops (:attr:`DriveRecorder.disk_full` says why, and
-:meth:`DriveRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and
-the raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest
-dropped and counted). Once there is room for ``min_free`` and twice the reserve, the reserve is
-made again and recording resumes in a new part, which starts with the frames kept; decoded
-messages and scenes of the pause are not recorded (a ``convert`` of the frames makes them
-again). Each part's metadata lists these pauses (``recording_gaps``), and the part before and
-after a pause say so on ``/log``.
+(``.tankviz-reserve``) is kept in it: ``reserve`` bytes (8 MiB), or half the free space above
+``min_free`` when that is less than twice the reserve. A write that finds the disk full frees the
+reserve and is retried, so the part is then finished cleanly (its summary fits in the reserve);
+so is it, now and then (every ``check_interval_s``), when the free space is below ``min_free``.
+Recording then stops (:attr:`DriveRecorder.disk_full` says why, and
+:meth:`DriveRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and the
+raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest not
+recorded and counted).
+
+The rules, with the default reserve (8 MiB) and ``resume_margin`` (1 MiB):
+
+- recording starts when the free space is at least ``min_free`` (``--min-free``), however little
+  is above it (the reserve is then smaller);
+- it stops when the free space is below ``min_free``, or when the disk is full;
+- it resumes, in a new part, when the free space is above ``min_free`` + 9 MiB (the reserve
+  plus the margin). The reserve made again is then at least 4.5 MiB, and that much is recorded
+  before it could stop again: stopping frees the reserve, which never makes the room to resume,
+  so it never flaps. The new part starts with the frames kept; decoded messages and scenes of
+  the pause are not recorded (a ``convert`` of the frames makes them again);
+- when the drive ends while recording is stopped, the frames kept are written into a last part
+  if the free space is above ``min_free`` + ``resume_margin``; else they are not recorded, and
+  the notice says how many.
+
+Each part's metadata lists the pauses so far (``recording_gaps``: ``from_ns``, ``to_ns``,
+``reason``, ``resumed_in`` (the part recording resumed in), ``frames_kept`` (received during the
+pause, recorded at the start of that part), ``frames_not_recorded`` (dropped from a full backlog)
+and ``messages_not_recorded`` (decoded messages and scenes); in the part finished when a pause
+began, ``to_ns`` and the counts are None: not known yet), and the part before and after a pause
+say so on ``/log``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import errno
 import io
 import os
@@ -33,7 +55,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
@@ -41,7 +63,7 @@ from bridge.decode.decoder import Decoded
 from bridge.errors import OutputError
 from bridge.frame import Frame, timestamp
 from bridge.sinks.base import Serialized, Sink
-from bridge.sinks.mcap import Recorder
+from bridge.sinks.mcap import METADATA_NAME, Recorder
 from bridge.topics import LOG_TOPIC
 
 #: The file in a drives folder that keeps room for finishing a part when the disk is full.
@@ -111,17 +133,64 @@ class Gap:
     reason: str
 
 
+#: Decode statistics that are not counts (kept as the describe callback gives them).
+_NOT_COUNTS = {"last_decode_error", "last_rule_error", "message_bytes", "longest"}
+
+
+def part_counts(now: Any, before: Any, key: str = "") -> Any:
+    """The counts of ``now`` less those of ``before`` (nested dicts of ints: the decode
+    statistics): what a part alone holds. Entries that become zero are left out, except the
+    buses of ``frames``; what is not a count (texts, a longer frame's byte sizes) is kept."""
+    if key in _NOT_COUNTS:
+        return now
+    if isinstance(now, dict):
+        previous = before if isinstance(before, dict) else {}
+        out: dict[Any, Any] = {}
+        for k, v in now.items():
+            own = part_counts(v, previous.get(k), k)
+            if key == "frames" or (own != 0 and not (isinstance(own, dict)
+                                                     and own.get("frames", 1) == 0)):
+                out[k] = own
+        return out
+    if type(now) is int and type(before) is int:
+        return now - before
+    return now
+
+
+class _PartMetadata:
+    """The recorder ``describe`` is given: it writes to the part's recorder, with the part's
+    own decode statistics in the ``tankviz`` record (:func:`part_counts`)."""
+
+    def __init__(self, recorder: Recorder, before: dict[str, Any]) -> None:
+        self._recorder = recorder
+        self._before = before
+        #: the drive's statistics so far (what the next part counts from)
+        self.drive_statistics: dict[str, Any] | None = None
+
+    def add_metadata(self, values: dict[str, Any], name: str = METADATA_NAME) -> None:
+        stats = values.get("statistics")
+        if name == METADATA_NAME and isinstance(stats, dict):
+            self.drive_statistics = copy.deepcopy(stats)
+            values = {**values, "statistics": part_counts(stats, self._before)}
+        self._recorder.add_metadata(values, name)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._recorder, name)
+
+
 @dataclass
 class DriveRecorder(Sink):
     """One MCAP per drive in ``folder``, split into complete parts by size or duration.
 
     ``attach`` is called with each part's recorder as the part is opened, before its first
     message; ``describe`` is called with each part's recorder and the part's own metadata entries
-    (``drive_start``, ``part``, ``bus_gaps``) just before the part is finished. :meth:`tick`
-    (called often) flushes the current chunk to disk every ``flush_interval`` seconds, so a
-    power cut loses about that much; a file cut that way is salvaged with ``tankviz recover``.
-    A due flush waits for the next scene to be written (at most ``flush_wait_s`` more): writing
-    a busy second's chunk takes ~10 ms, and just after a scene it delays no scene.
+    (``drive_start``, ``part``, ``bus_gaps``, ``recording_gaps``) just before the part is
+    finished (the decode statistics it writes are made the part's own: module docstring).
+    :meth:`tick` (called often) flushes the current chunk to disk every ``flush_interval``
+    seconds, so a power cut loses about that much; a file cut that way is salvaged with
+    ``tankviz recover``. A due flush waits for the next scene to be written (at most
+    ``flush_wait_s`` more): writing a busy second's chunk takes ~10 ms, and just after a scene
+    it delays no scene.
     """
 
     folder: Path
@@ -136,15 +205,17 @@ class DriveRecorder(Sink):
     min_free: int = 0
     #: the room kept for finishing a part: a chunk and the summary (attachments, indexes)
     reserve: int = 8 * 1024 * 1024
+    #: resuming needs this much free space above ``min_free`` and the reserve
+    resume_margin: int = 1024 * 1024
     free_space: Callable[[Path], int] = free_bytes
     check_interval_s: float = 1.0
     #: raw frames kept in memory while recording is stopped
     backlog_limit: int = 1_000_000
     #: why recording is stopped (the disk is full), None while it records
     disk_full: str | None = None
-    #: recording pauses: from_ns, to_ns (wall clock), reason, frames_dropped, messages_lost
+    #: recording pauses that ended (module docstring)
     recording_gaps: list[dict[str, Any]] = field(default_factory=list)
-    frames_dropped: int = 0  # kept while stopped, then dropped for want of memory
+    frames_dropped: int = 0  # received while stopped and not recorded
     files: list[Path] = field(default_factory=list)
     gaps: list[Gap] = field(default_factory=list)
     frames: int = 0
@@ -159,6 +230,9 @@ class DriveRecorder(Sink):
     _backlog: deque[tuple[Frame, bytes]] = field(default_factory=deque)
     _gap: dict[str, Any] | None = None
     _notices: list[str] = field(default_factory=list)
+    _reserve_size: int = 0
+    #: the drive's decode statistics when the last part was finished
+    _statistics: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         try:
@@ -166,44 +240,64 @@ class DriveRecorder(Sink):
         except OSError as exc:
             raise OutputError(self.folder, f"cannot create the drives folder: "
                               f"{exc.strerror or exc}") from None
-        try:
-            self._make_reserve()
-        except OSError as exc:
-            if exc.errno != errno.ENOSPC:
-                raise OutputError(self.folder, f"cannot record: {exc.strerror or exc}") from None
-            self._stop(f"disk full: no room for the {self.reserve / MB:.0f} MB reserve")
-        else:
-            self.check_space()
+        self._next_check = self.clock() + self.check_interval_s
+        self._arm()
 
     def check_space(self) -> None:
-        """Stop recording now if the free space is below ``min_free``."""
+        """Check the free space again (``min_free`` may have changed): before the first part,
+        make the reserve again for it and stop if the free space is below ``min_free``; while
+        recording, stop now if it is below ``min_free``."""
         self._next_check = self.clock() + self.check_interval_s
-        if self.disk_full is None and (free := self.free_space(self.folder)) < self.min_free:
+        if not self.files and self._recorder is None:
+            self.disk_full, self._gap, self._notices = None, None, []
+            self._arm()
+        elif self.disk_full is None and (free := self.free_space(self.folder)) < self.min_free:
             self._stop(self._low(free))
 
     # --- the reserve, and stopping and resuming ------------------------------------------
 
-    def _make_reserve(self) -> None:
+    def _arm(self) -> None:
+        """Before the first part: the reserve, as big as the free space allows; or stopped."""
+        self._release()
+        free = self.free_space(self.folder)
+        if free < self.min_free:
+            self._stop(self._low(free))
+            return
+        try:
+            self._make_reserve(min(self.reserve, (free - self.min_free) // 2))
+        except OSError as exc:
+            if exc.errno != errno.ENOSPC:
+                raise OutputError(self.folder, f"cannot record: {exc.strerror or exc}") from None
+            self._stop(f"disk full: no room to record in {self.folder}")
+            return
+        if self._reserve_size <= 0:
+            self._release()
+            self._stop(f"disk full: no room to record in {self.folder}")
+
+    def _make_reserve(self, size: int) -> None:
         path = self.folder / RESERVE_NAME
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
-            try:
-                os.posix_fallocate(fd, 0, self.reserve)
-            except OSError as exc:
-                if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
-                    raise
-                block = bytes(MB)
-                for start in range(0, self.reserve, MB):
-                    os.write(fd, block[:min(MB, self.reserve - start)])
-                os.fsync(fd)
+            if size > 0:
+                try:
+                    os.posix_fallocate(fd, 0, size)
+                except OSError as exc:
+                    if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                        raise
+                    block = bytes(MB)
+                    for start in range(0, size, MB):
+                        os.write(fd, block[:min(MB, size - start)])
+                    os.fsync(fd)
         except OSError:
             os.close(fd)
             path.unlink(missing_ok=True)
             raise
         os.close(fd)
+        self._reserve_size = max(size, 0)
 
     def _release(self) -> bool:
         """Free the reserve; False if there was none."""
+        self._reserve_size = 0
         try:
             (self.folder / RESERVE_NAME).unlink()
         except OSError:
@@ -232,10 +326,13 @@ class DriveRecorder(Sink):
     def _stop(self, reason: str) -> None:
         """Finish the current part (if any) and stop recording until there is room again."""
         self.disk_full = reason
-        self._gap = {"from_ns": time.time_ns(), "to_ns": None, "reason": reason,
-                     "frames_dropped": 0, "messages_lost": 0}
+        if self._gap is None:
+            self._gap = {"from_ns": time.time_ns(), "to_ns": None, "reason": reason,
+                         "frames_kept": 0, "frames_not_recorded": 0, "messages_not_recorded": 0}
         self._note(f"recorder.disk_full: {reason}: recording stopped (viewers are still "
-                   "served); it resumes in a new part when there is room", record=True)
+                   "served); it resumes in a new part when more than "
+                   f"{(self.min_free + self.reserve + self.resume_margin) / MB:.1f} MB is free",
+                   record=True)
         self._close()
 
     def _failed(self, exc: OSError) -> None:
@@ -250,31 +347,43 @@ class DriveRecorder(Sink):
                              "(tankviz recover salvages it)")
         self._stop(reason)
 
-    def _resume(self) -> None:
-        """Recording again, in a new part, if there is room: the frames kept go first."""
-        if self.free_space(self.folder) < self.min_free + 2 * self.reserve:
+    def _resume(self, *, last: bool = False) -> None:
+        """Recording again, in a new part, if there is room (module docstring; ``last``: the
+        drive ends, any room above ``min_free`` and the margin will do): the frames kept go
+        first."""
+        free = self.free_space(self.folder)
+        needed = self.min_free + self.resume_margin + (0 if last else self.reserve)
+        if free <= needed:
             return
         try:
-            self._make_reserve()
+            self._make_reserve(min(self.reserve, (free - self.min_free) // 2))
             self._open(time.time_ns())
         except OSError:
+            self._release()
             return
         gap, self._gap = self._gap, None
         assert gap is not None and self._recorder is not None
         gap["to_ns"] = time.time_ns()
-        gap["frames_dropped"] = self.frames_dropped
+        gap["resumed_in"] = self.files[-1].name
+        gap["frames_kept"] = len(self._backlog)
+        gap["frames_not_recorded"] = self.frames_dropped
         self.recording_gaps.append(gap)
         self.disk_full = None
-        kept = len(self._backlog)
         self._note(f"recorder.disk_full cleared: recording resumed in {self.files[-1].name} "
-                   f"after {(gap['to_ns'] - gap['from_ns']) / 1e9:.1f} s; the {kept} frames "
-                   f"received meanwhile are in it ({self.frames_dropped} dropped), "
-                   f"{gap['messages_lost']} decoded messages and scenes are not", record=False)
+                   f"after {(gap['to_ns'] - gap['from_ns']) / 1e9:.1f} s; the "
+                   f"{gap['frames_kept']} frames received meanwhile are in it "
+                   f"({gap['frames_not_recorded']} not recorded for want of memory), "
+                   f"{gap['messages_not_recorded']} decoded messages and scenes are not",
+                   record=False)
         self.frames_dropped = 0
         write = self._recorder.write_frame
-        while self._backlog:
-            write(*self._backlog.popleft())
-            self.frames += 1
+        try:
+            while self._backlog:
+                write(*self._backlog[0])
+                self._backlog.popleft()
+                self.frames += 1
+        except OSError as exc:
+            self._failed(exc)
 
     def _keep(self, frame: Frame, payload: bytes) -> None:
         if len(self._backlog) >= self.backlog_limit:
@@ -302,17 +411,22 @@ class DriveRecorder(Sink):
     def _close(self) -> None:
         if self._recorder is None:
             return
+        described = _PartMetadata(self._recorder, self._statistics)
         try:
-            self.describe(self._recorder, {
+            self.describe(cast(Recorder, described), {
                 "drive_start": self._start_ns, "part": len(self.files),
                 "bus_gaps": [{"bus": g.bus, "from_ns": g.start_ns, "to_ns": g.end_ns,
                               "reason": g.reason} for g in self.gaps],
-                "recording_gaps": [*self.recording_gaps, *([self._gap] if self._gap else [])],
+                "recording_gaps": [*self.recording_gaps, *([{
+                    **self._gap, "frames_kept": None, "frames_not_recorded": None,
+                    "messages_not_recorded": None}] if self._gap else [])],  # not known yet
             })
             self._recorder.finish()
             self._stream.close()
         except OSError as exc:
             self._failed(exc)
+        if described.drive_statistics is not None:
+            self._statistics = described.drive_statistics
         self._recorder = None
 
     # the Sink interface, for the pipeline
@@ -334,13 +448,15 @@ class DriveRecorder(Sink):
             recorder.write_frame(frame, payload)
         except OSError as exc:
             self._failed(exc)
+            self._keep(frame, payload)
+            return
         self.frames += 1
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
         recorder = self._recorder or self._part()
         if recorder is None:
             if self._gap is not None:
-                self._gap["messages_lost"] += 1
+                self._gap["messages_not_recorded"] += 1
             return
         try:
             recorder.write_decoded(t_ns, decoded)
@@ -351,7 +467,7 @@ class DriveRecorder(Sink):
         recorder = self._recorder or self._part()
         if recorder is None:
             if self._gap is not None:
-                self._gap["messages_lost"] += len(messages)
+                self._gap["messages_not_recorded"] += len(messages)
             return
         try:
             recorder.on_messages(messages)
@@ -361,15 +477,17 @@ class DriveRecorder(Sink):
 
     def finish(self) -> None:
         """Describe and finish the current part (after a last try to record the frames kept
-        while the disk was full); the reserve is removed."""
+        while the disk was full: module docstring); the reserve is removed."""
         if self.disk_full is not None and self._backlog:
-            self._resume()
+            self._resume(last=True)
         self._close()
         if self._backlog:
-            self._notices.append(f"recorder.disk_full: {len(self._backlog)} frames received "
-                                 "while the disk was full are not recorded")
             self.frames_dropped += len(self._backlog)
             self._backlog.clear()
+        if self.disk_full is not None and self.frames_dropped:
+            self._notices.append(f"recorder.disk_full: {self.frames_dropped} frames received "
+                                 "while the disk was full are not recorded (no room for them "
+                                 "when the drive ended)")
         self._release()
 
     def tick(self) -> None:
@@ -410,4 +528,3 @@ class DriveRecorder(Sink):
                 emitted or since >= self.flush_interval_s + self.flush_wait_s):
             self._recorder.flush()
             self._last_flush = now
-

@@ -148,7 +148,7 @@ def test_below_min_free_recording_stops_before_the_disk_is_full(tmp_path: Path) 
     assert recorder.disk_full == f"150 MB free in {tmp_path}, below --min-free 200 MB"
     assert complete(recorder.files[0])["/can/can0/frames"] == 2
     recorder.on_frame(frame(2), frame_payload(frame(2)))
-    free[0] = 201 * MB  # not enough to start again: min_free and twice the reserve
+    free[0] = 201 * MB  # not enough to start again: min_free, the reserve and a 1 MiB margin
     now[0] += 1.0
     recorder.tick()
     assert recorder.disk_full is not None

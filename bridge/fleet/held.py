@@ -1,0 +1,74 @@
+"""What a drive without its ``tankviz`` metadata record holds, as the catalogue reads it.
+
+A drive cut short (a power loss) and recovered with ``tankviz recover`` has no ``tankviz`` record
+(it is written when a drive is finished). :func:`held_metadata` makes the entries the catalogue
+reads of that record (:mod:`bridge.fleet.catalog`) from what the file holds: frames per bus from
+the counts of its raw-frame channels (``/can/<bus>/frames``), its databases (name, SHA-256; the
+buses they were for are not known: empty) and profile from its attachments, and what the
+``tankviz.recover`` record says of it into ``statistics.recovered``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def _value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+#: The metadata record ``tankviz recover`` writes (:mod:`bridge.apps.recover`).
+RECOVER_RECORD = "tankviz.recover"
+#: The raw-frame topics (``bridge.topics.frames_topic``).
+_FRAMES_TOPIC = re.compile(r"/can/(?P<bus>[^/]+)/frames")
+#: The name prefix of a drive's profile attachment (``bridge.pipeline.drive.PROFILE_PREFIX``).
+_PROFILE_PREFIX = "profile-"
+
+
+def held_metadata(reader: Any, channels: Sequence[Any], counts: dict[int, int],
+                  recovered: dict[str, str] | None) -> dict[str, str]:
+    """The metadata entries the catalogue reads, made from what a drive without its ``tankviz``
+    record holds: frames per bus (its raw-frame channels), databases and profile (its
+    attachments, unless ``reader`` is None), and the ``tankviz.recover`` record
+    (``statistics.recovered``)."""
+    frames: dict[str, int] = {}
+    for c in channels:
+        if (m := _FRAMES_TOPIC.fullmatch(c.topic)) is not None:
+            frames[m["bus"]] = frames.get(m["bus"], 0) + counts.get(c.id, 0)
+    statistics: dict[str, Any] = {"frames": dict(sorted(frames.items()))}
+    if recovered is not None:
+        statistics["recovered"] = {k: _value(recovered[k]) for k in (
+            "source", "complete", "stopped", "bytes_read", "bytes_total") if k in recovered}
+    databases: list[dict[str, Any]] = []
+    profile: dict[str, Any] | None = None
+    for a in reader.iter_attachments() if reader is not None else ():
+        if a.name.startswith(_PROFILE_PREFIX):
+            if profile is None:
+                profile = {"name": _profile_name(a.data) or Path(
+                    a.name[len(_PROFILE_PREFIX):]).stem, "attachment": a.name}
+        elif not any(d["attachment"] == a.name for d in databases):
+            databases.append({"name": Path(a.name).stem, "attachment": a.name,
+                              "sha256": hashlib.sha256(a.data).hexdigest(), "buses": []})
+    return {"statistics": json.dumps(statistics), "databases": json.dumps(databases),
+            "profile": json.dumps(profile)}
+
+
+def _profile_name(data: bytes) -> str | None:
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        name = tomllib.loads(data.decode()).get("name")
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return name if isinstance(name, str) else None

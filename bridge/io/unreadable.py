@@ -1,0 +1,108 @@
+"""Why an MCAP file cannot be read, in words a user can act on.
+
+:func:`why_unreadable` is what ``tankviz catalog``, ``inspect`` and ``replay`` say (after the
+file's path) when mcap cannot read a file, instead of what mcap's reader raised (``unknown
+(opcode 111) record has length 1492…``, or nothing at all for an empty file). It looks at the
+file itself, and only reads it:
+
+- ``not a readable MCAP file: empty file``;
+- ``not a readable MCAP file: it starts with b'LOGG\\x0c\\x00\\x00\\x00'…, not with the MCAP
+  magic``, and
+  ``only N bytes, the start of the MCAP magic``;
+- ``not a readable MCAP file: cut at byte N of M (tankviz recover FILE -o FIXED.mcap salvages
+  it)``: N is where the last complete record ends (a recording cut by a power loss or a kill
+  before it wrote its summary);
+- ``… zero bytes from byte N of M (data that never reached the disk) …`` and ``… damaged at
+  byte N of M: no MCAP record starts there …``, with the same advice;
+- a file whose records and footer are all there, but whose summary or a chunk is damaged:
+  ``damaged inside (…)``, with what mcap's error says in a few words; without an error, ``it has
+  no summary``.
+
+The file is walked record by record (headers only) only when it does not end with a footer and
+the closing magic.
+"""
+
+from __future__ import annotations
+
+import shlex
+import struct
+from pathlib import Path
+from typing import BinaryIO
+
+from mcap.opcode import Opcode
+
+MAGIC = b"\x89MCAP0\r\n"
+PREFIX = "not a readable MCAP file: "
+_HEADER = struct.Struct("<BQ")
+_FOOTER = _HEADER.size + 20  # a footer record: summary start, summary offset start, CRC
+_OPCODES = {int(op) for op in Opcode}
+
+
+def _start(head: bytes) -> str:
+    return repr(head[:8]) + ("…" if len(head) > 8 else "")
+
+
+def _error(error: BaseException | None) -> str:
+    if error is None:
+        return ""
+    name = type(error).__name__
+    if "CRC" in name:
+        return "a CRC does not match its content"
+    if "Zstd" in name or "LZ4" in name.upper():
+        return "a chunk does not decompress"
+    text = " ".join(str(error).split())
+    if not text or len(text) > 80 or "opcode" in text or "length" in text:
+        return "its summary or indexes are damaged"
+    return text
+
+
+def why_unreadable(path: Path | str, error: BaseException | None = None) -> str:
+    """Why the MCAP file ``path`` cannot be read, one line (module docstring); ``error``: what
+    mcap's reader raised, if anything."""
+    path = Path(path)
+    salvage = f"(tankviz recover {shlex.quote(str(path))} -o FIXED.mcap salvages"
+    try:
+        with path.open("rb") as f:
+            size = f.seek(0, 2)
+            f.seek(0)
+            head = f.read(len(MAGIC) + 1)
+            if size == 0:
+                return PREFIX + "empty file"
+            if head[:len(MAGIC)] != MAGIC[:min(len(head), len(MAGIC))]:
+                return PREFIX + f"it starts with {_start(head)}, not with the MCAP magic"
+            if size < len(MAGIC):
+                return PREFIX + f"only {size} bytes, the start of the MCAP magic"
+            if size >= 2 * len(MAGIC) + _FOOTER:
+                f.seek(size - _FOOTER - len(MAGIC))
+                tail = f.read(_FOOTER + len(MAGIC))
+                if tail[:_HEADER.size] == _HEADER.pack(Opcode.FOOTER, 20) and (
+                        tail[-len(MAGIC):] == MAGIC):
+                    if error is None:
+                        return PREFIX + f"it has no summary {salvage} it into one that has)"
+                    return PREFIX + f"damaged inside ({_error(error)}) {salvage} what is intact)"
+            return PREFIX + _walk(f, size, salvage)
+    except OSError as exc:
+        return f"cannot read: {exc.strerror or exc}"
+
+
+def _walk(stream: BinaryIO, size: int, salvage: str) -> str:
+    """Where the records of a file without its footer end, and why."""
+    at = len(MAGIC)
+    while True:
+        stream.seek(at)
+        head = stream.read(_HEADER.size)
+        if len(head) < _HEADER.size:
+            return f"cut at byte {at:,} of {size:,} {salvage} it)"
+        opcode, length = _HEADER.unpack(head)
+        if not any(head):
+            return (f"zero bytes from byte {at:,} of {size:,} (data that never reached the "
+                    f"disk) {salvage} what comes before)")
+        if opcode not in _OPCODES and opcode < 0x80:
+            return (f"damaged at byte {at:,} of {size:,}: no MCAP record starts there "
+                    f"{salvage} what is intact)")
+        if _HEADER.size + length > size - at:
+            return f"cut at byte {at:,} of {size:,} {salvage} it)"
+        at += _HEADER.size + length
+        if opcode == Opcode.FOOTER:
+            return (f"its closing magic is missing or damaged at byte {at:,} of {size:,} "
+                    f"{salvage} it)")
