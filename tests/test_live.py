@@ -455,7 +455,8 @@ def test_simulate_writes_logs_and_drives_and_the_same_seed_the_same_log(tmp_path
         assert result.returncode == 0, result.stderr
     assert (tmp_path / "a.blf").read_bytes()[200:] == (tmp_path / "b.blf").read_bytes()[200:]
     counts = summary_counts(tmp_path / "d.mcap")
-    assert counts["/scene/radar"] == 39 and counts["/can/can0/frames"] > 4000  # 20 Hz, 2 s
+    # 20 Hz over 2 s: 39 ticks on the grid between the first and last frame, and the final one
+    assert counts["/scene/radar"] == 40 and counts["/can/can0/frames"] > 4000
     refused = run_cli("simulate", "-o", "a.blf", cwd=tmp_path)
     assert refused.returncode == 1 and "exists already" in refused.stderr
 
