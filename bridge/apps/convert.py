@@ -235,7 +235,8 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
             warn(text)
     with atomic_output(output, force=force) as stream:
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
-                              scene_rate=DEFAULT_SCENE_RATE if scene_rate is None else scene_rate, progress=progress,
+                              scene_rate=DEFAULT_SCENE_RATE if scene_rate is None
+                              else scene_rate, progress=progress,
                               read_ahead=read_ahead, input_warnings=overlaps)
     report.output = output
     return report
