@@ -3,10 +3,23 @@
 The pipeline thread reads every bus (python-can's own bus creation: any interface, several at
 once) a few times per scene period, just after each scene tick and between, and turns the frames
 into the recording (never dropping one) and the live scene (never waiting for a viewer). Each
-bus has a thread that opens it: when the bus fails (adapter unplugged, interface down) it says
-so, retries with backoff and says when it is back; the pipeline keeps running, viewers get a
-``foxglove.Log`` on ``/log``, and the recording marks the gap. A bus that cannot work at all (an
-unknown interface, a NAME without python-can configuration) is an error at start, never retried.
+bus has a thread that opens it. Every bus is opened before anything is printed: a bus that
+cannot work at all (an unknown interface, a NAME without python-can configuration) is an error
+at once, never retried; a bus that does not open (a socketcand server that is down, an address
+that is not one, an interface that is not there) is retried for at most
+:data:`~bridge.io.buses.OPEN_WAIT_S` seconds (15; less if the run is stopped first: ``--for``,
+Ctrl+C), and if it has never opened by then it is an error: one line, exit 1, nothing recorded.
+When a bus that had opened fails (adapter unplugged, interface down) live says so, retries with
+backoff for as long as it runs and says when it is back; the pipeline keeps running, viewers get
+a ``foxglove.Log`` on ``/log``, and the recording marks the gap (``bus_gaps``; its reason is one
+line). python-can's own log lines are said once per cause, then counted
+(:class:`~bridge.io.buses.CanLogLimiter`).
+
+What the reading of a bus mends or loses (:class:`~bridge.health.receive.ReceiveCounts`: frames
+stamped NaN, kept and stamped when read; what is not a frame; frames the kernel dropped because
+live read too late, where python-can exposes the socket) goes to the health monitor (``/log``
+warnings, the ``bus.<bus>.bad_timestamps`` and ``bus.<bus>.frames_lost`` alarms on ``/health``),
+into the drive's metadata (``bus_receive``: the counts per bus) and into the end-of-run lines.
 A full disk (or free space below ``--min-free``) stops the recording, not the drive: the part is
 finished, ``recorder.disk_full`` is raised on ``/log`` and ``/health``, viewers are still served
 and recording resumes in a new part when there is room (:mod:`bridge.sinks.drives`).
@@ -20,8 +33,9 @@ When the pipeline falls behind (a loaded machine), the scenes of every tick it m
 and recorded; viewers get the latest. Once started, the garbage collector runs with
 :func:`bridge.pipeline.collector.steady_stream`'s settings (start-up frozen, rare young
 collections, a full one a minute where the loop waits), and the process's own come back at the
-end. At the end it prints how many messages slow viewers lost:
-which viewers, and of which topics.
+end. At the end it prints how many messages slow viewers lost: which viewers, and of which
+topics (the few that lost most, the rest counted); a run that got no frame says so (and, on a
+``virtual`` bus, that only the same process can send onto it).
 
 At start it names the layout to import (:func:`layout_hint`): the bundled one for the bundled
 ecocar profile; for another profile the layouts made for it and these buses, written into
@@ -32,6 +46,7 @@ the ``tankviz layouts`` command that writes them.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import queue
 import shlex
 import sys
@@ -57,7 +72,16 @@ from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import AlarmKind
-from bridge.io.buses import BusEvent, BusLink, BusSpec, ReadSchedule, merge_batches
+from bridge.io.buses import (
+    OPEN_WAIT_S,
+    BusEvent,
+    BusLink,
+    BusSpec,
+    ReadSchedule,
+    ReceiveCounts,
+    limit_can_logs,
+    merge_batches,
+)
 from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
 from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
@@ -81,17 +105,63 @@ class LiveReport:
     dropped: int
     #: every viewer, with what it lost
     viewers: list[ClientStats] = field(default_factory=list)
+    #: what each bus's reading mended or lost
+    receive: dict[str, ReceiveCounts] = field(default_factory=dict)
 
 
-def dropped_report(viewers: Sequence[ClientStats]) -> str:
-    """How many messages slow viewers lost: which viewers, and of which topics."""
-    lost = [v for v in viewers if v.dropped]
+def dropped_report(viewers: Sequence[ClientStats], *, most: int = 3) -> str:
+    """How many messages slow viewers lost: the ``most`` viewers that lost most, each with the
+    ``most`` topics it lost most of, the rest counted (``and N more``)."""
+    lost = sorted((v for v in viewers if v.dropped), key=lambda v: -v.dropped)
     text = f"{sum(v.dropped for v in lost):,} messages dropped for slow viewers"
     if not lost:
         return text
-    return text + ": " + "; ".join(
-        f"{v.address} lost {v.dropped:,} (" + ", ".join(
-            f"{topic} {n:,}" for topic, n in v.topics.most_common()) + ")" for v in lost)
+
+    def viewer(v: ClientStats) -> str:
+        topics = v.topics.most_common()
+        shown = [f"{topic} {n:,}" for topic, n in topics[:most]]
+        if len(topics) > most:
+            shown.append(f"and {len(topics) - most} more topics")
+        return f"{v.address} lost {v.dropped:,} (" + ", ".join(shown) + ")"
+
+    text += ": " + "; ".join(viewer(v) for v in lost[:most])
+    if len(lost) > most:
+        text += f"; and {len(lost) - most} more viewers"
+    return text
+
+
+def nothing_came(buses: Sequence[BusSpec], *, recording: bool, files: bool) -> list[str]:
+    """What a run that got no frame says at its end (``files``: whether a file was made all
+    the same, for the lines on ``/log``)."""
+    lines = ["no frame came on any bus" + (
+        "" if not recording else ": nothing was recorded" if not files else
+        ": the recording has no frame")]
+    lines += [f"{b.name} is a python-can virtual bus: only this same process can send onto it "
+              "(another program's virtual bus is not this one)"
+              for b in buses if b.interface == "virtual"]
+    return lines
+
+
+def receive_report(receive: dict[str, ReceiveCounts]) -> list[str]:
+    """The end-of-run lines of what the buses' reading mended or lost (nothing if nothing)."""
+    lines = []
+    for bus, c in receive.items():
+        said = []
+        if c.bad_timestamps:
+            said.append(f"{c.bad_timestamps:,} frames stamped {c.last_bad_timestamp} s (kept, "
+                        "stamped when received)")
+        if c.kernel_drops:
+            said.append(f"{c.kernel_drops:,} frames lost in the receive buffer (the kernel "
+                        "dropped them)")
+        if c.unreadable:
+            said.append(f"{c.unreadable:,} messages that are not CAN frames (skipped; the "
+                        f"latest: {c.last_unreadable})")
+        if said:
+            lines.append(f"bus {bus}: " + "; ".join(said))
+    return lines
+
+
+_NOTHING = ReceiveCounts()
 
 
 class Live:
@@ -103,6 +173,7 @@ class Live:
                  split_size: int | None = None, split_duration_s: float | None = None,
                  min_free: int = 0,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
+                 open_wait_s: float = OPEN_WAIT_S,
                  say: Callable[[str], None] = print) -> None:
         names = [b.name for b in buses]
         if len(set(names)) != len(names):
@@ -111,11 +182,16 @@ class Live:
         self.scene_rate = scene_rate
         self.server = server
         self.say = say
+        self.open_wait_s = open_wait_s
         self.events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
         self.links = [BusLink(spec, self.events, open_bus=open_bus) for spec in buses]
         self.drive = Drive(stages, scene_rate=scene_rate,
                            bitrates={b.name: b.bitrate for b in buses if b.bitrate is not None},
                            extra={"buses": [str(b) for b in self.buses]})
+        #: what each bus's reading mended or lost, as last told (in the metadata: bus_receive)
+        self.receive: dict[str, ReceiveCounts] = {}
+        self._receive_record: dict[str, dict[str, Any]] = {}
+        self.drive.extra["bus_receive"] = self._receive_record
         # Live knows log time from the wall clock too: a step a few seconds ahead is one.
         self.drive.pipeline.clock = StepDetector(forward_ns=LIVE_FORWARD_NS)
         if server is not None:
@@ -136,22 +212,39 @@ class Live:
     def stop(self) -> None:
         self.stopping.set()
 
-    def start(self, timeout: float = 5.0) -> None:
-        """Open the buses (each by its opener thread); returns once each was tried. A bus that
-        cannot work (:func:`bridge.io.buses.configuration_error`) raises its ``UsageError``:
-        the buses are closed and nothing is recorded."""
+    def start(self) -> None:
+        """Open the buses (each by its opener thread); returns once each is open. A bus that
+        cannot work (:func:`bridge.io.buses.configuration_error`) raises its ``UsageError`` at
+        once; a bus that has not opened after :attr:`open_wait_s` seconds (or when the run is
+        stopped first) raises one saying so. Then the buses are closed and nothing is
+        recorded."""
         for link in self.links:
             link.start()
+        began = time.monotonic()
+        while True:
+            error = next((link.error for link in self.links if link.error is not None), None)
+            waiting = [link for link in self.links if not link.opened.is_set()]
+            if (error is not None or not waiting or self.stopping.is_set()
+                    or time.monotonic() - began >= self.open_wait_s):
+                break
+            self.stopping.wait(0.02)
+        if error is None and not waiting:
+            return
+        took = time.monotonic() - began
         for link in self.links:
-            link.tried.wait(timeout)
-        error = next((link.error for link in self.links if link.error is not None), None)
-        if error is not None:
-            for link in self.links:
-                link.stop()
-                link.close()
-            if self.recorder is not None:
-                self.recorder.finish()
-            raise error
+            link.stop()
+            link.close()
+        if self.recorder is not None:
+            self.recorder.finish()
+        if error is None:
+            link = waiting[0]
+            when = (f"in {self.open_wait_s:g} s" if took >= self.open_wait_s else
+                    f"before the run was stopped after {took:.1f} s")
+            tries = f"{link.tries} tr{'y' if link.tries == 1 else 'ies'}"
+            why = (f"{link.failure} ({tries})" if link.failure else
+                   "python-can's first try to open it had not ended")
+            error = UsageError(f"--bus {link.spec}: did not open {when}: {why}")
+        raise error
 
     def _poll(self) -> list[Frame]:
         """Every bus's new frames, in time order."""
@@ -195,6 +288,7 @@ class Live:
                 if self.recorder is not None:
                     self.recorder.tick()
                     self._recorder_state()
+                self._receive_state()
         finally:
             for link in self.links:
                 link.stop()
@@ -206,6 +300,7 @@ class Live:
                     process(frame)
             for link in self.links:
                 link.close()
+            self._receive_state()
             self.drive.finish()
             if self.recorder is not None:
                 for text in self.recorder.take_notices():
@@ -214,7 +309,17 @@ class Live:
         viewers = self.server.client_stats() if self.server else []
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
                           self.recorder.gaps if self.recorder else [],
-                          sum(s.dropped for s in viewers), viewers)
+                          sum(s.dropped for s in viewers), viewers, dict(self.receive))
+
+    def _receive_state(self) -> None:
+        """What each bus's reading mended or lost, when it changed: to the health monitor
+        (``/log``, ``/health``) and into the metadata (``bus_receive``)."""
+        for link in self.links:
+            counts = link.receive
+            if counts != self.receive.get(link.spec.name, _NOTHING):
+                copy = self.receive[link.spec.name] = dataclasses.replace(counts)
+                self.drive.health.note_receive(link.spec.name, copy)
+                self._receive_record[link.spec.name] = copy.to_dict()
 
     def _recorder_state(self) -> None:
         """What the recorder says (the disk filled, recording resumed) on ``/log``, and its
@@ -292,6 +397,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
     if not args.min_free >= 0:
         raise UsageError(f"--min-free {args.min_free:g}: must be 0 or more (MB)")
     server = None if args.no_server else options.start_server(args)
+    limiter = limit_can_logs(lambda text: print(text, file=sys.stderr, flush=True))
     try:
         live = Live(buses, stages, scene_rate=options.scene_rate(args),
                     drives=None if args.no_record else args.drives, server=server,
@@ -309,11 +415,13 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             timer = threading.Timer(args.run_for, stop)
             timer.daemon = True  # an error at start ends the process at once
             timer.start()
+        # Every bus open (or the one line why not) before anything is printed; the layouts are
+        # written after it: a bus that cannot work records nothing.
+        live.start()
         print(f"buses: {', '.join(str(b) for b in buses)}")
         if server is not None:
             print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)",
                   flush=True)
-        live.start()  # before the layouts are written: a bus that cannot work records nothing
         try:
             hint = layout_hint(args, stages, [b.name for b in buses],
                                recording=live.recorder is not None)
@@ -331,8 +439,15 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
     finally:
         if server is not None:
             server.stop()
+        limiter.finish()
     for path in report.files:
         print(f"recorded {path}")
+    if not report.frames:
+        for line in nothing_came(buses, recording=live.recorder is not None,
+                                 files=bool(report.files)):
+            print(line)
+    for line in receive_report(report.receive):
+        print(line)
     print(f"{report.frames:,} frames; {len(report.gaps)} bus gaps; "
           f"{dropped_report(report.viewers)}")
     return 0

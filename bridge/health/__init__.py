@@ -1,2 +1,3 @@
-"""Is the car's data sound: bits on the wire and bus load, alarm settings, the monitor, and its
-overlay in the scene."""
+"""Is the car's data sound: bits on the wire and bus load (``wire``), alarm settings (``alarms``),
+the monitor (``monitor``, with what it counts in ``counts`` and who sees what in ``sight``), what
+live's bus reading mended or lost (``receive``), and the overlay in the scene (``overlay``)."""

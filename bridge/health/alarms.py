@@ -7,30 +7,35 @@ time; each must be a positive number, ``rate_threshold`` below 1 and ``babble_sh
 An alarm's id names its subject and its kind (:class:`AlarmKind`; ``tankviz.AlarmKind`` in
 ``/health``):
 
-=========================  ==================  ============================================
-id                         kind                subject
-=========================  ==================  ============================================
-``<sensor>.silent``        ``SENSOR_SILENT``   a sensor, or ``ego`` for the ego signals
-``<sensor>.rate``          ``RATE_LOW``        a sensor, or ``ego``
-``<sensor>.blind``         ``NO_OBJECTS``      a sensor
-``<a>-<b>.misaligned``     ``MISALIGNED``      a pair of sensors
-``lanes.lost``             ``LANES_LOST``      ``lanes``
-``bus.<bus>.silent``       ``BUS_SILENT``      a bus
-``bus.<bus>.babbling``     ``BABBLING``        a bus
-``recorder.disk_full``     ``DISK_FULL``       ``recorder``
-=========================  ==================  ============================================
+=============================  ==================  ==========================================
+id                             kind                subject
+=============================  ==================  ==========================================
+``<sensor>.silent``            ``SENSOR_SILENT``   a sensor, or ``ego`` for the ego signals
+``<sensor>.rate``              ``RATE_LOW``        a sensor, or ``ego``
+``<sensor>.blind``             ``NO_OBJECTS``      a sensor
+``<a>-<b>.misaligned``         ``MISALIGNED``      a pair of sensors
+``lanes.lost``                 ``LANES_LOST``      ``lanes``
+``bus.<bus>.silent``           ``BUS_SILENT``      a bus
+``bus.<bus>.babbling``         ``BABBLING``        a bus
+``recorder.disk_full``         ``DISK_FULL``       ``recorder``
+``bus.<bus>.frames_lost``      ``FRAMES_LOST``     a bus (live: the kernel dropped frames)
+``bus.<bus>.bad_timestamps``   ``BAD_TIMESTAMPS``  a bus (live: frames stamped NaN, ...)
+=============================  ==================  ==========================================
+
+The last two are live's (:mod:`bridge.health.receive`); ``/health``'s ``BusHealth`` also has
+their counts since the start (``bad_timestamps_total``, ``receive_dropped_total``).
 
 When each condition holds is the monitor's business (:mod:`bridge.health.monitor`).
 
 :class:`Alarm` is one alarm and its hysteresis, in log time. Fed its condition at each check
 (:meth:`Alarm.update`), it is raised once the condition has held for its raise time
-(``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``) and cleared once the condition has been
-gone for its clear time (``clear_after_s``); a condition that stops holding before it raises, or
-comes back before it clears, starts that wait again. Its message is the latest reason the
-condition held. It counts how often it was raised and knows since when it is active (or, once
-cleared, since when it is not): :meth:`Alarm.to_pb` is it as ``tankviz.Alarm`` for ``/health``,
-and :meth:`Alarm.info` as :class:`AlarmInfo`, which the monitor gives the scene overlay
-(:mod:`bridge.health.overlay`) for each active alarm.
+(``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``; at once for live's two) and cleared
+once the condition has been gone for its clear time (``clear_after_s``); a condition that stops
+holding before it raises, or comes back before it clears, starts that wait again. Its message
+is the latest reason the condition held. It counts how often it was raised and knows since when
+it is active (or, once cleared, since when it is not): :meth:`Alarm.to_pb` is it as
+``tankviz.Alarm`` for ``/health``, and :meth:`Alarm.info` as :class:`AlarmInfo`, which the monitor
+gives the scene overlay (:mod:`bridge.health.overlay`) for each active alarm.
 """
 
 from __future__ import annotations
@@ -110,6 +115,8 @@ class AlarmKind(str, Enum):
     BUS_SILENT = "bus_silent"
     BABBLING = "babbling"
     DISK_FULL = "disk_full"
+    FRAMES_LOST = "frames_lost"
+    BAD_TIMESTAMPS = "bad_timestamps"
 
 
 _PB_KINDS = {
@@ -121,6 +128,8 @@ _PB_KINDS = {
     AlarmKind.BUS_SILENT: health_pb2.ALARM_KIND_BUS_SILENT,
     AlarmKind.BABBLING: health_pb2.ALARM_KIND_BABBLING,
     AlarmKind.DISK_FULL: health_pb2.ALARM_KIND_DISK_FULL,
+    AlarmKind.FRAMES_LOST: health_pb2.ALARM_KIND_FRAMES_LOST,
+    AlarmKind.BAD_TIMESTAMPS: health_pb2.ALARM_KIND_BAD_TIMESTAMPS,
 }
 
 

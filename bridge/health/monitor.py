@@ -40,6 +40,11 @@ and times are :class:`bridge.health.alarms.HealthSettings`):
 ``recorder.disk_full``     the recorder stopped for want of disk space (live: its condition
                            is told with :meth:`HealthMonitor.hold`; raised and cleared at the
                            next check, without waiting)
+``bus.<bus>.frames_lost``  live: the kernel dropped frames of the bus (its receive buffer was
+                           full) within the last window; ``bus.<bus>.bad_timestamps``: frames
+                           stamped NaN (or another non-time) came within it (told with
+                           :meth:`HealthMonitor.note_receive`: :mod:`bridge.health.receive`;
+                           raised at once, made when first needed)
 =========================  ===================================================================
 
 A silent bus explains everything on it: while a bus is in a gap, the sensor alarms of families
@@ -62,6 +67,10 @@ lateral sign looks wrong: :mod:`bridge.world.lateral`, fed at each scene tick) i
 ``/log`` once, naming the fix; :meth:`HealthMonitor.lateral_sign_records` gives every sensor's
 verdict for the drive's metadata.
 
+What it counts per bus and per family, and the figures of ``/health`` made of the counts, are
+:mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
+:mod:`bridge.health.sight` (:func:`in_fov` and :func:`associate` are importable from here too).
+
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations,
 and the frame's bits counted exactly only for a sample); object checks run at scene ticks
 (:meth:`HealthMonitor.on_world`).
@@ -71,10 +80,8 @@ and the frame's bits counted exactly only for a sample); object checks run at sc
 
 from __future__ import annotations
 
-import math
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
@@ -82,115 +89,32 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings
-from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
+from bridge.health.counts import (
+    EXTENDED,
+    NEVER,
+    UNKNOWN,
+    BusCounts,
+    FamilyCounts,
+    Pair,
+    Snapshot,
+    bus_conditions,
+    bus_figures,
+    family_figures,
+    make_families,
+    rate_window,
+    seconds,
+)
+from bridge.health.receive import ReceiveWatch
+from bridge.health.sight import associate, has_fov, in_fov
+from bridge.health.wire import MAX_KINDS, FrameKind
+from bridge.io.buses import ReceiveCounts
 from bridge.pb import health_pb2
-from bridge.profile.model import ObjectClass, Profile, Sensor
+from bridge.profile.model import ObjectClass, Profile
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
-from bridge.world.observe import LEAD_GROUP, ObjectObservation
 
-_NEVER = -(1 << 62)  # a time before everything
-_UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
-_EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
-
-
-class _Bus:
-    __slots__ = ("bitrate", "bits", "brs_bits", "cycles", "data_bitrate", "decode_errors",
-                 "error_frames", "families", "first_ns", "frames", "gap_ns", "gaps", "ids",
-                 "kinds", "known", "last_ns", "name", "non_finite", "unknown")
-
-    def __init__(self, name: str, t_ns: int, known: frozenset[int], bitrate: int | None,
-                 data_bitrate: int | None) -> None:
-        self.name = name
-        self.first_ns = t_ns
-        self.last_ns = t_ns
-        self.known = known
-        self.bitrate = bitrate
-        self.data_bitrate = data_bitrate
-        self.frames = 0
-        self.bits = 0.0  # arbitration-phase bits (every bit of frames without bit rate switch)
-        self.brs_bits = 0.0  # data-phase bits of CAN FD frames with bit rate switch
-        self.error_frames = 0
-        self.unknown = 0
-        self.decode_errors = 0
-        self.non_finite = 0
-        self.gaps = 0
-        self.gap_ns = _UNKNOWN
-        self.ids: Counter[int] = Counter()
-        self.cycles: dict[int, float] = {}  # id key -> database cycle time (s)
-        self.families: set[str] = set()
-        #: the bits of each kind of frame (exact for a sample, else its mean: bridge.health.wire)
-        self.kinds: dict[KindKey, FrameKind] = {}
-
-
-class _Family:
-    __slots__ = ("buses", "expected_hz", "first_ns", "frames", "gap_ns", "group", "kind",
-                 "last_ns", "last_valid_ns", "messages", "name", "rate_window_ns", "resumed_ns",
-                 "rule_errors", "seen_messages", "sensor", "source", "subject",
-                 "valid_objects", "why_rule", "witnessed_ns")
-
-    def __init__(self, name: str, kind: str, sensor: Sensor | None, messages: Iterable[str],
-                 group: str | None) -> None:
-        self.name = name
-        self.kind = kind  # "objects", "lead", "lanes" or "ego"
-        self.sensor = sensor
-        self.subject = sensor.name if sensor is not None else name
-        self.messages = frozenset(messages)
-        self.group = group  # the world's object group, for object families
-        self.expected_hz: float | None = None
-        self.source = "learning"
-        self.gap_ns = _UNKNOWN
-        self.rate_window_ns = _UNKNOWN
-        self.frames = 0
-        self.first_ns = _NEVER
-        self.last_ns = _NEVER
-        self.resumed_ns = _NEVER
-        self.last_valid_ns = _NEVER
-        self.witnessed_ns = _NEVER
-        self.valid_objects = 0
-        self.seen_messages: set[str] = set()
-        self.buses: set[str] = set()
-        self.rule_errors = 0  # validity rule evaluations that failed, since the start
-        self.why_rule = ""  # the latest reason
-
-
-@dataclass(frozen=True)
-class _Pair:
-    """Two sensors whose objects are compared for the misalignment check."""
-
-    name: str
-    a: _Family
-    b: _Family
-
-
-@dataclass
-class _Snapshot:
-    t_ns: int
-    buses: dict[str, tuple[int, float, float, int, int, int, dict[int, int]]]
-    families: dict[str, int]
-
-
-def in_fov(sensor: Sensor, x: float, y: float) -> bool:
-    """Whether a vehicle-frame point is inside the sensor's field of view (True if unknown)."""
-    dx, dy = x - sensor.mount.x, y - sensor.mount.y
-    if sensor.mount.yaw_deg:
-        yaw = math.radians(sensor.mount.yaw_deg)
-        c, s = math.cos(yaw), math.sin(yaw)
-        dx, dy = c * dx + s * dy, -s * dx + c * dy
-    if sensor.fov_range is not None and math.hypot(dx, dy) > sensor.fov_range:
-        return False
-    return not (sensor.fov_azimuth_deg is not None
-                and abs(math.degrees(math.atan2(dy, dx))) > sensor.fov_azimuth_deg)
-
-
-def _has_fov(sensor: Sensor) -> bool:
-    return sensor.fov_range is not None or sensor.fov_azimuth_deg is not None
-
-
-def _seconds(ns: int) -> float:
-    return ns / NS
 
 
 class HealthMonitor:
@@ -225,13 +149,14 @@ class HealthMonitor:
         self._next_publish_ns: int | None = None
         self.first_ns: int | None = None
         self.last_tick_ns: int | None = None
-        self._buses: dict[str, _Bus] = {}
-        self._families_of: dict[MessageCodec, tuple[_Family, ...]] = {}
-        self._snapshots: deque[_Snapshot] = deque()
+        self._buses: dict[str, BusCounts] = {}
+        self._families_of: dict[MessageCodec, tuple[FamilyCounts, ...]] = {}
+        self._snapshots: deque[Snapshot] = deque()
         self._cycles = {m.name: m.cycle_time / 1000.0 for f in decoder.files
                         for m in f.db.messages if m.cycle_time}
-        self.families = self._make_families(profile) if profile is not None else []
-        self._by_message: dict[str, list[_Family]] = {}
+        self.families = (make_families(profile, self._cycles, s) if profile is not None
+                         else [])
+        self._by_message: dict[str, list[FamilyCounts]] = {}
         for family in self.families:
             for name in family.messages:
                 self._by_message.setdefault(name, []).append(family)
@@ -271,39 +196,12 @@ class HealthMonitor:
                         else None)
         #: sensors whose "flipped" verdict was said on /log
         self._lateral_said: set[str] = set()
+        #: what live's buses mended or lost before their frames came (:meth:`note_receive`)
+        self.receive = ReceiveWatch()
 
     # --- set-up --------------------------------------------------------------------------
 
-    def _make_families(self, profile: Profile) -> list[_Family]:
-        families = [_Family(name, "objects", g.sensor, g.members, name)
-                    for name, g in profile.groups.items()]
-        if profile.lead is not None and profile.lead.group is not None:
-            lead = profile.lead.group
-            families.append(_Family("lead", "lead", lead.sensor, lead.members, LEAD_GROUP))
-        if profile.lanes is not None and profile.lanes.lines:  # not for steering-only lanes
-            families.append(_Family("lanes", "lanes", profile.lanes.sensor,
-                                    (line.message for line in profile.lanes.lines.values()),
-                                    None))
-        ego = profile.ego
-        messages = {ref.message for ref in (ego.speed, ego.yaw_rate, ego.steering_wheel_angle)
-                    if ref is not None}
-        if messages:
-            families.append(_Family("ego", "ego", None, messages, None))
-        gap_factor = self.settings.gap_factor
-        for family in families:
-            cycles = [self._cycles.get(m) for m in family.messages]
-            if cycles and all(c is not None for c in cycles):
-                known = [c for c in cycles if c is not None]
-                family.expected_hz = sum(1.0 / c for c in known)
-                family.gap_ns = round(gap_factor * min(known) * NS)
-                family.rate_window_ns = self._rate_window(max(known))
-                family.source = "dbc"
-        return families
-
-    def _rate_window(self, period_s: float) -> int:
-        return round(max(self.settings.rate_window_s, 5 * period_s) * NS)
-
-    def _make_pairs(self) -> list[_Pair]:
+    def _make_pairs(self) -> list[Pair]:
         """Every two detection families of different sensors."""
         candidates = [f for f in self.families if self._detections(f)]
         pairs = []
@@ -311,19 +209,19 @@ class HealthMonitor:
             for b in candidates[i + 1:]:
                 assert a.sensor is not None and b.sensor is not None
                 if a.sensor.name != b.sensor.name:
-                    pairs.append(_Pair(f"{a.sensor.name}-{b.sensor.name}", a, b))
+                    pairs.append(Pair(f"{a.sensor.name}-{b.sensor.name}", a, b))
         return pairs
 
-    def _detections(self, family: _Family) -> bool:
+    def _detections(self, family: FamilyCounts) -> bool:
         """An object family whose group's role is detections (not tracks)."""
         if family.kind != "objects" or family.sensor is None or self.profile is None:
             return False
         group = self.profile.groups.get(family.group or "")
         return group is not None and not group.is_tracks
 
-    def _blind_checked(self, family: _Family) -> bool:
+    def _blind_checked(self, family: FamilyCounts) -> bool:
         return (self._detections(family) and family.sensor is not None
-                and _has_fov(family.sensor))
+                and has_fov(family.sensor))
 
     def _alarm(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
                raise_ns: int | None = None) -> Alarm:
@@ -334,10 +232,10 @@ class HealthMonitor:
                 self._raise_ns if raise_ns is None else raise_ns, self._clear_ns)
         return alarm
 
-    def _add_bus(self, name: str, t_ns: int) -> _Bus:
-        known = frozenset(c.message.frame_id | _EXTENDED if c.message.is_extended_frame
+    def _add_bus(self, name: str, t_ns: int) -> BusCounts:
+        known = frozenset(c.message.frame_id | EXTENDED if c.message.is_extended_frame
                           else c.message.frame_id for c in self.decoder.codecs_for(name))
-        bus = self._buses[name] = _Bus(name, t_ns, known, self.bitrates.get(name),
+        bus = self._buses[name] = BusCounts(name, t_ns, known, self.bitrates.get(name),
                                        self.data_bitrates.get(name))
         if self.first_ns is None:
             self.first_ns = t_ns
@@ -345,7 +243,7 @@ class HealthMonitor:
         self._alarm(f"bus.{name}.babbling", AlarmKind.BABBLING, name, ())
         return bus
 
-    def _resolve(self, bus: _Bus, codec: MessageCodec) -> tuple[_Family, ...]:
+    def _resolve(self, bus: BusCounts, codec: MessageCodec) -> tuple[FamilyCounts, ...]:
         """First frame of a message on a bus: its families, cycle time and the bus's gap."""
         message = codec.message
         families = tuple(self._by_message.get(message.name, ()))
@@ -355,7 +253,7 @@ class HealthMonitor:
             family.buses.add(bus.name)
             bus.families.add(family.name)
         if message.cycle_time:
-            key = message.frame_id | _EXTENDED if message.is_extended_frame else message.frame_id
+            key = message.frame_id | EXTENDED if message.is_extended_frame else message.frame_id
             bus.cycles[key] = message.cycle_time / 1000.0
             gap = round(self.settings.gap_factor * message.cycle_time / 1000.0 * NS)
             bus.gap_ns = min(bus.gap_ns, gap)
@@ -387,7 +285,7 @@ class HealthMonitor:
         bus.bits += arbitration
         if data_phase:
             bus.brs_bits += data_phase
-        key = ident | _EXTENDED if extended else ident
+        key = ident | EXTENDED if extended else ident
         bus.ids[key] += 1
         if decoded is None:
             if error:
@@ -407,7 +305,7 @@ class HealthMonitor:
         for family in families:
             if t - family.last_ns > family.gap_ns:
                 family.resumed_ns = t
-                if family.first_ns == _NEVER:
+                if family.first_ns == NEVER:
                     family.first_ns = t
             family.last_ns = t
             family.frames += 1
@@ -448,7 +346,7 @@ class HealthMonitor:
         seers = [f for f in self.families if self._detections(f)]
         for family in seers:
             sensor = family.sensor
-            if sensor is None or not _has_fov(sensor):
+            if sensor is None or not has_fov(sensor):
                 continue
             for other in seers:
                 if other.sensor is None or other.sensor.name == sensor.name:
@@ -504,7 +402,7 @@ class HealthMonitor:
         clock that steps away and back leaves no check unmade): nothing looks silent,
         nothing waits for the log to catch up."""
         def moved(t: int) -> int:
-            return t if t == _NEVER else t + shift_ns
+            return t if t == NEVER else t + shift_ns
 
         if self.next_tick_ns != float("-inf"):
             self.next_tick_ns = t_ns // self.period_ns * self.period_ns  # (made at once)
@@ -523,6 +421,7 @@ class HealthMonitor:
             f.last_valid_ns, f.witnessed_ns = moved(f.last_valid_ns), moved(f.witnessed_ns)
         for snap in self._snapshots:
             snap.t_ns += shift_ns
+        self.receive.rebase(shift_ns)
         for name, matches in self._bias.items():
             self._bias[name] = deque((t + shift_ns, a, b) for t, a, b in matches)
         for alarm in self._alarms.values():
@@ -540,13 +439,19 @@ class HealthMonitor:
         self._snapshot(t_ns)
         self._learn(t_ns)
         out: list[TopicMessage] = []
-        buses = self._bus_figures(t_ns)
-        families = self._family_figures(t_ns)
+        base = self._base(t_ns, self.window_ns)
+        buses, self._top_keys = bus_figures(self._buses, base, t_ns, self.settings.gap_factor)
+        for name, counts in self.receive.counts.items():
+            if name in buses:
+                buses[name].bad_timestamps_total = counts.bad_timestamps
+                buses[name].receive_dropped_total = counts.kernel_drops
+        families = family_figures(self.families, base, t_ns)
         self._update_bias(t_ns)
         events = self._check(t_ns, buses, families)
         for alarm, event in events:
             out.append(TopicMessage(LOG_TOPIC, self._log(alarm, event, t_ns), t_ns))
         out += self._value_warnings(t_ns)
+        out += self.receive.warnings(t_ns)
         out += self._lateral_warnings(t_ns)
         if self._next_publish_ns is None or t_ns >= self._next_publish_ns:
             self._next_publish_ns = (t_ns // self.publish_ns + 1) * self.publish_ns
@@ -562,6 +467,15 @@ class HealthMonitor:
         if alarm_id not in self._alarms:
             self._alarms[alarm_id] = Alarm(alarm_id, kind, subject, (), 0, 0)
         self._held[alarm_id] = why
+
+    def note_receive(self, bus: str, counts: ReceiveCounts) -> None:
+        """What live's reading of ``bus`` mended or lost so far (:mod:`bridge.health.receive`):
+        said on ``/log``, and its alarms (made when a count first grows) hold while it grows."""
+        for alarm_id in self.receive.note(bus, counts):
+            if alarm_id not in self._alarms:
+                kind = (AlarmKind.FRAMES_LOST if alarm_id.endswith(".frames_lost")
+                        else AlarmKind.BAD_TIMESTAMPS)
+                self._alarm(alarm_id, kind, bus, (), raise_ns=0)
 
     def _lateral_warnings(self, t_ns: int) -> list[TopicMessage]:
         """A ``/log`` warning, once per sensor, when its lateral sign looks flipped."""
@@ -598,17 +512,13 @@ class HealthMonitor:
 
     def _snapshot(self, t_ns: int) -> None:
         snaps = self._snapshots
-        snaps.append(_Snapshot(
-            t_ns,
-            {name: (b.frames, b.bits, b.brs_bits, b.error_frames, b.unknown, b.decode_errors,
-                    dict(b.ids)) for name, b in self._buses.items()},
-            {f.name: f.frames for f in self.families}))
+        snaps.append(Snapshot.take(t_ns, self._buses.values(), self.families))
         keep = max([self.window_ns, *(f.rate_window_ns for f in self.families
-                                      if f.rate_window_ns != _UNKNOWN)])
+                                      if f.rate_window_ns != UNKNOWN)])
         while len(snaps) > 2 and snaps[1].t_ns <= t_ns - keep:
             snaps.popleft()
 
-    def _base(self, t_ns: int, window_ns: int) -> _Snapshot:
+    def _base(self, t_ns: int, window_ns: int) -> Snapshot:
         """The newest snapshot at least ``window_ns`` old (or the oldest there is)."""
         found = self._snapshots[0]
         for snap in self._snapshots:
@@ -620,80 +530,17 @@ class HealthMonitor:
     def _learn(self, t_ns: int) -> None:
         gap_factor = self.settings.gap_factor
         for family in self.families:
-            if (family.expected_hz is None and family.first_ns != _NEVER
+            if (family.expected_hz is None and family.first_ns != NEVER
                     and t_ns - family.first_ns >= self.learning_ns):
-                family.expected_hz = family.frames / _seconds(t_ns - family.first_ns)
+                family.expected_hz = family.frames / seconds(t_ns - family.first_ns)
                 family.source = "learned"
                 per_message = max(1, len(family.seen_messages)) / family.expected_hz
                 family.gap_ns = round(gap_factor * per_message * NS)
-                family.rate_window_ns = self._rate_window(per_message)
+                family.rate_window_ns = rate_window(self.settings, per_message)
         for bus in self._buses.values():
-            if (bus.gap_ns == _UNKNOWN and bus.ids and t_ns - bus.first_ns >= self.learning_ns):
-                fastest = max(bus.ids.values()) / _seconds(t_ns - bus.first_ns)
+            if (bus.gap_ns == UNKNOWN and bus.ids and t_ns - bus.first_ns >= self.learning_ns):
+                fastest = max(bus.ids.values()) / seconds(t_ns - bus.first_ns)
                 bus.gap_ns = round(gap_factor / fastest * NS)
-
-    def _bus_figures(self, t_ns: int) -> dict[str, health_pb2.BusHealth]:
-        base = self._base(t_ns, self.window_ns)
-        elapsed = _seconds(t_ns - base.t_ns)
-        self._top_keys = {}
-        out = {}
-        for name, bus in self._buses.items():
-            frames, bits, brs_bits, errors, unknown, decode_errors, ids = base.buses.get(
-                name, (0, 0.0, 0.0, 0, 0, 0, {}))
-            msg = health_pb2.BusHealth(
-                bus=name, bitrate=bus.bitrate or 0, data_bitrate=bus.data_bitrate or 0,
-                error_frames=bus.error_frames - errors, error_frames_total=bus.error_frames,
-                unknown_ids=bus.unknown - unknown, unknown_ids_total=bus.unknown,
-                decode_errors=bus.decode_errors - decode_errors,
-                decode_errors_total=bus.decode_errors, silent_s=_seconds(t_ns - bus.last_ns),
-                gap=t_ns - bus.last_ns > bus.gap_ns,
-                expected_period_s=(_seconds(bus.gap_ns) / self.settings.gap_factor
-                                   if bus.gap_ns != _UNKNOWN else 0.0),
-                frames_total=bus.frames, non_finite_total=bus.non_finite)
-            msg.gaps_total = bus.gaps + int(msg.gap)
-            if elapsed > 0:
-                window_frames = bus.frames - frames
-                msg.frames_per_s = window_frames / elapsed
-                nominal, data_phase = bus.bits - bits, bus.brs_bits - brs_bits
-                if bus.bitrate and (not data_phase or bus.data_bitrate):
-                    time_s = nominal / bus.bitrate + (
-                        data_phase / bus.data_bitrate if bus.data_bitrate else 0.0)
-                    msg.load = time_s / elapsed
-                    msg.bits_per_s = time_s * bus.bitrate / elapsed
-                else:
-                    msg.bits_per_s = (nominal + data_phase) / elapsed
-                top, top_count = 0, 0
-                for key, count in bus.ids.items():
-                    delta = count - ids.get(key, 0)
-                    if delta > top_count:
-                        top, top_count = key, delta
-                if top_count:
-                    msg.top_id = top & ~_EXTENDED
-                    msg.top_id_hz = top_count / elapsed
-                    msg.top_id_share = top_count / window_frames
-                    self._top_keys[name] = top
-            out[name] = msg
-        return out
-
-    def _family_figures(self, t_ns: int) -> dict[str, health_pb2.FamilyHealth]:
-        base = self._base(t_ns, self.window_ns)
-        elapsed = _seconds(t_ns - base.t_ns)
-        out = {}
-        for family in self.families:
-            msg = health_pb2.FamilyHealth(
-                name=family.name, sensor=family.sensor.name if family.sensor else "",
-                expected_hz=family.expected_hz or 0.0, expected_source=family.source,
-                age_s=_seconds(t_ns - family.last_ns) if family.last_ns != _NEVER else -1.0,
-                valid_objects=family.valid_objects,
-                silent=family.last_ns != _NEVER and t_ns - family.last_ns > family.gap_ns,
-                frames_total=family.frames, rule_errors_total=family.rule_errors,
-                last_rule_error=family.why_rule)
-            if elapsed > 0:
-                msg.actual_hz = (family.frames - base.families.get(family.name, 0)) / elapsed
-                if family.expected_hz:
-                    msg.rate_ratio = msg.actual_hz / family.expected_hz
-            out[family.name] = msg
-        return out
 
     def _update_bias(self, t_ns: int) -> None:
         oldest = t_ns - round(self.settings.bias_window_s * NS)
@@ -715,28 +562,16 @@ class HealthMonitor:
 
         for held_id, held_why in self._held.items():
             hold(held_id, held_why)
+        self.receive.conditions(t_ns, self.window_ns, hold)
+        bus_conditions(self._buses, buses, self._top_keys, s, hold)
         in_gap = {name: msg.gap for name, msg in buses.items()}
-        for name, msg in buses.items():
-            if msg.gap:
-                hold(f"bus.{name}.silent", f"bus {name}: no frame for {msg.silent_s:.1f} s")
-            key = self._top_keys.get(name)
-            if key is None or msg.top_id_hz < s.babble_min_hz:
-                continue
-            cycle = self._buses[name].cycles.get(key)
-            ident = f"0x{key & ~_EXTENDED:X}"
-            if cycle is not None and msg.top_id_hz > s.babble_factor / cycle:
-                hold(f"bus.{name}.babbling", f"bus {name}: id {ident} at {msg.top_id_hz:.0f} "
-                     f"frames/s, its cycle time is {cycle * 1000:g} ms")
-            elif cycle is None and msg.top_id_share > s.babble_share:
-                hold(f"bus.{name}.babbling", f"bus {name}: id {ident} is "
-                     f"{msg.top_id_share:.0%} of the frames ({msg.top_id_hz:.0f}/s)")
         started = self.first_ns is not None and t_ns - self.first_ns >= self.learning_ns
         quiet: set[str] = set()  # families that are silent (or behind a silent bus)
         for family in self.families:
             fig = families[family.name]
             behind_silent_bus = (all(in_gap.get(b, False) for b in family.buses) if family.buses
                                  else bool(in_gap) and all(in_gap.values()))
-            never = family.last_ns == _NEVER
+            never = family.last_ns == NEVER
             if behind_silent_bus or fig.silent or (never and started):
                 quiet.add(family.name)
             if behind_silent_bus:
@@ -751,7 +586,7 @@ class HealthMonitor:
             window = family.rate_window_ns
             if family.expected_hz and t_ns - family.resumed_ns >= window:
                 base = self._base(t_ns, window)
-                elapsed = _seconds(t_ns - base.t_ns)
+                elapsed = seconds(t_ns - base.t_ns)
                 rate = (family.frames - base.families.get(family.name, 0)) / elapsed
                 if rate < s.rate_threshold * family.expected_hz:
                     hold(f"{subject}.rate", f"{family.name}: {rate:.0f} frames/s, "
@@ -762,7 +597,7 @@ class HealthMonitor:
                     and t_ns - nothing_since > family.gap_ns
                     and t_ns - family.witnessed_ns < self.window_ns):
                 hold(f"{subject}.blind", f"{family.name}: frames but no valid object for "
-                     f"{_seconds(t_ns - nothing_since):.1f} s while another sensor sees "
+                     f"{seconds(t_ns - nothing_since):.1f} s while another sensor sees "
                      "objects in its field of view" + (
                          f" (its validity rule failed {family.rule_errors} times: "
                          f"{family.why_rule})" if family.rule_errors else ""))
@@ -799,7 +634,7 @@ class HealthMonitor:
                 self.events.append((alarm.id, event, t_ns, alarm.message))
         return events
 
-    def _non_finite(self, bus: _Bus, decoded: Decoded) -> None:
+    def _non_finite(self, bus: BusCounts, decoded: Decoded) -> None:
         """Count a frame's non-finite values (per signal, for the warnings on /log)."""
         bus.non_finite += len(decoded.non_finite)
         message = decoded.codec.message.name
@@ -821,7 +656,7 @@ class HealthMonitor:
                   for f in self.families if f.rule_errors]
         out = []
         for key, count, words in found:
-            reported, at = self._reported.get(key, (0, _NEVER))
+            reported, at = self._reported.get(key, (0, NEVER))
             if count > reported and abs(t_ns - at) >= _REPORT_S * NS:
                 self._reported[key] = (count, t_ns)
                 out.append(TopicMessage(LOG_TOPIC, Log(
@@ -835,7 +670,7 @@ class HealthMonitor:
         else:
             duration = ""
             if alarm.holding_since is None and alarm.gone_since is not None:
-                duration = f" (the condition ended {_seconds(t_ns - alarm.gone_since):.1f} s ago)"
+                duration = f" (the condition ended {seconds(t_ns - alarm.gone_since):.1f} s ago)"
             level, words = Log.INFO, f"cleared {alarm.id}{duration}: was {alarm.message}"
         return Log(timestamp=timestamp(t_ns), level=level, message=words, name="tankviz.health")
 
@@ -855,47 +690,3 @@ class HealthMonitor:
     def topics(self) -> list[tuple[str, Any]]:
         """The topics :meth:`tick` emits, with their message classes (to advertise them)."""
         return [(HEALTH_TOPIC, health_pb2.Health), (LOG_TOPIC, Log)]
-
-
-def associate(a_objects: Iterable[ObjectObservation], b_objects: Iterable[ObjectObservation],
-              a_sensor: Sensor | None, b_sensor: Sensor | None, t_ns: int, *, gate_m: float,
-              min_range_m: float) -> list[tuple[float, float]]:
-    """Objects two sensors both see, as ``(lateral offset m, angular offset deg)`` of a minus b.
-
-    Each object is predicted to ``t_ns`` with its velocity (where the sensor reports one); only
-    objects inside both fields of view and at least ``min_range_m`` from sensor a count. Pairs
-    are matched greedily, nearest first, at most ``gate_m`` apart. Angles are seen from sensor
-    a's mount, left positive.
-    """
-
-    def usable(objects: Iterable[ObjectObservation]) -> list[tuple[float, float]]:
-        out = []
-        for o in objects:
-            dt = (t_ns - o.t_ns) / NS
-            x, y = o.x + (o.vx or 0.0) * dt, o.y + (o.vy or 0.0) * dt
-            if ((a_sensor is None or in_fov(a_sensor, x, y))
-                    and (b_sensor is None or in_fov(b_sensor, x, y))
-                    and math.hypot(x - mx, y - my) >= min_range_m):
-                out.append((x, y))
-        return out
-
-    mx = a_sensor.mount.x if a_sensor is not None else 0.0
-    my = a_sensor.mount.y if a_sensor is not None else 0.0
-    a_points, b_points = usable(a_objects), usable(b_objects)
-    gate = gate_m * gate_m
-    candidates = sorted(
-        ((ax - bx) ** 2 + (ay - by) ** 2, i, j)
-        for i, (ax, ay) in enumerate(a_points) for j, (bx, by) in enumerate(b_points)
-        if (ax - bx) ** 2 + (ay - by) ** 2 <= gate)
-    used_a: set[int] = set()
-    used_b: set[int] = set()
-    out = []
-    for _, i, j in candidates:
-        if i in used_a or j in used_b:
-            continue
-        used_a.add(i)
-        used_b.add(j)
-        (ax, ay), (bx, by) = a_points[i], b_points[j]
-        angle = math.degrees(math.atan2(ay - my, ax - mx) - math.atan2(by - my, bx - mx))
-        out.append((ay - by, (angle + 180.0) % 360.0 - 180.0))
-    return out

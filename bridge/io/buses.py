@@ -1,33 +1,62 @@
 """Live CAN buses: how one is named and opened (python-can's own bus creation: any interface,
 several at once), kept open, and read.
 
-Each bus has a thread that opens it (:class:`BusLink`): when the bus fails (adapter unplugged,
-interface down) it says so, retries with backoff and says when it is back. A bus that cannot
-work at all (an interface python-can does not have, a ``NAME`` without configuration, options it
-refuses: :func:`configuration_error`) is a :class:`~bridge.errors.UsageError` at its first
-opening, never retried. The pipeline's thread
-reads every bus itself, without waiting, a few times per scene period (:class:`ReadSchedule`):
-just after each scene tick and between; the frames of several buses are merged in time order
-(:func:`merge_batches`).
+Each bus has a thread that opens it (:class:`BusLink`). A bus that cannot work at all (an
+interface python-can does not have, a ``NAME`` without configuration, options it refuses:
+:func:`configuration_error`) is a :class:`~bridge.errors.UsageError` at its first opening, never
+retried. Any other failure to open (a socketcand server that is down, an address that is not one,
+an interface that is not there) is retried with backoff; live waits at most :data:`OPEN_WAIT_S`
+seconds (15) for every bus to open once, and a bus that has never opened by then is an error too
+(:class:`bridge.apps.live.Live`). Only a bus that opened once and then fails (adapter unplugged,
+interface down) is a lost bus: the link says so, retries with backoff for as long as the run
+goes on and says when it is back. Every reason is one line (:func:`one_line`: the exception's
+type and the first line of its message, never a traceback).
+
+The pipeline's thread reads every bus itself, without waiting, a few times per scene period
+(:class:`ReadSchedule`): just after each scene tick and between; the frames of several buses are
+merged in time order (:func:`merge_batches`). A frame whose stamp is not a time (NaN, infinite,
+before 1970 or after 2262) is not a failure of the bus: it is stamped with the time it was read
+(on the bus's own clock, as its last frames tell it), kept, and counted; something that is not a
+frame at all is skipped and counted (:class:`ReceiveCounts`, which :mod:`bridge.health.receive`
+tells on ``/log`` and ``/health``). Where python-can exposes the socket (socketcan, udp_multicast),
+its receive buffer is raised to :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows:
+:func:`raise_receive_buffer`) and the kernel's count of the frames it dropped for want of room is
+read at each read (:func:`kernel_drops`).
+
+python-can's own log lines (a warning per connection attempt: hundreds of thousands a second
+from socketcand) go through :class:`CanLogLimiter`: each cause is said once, then at most every
+10 s with how often it repeated (what is still counted when the run ends is said then).
 """
 
 from __future__ import annotations
 
 import contextlib
 import difflib
+import logging
 import operator
 import queue
 import re
+import socket
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
 
 from bridge.errors import UsageError
-from bridge.frame import NS, Frame, to_ns
+from bridge.frame import NS, Frame
+
+#: Seconds live waits for every bus to open once before a bus that never opened is an error
+#: (longer than python-can's socketcand spends on one connection attempt, 10 s).
+OPEN_WAIT_S = 15.0
+#: The receive buffer asked for a bus's socket (the OS may allow less: ``net.core.rmem_max``).
+RECEIVE_BUFFER_BYTES = 8 << 20
+#: The last second a frame can be stamped with (int64 nanoseconds: 2262).
+LAST_SECOND = ((1 << 63) - 1) // NS
 
 _BUS = re.compile(r"^(?P<name>[A-Za-z_][A-Za-z0-9_.-]*)(=(?P<interface>[A-Za-z0-9_]+):"
                   r"(?P<channel>[^@]+)(@(?P<bitrate>\d+))?)?$")
@@ -103,9 +132,168 @@ def configuration_error(spec: BusSpec, exc: Exception) -> UsageError | None:
                       + (f": {text[0]}" if text else ""))
 
 
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: its type and the first line of its message (python-can's
+    socketcand puts a whole traceback into its errors' messages)."""
+    text = _first_line(str(exc))
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _first_line(text: str) -> str:
+    lines = text.strip().splitlines()
+    first = lines[0] if lines else ""
+    return first.split("Traceback (most recent call last)")[0].strip()
+
+
+# --- the socket under a bus ---------------------------------------------------------------------
+
+_SO_RCVBUFFORCE = 33  # Linux: SO_RCVBUF past net.core.rmem_max (needs CAP_NET_ADMIN)
+_SO_MEMINFO = 55  # Linux: the socket's memory counters (u32 each), drops the ninth
+_MEMINFO_DROPS = 8
+
+
+def receive_socket(bus: can.BusABC) -> socket.socket | None:
+    """The socket python-can reads the bus from, where it exposes one (socketcan: ``socket``;
+    udp_multicast: its multicast bus's ``_socket``)."""
+    for found in (getattr(bus, "socket", None),
+                  getattr(getattr(bus, "_multicast", None), "_socket", None)):
+        if isinstance(found, socket.socket):
+            return found
+    return None
+
+
+def raise_receive_buffer(sock: socket.socket, size: int) -> int:
+    """Ask for a receive buffer of ``size`` bytes (past the OS's limit where allowed, else up to
+    it); returns the size the OS gives (Linux reports twice what is asked, for its overhead)."""
+    for option in ((_SO_RCVBUFFORCE, socket.SO_RCVBUF) if sys.platform == "linux"
+                   else (socket.SO_RCVBUF,)):
+        try:
+            if sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= size:
+                break
+            sock.setsockopt(socket.SOL_SOCKET, option, size)
+            break
+        except OSError:
+            continue
+    try:
+        return int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+    except OSError:
+        return 0
+
+
+def meminfo_drops(raw: bytes) -> int | None:
+    """The drop counter in ``SO_MEMINFO``'s answer (None if the kernel gives no such count)."""
+    count = len(raw) // 4
+    if count <= _MEMINFO_DROPS:
+        return None
+    return int(struct.unpack(f"{count}I", raw[:count * 4])[_MEMINFO_DROPS])
+
+
+def kernel_drops(sock: socket.socket) -> int | None:
+    """How many packets (frames) the kernel dropped on ``sock`` for want of room in its receive
+    buffer: the counter ``SO_RXQ_OVFL`` reports (None where it cannot be read: not Linux, a
+    closed socket)."""
+    if sys.platform != "linux":
+        return None
+    try:
+        return meminfo_drops(sock.getsockopt(socket.SOL_SOCKET, _SO_MEMINFO, 4 * 9))
+    except OSError:
+        return None
+
+
+# --- python-can's log lines ---------------------------------------------------------------------
+
+_DIGITS = re.compile(r"\d+")
+
+
+class CanLogLimiter(logging.Handler):
+    """python-can's log lines (warnings and worse), one per cause: the first at once, then the
+    latest at most every ``every_s`` seconds with how many came since
+    (``python-can: TEXT (repeated N times in the last S s)``); :meth:`close` says what is still
+    counted. A cause is the logger and the first line of the message, its numbers left out; a
+    traceback is never said."""
+
+    def __init__(self, say: Callable[[str], None], *,
+                 clock: Callable[[], float] = time.monotonic, every_s: float = 10.0) -> None:
+        super().__init__(logging.WARNING)
+        self.say = say
+        self.clock = clock
+        self.every_s = every_s
+        self._causes: dict[str, tuple[float, int, str]] = {}  # since, repeats, latest text
+        self._finished = False
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = _first_line(record.getMessage())
+        except Exception:  # a message that does not format
+            text = _first_line(str(record.msg))
+        key = f"{record.name} {record.levelno} {_DIGITS.sub('#', text)}"
+        now = self.clock()
+        cause = self._causes.get(key)
+        if cause is not None and self._finished:
+            return
+        if cause is not None and now - cause[0] < self.every_s:
+            self._causes[key] = (cause[0], cause[1] + 1, text)
+            return
+        self._causes[key] = (now, 0, text)
+        if cause is not None and cause[1]:
+            self._say(text, cause[1] + 1, now - cause[0])
+        else:
+            self.say(f"python-can: {text}")
+
+    def _say(self, text: str, times: int, seconds: float) -> None:
+        self.say(f"python-can: {text} (repeated {times:,} time{'' if times == 1 else 's'} in "
+                 f"the last {seconds:.0f} s)")
+
+    def flush_counts(self) -> None:
+        """Say the repeats counted and not yet said."""
+        with self.lock or contextlib.nullcontext():
+            now = self.clock()
+            for key, (since, repeats, text) in list(self._causes.items()):
+                if repeats:
+                    self._say(text, repeats, now - since)
+                    self._causes[key] = (now, 0, text)
+
+    def finish(self) -> None:
+        """Say the repeats counted, and from now on only new causes (the run's last line is
+        its own: an opener thread python-can keeps busy may log on until the process ends)."""
+        self.flush_counts()
+        self._finished = True
+
+    def close(self) -> None:
+        self.flush_counts()
+        super().close()
+
+
+def limit_can_logs(say: Callable[[str], None]) -> CanLogLimiter:
+    """Route python-can's log lines (logger ``can``) through a :class:`CanLogLimiter` that
+    passes them to ``say``, instead of Python's last-resort printing of every one."""
+    limiter = CanLogLimiter(say)
+    logger = logging.getLogger("can")
+    logger.addHandler(limiter)
+    logger.propagate = False
+    return limiter
+
+
+@dataclass
+class ReceiveCounts:
+    """What one bus's reading mended or lost since the run began (:mod:`bridge.health.receive`
+    says what each count is)."""
+
+    bad_timestamps: int = 0
+    last_bad_timestamp: str = ""
+    unreadable: int = 0
+    last_unreadable: str = ""
+    kernel_drops: int = 0
+    receive_buffer_bytes: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """For the drive's metadata (``bus_receive``)."""
+        return asdict(self)
+
+
 @dataclass(frozen=True)
 class BusEvent:
-    """A bus went away or came back."""
+    """A bus that had opened went away, or came back."""
 
     bus: str
     up: bool
@@ -119,10 +307,13 @@ class BusLink:
 
     The pipeline reads every bus at once a few times per scene period, so a scene tick sees the
     frames of all buses before it, and no thread wakes up for each frame. Opening is what may
-    block (an adapter that is being plugged in), so only the opener thread ever waits for it;
-    it sleeps while the bus is up. Bus failures and returns are put on ``events``. A bus that
-    cannot work (:func:`configuration_error`) at its first opening is not retried: the opener
-    ends and :attr:`error` says why.
+    block (an adapter that is being plugged in, a server that does not answer), so only the
+    opener thread ever waits for it; it sleeps while the bus is up. A bus that cannot work
+    (:func:`configuration_error`) at its first opening is not retried: the opener ends and
+    :attr:`error` says why. Other failures to open are retried; until the bus first opened
+    (:attr:`opened`) they are only noted (:attr:`failure`, :attr:`tries`), after that a failure
+    and the return are put on ``events`` (a lost bus). :attr:`receive` counts what the reading
+    mended or lost (bad stamps, what is not a frame, the kernel's drops).
     """
 
     def __init__(self, spec: BusSpec, events: queue.SimpleQueue[BusEvent], *,
@@ -135,10 +326,19 @@ class BusLink:
         self.stopping = threading.Event()
         #: set once the bus was opened, or failed to open, for the first time
         self.tried = threading.Event()
+        #: set once the bus was opened for the first time
+        self.opened = threading.Event()
         #: why the bus cannot work at all (set, with ``tried``, by a failed first opening)
         self.error: UsageError | None = None
-        self._opened = False  # once: later failures are a lost bus, retried
+        #: why the latest opening failed (one line), and how many were tried
+        self.failure = ""
+        self.tries = 0
+        #: what the reading mended or lost so far
+        self.receive = ReceiveCounts()
         self._bus: can.BusABC | None = None  # the open bus, handed over by the opener
+        self._socket: socket.socket | None = None  # its socket, where python-can exposes it
+        self._drops_before = 0  # the kernel's drops on the sockets of earlier openings
+        self._lead_ns: int | None = None  # the bus's clock minus the wall clock, as last read
         self._reopen = threading.Event()  # the opener is wanted
         self._reopen.set()
         self._down = False
@@ -146,7 +346,7 @@ class BusLink:
                                         name=f"tankviz-bus-{spec.name}")
 
     def start(self) -> None:
-        if not self._opener.is_alive():
+        if self._opener.ident is None and not self.stopping.is_set():  # (a thread starts once)
             self._opener.start()
 
     def stop(self) -> None:
@@ -158,6 +358,9 @@ class BusLink:
 
     def close(self) -> None:
         bus, self._bus = self._bus, None
+        sock, self._socket = self._socket, None
+        if sock is not None:
+            self._drops_before += kernel_drops(sock) or 0
         if bus is not None:
             with contextlib.suppress(Exception):  # a broken adapter may fail to close
                 bus.shutdown()
@@ -172,10 +375,11 @@ class BusLink:
                 try:
                     bus = self.open_bus(self.spec)
                 except Exception as exc:
-                    if not self._opened:
+                    if not self.opened.is_set():
                         self.error = configuration_error(self.spec, exc)
                     raise
                 finally:
+                    self.tries += 1
                     self.tried.set()
             except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
                 if self.error is not None:
@@ -185,25 +389,32 @@ class BusLink:
                 delay = min(delay * 2, self.backoff[1])
                 continue
             delay = self.backoff[0]
-            self._opened = True
             self._reopen.clear()
             if self._down:
                 self._down = False
                 self.events.put(BusEvent(self.spec.name, True, time.time_ns()))
+            sock = receive_socket(bus)
+            if sock is not None:
+                self.receive.receive_buffer_bytes = raise_receive_buffer(
+                    sock, RECEIVE_BUFFER_BYTES)
+            self._socket = sock
             self._bus = bus
+            self.opened.set()
             if self.stopping.is_set():
                 self.close()
 
     def _failed(self, exc: Exception) -> None:
-        if not self._down:
+        self.failure = one_line(exc)
+        if self.opened.is_set() and not self._down:
             self._down = True
-            self.events.put(BusEvent(self.spec.name, False, time.time_ns(),
-                                     f"{type(exc).__name__}: {exc}".strip()))
+            self.events.put(BusEvent(self.spec.name, False, time.time_ns(), self.failure))
 
     def poll(self, limit: int = 100_000) -> list[Frame]:
         """What the interface has received by now (at most ``limit`` frames), never waiting.
 
-        When the bus fails, the frames read before are returned and the opener takes over.
+        When the bus fails, the frames read before are returned and the opener takes over. A
+        frame whose stamp is not a time is stamped with the time it is read and kept; something
+        that is not a frame is skipped; both are counted (:attr:`receive`).
         """
         bus = self._bus
         if bus is None:
@@ -212,17 +423,68 @@ class BusLink:
         name, to_frame = self.spec.name, _frame
         try:
             while len(frames) < limit and (message := bus.recv(0)) is not None:
-                frames.append(to_frame(name, message))
+                try:
+                    frames.append(to_frame(name, message))
+                except Exception as exc:  # a stamp that is not a time, or not a frame at all
+                    self._mend(message, exc, frames)
         except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
             self.close()
             self._failed(exc)
             self._reopen.set()
+        if frames:
+            self._lead_ns = frames[-1].timestamp_ns - time.time_ns()
+        sock = self._socket
+        if sock is not None:
+            drops = kernel_drops(sock)
+            if drops is not None:
+                self.receive.kernel_drops = self._drops_before + drops
         return frames
 
+    def _mend(self, message: can.Message, exc: Exception, frames: list[Frame]) -> None:
+        """A frame python-can gave that :func:`_frame` refused: kept, stamped with the time it
+        is read on the bus's clock (never before the frame read just before it), if only its
+        stamp is wrong; else skipped. Counted either way."""
+        counts = self.receive
+        if isinstance(exc, BadTimestamp) or not isinstance(message.timestamp, (int, float)):
+            t = time.time_ns() + (self._lead_ns or 0)
+            if frames:
+                t = max(t, frames[-1].timestamp_ns)
+            try:
+                frames.append(_stamped(self.spec.name, message, t))
+            except Exception as again:
+                exc = again
+            else:
+                counts.bad_timestamps += 1
+                counts.last_bad_timestamp = _stamp_text(message.timestamp)
+                return
+        counts.unreadable += 1
+        counts.last_unreadable = one_line(exc)
 
-def _frame(bus: str, message: can.Message) -> Frame:
+
+class BadTimestamp(ValueError):
+    """A frame stamped with something that is not a time tankviz can record."""
+
+
+def _stamp_text(seconds: Any) -> str:
+    return str(seconds) if isinstance(seconds, float) else repr(seconds)
+
+
+def _frame(bus: str, message: can.Message, last: float = LAST_SECOND) -> Frame:
+    seconds = message.timestamp
+    if 0.0 <= seconds < last:  # (not NaN)
+        return Frame(
+            round(seconds * 1_000_000) * 1000,  # to_ns(), inlined: this runs for every frame
+            bus, message.arbitration_id, bytes(message.data),
+            message.is_extended_id, message.is_fd, message.is_error_frame,
+            message.is_remote_frame, message.bitrate_switch, message.error_state_indicator,
+            message.dlc)
+    raise BadTimestamp(seconds)
+
+
+def _stamped(bus: str, message: can.Message, t_ns: int) -> Frame:
+    """The frame of ``message`` stamped ``t_ns`` instead of its own stamp."""
     return Frame(
-        to_ns(message.timestamp), bus, message.arbitration_id, bytes(message.data),
+        t_ns, bus, message.arbitration_id, bytes(message.data),
         message.is_extended_id, message.is_fd, message.is_error_frame, message.is_remote_frame,
         message.bitrate_switch, message.error_state_indicator, message.dlc)
 
@@ -332,3 +594,4 @@ class ReadSchedule:
             if tick + phase > log_now:
                 return tick + phase - offset
         return tick + self.period_ns + self.phases[0] - offset
+

@@ -18,6 +18,8 @@ class AlarmKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     ALARM_KIND_BUS_SILENT: _ClassVar[AlarmKind]
     ALARM_KIND_BABBLING: _ClassVar[AlarmKind]
     ALARM_KIND_DISK_FULL: _ClassVar[AlarmKind]
+    ALARM_KIND_FRAMES_LOST: _ClassVar[AlarmKind]
+    ALARM_KIND_BAD_TIMESTAMPS: _ClassVar[AlarmKind]
 ALARM_KIND_UNSPECIFIED: AlarmKind
 ALARM_KIND_SENSOR_SILENT: AlarmKind
 ALARM_KIND_RATE_LOW: AlarmKind
@@ -27,9 +29,11 @@ ALARM_KIND_LANES_LOST: AlarmKind
 ALARM_KIND_BUS_SILENT: AlarmKind
 ALARM_KIND_BABBLING: AlarmKind
 ALARM_KIND_DISK_FULL: AlarmKind
+ALARM_KIND_FRAMES_LOST: AlarmKind
+ALARM_KIND_BAD_TIMESTAMPS: AlarmKind
 
 class BusHealth(_message.Message):
-    __slots__ = ("bus", "frames_per_s", "bits_per_s", "load", "bitrate", "data_bitrate", "error_frames", "error_frames_total", "unknown_ids", "unknown_ids_total", "decode_errors", "decode_errors_total", "silent_s", "gap", "gaps_total", "expected_period_s", "frames_total", "top_id", "top_id_hz", "top_id_share", "non_finite_total")
+    __slots__ = ("bus", "frames_per_s", "bits_per_s", "load", "bitrate", "data_bitrate", "error_frames", "error_frames_total", "unknown_ids", "unknown_ids_total", "decode_errors", "decode_errors_total", "silent_s", "gap", "gaps_total", "expected_period_s", "frames_total", "top_id", "top_id_hz", "top_id_share", "non_finite_total", "bad_timestamps_total", "receive_dropped_total")
     BUS_FIELD_NUMBER: _ClassVar[int]
     FRAMES_PER_S_FIELD_NUMBER: _ClassVar[int]
     BITS_PER_S_FIELD_NUMBER: _ClassVar[int]
@@ -51,6 +55,8 @@ class BusHealth(_message.Message):
     TOP_ID_HZ_FIELD_NUMBER: _ClassVar[int]
     TOP_ID_SHARE_FIELD_NUMBER: _ClassVar[int]
     NON_FINITE_TOTAL_FIELD_NUMBER: _ClassVar[int]
+    BAD_TIMESTAMPS_TOTAL_FIELD_NUMBER: _ClassVar[int]
+    RECEIVE_DROPPED_TOTAL_FIELD_NUMBER: _ClassVar[int]
     bus: str
     frames_per_s: float
     bits_per_s: float
@@ -72,7 +78,9 @@ class BusHealth(_message.Message):
     top_id_hz: float
     top_id_share: float
     non_finite_total: int
-    def __init__(self, bus: _Optional[str] = ..., frames_per_s: _Optional[float] = ..., bits_per_s: _Optional[float] = ..., load: _Optional[float] = ..., bitrate: _Optional[int] = ..., data_bitrate: _Optional[int] = ..., error_frames: _Optional[int] = ..., error_frames_total: _Optional[int] = ..., unknown_ids: _Optional[int] = ..., unknown_ids_total: _Optional[int] = ..., decode_errors: _Optional[int] = ..., decode_errors_total: _Optional[int] = ..., silent_s: _Optional[float] = ..., gap: bool = ..., gaps_total: _Optional[int] = ..., expected_period_s: _Optional[float] = ..., frames_total: _Optional[int] = ..., top_id: _Optional[int] = ..., top_id_hz: _Optional[float] = ..., top_id_share: _Optional[float] = ..., non_finite_total: _Optional[int] = ...) -> None: ...
+    bad_timestamps_total: int
+    receive_dropped_total: int
+    def __init__(self, bus: _Optional[str] = ..., frames_per_s: _Optional[float] = ..., bits_per_s: _Optional[float] = ..., load: _Optional[float] = ..., bitrate: _Optional[int] = ..., data_bitrate: _Optional[int] = ..., error_frames: _Optional[int] = ..., error_frames_total: _Optional[int] = ..., unknown_ids: _Optional[int] = ..., unknown_ids_total: _Optional[int] = ..., decode_errors: _Optional[int] = ..., decode_errors_total: _Optional[int] = ..., silent_s: _Optional[float] = ..., gap: bool = ..., gaps_total: _Optional[int] = ..., expected_period_s: _Optional[float] = ..., frames_total: _Optional[int] = ..., top_id: _Optional[int] = ..., top_id_hz: _Optional[float] = ..., top_id_share: _Optional[float] = ..., non_finite_total: _Optional[int] = ..., bad_timestamps_total: _Optional[int] = ..., receive_dropped_total: _Optional[int] = ...) -> None: ...
 
 class FamilyHealth(_message.Message):
     __slots__ = ("name", "sensor", "expected_hz", "expected_source", "actual_hz", "rate_ratio", "age_s", "valid_objects", "silent", "frames_total", "rule_errors_total", "last_rule_error")

@@ -1,0 +1,114 @@
+"""What a live bus's reading mended or lost before its frames reached the pipeline, and how the
+health monitor (:mod:`bridge.health.monitor`) says so.
+
+:class:`~bridge.io.buses.ReceiveCounts` is one bus's count since the run began (live's
+:class:`bridge.io.buses.BusLink` keeps it):
+
+- ``bad_timestamps``: frames python-can gave with a stamp that is not a time (NaN, infinite,
+  before 1970 or after 2262: a socketcand server sending ``nan``); each was stamped with the time
+  it was received (on the bus's own clock) and kept, so it is recorded; ``last_bad_timestamp``
+  is the latest such stamp as python-can gave it;
+- ``unreadable``: what python-can gave that is not a CAN frame at all (skipped, counted, the
+  latest reason in ``last_unreadable``);
+- ``kernel_drops``: frames the kernel dropped because its receive buffer was full (the bridge
+  read too late): the socket's own drop counter, the one ``SO_RXQ_OVFL`` reports, read where
+  python-can exposes the socket (socketcan, udp_multicast); ``receive_buffer_bytes`` is that
+  buffer's size once raised (0: no socket to read).
+
+:class:`ReceiveWatch` turns the counts into what the monitor says, in log time: a ``/log``
+warning when a count first grows and then at most every ``REPORT_S`` seconds while it goes on
+(with the count so far), and the alarms ``bus.<bus>.bad_timestamps`` and
+``bus.<bus>.frames_lost``, which hold while their count grew within the last window, are raised
+at once and cleared after the clear time (their message carries the count, so ``/health`` has it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from foxglove_schemas_protobuf.Log_pb2 import Log
+
+from bridge.frame import NS, timestamp
+from bridge.io.buses import ReceiveCounts
+from bridge.topics import LOG_TOPIC, TopicMessage
+
+#: seconds of log time between two /log warnings of the same count
+REPORT_S = 10.0
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n:,} {word}" + ("" if n == 1 else "s")
+
+
+def warning_text(bus: str, what: str, counts: ReceiveCounts) -> str:
+    """The ``/log`` line of one count (``what``: a field of :class:`ReceiveCounts`)."""
+    if what == "bad_timestamps":
+        return (f"bus {bus}: {_plural(counts.bad_timestamps, 'frame')} stamped "
+                f"{counts.last_bad_timestamp} s so far: each stamped with the time it was "
+                "received instead, and recorded")
+    if what == "kernel_drops":
+        return (f"bus {bus}: {_plural(counts.kernel_drops, 'frame')} lost in the receive buffer "
+                "so far (the kernel dropped them: tankviz read too late; receive buffer "
+                f"{counts.receive_buffer_bytes // 1024:,} KB)")
+    return (f"bus {bus}: {_plural(counts.unreadable, 'message')} from python-can that "
+            f"{'is' if counts.unreadable == 1 else 'are'} not a CAN frame so far (the latest: "
+            f"{counts.last_unreadable}): skipped")
+
+
+#: the alarm of a count: (its id's last part, the reason it holds)
+ALARMS: dict[str, tuple[str, Callable[[str, ReceiveCounts], str]]] = {
+    "bad_timestamps": ("bad_timestamps", lambda bus, c: (
+        f"bus {bus}: frames stamped {c.last_bad_timestamp} s ({c.bad_timestamps:,} since the "
+        "start): stamped with the time they were received")),
+    "kernel_drops": ("frames_lost", lambda bus, c: (
+        f"bus {bus}: frames lost in the receive buffer ({c.kernel_drops:,} since the start)")),
+}
+
+
+class ReceiveWatch:
+    """The receive counts of every bus, as the monitor is told them, and what it says of them."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, ReceiveCounts] = {}
+        #: (bus, count name) -> (the count at the last check, log time it last grew)
+        self._grew: dict[tuple[str, str], tuple[int, int]] = {}
+        #: (bus, count name) -> (the count said on /log, log time said)
+        self._said: dict[tuple[str, str], tuple[int, int]] = {}
+
+    def note(self, bus: str, counts: ReceiveCounts) -> list[str]:
+        """A bus's counts now; returns the ids of alarms it may need from now on."""
+        self.counts[bus] = counts
+        return [f"bus.{bus}.{ALARMS[what][0]}" for what in ALARMS
+                if getattr(counts, what)]
+
+    def conditions(self, t_ns: int, window_ns: int, hold: Callable[[str, str], None]) -> None:
+        """Each alarm whose count grew within ``window_ns`` before ``t_ns`` holds."""
+        for bus, counts in self.counts.items():
+            for what, (suffix, why) in ALARMS.items():
+                n = getattr(counts, what)
+                before, grew_ns = self._grew.get((bus, what), (0, -(1 << 62)))
+                if n > before:
+                    grew_ns = t_ns
+                self._grew[bus, what] = (n, grew_ns)
+                if t_ns - grew_ns < window_ns:
+                    hold(f"bus.{bus}.{suffix}", why(bus, counts))
+
+    def rebase(self, shift_ns: int) -> None:
+        """The clock stepped by ``shift_ns``: the times held move with it."""
+        self._grew = {key: (n, t + shift_ns) for key, (n, t) in self._grew.items()}
+        self._said = {key: (n, t + shift_ns) for key, (n, t) in self._said.items()}
+
+    def warnings(self, t_ns: int) -> list[TopicMessage]:
+        """``/log`` warnings of counts that grew: at once the first time, then at most every
+        :data:`REPORT_S` seconds."""
+        out = []
+        for bus, counts in self.counts.items():
+            for what in ("bad_timestamps", "kernel_drops", "unreadable"):
+                n = getattr(counts, what)
+                said, at = self._said.get((bus, what), (0, -(1 << 62)))
+                if n > said and abs(t_ns - at) >= REPORT_S * NS:
+                    self._said[bus, what] = (n, t_ns)
+                    out.append(TopicMessage(LOG_TOPIC, Log(
+                        timestamp=timestamp(t_ns), level=Log.WARNING,
+                        message=warning_text(bus, what, counts), name="tankviz.buses"), t_ns))
+        return out
