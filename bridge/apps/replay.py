@@ -8,6 +8,12 @@ given databases and profile or else the attached ones (as ``tankviz convert DRIV
 :func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
 protocol's ``time`` capability), so viewers follow log time.
 
+The input is read in a thread (:func:`~bridge.io.readahead.read_in_thread`): ``--for`` and
+SIGTERM/SIGINT end a replay within a twentieth of a second even while a read is slow or never
+returns. ``--start`` past the end of the drive is a :class:`~bridge.errors.UsageError` naming the
+drive's length (known before serving for an MCAP with its summary, after reading through it for
+CAN logs and a drive cut short).
+
 The layout to import is named as live names it (:func:`bridge.apps.hints.layout_hint`); for a
 drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
 when they are there, else the ``tankviz layouts`` command with what the drive was recorded with.
@@ -45,7 +51,8 @@ from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import BridgeError, InputError, UsageError
 from bridge.frame import NS
 from bridge.io.drives import METADATA_NAME, DriveSource, RecordedDrive, read_drive
-from bridge.io.logs import LogSource, merge
+from bridge.io.logs import LogSource, merge, supported_suffixes
+from bridge.io.readahead import read_in_thread
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
@@ -96,6 +103,11 @@ def _check(speed: float, start_s: float) -> None:
         raise UsageError(f"--start {start_s:g}: must not be negative")
 
 
+def _past_end(start_s: float, span_ns: int) -> UsageError:
+    """``--start`` past the end of a drive whose first and last messages are ``span_ns`` apart."""
+    return UsageError(f"--start {start_s:g}: the drive is only {span_ns / NS:.1f} s long")
+
+
 def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: bool = False,
                 start_s: float = 0.0, stopping: threading.Event | None = None,
                 on_loop: Callable[[int], None] | None = None) -> ReplayReport:
@@ -106,7 +118,8 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
     while not stopping.is_set():
         clock = Clock(speed, stopping, server.flush)
         last_time_ns = 0
-        for topic, schema_name, encoding, schema, data, log_ns in _mcap_messages(path, start_s):
+        for topic, schema_name, encoding, schema, data, log_ns in read_in_thread(
+                _mcap_messages(path, start_s), stopping, name="tankviz-replay-read"):
             if not clock.wait(log_ns):
                 break
             if log_ns - last_time_ns >= TIME_EVERY_NS:
@@ -128,17 +141,35 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
 
 def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, bytes, bytes,
                                                                   int]]:
+    """The messages of an MCAP from ``start_s`` into it: found through its summary, else (a
+    drive cut short) by reading past those before. Nothing after ``start_s`` is
+    :func:`_past_end`."""
+    skip_ns = round(start_s * NS)
     try:
         with path.open("rb") as stream:
             reader = make_reader(stream)
             summary = reader.get_summary()
             start_ns = None
             if summary is not None and summary.statistics is not None and start_s:
-                start_ns = summary.statistics.message_start_time + round(start_s * NS)
+                first = summary.statistics.message_start_time
+                span = summary.statistics.message_end_time - first
+                if skip_ns > span:
+                    raise _past_end(start_s, span)
+                start_ns = first + skip_ns
+            first_ns: int | None = None
+            last_ns = given = 0
             for schema, channel, message in reader.iter_messages(starting_at=start_ns,
                                                                  log_time_order=True):
+                if start_ns is None and start_s:  # no summary: skip to the start here
+                    first_ns = message.log_time if first_ns is None else first_ns
+                    last_ns = max(last_ns, message.log_time)
+                    if message.log_time - first_ns < skip_ns:
+                        continue
+                given += 1
                 yield (channel.topic, schema.name if schema else "", channel.message_encoding,
                        schema.data if schema else b"", message.data, message.log_time)
+            if not given and first_ns is not None:
+                raise _past_end(start_s, last_ns - first_ns)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except (McapError, ValueError, EOFError) as exc:
@@ -169,6 +200,7 @@ def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
                    start_s: float, stopping: threading.Event | None) -> ReplayReport:
     _check(speed, start_s)
     stopping = stopping or threading.Event()
+    skip_ns = round(start_s * NS)
     frames, loops = 0, 0
     while not stopping.is_set():
         sources = make_sources()
@@ -176,12 +208,14 @@ def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
         process = drive.pipeline.process
         clock = Clock(speed, stopping, server.flush)
         first_ns: int | None = None
-        last_time_ns = 0
-        for frame in merge(sources):
+        last_ns = last_time_ns = 0
+        given = 0
+        for frame in read_in_thread(merge(sources), stopping, name="tankviz-replay-read"):
             t = frame.timestamp_ns
             if first_ns is None:
                 first_ns = t
-            if t - first_ns < start_s * NS:
+            if t - first_ns < skip_ns:
+                last_ns = max(last_ns, t)
                 continue
             if not clock.wait(t):
                 break
@@ -189,8 +223,11 @@ def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
                 server.broadcast_time(t)
                 last_time_ns = t
             process(frame)
-            frames += 1
+            given += 1
         drive.finish()
+        if not given and first_ns is not None and not stopping.is_set():
+            raise _past_end(start_s, last_ns - first_ns)
+        frames += given
         loops += 1
         if not loop:
             break
@@ -202,7 +239,10 @@ def add_parser(sub: Subparsers) -> None:
         "replay", help="serve a recorded drive or CAN logs to Foxglove in real time",
         description="Serve a recorded drive (MCAP) as recorded, or CAN logs decoded through the "
         "pipeline, in real time; the server publishes log time so Foxglove follows it.")
-    parser.add_argument("files", nargs="+", type=Path, metavar="FILE")
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE",
+                        help="a recorded drive (one .mcap), or CAN logs, merged in time order "
+                        f"({' '.join(s for s in supported_suffixes() if not s.endswith('.gz'))}"
+                        ", and those gzipped)")
     parser.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
     parser.add_argument("--loop", action="store_true", help="start again at the end")
     parser.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
@@ -330,8 +370,10 @@ def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
     stopping = threading.Event()
     server = options.start_server(args, server_time=True)
     install_stop_signals(stopping.set)
+    timer = threading.Timer(args.run_for or 0, stopping.set)
+    timer.daemon = True  # (a replay that ends first does not wait for it)
     if args.run_for:
-        threading.Timer(args.run_for, stopping.set).start()
+        timer.start()
     print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
     if hint is not None:
         hint.say()
@@ -350,6 +392,7 @@ def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
                                 speed=args.speed, loop=args.loop, start_s=args.start,
                                 stopping=stopping)
     finally:
+        timer.cancel()
         server.stop()
     what = "frames" if stages is not None and mcap else "messages"
     print(f"replayed {report.messages:,} {what} ({report.loops} pass"

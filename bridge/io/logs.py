@@ -6,19 +6,34 @@ stop at the first line or object they cannot parse; :class:`LogSource` records t
 reason and carries on after it, so everything readable is converted and nothing is skipped
 silently. With ``strict=True`` the first such problem is an :class:`~bridge.errors.InputError`.
 
-- Text logs: a line python-can cannot parse is reported with its line and the reader resumes after
-  it. ASC and candump (``.log``) lines are counted against the frames they give: a line that gives
-  none is reported (python-can skips some silently: an ASC frame with a time lacking its dot, a
-  status line, the frame python-can's header scan swallows), except blank lines and the lines of
-  an ASC header and trigger block. A last line without its newline is a file cut short: its frame
-  is not kept, and the cut is reported.
+- Text logs: a line python-can cannot parse is reported with its line and a fresh reader, primed
+  with the log's header (the lines before its first frame, at most 1,000), resumes after it. Each
+  fresh reader must read a line of the file past the one its predecessor failed on: one that
+  fails again before (at the end of the file, or in the header it was primed with) ends the
+  reading, with a stop reported if the file goes on; a reader that fails at the end of the file
+  (a log cut inside its header) reports the cut. So every reader ends, however the file is
+  cut. ASC, candump (``.log``), TRC and CSV lines are counted against the frames they give: a line
+  that gives none is reported (python-can skips some silently: an ASC frame with a time lacking
+  its dot, a status line, the frame python-can's header scan swallows, a TRC line of a type it
+  does not read), except blank lines, comments and the lines of a header (ASC's header and
+  trigger block, TRC's ``;`` lines, CSV's column names). A line holding zero bytes is damaged
+  data (a block of zeros written over the file joins the line it begins in to the line it ends
+  in): whatever python-can makes of it, no frame is kept from it, and it is reported with its
+  line and the number of zero bytes. A last line without its newline is a file cut short: its
+  frame is not kept, and the cut is reported.
 - BLF: python-can's reader stops at the first damaged object (losing the rest of the file), loops
   forever on an object of size 0, or makes frames of garbage. :class:`_BlfReader` walks the
   objects first and gives python-can's object parser only intact ones: a damaged log container is
   skipped whole, a damaged object up to the next object signature (``LOBJ``), and each damage is
   reported with its byte offset; the frames before and after it are kept.
-- A frame stamped before 1970 or after 2262 (a negative, huge or non-finite time: more than an
-  MCAP can hold) is skipped and reported; the others go on.
+- SQLite (``.db``) and MF4: python-can reads them row by row (record by record); a row it
+  cannot read (a damaged page) ends the reading there, reported as a stop naming the row.
+- A frame with no readable timestamp (None, text, NaN: a damaged SQLite row) is skipped and
+  reported as such; a frame stamped before 1970 or after 2262 (a negative, huge or infinite time:
+  more than an MCAP can hold) is skipped and reported; the others go on.
+- Every :class:`SourceIssue` says what it did to the reading (its ``kind``, :data:`ISSUE_KINDS`:
+  ``stop``, ``damage``, ``skip`` or ``note``) and its family (``group``), so that a summary can
+  put stops first and count repeated issues together.
 - A log that gives no frame at all, a folder or a file of unknown format is an
   :class:`~bridge.errors.InputError` (one line naming the file, and the first problem met).
 
@@ -40,7 +55,7 @@ import zlib
 from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Literal, get_args
 
 import can
 from can.io import blf
@@ -63,7 +78,13 @@ _QUIET_LINES = {
     ".asc": re.compile(r"\s*($|//|date\s|base\s|(no\s+)?internal\s+events\s+logged|"
                        r"begin\s+triggerblock\b|end\s+triggerblock\b|"
                        r"\d+\.\d+\s+start\s+of\s+measurement\b)", re.IGNORECASE),
+    ".trc": re.compile(r"\s*($|;)"),  # comments and the header's settings
+    ".csv": re.compile(r"\s*($|timestamp,)"),  # the column names
 }
+
+#: The most lines before the first frame remembered as the log's header (python-can's formats
+#: have a few tens): a long run of lines without a frame is not held in memory.
+_HEADER_LINES = 1000
 
 #: A frame stamped at or after this (2262-04-11, 2^63 ns) cannot be recorded; nor before 1970.
 _LAST_SECOND = float(2**63 // 10**9)
@@ -85,13 +106,30 @@ def bus_name(channel: Any) -> str:
     return f"can{text}" if text.isdigit() else text
 
 
+#: What an issue did to the reading, gravest first (a summary lists them in this order):
+#: ``stop`` the reading of the file ended here and what follows in it is lost (a file cut short,
+#: a record python-can cannot read, a file that cannot be read on); ``damage`` a stretch of
+#: damaged data was skipped (its frames lost) and the reading went on after it; ``skip`` one line
+#: or frame was skipped; ``note`` nothing was lost (a frame kept at a time that jumps backwards).
+IssueKind = Literal["stop", "damage", "skip", "note"]
+ISSUE_KINDS: tuple[IssueKind, ...] = get_args(IssueKind)
+
+
 @dataclass(frozen=True)
 class SourceIssue:
-    """Something in a log that could not be read as a frame, and where."""
+    """Something in a log that could not be read as a frame, and where.
+
+    ``kind`` is one of :data:`ISSUE_KINDS`; ``group`` names the family of the issue in a few
+    words that never vary from one place to the next (the ``reason`` may quote a line or a
+    python-can message): issues of one ``(kind, group)`` can be counted together. Both have
+    defaults, for the issues made elsewhere with the three fields (``skip``, and no group:
+    group those by their reason)."""
 
     path: str
     where: str
     reason: str
+    kind: IssueKind = "skip"
+    group: str = ""
 
     def __str__(self) -> str:
         return f"{self.path}:{self.where}: {self.reason}" if self.where else \
@@ -109,10 +147,12 @@ def _suffix(path: Path) -> tuple[str, bool]:
 class _Lines:
     """The line iterator python-can's text readers consume, counting lines as they go.
 
-    Until the first frame has been read it remembers the lines it served (the log's header), so a
-    fresh reader can be primed with them to carry on after a line python-can could not parse.
+    Until the first frame has been read it remembers the lines it served (the log's header, at
+    most :data:`_HEADER_LINES` of them: ``capped`` when there were more), so a fresh reader can be
+    primed with them to carry on after a line python-can could not parse.
     Each line done with (the reader asks for the next) without ``framed`` set is handed to
-    ``unframed(line number, text)``; ``cut`` tells the line served last has no newline.
+    ``unframed(line number, text)``; ``cut`` tells the line served last has no newline, ``ended``
+    that the reader has asked for a line after the last.
     """
 
     def __init__(self, lines: Iterator[str], start_line: int = 0,
@@ -120,9 +160,11 @@ class _Lines:
         self._lines = lines
         self.line = start_line
         self.header: list[str] | None = []
+        self.capped = False
         self.text = ""
         self.framed = True
         self.cut = False
+        self.ended = False
         self.unframed = unframed
 
     def __iter__(self) -> _Lines:
@@ -130,13 +172,20 @@ class _Lines:
 
     def __next__(self) -> str:
         self.done()
-        text = next(self._lines)
+        try:
+            text = next(self._lines)
+        except StopIteration:
+            self.ended = True
+            raise
         self.line += 1
         self.text = text
         self.framed = False
         self.cut = not text.endswith("\n")
         if self.header is not None:
-            self.header.append(text)
+            if len(self.header) < _HEADER_LINES:
+                self.header.append(text)
+            else:
+                self.capped = True
         return text
 
     def done(self) -> None:
@@ -263,10 +312,12 @@ class _BlfReader(can.BLFReader):
     objects first: a log container whose header or compressed data is damaged is skipped whole
     (its frames are lost); a damaged object inside a container is skipped to the next object
     signature (``LOBJ``); python-can's own parser (``_parse_data``) gets only runs of intact
-    objects. ``damaged(byte offset, reason)`` is told of each damage.
+    objects. ``damaged(byte offset, reason, kind, group)`` is told of each damage (the kind and
+    group of :class:`SourceIssue`).
     """
 
-    def __init__(self, stream: _Bytes, damaged: Callable[[int, str], None]) -> None:
+    def __init__(self, stream: _Bytes,
+                 damaged: Callable[[int, str, IssueKind, str], None]) -> None:
         head = stream.read(_FILE_HEADER_SIZE)
         super().__init__(io.BytesIO(head))  # python-can reads the file header
         self.file = stream  # type: ignore[assignment]
@@ -280,7 +331,7 @@ class _BlfReader(can.BLFReader):
             stream.read(declared - _FILE_HEADER_SIZE)
         else:
             damaged(4, f"the file header gives its own size as {declared} bytes (damaged); "
-                    f"reading on after {_FILE_HEADER_SIZE}")
+                    f"reading on after {_FILE_HEADER_SIZE}", "damage", "damaged file header")
         self._at = stream.offset - len(self._buffer)  # the file offset of the buffer's start
         self._lost = False  # the data of the next container begins inside a lost object
 
@@ -319,10 +370,11 @@ class _BlfReader(can.BLFReader):
             if not self._fill(_OBJ.size):
                 if damage_at is not None:
                     self._damaged(damage_at, f"damaged data: the rest of the file "
-                                  f"({skipped + len(self._buffer)} bytes) holds no object")
+                                  f"({skipped + len(self._buffer)} bytes) holds no object",
+                                  "stop", "damaged data up to the end")
                 elif self._buffer.strip(b"\0"):
                     self._damaged(self._at, "the file ends in the middle of an object; frames "
-                                  "in it are lost")
+                                  "in it are lost", "stop", "file cut short")
                 break
             padding = self._buffer.find(b"LOBJ", 0, 8)  # python-can pads objects to 4 bytes
             if padding > 0 and damage_at is None:
@@ -336,13 +388,14 @@ class _BlfReader(can.BLFReader):
                 continue
             if damage_at is not None:
                 self._damaged(damage_at, f"damaged data: {skipped} bytes skipped to the next "
-                              f"object at byte {self._at}; frames in them are lost")
+                              f"object at byte {self._at}; frames in them are lost", "damage",
+                              "damaged data skipped")
                 damage_at = None
                 self._lost, self._tail = True, b""
             at = self._at
             if not self._fill(size):
                 self._damaged(at, "the file ends in the middle of an object; frames in it are "
-                              "lost")
+                              "lost", "stop", "file cut short")
                 break
             obj = bytes(self._buffer[:size])
             self._drop(size)
@@ -356,7 +409,7 @@ class _BlfReader(can.BLFReader):
                 yield from self._parse_data(obj)
         if self._tail.find(b"LOBJ") >= 0:
             self._damaged(self._at, "the file ends in the middle of an object; frames in it "
-                          "are lost")
+                          "are lost", "stop", "file cut short")
         self.stop()
 
     def _container(self, obj: bytes, at: int) -> Iterator[can.Message]:
@@ -373,12 +426,14 @@ class _BlfReader(can.BLFReader):
                     raise zlib.error("the compressed data ends early" if not
                                      unpack.unconsumed_tail else "too much data")
             except zlib.error as exc:
-                self._damaged(at, f"damaged log container ({exc}): the frames in it are lost")
+                self._damaged(at, f"damaged log container ({exc}): the frames in it are lost",
+                              "damage", "damaged log container")
                 self._lost, self._tail = True, b""
                 return
         else:
             self._damaged(at, f"log container with unknown compression method {method} "
-                          "(damaged?): the frames in it are lost")
+                          "(damaged?): the frames in it are lost", "damage",
+                          "damaged log container")
             self._lost, self._tail = True, b""
             return
         data = self._tail + data
@@ -387,7 +442,8 @@ class _BlfReader(can.BLFReader):
             yield from self._parse_data(data[start:end])
         if damaged:
             self._damaged(at, f"damaged objects in the log container here: {damaged} bytes "
-                          "skipped to the next object; frames in them are lost")
+                          "skipped to the next object; frames in them are lost", "damage",
+                          "damaged objects")
         self._tail = data[rest:]
 
 
@@ -408,6 +464,7 @@ class LogSource:
     _raw: io.FileIO | None = field(default=None, repr=False)
     _size: int = field(default=0, repr=False)
     _where: Callable[[], str] = field(default=lambda: "", repr=False)
+    _warnings: _Warnings | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -433,9 +490,10 @@ class LogSource:
             return (self._size if self.frames else 0), self._size
         return self._raw.tell(), self._size
 
-    def _problem(self, where: str, reason: str) -> None:
+    def _problem(self, where: str, reason: str, kind: IssueKind = "skip",
+                 group: str = "") -> None:
         reason = " ".join(reason.splitlines())  # one line, whatever python-can said
-        issue = SourceIssue(str(self.path), where, reason)
+        issue = SourceIssue(str(self.path), where, reason, kind, group or reason)
         if self.strict:
             raise InputError(self.path, f"{reason} (--strict)", where=where)
         self.issues.append(issue)
@@ -445,7 +503,7 @@ class LogSource:
         reader_type = MESSAGE_READERS[suffix]
         last_ns: int | None = None
         # Some readers (TRC) log a warning and skip what they cannot parse: count those too.
-        warnings = _Warnings(lambda: self._where())
+        warnings = self._warnings = _Warnings(lambda: self._where())
         can_logger = logging.getLogger("can")
         can_logger.addHandler(warnings)
         buses: dict[Any, str] = {}
@@ -453,21 +511,20 @@ class LogSource:
         try:
             for message in self._messages(reader_type, suffix, gzipped):
                 if warnings.texts:
-                    for place, text in warnings.texts:
-                        self._problem(place, f"skipped: python-can says {text!r}")
-                    warnings.texts.clear()
+                    self._warned(warnings)
                 seconds = message.timestamp
                 ident = message.arbitration_id
                 if not (isinstance(seconds, (float, int)) and 0.0 <= seconds < _LAST_SECOND
                         and isinstance(ident, int) and 0 <= ident < 1 << 29
                         and isinstance(message.dlc, int) and len(message.data) <= 64):
-                    self._problem(self._where(), _unrecordable(message))
+                    self._problem(self._where(), *_unrecordable(message))
                     continue
                 ns = round(seconds * 1_000_000) * 1000  # to_ns(), inlined
                 if last_ns is not None and ns < last_ns:
                     self.backwards += 1
                     self._problem(self._where(), f"time jumps backwards by "
-                                  f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own time)")
+                                  f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own time)",
+                                  "note", "time jumps backwards")
                 last_ns = ns
                 frames += 1
                 self.frames = frames
@@ -488,8 +545,7 @@ class LogSource:
                     message.error_state_indicator,
                     message.dlc,
                 )
-            for place, text in warnings.texts:
-                self._problem(place, f"skipped: python-can says {text!r}")
+            self._warned(warnings)
             if not frames:
                 first = self.issues[0] if self.issues else None
                 first_text = "" if first is None else \
@@ -497,6 +553,14 @@ class LogSource:
                 raise InputError(self.path, f"no CAN frames in this file{first_text}")
         finally:
             can_logger.removeHandler(warnings)
+            self._warnings = None
+
+    def _warned(self, warnings: _Warnings) -> None:
+        """Reports the warnings python-can logged (and forgets them)."""
+        for place, text in warnings.texts:
+            self._problem(place, f"skipped: python-can says {_shown(text, 120)}", "skip",
+                          "python-can warning")
+        warnings.texts.clear()
 
     def _messages(self, reader_type: type[MessageReader], suffix: str,
                   gzipped: bool) -> Iterator[can.Message]:
@@ -517,7 +581,8 @@ class LogSource:
                 else:
                     yield from self._binary(reader_type, binary)
             except (OSError, EOFError, zlib.error) as exc:  # also gzip.BadGzipFile
-                self._problem("", f"cannot read the file any further: {exc}")
+                self._problem("", f"cannot read the file any further: {exc}", "stop",
+                              "file unreadable from here")
 
     def _text(self, reader_type: type[MessageReader], text: Iterator[str],
               suffix: str) -> Iterator[can.Message]:
@@ -525,16 +590,30 @@ class LogSource:
         kwargs = {"relative_timestamp": False} if reader_type is can.ASCReader else {}
         quiet = _QUIET_LINES.get(suffix)
         checked = 0  # the lines up to this one are accounted for (a fresh reader reads some again)
+        warned = self._warnings
+
+        def damage(line: int, content: str) -> None:
+            """A line with zero bytes: damaged data, whatever python-can made of it."""
+            if warned is not None:
+                warned.take(f"line {line}")  # (python-can's warning would quote the zeros)
+            self._problem(f"line {line}", f"damaged data: {content.count(chr(0))} zero bytes in "
+                          "this line: no frame is kept from it (the lines they overwrote are "
+                          "lost)", "damage", "zero bytes in a line")
 
         def unframed(line: int, content: str) -> None:
             nonlocal checked
             if line > checked:
                 checked = line
-                if quiet is not None and not quiet.match(content):
-                    shown = content.rstrip("\r\n")
-                    shown = shown if len(shown) <= 80 else shown[:77] + "…"
+                said = warned.take(f"line {line}") if warned is not None else []
+                if "\0" in content:
+                    damage(line, content)
+                elif said:  # python-can's word for it, in the order of the lines
+                    for text in said:
+                        self._problem(f"line {line}", f"skipped: python-can says "
+                                      f"{_shown(text, 120)}", "skip", "python-can warning")
+                elif quiet is not None and not quiet.match(content):
                     self._problem(f"line {line}", f"no frame in this line (python-can skips it): "
-                                  f"{shown!r}")
+                                  f"{_shown(content)}", "skip", "line without a frame")
 
         lines = _Lines(text, unframed=unframed)
 
@@ -543,17 +622,22 @@ class LogSource:
 
         self._where = where
 
+        failed_at = 0  # the line of the last failure: a fresh reader must read past it
         while True:
             reader = reader_type(file=lines, **kwargs)  # type: ignore[arg-type]
             try:
                 for message in reader:
                     if lines.header is not None:
-                        header = lines.header[:-1]
+                        header = lines.header if lines.capped else lines.header[:-1]
                         lines.header = None
                     lines.framed = True
                     if lines.cut:
                         self._problem(f"line {lines.line}", "the file ends in the middle of this "
-                                      "line (no newline): cut short, its frame is not kept")
+                                      "line (no newline): cut short, its frame is not kept",
+                                      "stop", "file cut short")
+                        continue
+                    if "\0" in lines.text:
+                        damage(lines.line, lines.text)
                         continue
                     yield message
                 lines.done()
@@ -561,11 +645,31 @@ class LogSource:
             except Exception as exc:  # python-can raises anything from ValueError to IndexError
                 if isinstance(exc, (InputError, OSError, EOFError, zlib.error)):
                     raise  # --strict, or the file cannot be read (not: a line cannot be parsed)
-                bad_line = checked = max(checked, lines.line)
-                self._problem(f"line {bad_line}", f"skipped a line python-can cannot parse "
-                              f"({type(exc).__name__}: {exc})")
+                bad_line = max(checked, lines.line)
+                if bad_line <= failed_at:
+                    # The fresh reader failed again before reading a line of its own (in the
+                    # header it was primed with, or at the end of the file): no progress.
+                    if next(text, None) is not None:
+                        self._problem(f"line {failed_at + 1}", "python-can cannot read on after "
+                                      f"line {failed_at} ({type(exc).__name__}: {exc}): the rest "
+                                      "of the file is not read", "stop", "cannot read on")
+                    return
+                if lines.ended:  # python-can failed at the end of the file (inside its header)
+                    how = "in the middle of this line (no newline)" if lines.cut else \
+                        "after this line"
+                    self._problem(f"line {bad_line}", f"the file ends {how}: cut short, "
+                                  f"python-can cannot read it ({type(exc).__name__}: {exc})",
+                                  "stop", "file cut short")
+                    return
+                if "\0" in lines.text:
+                    damage(bad_line, lines.text)
+                else:
+                    self._problem(f"line {bad_line}", f"skipped a line python-can cannot parse "
+                                  f"({type(exc).__name__}: {exc})", "skip",
+                                  "line python-can cannot parse")
+                checked = failed_at = bad_line
                 if lines.header is not None:
-                    header = lines.header[:-1]
+                    header = lines.header if lines.capped else lines.header[:-1]
                 # A fresh reader, primed with the header so it knows the log's settings, carries
                 # on after the bad line; its counter comes back to the bad line after the header.
                 lines = _Lines(itertools.chain(header, text), bad_line - len(header), unframed)
@@ -581,8 +685,8 @@ class LogSource:
 
         self._where = where
 
-        def damaged(offset: int, reason: str) -> None:
-            self._problem(f"byte {offset}", reason)
+        def damaged(offset: int, reason: str, kind: IssueKind, group: str) -> None:
+            self._problem(f"byte {offset}", reason, kind, group)
 
         try:
             if reader_type is can.BLFReader:
@@ -608,16 +712,17 @@ class LogSource:
                     break  # no progress: the rest of the file is unreadable, reported below
                 last_failure = stream.offset
                 self._problem(f"byte {stream.offset}", f"skipped damaged data "
-                              f"({type(exc).__name__}: {exc})")
+                              f"({type(exc).__name__}: {exc})", "damage", "damaged data skipped")
         if stream.cut_at is not None and not isinstance(reader, _BlfReader):
             self._problem(f"byte {stream.cut_at}", "the file ends in the middle of an object; "
-                          "frames in it are lost")
+                          "frames in it are lost", "stop", "file cut short")
 
     def _whole_file(self, reader_type: type[MessageReader]) -> Iterator[can.Message]:
         count = 0
+        what = "row" if reader_type is can.SqliteReader else "record"
 
         def where() -> str:
-            return f"record {count}"
+            return f"{what} {count}"
 
         self._where = where
 
@@ -634,20 +739,34 @@ class LogSource:
                 count += 1
                 yield message
         except Exception as exc:
-            self._problem(f"record {count + 1}", f"stopped at a record python-can cannot read "
-                          f"({type(exc).__name__}: {exc})")
+            self._problem(f"{what} {count + 1}", f"stopped at {what} {count + 1}, which python-can "
+                          f"cannot read ({type(exc).__name__}: {exc}): the rest of the file is "
+                          "not read", "stop", f"stopped at a {what} python-can cannot read")
         finally:
             reader.stop()
 
 
-def _unrecordable(message: can.Message) -> str:
-    """Why a frame python-can made of damaged data cannot be recorded."""
+def _unrecordable(message: can.Message) -> tuple[str, IssueKind, str]:
+    """Why a frame python-can made of damaged data cannot be recorded: the reason, the kind and
+    the group of its :class:`SourceIssue`."""
     seconds = message.timestamp
-    if not isinstance(seconds, (float, int)) or not 0.0 <= seconds < _LAST_SECOND:  # also NaN
+    if not isinstance(seconds, (float, int)) or seconds != seconds:  # None, text, NaN
+        shown = repr(seconds)
+        return (f"skipped a frame with no readable timestamp "
+                f"({shown if len(shown) <= 40 else shown[:37] + '…'})", "skip",
+                "frame without a readable timestamp")
+    if not 0.0 <= seconds < _LAST_SECOND:
         return (f"skipped a frame stamped {seconds!r} s: a time before 1970 or after 2262 "
-                "cannot be recorded")
+                "cannot be recorded", "skip", "frame stamped out of range")
     return (f"skipped a frame with id {message.arbitration_id!r}, DLC {message.dlc!r} and "
-            f"{len(message.data)} data bytes: not a CAN frame")
+            f"{len(message.data)} data bytes: not a CAN frame", "skip", "not a CAN frame")
+
+
+def _shown(text: str, most: int = 80) -> str:
+    """A line (of a log, or of python-can's) as an issue quotes it: without its newline, at most
+    ``most`` characters."""
+    text = text.rstrip("\r\n")
+    return repr(text if len(text) <= most else text[:most - 3] + "…")
 
 
 class _Warnings(logging.Handler):
@@ -660,6 +779,13 @@ class _Warnings(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         self.texts.append((self.where(), record.getMessage()))
+
+    def take(self, place: str) -> list[str]:
+        """The warnings logged at ``place`` not yet reported, forgotten here."""
+        taken = [text for where, text in self.texts if where == place]
+        if taken:
+            self.texts[:] = [(where, text) for where, text in self.texts if where != place]
+        return taken
 
 
 def merge(sources: Iterable[Iterable[Frame]]) -> Iterator[Frame]:

@@ -24,6 +24,12 @@ is not safe or not worth it, the sources are read here, in the same order, with 
 results: on systems without ``fork``, in a process with other threads (a Dask worker, a live
 server), in a daemonic process (which may not have children), and for inputs smaller than
 :data:`MIN_BYTES`, where starting a process costs more than it saves.
+
+:func:`read_in_thread` reads in a thread of this process instead, for a consumer that must keep
+its stop (``replay``'s ``--for``, SIGTERM) whatever the reading does: the consumer waits for each
+item at most :data:`POLL_S` at a time and looks at its stop in between, so a read that is slow,
+never returns or spins cannot keep it; the thread, stuck in such a read, is left behind (a
+daemon: it ends with the process). It holds at most :data:`THREAD_ITEMS` items ahead.
 """
 
 from __future__ import annotations
@@ -33,9 +39,10 @@ import pickle
 import signal
 import threading
 import traceback
-from collections.abc import Iterator, Sequence
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
 from functools import partial
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
@@ -52,7 +59,13 @@ _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 #: Seconds a child stopped early has to end on SIGTERM before it is killed.
 _GRACE_S = 1.0
 
+#: Items :func:`read_in_thread` holds read ahead at most.
+THREAD_ITEMS = 4096
+#: Seconds :func:`read_in_thread`'s consumer waits at a time before it looks at its stop again.
+POLL_S = 0.05
+
 _as_frame = partial(tuple.__new__, Frame)
+_T = TypeVar("_T")
 
 
 class Source(Protocol):
@@ -197,3 +210,63 @@ def _read(sources: list[Source], send: Any, receive: Any) -> None:
         pass  # the parent stopped reading: nothing to tell
     finally:
         send.close()
+
+
+class _Failed:
+    """The exception that ended the reading of :func:`read_in_thread`."""
+
+    def __init__(self, error: BaseException) -> None:
+        self.error = error
+
+
+_END = object()
+
+
+def read_in_thread(items: Iterable[_T], stopping: threading.Event, *,
+                   name: str = "tankviz-read") -> Iterator[_T]:
+    """``items``, read by a daemon thread; ends when ``stopping`` is set, within :data:`POLL_S`
+    even while a read blocks. An exception of the reading is raised here after the items before
+    it. Once this iterator ends (or is closed), the thread stops at its next item."""
+    buffer: deque[Any] = deque()
+    ready, room, gone = threading.Event(), threading.Event(), threading.Event()
+
+    def hand(item: Any) -> bool:
+        """Hands ``item`` over when there is room; False once the consumer is gone."""
+        while len(buffer) >= THREAD_ITEMS:
+            room.clear()
+            if gone.is_set():
+                return False
+            if len(buffer) >= THREAD_ITEMS:
+                room.wait(POLL_S)
+        buffer.append(item)
+        if not ready.is_set():
+            ready.set()
+        return not gone.is_set()
+
+    def read() -> None:
+        try:
+            for item in items:
+                if not hand(item):
+                    return
+            hand(_END)
+        except BaseException as exc:  # raised to the consumer
+            hand(_Failed(exc))
+
+    threading.Thread(target=read, name=name, daemon=True).start()
+    try:
+        while not stopping.is_set():
+            if not buffer:
+                room.set()
+                ready.clear()  # (then looked at again: an item handed meanwhile sets it)
+                if not buffer:
+                    ready.wait(POLL_S)
+                continue
+            item = buffer.popleft()
+            if item is _END:
+                return
+            if isinstance(item, _Failed):
+                raise item.error
+            yield item
+    finally:
+        gone.set()
+        room.set()

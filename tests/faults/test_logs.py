@@ -5,6 +5,7 @@ and 14, and the candump timestamps of item 2)."""
 from __future__ import annotations
 
 import random
+import sqlite3
 import struct
 import subprocess
 import sys
@@ -318,3 +319,83 @@ def test_a_folder_given_as_a_log_is_one_line(tmp_path: Path, name: str) -> None:
     assert result.stderr.splitlines()[-1] == (
         f"error: {name}: is a folder, not a log file: name the log files in it "
         f"({name}/*.blf …)")
+
+
+# --- SQLite: rows python-can reads wrongly, and a damaged page (issue #23, item 7) ---
+
+
+def test_a_sqlite_row_without_a_readable_timestamp_is_named_by_its_row(
+        write_log: WriteLog) -> None:
+    path = write_log("drive.db", drive(10))
+    with sqlite3.connect(path) as db:
+        db.execute("UPDATE messages SET ts = NULL WHERE rowid = 5")
+        db.execute("UPDATE messages SET ts = 'noon' WHERE rowid = 7")
+    db.close()
+
+    frames, source = read(path)
+
+    assert [number(f) for f in frames] == [0, 1, 2, 3, 5, 7, 8, 9]
+    assert [(i.where, i.reason, i.kind) for i in source.issues] == [
+        ("row 5", "skipped a frame with no readable timestamp (None)", "skip"),
+        ("row 7", "skipped a frame with no readable timestamp ('noon')", "skip")]
+    assert source.issues[0].group == source.issues[1].group  # one family, counted together
+
+
+def test_a_damaged_sqlite_page_stops_the_reading_at_its_row_as_a_stop(
+        write_log: WriteLog) -> None:
+    path = write_log("drive.db", drive(3000))
+    whole = bytearray(path.read_bytes())
+    middle = len(whole) // 2
+    whole[middle:middle + 4096] = bytes(range(256)) * 16  # one page of 4 KiB, or two halves
+    path.write_bytes(whole)
+
+    frames, source = read(path)
+
+    assert [number(f) for f in frames] == list(range(len(frames)))  # the rows before it
+    assert 0 < len(frames) < 3000
+    stop = source.issues[-1]
+    assert stop.kind == "stop" and stop.where == f"row {len(frames) + 1}"
+    assert stop.reason.startswith(f"stopped at row {len(frames) + 1}, which python-can cannot "
+                                  "read (DatabaseError: ")
+    assert stop.reason.endswith("the rest of the file is not read")
+    assert all(i.kind != "stop" for i in source.issues[:-1])
+
+
+# --- what each issue did to the reading: a summary tells a stop from a skip ---
+
+
+def test_each_issue_says_whether_the_reading_stopped_skipped_damage_or_lost_nothing(
+        write_log: WriteLog, blf: Path) -> None:
+    log = write_log("drive.log", drive(5))
+    lines = log.read_text().splitlines(keepends=True)
+    lines[1:2] = ["not a frame\n", "(1699999999.000000) can0 101#01\n"]
+    log.write_text("".join(lines)[:-5])  # cut in its last line
+    whole = blf.read_bytes()
+    offset, _, _ = list(containers(whole))[2]
+    blf.write_bytes(whole[:offset + 40] + bytes(64) + whole[offset + 104:])
+
+    kinds = {(i.where, i.kind, i.group) for i in read(log)[1].issues + read(blf)[1].issues}
+
+    assert kinds == {("line 2", "skip", "line python-can cannot parse"),
+                     ("line 3", "note", "time jumps backwards"),
+                     ("line 6", "stop", "file cut short"),
+                     (f"byte {offset}", "damage", "damaged log container")}
+
+
+def test_trc_lines_python_can_skips_are_reported_in_the_order_of_the_lines(
+        tmp_path: Path) -> None:
+    path = tmp_path / "drive.trc"
+    path.write_text(";$FILEVERSION=1.1\n"
+                    ";$STARTTIME=45000.5\n"
+                    ";   Message Number\n"
+                    "      1)      1.0  Rx         0100  8  00 01 02 03 04 05 06 07\n"
+                    "      2)      2.0  Rx         0101  8  00 01\n"  # 2 bytes of 8
+                    "      3)      3.0  Warng      FFFFFFFF  4  00 00 00 08 BUSHEAVY\n"
+                    "      4)      4.0  Rx         0102  8  00 01 02 03 04 05 06 07\n")
+
+    frames, source = read(path)
+
+    assert [f.arbitration_id for f in frames] == [0x100, 0x102]
+    assert [(i.where, i.group) for i in source.issues] == [
+        ("line 5", "python-can warning"), ("line 6", "line without a frame")]
+    assert "Warng" in source.issues[1].reason
