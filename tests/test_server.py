@@ -327,3 +327,15 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
         topics, times = asyncio.run(session())
     assert sorted(topics) == ["/can/radar/frames", "/scene/ego"]
     assert times == [7, 8]
+
+
+@pytest.mark.parametrize("mode", ["live", "replay"])
+def test_server_info_says_whether_it_is_live_or_a_replay(mode: str) -> None:
+    with LiveServer(port=0, mode=mode) as server:
+        async def hello() -> dict[str, Any]:
+            async with client(server) as ws:
+                info: dict[str, Any] = await next_json(ws, "serverInfo")
+                return info
+
+        assert asyncio.run(hello())["metadata"] == {"tankviz": mode}
+

@@ -136,10 +136,13 @@ def add_server_options(parser: argparse.ArgumentParser) -> None:
                         help=f"WebSocket port (default {DEFAULT_PORT}, env TANKVIZ_PORT)")
 
 
-def start_server(args: argparse.Namespace, *, server_time: bool = False) -> LiveServer:
+def start_server(args: argparse.Namespace, *, server_time: bool = False,
+                 mode: str = "live") -> LiveServer:
+    """The Foxglove server ``--host`` and ``--port`` name, started (``mode``: what it serves,
+    told to viewers in serverInfo's metadata)."""
     from bridge.sinks.websocket import LiveServer
 
-    server = LiveServer(host=args.host, port=args.port, server_time=server_time)
+    server = LiveServer(host=args.host, port=args.port, server_time=server_time, mode=mode)
     server.start()
     return server
 

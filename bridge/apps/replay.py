@@ -368,7 +368,7 @@ def _attached(path: Path) -> RecordedDrive:
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
            hint: hints.LayoutHint | None) -> int:
     stopping = threading.Event()
-    server = options.start_server(args, server_time=True)
+    server = options.start_server(args, server_time=True, mode="replay")
     install_stop_signals(stopping.set)
     timer = threading.Timer(args.run_for or 0, stopping.set)
     timer.daemon = True  # (a replay that ends first does not wait for it)

@@ -356,8 +356,10 @@ class LiveServer(Sink):
 
     def __init__(self, *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
                  name: str = "tankviz", queue_limit: int = DEFAULT_QUEUE_LIMIT,
-                 server_time: bool = False) -> None:
+                 server_time: bool = False, mode: str = "live") -> None:
         self.host = host
+        #: what it serves, in serverInfo's metadata (``tankviz``): ``live`` or ``replay``
+        self.mode = mode
         self.requested_port = port
         self.name = name
         self.queue_limit = queue_limit
@@ -449,7 +451,7 @@ class LiveServer(Sink):
         server = _Server(None, None, self.name,
                          capabilities=capabilities, supported_encodings=[],
                          session_id=self.session_id,
-                         metadata={"tankviz": "live"}, logger=log,
+                         metadata={"tankviz": self.mode}, logger=log,
                          # No keepalive pings: websockets' legacy protocol cannot have a ping
                          # and our sender wait on one full socket at the same time.
                          server_kwargs={"compression": None, "sock": sock,

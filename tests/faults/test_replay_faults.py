@@ -7,6 +7,7 @@ outlives its time budget is a hang and fails the test (and is killed).
 
 from __future__ import annotations
 
+import json
 import select
 import signal
 import subprocess
@@ -196,3 +197,22 @@ def test_a_start_in_an_mcap_without_statistics_is_kept_and_checked(tmp_path: Pat
         assert replay_mcap(path, server, speed=100, start_s=1.5).messages == 1
         with pytest.raises(UsageError, match=r"^--start 5: the drive is only 2\.0 s long$"):
             replay_mcap(path, server, speed=100, start_s=5)
+
+
+def test_a_replay_tells_viewers_it_is_a_replay(log: Path) -> None:
+    """serverInfo's metadata said ``{"tankviz": "live"}`` for a replay too."""
+    from websockets.sync.client import connect
+
+    process = subprocess.Popen([sys.executable, "-m", "bridge", "replay", str(log), "--port",
+                                "0", "--speed", "0.1", "--for", "30"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout is not None
+        line = process.stdout.readline()
+        url = line.split("open connection ")[1].split()[0]
+        with connect(url, subprotocols=["foxglove.websocket.v1"]) as ws:  # type: ignore[list-item]
+            info = json.loads(ws.recv(timeout=LIMIT_S))
+        assert info["op"] == "serverInfo" and info["metadata"] == {"tankviz": "replay"}
+    finally:
+        process.terminate()
+        ended(process)
