@@ -53,6 +53,7 @@ from bridge.frame import NS
 from bridge.io.drives import METADATA_NAME, DriveSource, RecordedDrive, read_drive
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
+from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
@@ -172,8 +173,8 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
                 raise _past_end(start_s, last_ns - first_ns)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
-    except (McapError, ValueError, EOFError) as exc:
-        raise InputError(path, f"not a readable MCAP file ({exc}); try tankviz recover") from None
+    except (McapError, ValueError, EOFError, RuntimeError) as exc:
+        raise InputError(path, why_unreadable(path, exc)) from None
 
 
 def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,

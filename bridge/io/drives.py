@@ -38,7 +38,7 @@ from mcap.stream_reader import StreamReader
 
 from bridge.errors import InputError
 from bridge.frame import Frame
-from bridge.io.logs import SourceIssue
+from bridge.io.logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame
 
 #: The suffix of a recorded drive.
@@ -174,10 +174,11 @@ class DriveSource:
             return (self._size if self.frames else 0), self._size
         return self._stream.tell(), self._size
 
-    def _problem(self, where: str, reason: str) -> None:
+    def _problem(self, where: str, reason: str, kind: IssueKind = "skip",
+                 group: str = "") -> None:
         if self.strict:
             raise InputError(self.path, f"{reason} (--strict)", where=where)
-        self.issues.append(SourceIssue(str(self.path), where, reason))
+        self.issues.append(SourceIssue(str(self.path), where, reason, kind, group))
 
     def __iter__(self) -> Iterator[Frame]:
         channels: set[int] = set()
@@ -194,7 +195,8 @@ class DriveSource:
                             f = CanFrame.FromString(record.data)
                         except DecodeError as exc:
                             self._problem(f"frame {self.frames + 1}", f"skipped a frame that is "
-                                          f"not a tankviz.CanFrame ({exc})")
+                                          f"not a tankviz.CanFrame ({exc})", "skip",
+                                          "not a tankviz.CanFrame")
                             continue
                         t = record.log_time
                         if last_ns is not None and t < last_ns:
@@ -214,4 +216,5 @@ class DriveSource:
                 reason = " ".join(str(exc).split()) or type(exc).__name__
                 self._problem(f"byte {stream.tell()}", f"the drive is cut short or damaged here "
                               f"({reason}): the frames after it are lost; tankviz recover "
-                              "salvages every complete record into a new file")
+                              "salvages every complete record into a new file", "stop",
+                              "drive cut short")

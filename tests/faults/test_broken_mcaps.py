@@ -1,4 +1,4 @@
-"""Broken MCAP files say why they cannot be read, the same way in catalog and inspect.
+"""Broken MCAP files say why they cannot be read, the same way in catalog, inspect and replay.
 
 :func:`bridge.io.unreadable.why_unreadable` is the one place: an empty file, a file that is not
 MCAP, one cut short (at which byte, and that ``tankviz recover`` salvages it), zeros where data
@@ -16,6 +16,7 @@ import pytest
 from mcap.reader import make_reader
 
 from bridge.apps.inspect import DriveSummary, format_summary, summarize_file
+from bridge.apps.replay import replay_mcap
 from bridge.errors import InputError
 from bridge.fleet.catalog import read_drive
 from bridge.io.issues import summarize_issues
@@ -24,6 +25,7 @@ from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sinks.outputs import atomic_output
+from bridge.sinks.websocket import LiveServer
 
 
 @pytest.fixture(scope="module")
@@ -38,11 +40,14 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def both(path: Path) -> tuple[str, str]:
-    """What catalog and inspect say of ``path``."""
+    """What catalog and inspect say of ``path`` (and replay says as inspect does)."""
     with pytest.raises(InputError) as caught_catalog:
         read_drive(path)
     with pytest.raises(InputError) as caught_inspect:
         summarize_file(path)
+    with LiveServer(port=0) as server, pytest.raises(InputError) as caught_replay:
+        replay_mcap(path, server, speed=1000)
+    assert str(caught_replay.value) == str(caught_inspect.value)
     return str(caught_catalog.value), str(caught_inspect.value)
 
 
