@@ -59,7 +59,8 @@ from bridge.apps.progress import ProgressBar
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError, InputError, OutputError, UsageError
 from bridge.io.drives import DriveSource, is_drive, read_drive
-from bridge.io.logs import LogSource, SourceIssue
+from bridge.io.issues import summarize_issues
+from bridge.io.logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.readahead import ReadAhead
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
@@ -140,6 +141,14 @@ def check_mcap_output(output: Path) -> None:
                           "end in .mcap")
 
 
+def recorded_issues(issues: Sequence[SourceIssue]) -> dict[str, Any]:
+    """The drive's ``input_issues`` metadata: how many, and the first
+    :data:`MAX_ISSUES_RECORDED` of them, the gravest kind first (a stop is never left out for
+    the skips before it: :data:`~bridge.io.logs.ISSUE_KINDS`), each kind in file order."""
+    gravest = sorted(issues, key=lambda i: ISSUE_KINDS.index(i.kind))
+    return {"count": len(issues), "first": [str(i) for i in gravest[:MAX_ISSUES_RECORDED]]}
+
+
 @dataclass
 class ConvertReport:
     """What a conversion did: counts, decode statistics and what was skipped."""
@@ -194,8 +203,7 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     drive.extra.update({
         "inputs": [{"path": str(s.path), "frames": s.frames, "skipped": len(s.issues),
                     "backwards_jumps": s.backwards} for s in sources],
-        "input_issues": {"count": len(issues),
-                         "first": [str(i) for i in issues[:MAX_ISSUES_RECORDED]]},
+        "input_issues": recorded_issues(issues),
     })
     drive.finish()
     return ConvertReport(None, frames, recorder.messages, time.perf_counter() - started,
@@ -351,16 +359,18 @@ def format_report(report: ConvertReport) -> str:
     for key, title in (("unknown_ids", "unknown ids"), ("decode_errors", "decode errors"),
                        ("non_finite", "non-finite values (kept out of the scene)"),
                        ("rule_errors", "rule errors (objects left out)")):
-        top = sorted(stats.get(key, {}).items(), key=lambda kv: -kv[1])[:8]
-        if top:
-            lines.append(f"  {title}: " + ", ".join(f"{k} ({n})" for k, n in top))
+        counted = sorted(stats.get(key, {}).items(), key=lambda kv: -kv[1])
+        if counted:
+            more = f", and {len(counted) - 8} more" if len(counted) > 8 else ""
+            lines.append(f"  {title}: " + ", ".join(f"{k} ({n})" for k, n in counted[:8]) + more)
     for group, why in stats.get("last_rule_error", {}).items():
         lines.append(f"    {group}: {why}")
     if report.issues:
         lines.append(f"  skipped in the inputs: {len(report.issues)}")
-        lines += [f"    {issue}" for issue in report.issues[:10]]
-        if len(report.issues) > 10:
-            lines.append(f"    … {len(report.issues) - 10} more (tankviz inspect lists them)")
+        told = summarize_issues(report.issues, limit=10)
+        if told[-1].startswith("… and "):
+            told[-1] += " (tankviz inspect lists them)"
+        lines += [f"    {line}" for line in told]
     if report.warnings:
         lines.append(f"  warnings ({len(report.warnings)}):")
         lines += [f"    {text}" for text in report.warnings]

@@ -7,7 +7,7 @@
 - the gravest first: a stop (the reading of a file ended there: a file cut short, a record that
   cannot be read) before a stretch of damage skipped, before one line or frame skipped, before a
   note. An issue's ``kind`` says which; a text (or an issue without a kind) is a stop when it says
-  ``stopped``, ``cut`` or ``truncat…``, else a skip;
+  ``stopped``, ``cut`` or ``truncat…``, damage when it says ``damaged``, else a skip;
 - issues of one file, kind and family (an issue's ``group``, or its reason with the numbers and
   quoted parts made ``…``) are one line: the family, how many times and where the first ones
   are (``log.asc: skipped a line …: … (120 times: line 3, line 9, line 12, …)``); an issue
@@ -26,8 +26,9 @@ from typing import Protocol
 #: The kinds of issue, gravest first (as :data:`bridge.io.logs.ISSUE_KINDS`).
 KINDS = ("stop", "damage", "skip", "note")
 _STOP_WORDS = re.compile(r"stopped|\bcut\b|truncat", re.IGNORECASE)
+_DAMAGE_WORDS = re.compile(r"\bdamaged\b", re.IGNORECASE)
 _VARYING = re.compile(r"'[^']*'|\"[^\"]*\"|0x[0-9a-fA-F]+|\d[\d,.]*")
-_WHERE = re.compile(r"(?:line|frame|byte|record|object|message|offset)s? [\d,]+.*|[\d,]+")
+_WHERE = re.compile(r"(?:line|frame|byte|record|row|object|message|offset)s? [\d,]+.*|[\d,]+")
 #: How many places a grouped line names.
 PLACES = 3
 
@@ -71,7 +72,8 @@ def _parts(issue: Issue | str) -> tuple[str, str, str, str, str]:
         path, where, reason = issue.path, issue.where, issue.reason
         kind, group = str(getattr(issue, "kind", "")), str(getattr(issue, "group", ""))
     if kind not in KINDS:
-        kind = "stop" if _STOP_WORDS.search(reason) else "skip"
+        kind = ("stop" if _STOP_WORDS.search(reason) else
+                "damage" if _DAMAGE_WORDS.search(reason) else "skip")
     return path, where, reason, kind, group or _VARYING.sub("…", reason)
 
 
