@@ -243,8 +243,9 @@ def test_the_bosch_draft_converts_a_log_with_objects_where_they_are(
             for o in decoded.objects:
                 seen.setdefault(o.id, set()).add((round(o.x, 3), round(o.y, 3)))
     assert set(seen) == {3, 7}
-    assert {(20.0 + k, -2.5) for k in range(10)} == seen[3]
-    assert seen[7] == {(40.0, 4.0)}
+    # the draft mounts a forward radar at the front of a typical car: x 3.5 m
+    assert {(23.5 + k, -2.5) for k in range(10)} == seen[3]
+    assert seen[7] == {(43.5, 4.0)}
 
 
 def test_check_prints_what_a_profile_maps(capsys: pytest.CaptureFixture[str],

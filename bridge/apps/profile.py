@@ -1,10 +1,12 @@
 """``tankviz profile``: start a vehicle profile from the databases, and check one.
 
-- ``tankviz profile new --dbc PATH [--dbc ...] -o car.toml`` writes the commented starting profile
-  that :func:`bridge.profile.draft.draft_profile` drafts from the databases (loaded with cantools
-  as :mod:`bridge.decode` loads them), naming them in ``[profile] databases`` relative to the
-  output file, and says whether it loads as written or which ``# TODO:`` line stops it. An
-  existing file is not overwritten unless ``--force``.
+- ``tankviz profile new --dbc [BUS=]PATH [--dbc ...] -o car.toml`` writes the commented starting
+  profile that :func:`bridge.profile.draft.draft_profile` drafts from the databases (loaded with
+  cantools as :mod:`bridge.decode` loads them, each on its bus: an id defined differently on two
+  buses is no conflict), naming them in ``[profile] databases`` relative to the output file (a
+  table per bus, ``{ can0 = [...], can1 = [...] }``, when buses are given; a list otherwise),
+  and says whether it loads as written or which ``# TODO:`` line stops it. An existing file is
+  not overwritten unless ``--force``.
 - ``tankviz profile check car.toml [--dbc ...] [LOG ...]`` loads the profile against the
   databases (``--dbc``, else the profile's own; a bad name is the loader's one-line error with
   the closest names) and prints what it maps (:func:`format_mapping`: sensors, object groups
@@ -14,6 +16,10 @@
   how many objects were valid (distinct ids and observations), their x and y ranges in the
   vehicle frame, and per sensor the lateral-sign verdict of the drive's health monitor
   (:class:`~bridge.world.lateral.LateralSignCheck`; :class:`GroupStats`, :func:`format_stats`).
+  Last come the warnings ``tankviz convert`` prints
+  (:meth:`~bridge.decode.decoder.Decoder.warnings`: a message cantools cannot decode; given logs,
+  a ``--dbc BUS=`` for a bus no log has), one ``warning: …`` line each, so that check is the one
+  place to see everything.
 
 Exit status 0 when the profile is usable, 1 with the error otherwise.
 """
@@ -27,7 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bridge.apps.options import Subparsers, dbc_option
-from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import BridgeError
 from bridge.io.logs import LogSource, merge
 from bridge.pipeline.drive import Drive, Stages, load_stages
@@ -46,12 +51,17 @@ def new_profile(dbc_options: Sequence[str], output: Path, *, force: bool = False
     if output.exists() and not force:
         raise BridgeError(f"{output}: exists (--force overwrites)")
     stages = load_stages(dbc_options, None)
-    files = stages.decoder.files
+    decoder = stages.decoder
+    files = decoder.files
     if not files:
-        raise BridgeError("profile new: name the databases with --dbc PATH")
+        raise BridgeError("profile new: name the databases with --dbc [BUS=]PATH")
     base = output.resolve().parent
     named = [(os.path.relpath(f.path.resolve(), base), f.db) for f in files]
-    text = draft_profile(named, name=output.stem)
+    buses: dict[str, list[str]] = {}
+    for (path, _), f in zip(named, files, strict=True):
+        for bus in decoder.buses_for(f):
+            buses.setdefault(bus, []).append(path)
+    text = draft_profile(named, name=output.stem, buses=buses)
     try:
         output.write_text(text, encoding="utf-8")
     except OSError as exc:
@@ -213,7 +223,7 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
     databases = [str(f.path) for f in stages.decoder.files]
     out = format_mapping(profile, databases)
     if not logs:
-        return out
+        return _with_warnings(out, stages.decoder.warnings())
     sources = [LogSource(p) for p in logs]
     drive = Drive(Stages(stages.decoder, profile))
     assert drive.pipeline.perception is not None
@@ -224,7 +234,13 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
     # the health monitor runs the lateral sign check of every drive (bridge.world.lateral)
     lateral = drive.health.lateral
     verdicts = lateral.verdicts() if lateral is not None else []
-    return out + "\n" + format_stats(frames, sink.groups, verdicts, profile)
+    return _with_warnings(out + "\n" + format_stats(frames, sink.groups, verdicts, profile),
+                          stages.decoder.warnings())
+
+
+def _with_warnings(text: str, warnings: Sequence[str]) -> str:
+    """The report, then the decoder's warnings as ``tankviz convert`` prints them."""
+    return "\n".join([text, *(f"warning: {line}" for line in warnings)])
 
 
 # --- the command --------------------------------------------------------------------------------
@@ -239,12 +255,17 @@ def add_parser(sub: Subparsers) -> None:
     commands = parser.add_subparsers(dest="profile_command", required=True, metavar="SUBCOMMAND")
     new = commands.add_parser(
         "new", help="write a commented starting profile drafted from the databases",
-        description="Find the object families (numbered messages), their position, velocity, "
-        "validity, class and id signals, and the ego speed, yaw rate and steering angle by name "
-        "and unit; write them as a profile, every guess commented, '# TODO:' where something "
-        "needed was not found.")
-    new.add_argument("--dbc", action="append", required=True, metavar="PATH",
-                     help="signal database (DBC, KCD, SYM, ARXML); repeatable")
+        description="Find the object families (numbered messages; companions such as "
+        "TRACK_A_{i} and TRACK_B_{i} are one object per index), their position, velocity, "
+        "score or probability, validity, class and id signals, and the ego speed (the mean of "
+        "four wheel speeds where there are), yaw rate and steering angle by name and unit; "
+        "write them as a profile with a typical car's dimensions and a forward radar at its "
+        "front, every guess commented, '# TODO:' where something needed was not found. Give "
+        "each bus its database with --dbc BUS=PATH: [profile] databases is then a table per bus.")
+    new.add_argument("--dbc", action="append", required=True, metavar="[BUS=]PATH",
+                     help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
+                     "without BUS=; repeatable: a database per bus is written as "
+                     "[profile] databases = { BUS = [...] }")
     new.add_argument("-o", "--output", type=Path, required=True, metavar="car.toml")
     new.add_argument("--force", action="store_true", help="overwrite an existing file")
     new.set_defaults(run=run_new)
@@ -262,10 +283,6 @@ def add_parser(sub: Subparsers) -> None:
 
 
 def run_new(args: argparse.Namespace) -> int:
-    for text in args.dbc:
-        bus, _ = parse_dbc_option(text)
-        if bus:
-            raise BridgeError(f"--dbc {text}: profile new takes paths without BUS=")
     print(new_profile([dbc_option(text) for text in args.dbc], args.output, force=args.force))
     return 0
 

@@ -359,7 +359,9 @@ class Decoder:
                         f.path,
                         f"id 0x{message.frame_id:X} is {message.name} here but "
                         f"{other.name} (defined differently) in {other_file.path}; "
-                        "give each file its own bus with --dbc BUS=PATH",
+                        "give each file its own bus: --dbc BUS=PATH, or in a profile [profile] "
+                        f"databases = {{ BUS = [\"{other_file.path.name}\"], "
+                        f"OTHER_BUS = [\"{f.path.name}\"] }}",
                     )
                 owner.setdefault(key, (f, message))
                 if message.name in names and names[message.name][1].frame_id != message.frame_id:

@@ -1,24 +1,46 @@
 """A starting profile drafted from the databases alone: what ``tankviz profile new`` writes.
 
-:func:`draft_profile` is a pure function, databases (as cantools loaded them) -> TOML text. It
-guesses, by name and unit, what a profile would map, and says on every line why:
+:func:`draft_profile` is a pure function, databases (as cantools loaded them, and the buses they
+are for) -> TOML text. It guesses, by name and unit, what a profile would map, and says on every
+line why:
 
+- **Databases**: ``[profile] databases`` as one list, or a table per bus when buses are given
+  (``{ can0 = [...], can1 = [...] }``), and then ``[buses.BUS] bitrate`` for each (the
+  database's own, else :data:`BITRATE`, a ``TODO (optional)``).
 - **Object families**: messages whose names differ only by one number and whose signals have the
   same names (``RadarPoint{i}_A``, ``Target{i}``, ``Object_{i:02d}``, ``RADAR_TRACK_{i}`` with
   361..366; at least :data:`MIN_FAMILY` of them, the longest run of consecutive numbers; a number
   repeated inside signal names, ``FwdVsnRngTrk{i}Rev``, is part of the template). Families with
-  the same numbers and the same name before the number (``RadarPoint{i}_A`` and ``_B``) are one
-  object group, the one with the position first. A family with no position-like signal (battery
-  cells, say) is only listed in a comment.
+  the same numbers whose names differ only after the number (``Obj{i}_A`` and ``Obj{i}_B``) or in
+  a one-letter part before it (``TRACK_A_{i}`` and ``TRACK_B_{i}``: :func:`stem`) are one object
+  group, one object per index, the family with the position first. A family with no
+  position-like signal (battery cells, say) is only listed in a comment.
 - **Per group**: position as x/y (``LongDist``/``LatDist``, ``X_Rel``) or range + angle (polar;
   an x-like distance with an angle and no lateral signal is taken as the range), velocity
-  ``vx``/``vy``, existence probability (``%``), class (with ``classes`` from the value table),
-  id, and a validity rule (a valid flag, a status with a value table, else the distance > 0).
-  One sensor per group, its kind from the names (vision/camera, fusion, else radar), and the
-  group's ``role = "tracks"`` where the names say track or an object id signal is found.
-- **Ego**: speed (m/s, km/h, mph; else a wheel's angular speed times a rolling radius to measure),
-  yaw rate and steering wheel angle, converted to SI by ``scale``; ``[lanes]`` steering-only when
-  there is a steering angle (camera lane signals, where some are found, are a TODO).
+  ``vx``/``vy`` (in a cartesian group, a relative speed with no axis in its name, ``REL_SPEED``,
+  is ``vx``), existence probability (``%``, or a score of 0..100), class (with ``classes`` from
+  the value table), id, and a validity rule (a valid flag, a status with a value table, else the
+  distance > 0). One sensor per group, its kind from the names (vision/camera, fusion, else
+  radar), named ``radar`` when the names say only "objects" (``TRACK``, ``Target``, ``Object``).
+  Where the names say track or an object id signal is found, the group's ``role = "tracks"``;
+  a radar's track slots are then also a detections group beside it, and ``[lead] source =
+  "tracks"`` chooses the lead among them (no message of the databases gives one).
+- **Sensor placement and sign**: a radar whose distance cannot be negative (by its minimum, else
+  its raw value and scale) looks forward: it is mounted at the front of the drafted car
+  (``length - rear_overhang`` ahead of its rear-axle origin, :data:`CAR`), and the comment says
+  to move it with them; other sensors at the origin. Which way positive lateral values point is
+  taken from the DBC's comment on the signal where it says (``positive to the right``); else the
+  draft says plainly that it is unknown, and that ``tankviz profile check PROFILE DRIVE`` judges
+  it, above ``lateral = "left"`` (the default, not a guess).
+- **Vehicle**: a typical car's length, width, height, origin (the rear axle) and rear overhang,
+  and with a steering angle its wheelbase and steering ratio (:data:`CAR`), each a ``TODO
+  (optional)`` saying what it is used for.
+- **Ego**: speed as the mean of four wheel speeds of one message in a speed unit (the other
+  speed signal found, a speedometer say, named as the alternative), else a speed signal (m/s,
+  km/h, mph; else a wheel's angular speed times a rolling radius to measure); yaw rate; steering
+  wheel angle, with its fine part where it comes in two (``STEER_ANGLE + STEER_FRACTION``); all
+  converted to SI by ``scale``; ``[lanes]`` steering-only when there is a steering angle (camera
+  lane signals, where some are found, are a TODO).
 
 Every guess carries a comment (``# guessed from the name LatDist and unit m``). What could not be
 found is a comment line ``# TODO: …`` when the profile needs it (an object group without a full
@@ -30,7 +52,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from cantools.database.can.database import Database
@@ -187,11 +209,19 @@ def _longest_run(numbers: Sequence[int]) -> list[int]:
     return best
 
 
+def stem(prefix: str) -> str:
+    """The name before the index without a one-letter part that only tells companions apart:
+    ``TRACK_A_`` and ``TRACK_B_`` -> ``TRACK_`` (``RadarPoint`` stays)."""
+    return re.sub(r"(?:(?<=_)|^)[A-Z]_$", "", prefix)
+
+
 def group_families(families: Sequence[Family]) -> list[list[Family]]:
-    """Companion families (same numbers, same name before the number) as one group each."""
+    """Companion families as one group each: the same numbers, and names that differ only after
+    the index (``Obj{i}_A``, ``Obj{i}_B``) or in a one-letter part before it (``TRACK_A_{i}``,
+    ``TRACK_B_{i}``, :func:`stem`): the messages of one index are one object."""
     groups: dict[tuple[str, int, int], list[Family]] = {}
     for f in families:
-        groups.setdefault((f.prefix, f.first, f.last), []).append(f)
+        groups.setdefault((stem(f.prefix), f.first, f.last), []).append(f)
     return list(groups.values())
 
 
@@ -304,12 +334,36 @@ def _pick_velocity(signals: Sequence[tuple[str, Signal]], axis: set[str]
     return _best(signals, scores)
 
 
+def _pick_unaxed_velocity(signals: Sequence[tuple[str, Signal]]) -> tuple[str, Signal] | None:
+    """A relative speed whose name gives no axis (``REL_SPEED``): the closing speed along x."""
+    scores = {}
+    for name, s in signals:
+        t = set(tokens(name))
+        if not t & {"speed", "spd", "vel", "velocity"} or t & (_LONG | _LAT | {
+                "sigma", "std", "accel", "acc", "a", "range", "rng", "rate", "lane", "ego"}):
+            continue
+        if _unit(s) in _SPEED:
+            scores[name] = 1 if t & {"rel", "relative"} else 0
+    return _best(signals, scores)
+
+
+def _percent_like(signal: Signal) -> bool:
+    """A unit of % or, without a unit, a range of 0..100."""
+    unit = _unit(signal)
+    if unit:
+        return unit in _PERCENT
+    return signal.minimum is not None and signal.minimum >= 0 and signal.maximum == 100
+
+
 def _pick_probability(signals: Sequence[tuple[str, Signal]]) -> tuple[str, Signal] | None:
     scores = {}
     for name, s in signals:
         t = set(tokens(name))
         exist = bool(t & {"exist", "existence", "existance"})
         percent = _unit(s) in _PERCENT
+        if t & {"score"} and _percent_like(s) and not t & {"obstacle", "non", "class", "cls"}:
+            scores[name] = 1
+            continue
         if not t & {"prob", "probability", "exist", "existence", "conf", "confidence"}:
             continue
         if t & {"obstacle", "non", "class", "cls"} or not (exist or percent):
@@ -496,64 +550,174 @@ def _lane_messages(messages: Iterable[Message]) -> list[str]:
 
 # --- the profile --------------------------------------------------------------------------------
 
+#: The car drafted where the databases cannot say: a typical passenger car's numbers, each line a
+#: ``# TODO (optional)`` saying what it is used for. Origin on the rear axle.
+CAR = {"length": 4.5, "width": 1.8, "height": 1.5, "rear_overhang": 1.0, "wheelbase": 2.7,
+       "steering_ratio": 15.0}
+#: The bitrate drafted for a bus whose databases give none: the usual one of a car's CAN bus.
+BITRATE = 500_000
+#: Words of a family's name that say only "objects": such a radar's sensor is called "radar".
+_GENERIC = {"track", "tracks", "trk", "obj", "object", "objects", "target", "targets", "tgt"}
 
-def draft_profile(databases: Sequence[tuple[str, Database]], *, name: str = "car") -> str:
+
+@dataclass(frozen=True)
+class _Plan:
+    """One sensor and what its family group becomes: (object group name, role or None) each,
+    a radar's track slots both detections and tracks."""
+
+    sensor: str
+    group: _Group
+    kind: str
+    kind_why: str
+    tracks: bool
+    names: tuple[tuple[str, str | None], ...]
+
+
+def _unique(base: str, used: set[str]) -> str:
+    name, n = base, 2
+    while name in used:
+        name, n = f"{base}_{n}", n + 1
+    used.add(name)
+    return name
+
+
+def _plan(object_like: Sequence[tuple[str, list[Family]]]) -> list[_Plan]:
+    plans = []
+    sensors: set[str] = set()
+    groups = {name for name, _ in object_like}
+    for gname, fams in object_like:
+        g = _group(gname, fams)
+        kind, kind_why = _kind(fams)
+        words = {t for f in fams for t in tokens(stem(f.prefix))}
+        tracks = bool(words & {"track", "tracks", "trk", "tracked"}) or _pick_id(
+            g.signals) is not None
+        sensor = _unique("radar" if kind == "radar" and words and words <= _GENERIC else gname,
+                         sensors)
+        names: tuple[tuple[str, str | None], ...] = ((gname, "tracks" if tracks else None),)
+        if tracks and kind == "radar":
+            detections = sensor if sensor not in groups else f"{gname}_detections"
+            groups.add(_unique(detections, groups))
+            names = ((detections, "detections"), (gname, "tracks"))
+        plans.append(_Plan(sensor, g, kind, kind_why, tracks, names))
+    return plans
+
+
+def _bare(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _q(key)
+
+
+def draft_profile(databases: Sequence[tuple[str, Database]], *, name: str = "car",
+                  buses: Mapping[str, Sequence[str]] | None = None) -> str:
     """A commented starting profile for the messages of ``databases`` ((path as written in the
-    profile's ``databases``, database) pairs), as TOML text."""
+    profile's ``databases``, database) pairs), as TOML text. ``buses`` gives the buses the
+    databases are for (bus, or "*" for every bus -> paths): ``databases`` is then a table per bus
+    and every bus gets a bitrate; without it, ``databases`` is one list for every bus."""
     messages = [(source, m) for source, db in databases for m in db.messages]
     families = find_families(messages)
     in_family = {_expand(f.template, i) for f in families for i in range(f.first, f.last + 1)}
+    ego_messages = [m for _, m in messages if m.name not in in_family]
+    ego_signals = [(f"{m.name}.{s.name}", s) for m in ego_messages for s in m.signals]
+    steering = _pick_steering(ego_signals)
     w = _Writer()
     sources = [source for source, _ in databases]
     w.add(f"# Starting profile drafted by `tankviz profile new` from {', '.join(sources)}.")
     w.add("# Every mapping below is a guess from signal names and units: each says why. Lines")
     w.add("# '# TODO:' name what the profile needs and was not found (it does not load until they")
     w.add("# are done); '# TODO (optional):' what is missing or unsure. Check it with")
-    w.add(f"#   tankviz profile check {name}.toml LOG   (README \"Vehicle profiles\")")
+    w.add(f"#   tankviz profile check {name}.toml DRIVE   (README \"Vehicle profiles\")")
     w.add()
     w.add("[profile]")
     w.key("name", _q(name))
     w.key("description", _q(f"drafted from {', '.join(sources)}"))
-    w.key("databases", "[" + ", ".join(_q(s) for s in sources) + "]",
-          "used when no --dbc is given")
+    per_bus = {bus: list(paths) for bus, paths in (buses or {}).items() if paths}
+    if per_bus and set(per_bus) != {"*"}:
+        w.key("databases", "{ " + ", ".join(
+            f"{_bare(bus)} = [{', '.join(_q(p) for p in paths)}]"
+            for bus, paths in sorted(per_bus.items())) + " }",
+              "used when no --dbc is given: per bus" + (
+                  ' ("*": every bus)' if "*" in per_bus else ""))
+    else:
+        w.key("databases", "[" + ", ".join(_q(s) for s in sources) + "]",
+              "used when no --dbc is given")
     w.add()
+    for bus, paths in sorted(per_bus.items()):
+        if bus != "*":
+            _write_bus(w, bus, [db for source, db in databases if source in paths])
+    _write_vehicle(w, steering is not None)
 
     object_like: list[tuple[str, list[Family]]] = []
     others: list[Family] = []
     used_names: set[str] = set()
     for fams in group_families(families):
         signals = [sig for f in fams for sig in f.signals]
-        words = set(tokens(fams[0].prefix))
+        words = set(tokens(stem(fams[0].prefix)))
         if not _has_position(signals) and not words & _OBJECT_WORDS:
             others.extend(fams)
             continue
-        base = _snake(fams[0].prefix)
+        base = _snake(stem(fams[0].prefix))
         if base in _RESERVED:
             base = f"{base}_objects"
-        gname, n = base, 2
-        while gname in used_names:
-            gname, n = f"{base}_{n}", n + 1
-        used_names.add(gname)
         # the family with the position first
         fams = sorted(fams, key=lambda f: (not _has_position(f.signals), f.template))
-        object_like.append((gname, fams))
+        object_like.append((_unique(base, used_names), fams))
 
     if not object_like:
         w.add(f"{TODO_OPTIONAL} no family of numbered messages with positions found: write "
               "[sensors.NAME] and [objects.GROUP] by hand (README \"Vehicle profiles\")")
         w.add()
-    for gname, fams in object_like:
-        _write_group(w, _group(gname, fams))
+    plans = _plan(object_like)
+    for plan in plans:
+        _write_sensor(w, plan, name)
+        for n, (gname, role) in enumerate(plan.names):
+            _write_objects(w, plan, gname, role, notes=n == 0)
     if others:
         w.add("# Numbered message families that do not look like objects (no position signals):")
         for f in others:
             w.add(f"#   {f.template} [{f.first}..{f.last}]: {_names(f.signals)}")
         w.add()
-
-    ego_signals = [(f"{m.name}.{s.name}", s) for _, m in messages if m.name not in in_family
-                   for s in m.signals]
-    _write_ego(w, ego_signals, [m for _, m in messages if m.name not in in_family])
+    tracks = [gname for plan in plans for gname, role in plan.names if role == "tracks"]
+    if tracks:
+        w.add("# The lead vehicle: no message gives one, so it is chosen from the tracks "
+              f"({', '.join(f'objects.{t}' for t in tracks)}):")
+        w.add("# the closest valid one inside the ego lane.")
+        w.add("[lead]")
+        w.key("source", _q("tracks"))
+        w.add()
+    _write_ego(w, ego_signals, ego_messages, steering)
     return "\n".join(w.lines).rstrip() + "\n"
+
+
+def _write_bus(w: _Writer, bus: str, dbs: Sequence[Database]) -> None:
+    rates = sorted({b.baudrate for db in dbs for b in db.buses if b.baudrate})
+    w.add(f"[buses.{_bare(bus)}]")
+    if len(rates) == 1:
+        w.key("bitrate", str(rates[0]), "bit/s, the database's own: for the bus load in /health")
+    else:
+        w.key("bitrate", str(BITRATE), "TODO (optional): bit/s, the usual rate of a car's CAN "
+              "bus (the database gives none): for the bus load in /health")
+    w.add()
+
+
+def _write_vehicle(w: _Writer, steering: bool) -> None:
+    w.add("# The car: a typical one's numbers, not yours (measure them). The ego box is drawn from")
+    w.add("# its size and origin, and a forward radar is placed at its front from them.")
+    w.add("[vehicle]")
+    w.key("length", repr(CAR["length"]), "TODO (optional): m, the ego box; a forward radar sits "
+          "at its front")
+    w.key("width", repr(CAR["width"]), "TODO (optional): m, the ego box")
+    w.key("height", repr(CAR["height"]), "TODO (optional): m, the ego box")
+    why = ("the steering lanes start there, and the rear axle follows their bicycle model "
+           "without slip" if steering else "the ego box and the sensors' mounts are placed from it")
+    w.key("origin", _q("rear_axle"), f"TODO (optional): where the vehicle frame's (0, 0) is on "
+          f"the car: {why} (else centre or front_bumper)")
+    w.key("rear_overhang", repr(CAR["rear_overhang"]), "TODO (optional): m, how far the car's "
+          "rear is behind the rear axle (the origin): the ego box and the radar's place")
+    if steering:
+        w.key("wheelbase", repr(CAR["wheelbase"]), "TODO (optional): m, for the steering lanes: "
+              "their curvature is the road wheel angle / wheelbase")
+        w.key("steering_ratio", repr(CAR["steering_ratio"]), "TODO (optional): steering wheel "
+              "angle / road wheel angle: the steering lanes turn by the road wheel angle")
+    w.add()
 
 
 def _kind(fams: Sequence[Family]) -> tuple[str, str]:
@@ -565,44 +729,114 @@ def _kind(fams: Sequence[Family]) -> tuple[str, str]:
     return "radar", "guessed: the names say neither camera nor fusion"
 
 
-def _write_group(w: _Writer, g: _Group) -> None:
-    fams, signals = g.families, g.signals
-    kind, kind_why = _kind(fams)
-    words = {t for f in fams for t in tokens(f.prefix)}
-    ident = _pick_id(signals)
-    tracks = bool(words & {"track", "tracks", "trk", "tracked"}) or ident is not None
-    x, y, rng, angle = _pick_x(signals), _pick_y(signals), _pick_range(signals), _pick_angle(
-        signals)
-    polar = not (x and y) and bool(angle) and bool(rng or x)
-    distance_from_x = polar and rng is None
-    first = fams[0]
-    w.add(f"# {', '.join(f'{f.template} [{f.first}..{f.last}]' for f in fams)} "
-          f"(from {first.source})")
-    w.add(f"[sensors.{g.name}]")
-    w.key("kind", _q(kind), kind_why)
-    w.key("mount", "{ x = 0.0, y = 0.0, z = 0.5, yaw = 0.0 }",
-          "TODO (optional): where it sits in the vehicle frame (m, deg)")
-    w.key("lateral", _q("left"), "TODO (optional): a guess: which way positive lateral "
-          "values point; `tankviz profile check` with a log that turns says")
-    w.key("coordinates", _q("polar" if polar else "cartesian"),
-          "range and angle" if polar else "x and y" if x and y else "")
-    distance = rng if polar and rng else x
+@dataclass(frozen=True)
+class _Position:
+    """How a group's position was found: x/y, or range and azimuth (polar)."""
+
+    x: tuple[str, Signal] | None
+    y: tuple[str, Signal] | None
+    rng: tuple[str, Signal] | None
+    angle: tuple[str, Signal] | None
+
+    @property
+    def polar(self) -> bool:
+        return not (self.x and self.y) and bool(self.angle) and bool(self.rng or self.x)
+
+    @property
+    def distance(self) -> tuple[str, Signal] | None:
+        """The distance along the boresight: the range of a polar group, else x."""
+        return self.rng if self.polar and self.rng else self.x
+
+    @property
+    def lateral(self) -> tuple[str, Signal] | None:
+        """What says left or right: the azimuth of a polar group, else y."""
+        return self.angle if self.polar else self.y
+
+
+def _position(signals: Sequence[tuple[str, Signal]]) -> _Position:
+    return _Position(_pick_x(signals), _pick_y(signals), _pick_range(signals),
+                     _pick_angle(signals))
+
+
+_SIDE = re.compile(r"positive\s+(?:to\s+(?:the\s+)?|is\s+|=\s*)?(left|right)|(left|right)\s+"
+                   r"(?:is\s+)?positive", re.IGNORECASE)
+
+
+def _never_negative(signal: Signal) -> bool:
+    """Whether the DBC says the signal cannot be negative: its minimum, else its raw value."""
+    if signal.minimum is not None:
+        return bool(signal.minimum >= 0)
+    return not signal.is_signed and not signal.is_float and signal.offset >= 0 \
+        and signal.scale > 0
+
+
+def _write_sensor(w: _Writer, plan: _Plan, profile: str) -> None:
+    """``[sensors.NAME]`` of the plan (``profile``: the profile's name, for the commands)."""
+    fams, signals = plan.group.families, plan.group.signals
+    pos = _position(signals)
+    w.add(f"# {' + '.join(f.template for f in fams)} [{fams[0].first}..{fams[0].last}] "
+          f"(from {fams[0].source})" + (": the messages of one index are one object"
+                                        if len(fams) > 1 else ""))
+    w.add(f"[sensors.{plan.sensor}]")
+    w.key("kind", _q(plan.kind), plan.kind_why)
+    distance = pos.distance
+    forward = plan.kind == "radar" and distance is not None and _never_negative(distance[1])
+    if forward:
+        assert distance is not None
+        length, overhang = CAR["length"], CAR["rear_overhang"]
+        w.key("mount", f"{{ x = {length - overhang!r}, y = 0.0, z = 0.5, yaw = 0.0 }}",
+              f"TODO (optional): a forward radar (its {distance[1].name} cannot be negative), at "
+              "the front of the car: [vehicle] length - rear_overhang ahead of the rear axle "
+              f"({length!r} - {overhang!r} m); move it with them, and measure y, z (m) and yaw "
+              "(deg)")
+    else:
+        w.key("mount", "{ x = 0.0, y = 0.0, z = 0.5, yaw = 0.0 }",
+              "TODO (optional): where it sits in the vehicle frame (m, deg)")
+    side = pos.lateral
+    said = _SIDE.search(side[1].comment or "") if side is not None else None
+    if side is not None and said is not None:
+        w.key("lateral", _q((said.group(1) or said.group(2)).lower()),
+              f"the DBC's comment on {side[1].name}: {' '.join((side[1].comment or '').split())}")
+    else:
+        what = f"positive {side[1].name}" if side is not None else "its positive lateral values"
+        w.add(f"{TODO_OPTIONAL} lateral is UNKNOWN: the DBC does not say which way {what}")
+        w.add("# points; \"left\" below is only the default, not a finding. `tankviz profile check "
+              f"{profile}.toml DRIVE`")
+        w.add("# judges it on a drive that turns past stationary objects (posts, parked cars): "
+              "write what it says.")
+        w.key("lateral", _q("left"))
+    w.key("coordinates", _q("polar" if pos.polar else "cartesian"),
+          "range and angle" if pos.polar else "x and y" if pos.x and pos.y else "")
     if distance is not None:
         unit = _unit(distance[1])
         if unit in _LENGTH and _LENGTH[unit] != 1:
             w.key("distance_scale", repr(_LENGTH[unit]), f"{distance[1].name} is in {unit}")
-    if polar and angle is not None:
-        unit = _unit(angle[1])
+    if pos.polar and pos.angle is not None:
+        unit = _unit(pos.angle[1])
         if unit in _ANGLE:
             w.key("angle_unit", _q("rad" if _ANGLE[unit] == 1 else "deg"),
-                  f"the unit of {angle[1].name}")
+                  f"the unit of {pos.angle[1].name}")
         else:
             w.key("angle_unit", _q("deg"), f"TODO (optional): the DBC gives no unit for "
-                  f"{angle[1].name}: deg or rad?")
+                  f"{pos.angle[1].name}: deg or rad?")
     w.add()
-    w.add(f"[objects.{g.name}]")
-    w.key("sensor", _q(g.name))
-    if tracks:
+
+
+def _write_objects(w: _Writer, plan: _Plan, name: str, role: str | None, *,
+                   notes: bool) -> None:
+    """One ``[objects.NAME]`` of the plan's group; ``notes``: its optional TODO lines too (once
+    per sensor: a second group of the same messages would repeat them)."""
+    g = plan.group
+    fams, signals = g.families, g.signals
+    pos = _position(signals)
+    ident = _pick_id(signals)
+    first = fams[0]
+    w.add(f"[objects.{name}]")
+    w.key("sensor", _q(plan.sensor))
+    if role == "detections":
+        w.key("role", _q("detections"), "every valid slot as the radar reports it (its colour); "
+              "the same slots as tracks follow")
+    elif role == "tracks":
         w.key("role", _q("tracks"), "the names say track (or an object id): slots that keep "
               "their object")
     w.key("messages", "[" + ", ".join(_q(f.template) for f in fams) + "]",
@@ -612,14 +846,15 @@ def _write_group(w: _Writer, g: _Group) -> None:
     if ident is not None:
         w.key("id", _q(ident[0]), f"guessed from the name {ident[1].name}: a stable object id "
               "(else the index is the id)")
-    key = f"objects.{g.name}"
+    key = f"objects.{name}"
+    x, y, rng, angle = pos.x, pos.y, pos.rng, pos.angle
     dist_candidate: Candidate | None
-    if polar:
+    if pos.polar:
         assert angle is not None
         d = rng if rng is not None else x
         assert d is not None
         why = _why(d[1])
-        if distance_from_x:
+        if rng is None:
             why += ": no lateral position, but an angle, so it is taken as the range"
         w.key("range", _q(d[0]), why)
         w.key("azimuth", _q(angle[0]), _why(angle[1]))
@@ -638,9 +873,16 @@ def _write_group(w: _Writer, g: _Group) -> None:
         v = _pick_velocity(signals, axis)
         if v is not None:
             w.key(field_name, _q(v[0]), _why(v[1]) + ", relative")
+        elif field_name == "vx" and not pos.polar:
+            v = _pick_unaxed_velocity(signals)
+            if v is not None:
+                w.key("vx", _q(v[0]), _why(v[1]) + ": no axis in the name, so the closing speed "
+                      "along x, relative")
     p = _pick_probability(signals)
     if p is not None:
-        w.key("probability", _q(p[0]), _why(p[1]))
+        range_note = "" if _unit(p[1]) else f" and its range {p[1].minimum:g}..{p[1].maximum:g}"
+        w.key("probability", _q(p[0]), _why(p[1]).replace(" (the DBC gives no unit)", "")
+              + range_note if range_note else _why(p[1]))
     c = _pick_class(signals)
     if c is not None:
         w.key("class", _q(c[0]), _why(c[1]))
@@ -651,37 +893,90 @@ def _write_group(w: _Writer, g: _Group) -> None:
             w.key("classes", "{ " + ", ".join(f"{raw} = {_q(v)}" for raw, v
                                                in sorted(classes.items())) + " }",
                   "guessed from the labels")
-        else:
+        elif notes:
             w.add(f"{TODO_OPTIONAL} {c[1].name} has no value table: say what its values mean "
                   "with classes = { 1 = \"car\", … }")
-    for found in (x, y, rng, angle):
-        if found is not None and not _unit(found[1]) and (found is not angle or not polar):
-            w.add(f"{TODO_OPTIONAL} the DBC gives no unit for {found[1].name}: check that it is "
-                  "in metres (the sensor's distance_scale converts)")
+    if notes:
+        for found in (x, y, rng, angle):
+            if found is not None and not _unit(found[1]) and (found is not angle
+                                                              or not pos.polar):
+                w.add(f"{TODO_OPTIONAL} the DBC gives no unit for {found[1].name}: check that it "
+                      "is in metres (the sensor's distance_scale converts)")
     rule, why, todos = _pick_validity(signals, dist_candidate)
     if rule:
         w.key("valid", _q(rule), why)
-    for line in todos:
-        w.add(line)
+    if notes:
+        for line in todos:
+            w.add(line)
+    tracks = role == "tracks" or (role is None and plan.tracks)
     w.key("lifetime", "0.3" if tracks else "0.1", "s an object lingers without a new frame")
     w.add()
 
 
+# --- ego ------------------------------------------------------------------------------------------
+
+_WHEEL = {"wheel", "whl"}
+_NOT_WHEEL_SPEED = {"fault", "valid", "validity", "vld", "qf", "status", "stat", "sts", "sign",
+                    "dir", "direction", "cnt", "count", "counter"}
+
+
+def _wheel_mean(signals: Sequence[tuple[str, Signal]]) -> tuple[str, float, str] | None:
+    """Four wheel speeds of one message in one linear unit: their mean (an expression), the
+    scale to m/s and the unit."""
+    by_message: dict[str, list[tuple[str, Signal]]] = {}
+    for name, s in signals:
+        t = set(tokens(s.name))
+        if t & _WHEEL and t & {"speed", "spd", "velocity", "vel"} and _unit(s) in _SPEED \
+                and not t & _NOT_WHEEL_SPEED:
+            by_message.setdefault(name.rpartition(".")[0], []).append((name, s))
+    for wheels in by_message.values():
+        units = {_unit(s) for _, s in wheels}
+        if len(wheels) == 4 and len(units) == 1:
+            names = sorted(n for n, _ in wheels)
+            return f"({' + '.join(names)}) / 4", _SPEED[units.pop()], wheels[0][1].unit or ""
+    return None
+
+
+def _fraction(coarse: Candidate, messages: Sequence[Message]) -> Signal | None:
+    """The fine part of a steering angle sent in two (``STEER_ANGLE`` + ``STEER_FRACTION``): a
+    signal of the same message and unit named fraction (or fine)."""
+    message = coarse.name.rpartition(".")[0]
+    for m in messages:
+        if m.name != message:
+            continue
+        for s in m.signals:
+            if s is not coarse.signal and set(tokens(s.name)) & {"fraction", "frac", "fine"} \
+                    and _unit(s) == _unit(coarse.signal):
+                return s
+    return None
+
+
 def _write_ego(w: _Writer, signals: Sequence[tuple[str, Signal]],
-               messages: Sequence[Message]) -> None:
-    speed = _pick_speed(signals)
+               messages: Sequence[Message],
+               steering: tuple[Candidate, float] | None) -> None:
     yaw = _pick_yaw_rate(signals)
-    steering = _pick_steering(signals)
     w.add("# Ego motion, converted to SI by scale (m/s, rad/s, rad), left positive.")
     w.add("[ego]")
-    if speed is not None:
-        c, scale, notes = speed
-        w.key("speed", _ref(c.name, scale), c.why)
-        for line in notes:
-            w.add(line)
+    mean = _wheel_mean(signals)
+    if mean is not None:
+        text, scale, unit = mean
+        others = _pick_speed([(n, s) for n, s in signals if not set(tokens(s.name)) & _WHEEL])
+        w.add(f"# The mean of the four wheel speeds ({unit}{' -> m/s' if scale != 1 else ''}): "
+              "one wheel runs faster or slower in a turn,")
+        w.add("# and a speedometer reads high by design; "
+              + (f"the alternative is {others[0].name} ({others[0].signal.unit or 'no unit'})."
+                 if others is not None else "no other speed signal was found."))
+        w.key("speed", _value(text, scale), "the four wheels' mean (above)")
     else:
-        w.add(f"{TODO_OPTIONAL} no vehicle speed found (a speed signal with a unit: m/s, km/h "
-              "or mph)")
+        speed = _pick_speed(signals)
+        if speed is not None:
+            c, scale, notes = speed
+            w.key("speed", _ref(c.name, scale), c.why)
+            for line in notes:
+                w.add(line)
+        else:
+            w.add(f"{TODO_OPTIONAL} no vehicle speed found (a speed signal with a unit: m/s, "
+                  "km/h or mph)")
     if yaw is not None:
         c, scale = yaw
         w.key("yaw_rate", _ref(c.name, scale), c.why)
@@ -690,7 +985,16 @@ def _write_ego(w: _Writer, signals: Sequence[tuple[str, Signal]],
         w.add(f"{TODO_OPTIONAL} no yaw rate found (a yaw signal in deg/s or rad/s)")
     if steering is not None:
         c, scale = steering
-        w.key("steering_wheel_angle", _ref(c.name, scale), c.why)
+        fine = _fraction(c, messages)
+        if fine is not None:
+            message = c.name.rpartition(".")[0]
+            w.add(f"# The steering wheel angle in two parts: {c.signal.name} in steps of "
+                  f"{c.signal.scale:g} {c.signal.unit}, {fine.name} the rest")
+            w.add(f"# (in steps of {fine.scale:g} {fine.unit}); {c.why}.")
+            w.key("steering_wheel_angle", _value(f"{c.name} + {message}.{fine.name}", scale),
+                  "both parts (above)")
+        else:
+            w.key("steering_wheel_angle", _ref(c.name, scale), c.why)
         message = c.name.rpartition(".")[0]
         own = set(tokens(c.signal.name))
         sign = [s.name for m in messages if m.name == message for s in m.signals
@@ -714,11 +1018,6 @@ def _write_ego(w: _Writer, signals: Sequence[tuple[str, Signal]],
         if lanes:
             w.add(f"{TODO_OPTIONAL} lane signals found in {', '.join(sorted(set(lanes)))}: map "
                   "[lanes.left] and [lanes.right] (README \"Vehicle profiles\", Lanes)")
-        w.add()
-        w.add("[vehicle]")
-        w.key("wheelbase", "2.8", "TODO (optional): m, measure yours (for the steering lanes)")
-        w.key("steering_ratio", "15.0",
-              "TODO (optional): steering wheel angle / road wheel angle")
     elif lanes:
         w.add(f"{TODO_OPTIONAL} lane signals found in {', '.join(sorted(set(lanes)))}: map "
               "[lanes] with [lanes.left] and [lanes.right] (README \"Vehicle profiles\", Lanes)")
@@ -730,3 +1029,9 @@ def _ref(name: str, scale: float) -> str:
     if scale == 1:
         return _q(name)
     return f"{{ signal = {_q(name)}, scale = {scale:.7g} }}"
+
+
+def _value(expression: str, scale: float) -> str:
+    if scale == 1:
+        return _q(expression)
+    return f"{{ value = {_q(expression)}, scale = {scale:.7g} }}"
