@@ -157,8 +157,8 @@ def add_record_options(parser: argparse.ArgumentParser) -> None:
                         help="start a new part after this many seconds")
     parser.add_argument("--min-free", type=float, default=200.0, metavar="MB",
                         help="stop recording (finishing the file) while the drives folder's disk "
-                        "has less free space than this, and resume when there is room "
-                        "(default 200)")
+                        "has less free space than this, and resume in a new part when more than "
+                        "this + 9 MiB is free (default 200)")
     parser.add_argument("--no-record", action="store_true", help="view only: record nothing")
     parser.add_argument("--no-server", action="store_true",
                         help="record only: no WebSocket server, no display load")
