@@ -21,7 +21,8 @@ is simulated and appears only complete: a log is written under a hidden name of 
 frame (an MCAP: :func:`bridge.sinks.outputs.atomic_output`). Two runs writing one output never mix
 their bytes: with ``--force`` the last to finish wins, without it the second keeps the first's
 file and fails saying so (:func:`bridge.sinks.outputs.publish`). Stopped by SIGTERM or SIGHUP, it
-leaves nothing behind, as on Ctrl+C.
+leaves nothing behind, as on Ctrl+C. On a terminal it shows its progress as ``convert`` does
+(:func:`with_progress`).
 """
 
 from __future__ import annotations
@@ -33,14 +34,15 @@ import re
 import secrets
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import can
 
 from bridge.apps.options import Stopped, Subparsers, stopped_by_signals
+from bridge.apps.progress import ProgressBar
 from bridge.errors import OutputError, UsageError
-from bridge.frame import Frame
+from bridge.frame import NS, Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
@@ -76,7 +78,10 @@ def add_parser(sub: Subparsers) -> None:
         help="write a simulated drive (ecocar, or the highway car) as a CAN log or an MCAP",
         description="Write a simulated drive: a CAN log (.blf .asc .log .csv .db) "
         "or a converted drive (.mcap with the car's profile).")
-    parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("-o", "--output", type=Path, required=True,
+                        help="the file to write; its suffix says what: a CAN log (.blf, .asc, "
+                        ".log, .csv, .db; .asc.gz, .log.gz, .csv.gz) or .mcap, the drive "
+                        "converted with the car's profile")
     parser.add_argument("--car", choices=CARS, default="ecocar",
                         help="ecocar (default: the student test car, one bus) or highway (a "
                         "production car with a 16-slot radar on can1, chassis on can0)")
@@ -132,6 +137,22 @@ def log_channel(bus: str) -> int | str:
     """The python-can channel a bus is written on: N for ``can<N>`` (read back as ``can<N>``:
     :func:`bridge.io.logs.bus_name`), else the bus name itself."""
     return int(bus[3:]) if re.fullmatch(r"can\d+", bus) else bus
+
+
+def with_progress(frames: Iterable[Frame], duration_s: float,
+                  progress: Callable[[int, float | None], None], *,
+                  every: int = 4096) -> Iterator[Frame]:
+    """``frames``, calling ``progress(count, fraction of the drive's time)`` every ``every``
+    frames and at the end (``fraction`` 1.0)."""
+    count, first = 0, None
+    for frame in frames:
+        if first is None:
+            first = frame.timestamp_ns
+        count += 1
+        if count % every == 0:
+            progress(count, min((frame.timestamp_ns - first) / NS / duration_s, 1.0))
+        yield frame
+    progress(count, 1.0)
 
 
 def _noting_buses(frames: Iterable[Frame], buses: set[str]) -> Iterator[Frame]:
@@ -190,6 +211,8 @@ def run(args: argparse.Namespace) -> int:
     simulated: dict[str, object] = {"seed": args.seed, "duration_s": duration}
     if car != "ecocar":  # an ecocar drive's metadata stays as it was
         simulated["car"] = car
+    bar = ProgressBar(sys.stderr)  # silent off a terminal
+    frames = with_progress(frames, duration, bar)
     fd = 0
     buses: set[str] = set()
     try:
@@ -206,6 +229,8 @@ def run(args: argparse.Namespace) -> int:
     except Stopped as stop:
         print(f"{stop}: {output} not written", file=sys.stderr)
         return 128 + stop.signum
+    finally:
+        bar.close()
     if suffix in NO_FD_FLAGS and fd:
         print(f"warning: {output}: {NO_FD_FLAGS[suffix]} has no column for the CAN FD flags: "
               f"its {fd:,} CAN FD frames are read back without the FD flag and the bitrate "

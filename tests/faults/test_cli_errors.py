@@ -68,3 +68,25 @@ def test_a_scene_rate_of_zero_is_refused_as_any_other_out_of_range(
     line = one_error_line(tankviz(*argv, f"--scene-rate={rate}", cwd=tmp_path))
     assert line == f"error: --scene-rate {rate}: must be above 0 and at most 50 Hz"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_simulate_and_replay_say_what_their_file_is(tmp_path: Path) -> None:
+    simulate = tankviz("simulate", "--help", cwd=tmp_path).stdout
+    assert "-o OUTPUT, --output OUTPUT\n" in simulate  # its help follows on the next line
+    assert ".blf" in simulate.split("--output OUTPUT", 1)[1].split("--car", 1)[0]
+    replay = tankviz("replay", "--help", cwd=tmp_path).stdout
+    assert "FILE" in replay and ".mcap" in replay
+
+
+def test_simulate_shows_its_progress_on_a_terminal() -> None:
+    """22 s for a 300 s drive, without a word: now a bar as convert's (only on a terminal)."""
+    from bridge.apps.simulate import with_progress
+    from bridge.sim.drive import simulate
+
+    seen: list[tuple[int, float | None]] = []
+    frames = list(with_progress(simulate(duration_s=2.0), 2.0,
+                                lambda n, f: seen.append((n, f)), every=500))
+    fractions = [f for _, f in seen]
+    assert seen[-1] == (len(frames), 1.0)
+    assert len(seen) > 3 and fractions == sorted(fractions)  # type: ignore[type-var]
+    assert all(0.0 <= f <= 1.0 for f in fractions if f is not None)
