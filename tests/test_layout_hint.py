@@ -16,6 +16,7 @@ virtual bus and stops by itself (``--for``).
 from __future__ import annotations
 
 import os
+import re
 import shlex
 import signal
 from collections.abc import Iterator
@@ -189,6 +190,23 @@ def test_live_with_databases_and_no_profile_says_how_to_make_one(
     command = command_line("--profile", "car.toml", "--dbc", mazda_dbc, "--export", "car-layouts")
     assert f"          then: {command}" in lines
     assert BUNDLED_LINE not in lines
+
+
+def test_the_draft_command_keeps_the_bus_of_each_database(
+        tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--dbc BUS=PATH``: ``profile new`` takes it as given and drafts the databases per bus."""
+    monkeypatch.chdir(tmp_path)
+    live("--bus", f"can1=virtual:hint-can1-{os.getpid()}", "--dbc", f"can1={mazda_dbc}",
+         "--no-record")
+    lines = capsys.readouterr().out.splitlines()
+    draft = shlex.join(["tankviz", "profile", "new", "--dbc", f"can1={mazda_dbc}",
+                        "-o", "car.toml"])
+    assert f"layout:   none without a profile: draft one with: {draft}" in lines
+    run_printed(draft)
+    text = (tmp_path / "car.toml").read_text()
+    written = re.search(r'^databases = \{ can1 = \["([^"]+)"\] \}', text, re.MULTILINE)
+    assert written and (tmp_path / written[1]).resolve() == mazda_dbc.resolve()
 
 
 def test_demo_without_recording_points_at_the_bundled_layout(

@@ -148,14 +148,13 @@ def layout_hint(stages: Stages, make: MakeLayouts, *, profile: str | Path | None
 
 
 def _no_profile_hint(dbcs: Sequence[str]) -> LayoutHint:
-    from bridge.decode.decoder import parse_dbc_option
-
     if not dbcs:
         return LayoutHint(["none: the layouts are made for a vehicle profile (--profile) "
                            "and its databases (--dbc)"])
-    paths = list(dict.fromkeys(str(parse_dbc_option(text)[1]) for text in dbcs))
+    # as given: `profile new` takes --dbc [BUS=]PATH too, and drafts the databases per bus
     draft = shlex.join(["tankviz", "profile", "new",
-                        *(word for path in paths for word in ("--dbc", path)), "-o", "car.toml"])
+                        *(word for text in dict.fromkeys(dbcs) for word in ("--dbc", text)),
+                        "-o", "car.toml"])
     return LayoutHint([f"none without a profile: draft one with: {draft}",
                        f"then: {layouts_command('car.toml', dbcs, 'car-layouts')}"])
 
