@@ -9,7 +9,10 @@ Every mapped field is read through one interface, whether it is one signal or a 
 from several (:data:`bridge.profile.model.Field`): its value from the latest messages. An object's
 fields read its family's latest messages; a lane coefficient its line's message; an ego value the
 latest of the messages it reads, observed whenever one of them comes (a value whose messages have
-not all come yet is left out, as a missing signal is). A computed value that reads as missing
+not all come yet is left out, as a missing signal is). A field the profile does not map is left
+out of the observation (``None``), never read as 0: a radar that reports vx and no vy gives
+objects without vy, in any lateral sign and mount yaw (:func:`velocity`), and /perception
+carries them without it. A computed value that reads as missing
 (``none``, e.g. a distance whose zero means "no object") leaves the object out, and is no error.
 
 A value that is not finite (+inf, -inf or NaN from an IEEE float signal, or a conversion that
@@ -69,6 +72,19 @@ def velocity_to_vehicle(sensor: Sensor, vx: float, vy: float) -> tuple[float, fl
         c, s = sensor.rotation
         vx, vy = c * vx - s * vy, s * vx + c * vy
     return vx, vy
+
+
+def velocity(sensor: Sensor, vx: float | None, vy: float | None,
+             scale: float = 1.0) -> tuple[float | None, float | None]:
+    """The velocity components a sensor reports (each ``None`` when not mapped or not read), in
+    the vehicle frame: a component is there when the sensor's own one is, and finite. Rotating
+    through a mount yaw, a component the sensor does not report counts as 0 in the other's
+    value, but is never made up itself: a radar's speed along its boresight gives a vx, no vy.
+    """
+    if vx is None and vy is None:
+        return None, None
+    rx, ry = velocity_to_vehicle(sensor, (vx or 0.0) * scale, (vy or 0.0) * scale)
+    return (_finite(rx) if vx is not None else None), (_finite(ry) if vy is not None else None)
 
 
 def polar_to_cartesian(distance: float, azimuth: float, angle_unit: str) -> tuple[float, float]:
@@ -330,10 +346,7 @@ class _GroupReader:
         x, y = to_vehicle(sensor, xs, ys)
         if not (math.isfinite(x) and math.isfinite(y)):
             return None
-        vx, vy = _read(latest, obj.vx), _read(latest, obj.vy)
-        if vx is not None or vy is not None:
-            vx, vy = velocity_to_vehicle(sensor, (vx or 0.0) * scale, (vy or 0.0) * scale)
-            vx, vy = _finite(vx), _finite(vy)
+        vx, vy = velocity(sensor, _read(latest, obj.vx), _read(latest, obj.vy), scale)
         ident = _read(latest, obj.id)
         raw_class = _read(latest, obj.class_signal)
         object_class = (g.classes.get(int(raw_class), ObjectClass.UNKNOWN)
