@@ -9,7 +9,8 @@ straight road, or stands) past posts standing beside the road, and a car drives 
 With the right sign (``lateral = "right"``) the posts sweep against the turn: "ok". With the
 sign flipped in the profile (``lateral = "left"``) the scene is mirrored and the posts sweep with
 the turn: "flipped", said once on ``/log`` and printed by ``tankviz inspect``. A straight road and
-a standstill never give a verdict, whichever the sign.
+a standstill never give a verdict, whichever the sign, and the message says what was missing,
+with the figures. (The vehicles ahead leaning into highway curves: test_lateral_highway.py.)
 """
 
 from __future__ import annotations
@@ -279,3 +280,18 @@ def test_no_warning_for_a_right_sign_a_straight_road_or_a_standstill(
     assert verdict["verdict"] == expected
     report = format_summary(str(drive_path), summarize_file(drive_path))
     assert f"  {expected:<7}  {verdict['message']}" in report.splitlines()
+
+
+@pytest.mark.parametrize(("road", "why"), [
+    ("straight", "turned at most 0.0°/s (2.9°/s needed) over 10 s; 0 samples of vehicles ahead "
+                 "in curves (20 needed): no vehicle ahead in a curve (a turn of 0.6°/s or more "
+                 "held for 2 s)"),
+    ("standstill", "never drove at 3 m/s or more; 0 samples of vehicles ahead in curves (20 "
+                   "needed): no vehicle driving ahead within 100 m at 10 m/s or more"),
+])
+def test_no_verdict_says_what_was_missing_with_the_figures(
+        tmp_path: Path, road: str, why: str) -> None:
+    verdict = check_drive(tmp_path, "right", road)
+
+    assert verdict.message == ("front_radar: lateral sign not judged: 0 samples of stationary "
+                               f"objects while turning (50 needed): {why}")

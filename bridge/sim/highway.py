@@ -62,6 +62,16 @@ the twins and dropouts go on, nothing else happens):
   relative acceleration 0.15 m/s^2; a new track's score starts at 40 % and rises by 15 % a
   cycle.
 
+**Other roads** (``simulate_highway(road=...)``, :data:`ROADS`): the same drive, traffic and
+events on ``"winding"``, a highway of five curves, each with 2 s transitions like the one above:
+left 1000 m from 4 to 12 s, right 1600 m from 16 to 24 s, left 1600 m from 28 to 35 s, right
+900 m from 40 to 48 s, left 1200 m from 51 to 58 s (1.1 to 1.9 deg/s at 30 m/s; the lateral sign
+check's test drive, :mod:`bridge.world.lateral`), on ``"straight"``, a road without a curve, or
+on ``"weaving"``, the straight road where the ego changes lanes: left from 8 to 13 s, back from
+20 to 24 s, right from 32 to 37 s, back from 46 to 52 s (its lateral acceleration one sine
+period each; up to 2.7 deg/s of yaw rate).
+The ground truth functions take the road's :class:`Highway` (``highway=ROADS["winding"]``).
+
 Ground truth without simulating: :func:`slots_at`, :func:`twins_at`, :func:`lead_at`,
 :func:`objects_at`, :func:`ego_at` (:mod:`bridge.sim.highway_world`). The same seed gives
 byte-identical frames; the seed changes measurement noise, jitter, phases and counter start
@@ -84,6 +94,7 @@ from bridge.sim.frames import US, Codec, Out, ticks
 from bridge.sim.highway_world import (
     HIGHWAY,
     RADAR_X_M,
+    ROADS,
     SLOT_COUNT,
     TRACK_WIDTH_M,
     EgoTruth,
@@ -99,8 +110,9 @@ from bridge.sim.highway_world import (
 )
 from bridge.sim.scenario import DEFAULT_START_NS
 
-__all__ = ["CAR_BUS", "HIGHWAY", "RADAR_BUS", "EgoTruth", "Highway", "ObjectTruth", "SlotTruth",
-           "ego_at", "lead_at", "objects_at", "simulate_highway", "slots_at", "twins_at"]
+__all__ = ["CAR_BUS", "HIGHWAY", "RADAR_BUS", "ROADS", "EgoTruth", "Highway", "ObjectTruth",
+           "SlotTruth", "ego_at", "lead_at", "objects_at", "simulate_highway", "slots_at",
+           "twins_at"]
 
 #: The buses of the highway car: the radar's and the car's own.
 RADAR_BUS = "can1"
@@ -137,8 +149,10 @@ def _noise(rng: random.Random, sigma: float) -> float:
 class _Run:
     """The timing and randomness the families of one run share."""
 
-    def __init__(self, seed: int, start_ns: int, duration_s: float) -> None:
+    def __init__(self, seed: int, start_ns: int, duration_s: float,
+                 highway: Highway = HIGHWAY) -> None:
         self.seed = seed
+        self.highway = highway
         self.start_ns = start_ns
         self.end_ns = start_ns + round(duration_s * NS)
 
@@ -181,8 +195,8 @@ def _radar(run: _Run, db: cantools.database.can.Database) -> Iterator[Frame]:
         if times[-1] >= run.end_ns:
             return
         t = tick / NS
-        slots = slots_at(t)
-        truth = {o.name: o for o in objects_at(t)}
+        slots = slots_at(t, run.highway)
+        truth = {o.name: o for o in objects_at(t, run.highway)}
         part_a: list[bytes] = []
         part_b: list[bytes] = []
         for i, slot in enumerate(slots):
@@ -224,25 +238,25 @@ def _radar(run: _Run, db: cantools.database.can.Database) -> Iterator[Frame]:
 # The car bus
 # ---------------------------------------------------------------------------------------------
 
-Values = Callable[[EgoTruth, random.Random], dict[str, float]]
+Values = Callable[[EgoTruth, random.Random, Highway], dict[str, float]]
 
 
-def _kinematics(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+def _kinematics(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, float]:
     return {"YAW_RATE": math.degrees(ego.yaw_rate) + rng.gauss(0.0, 0.03),
             "ACCEL_X": ego.accel + rng.gauss(0.0, 0.03),
             "ACCEL_Y": ego.lateral_accel + rng.gauss(0.0, 0.03)}
 
 
-def _steering(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+def _steering(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, float]:
     tenths = round((math.degrees(ego.steering_wheel_angle) + rng.gauss(0.0, 0.04)) * 10)
     coarse = round(tenths / 15)
-    rate = math.degrees(ego_at(ego.t + 0.01).steering_wheel_angle
-                        - ego_at(ego.t - 0.01).steering_wheel_angle) / 0.02
+    rate = math.degrees(ego_at(ego.t + 0.01, highway).steering_wheel_angle
+                        - ego_at(ego.t - 0.01, highway).steering_wheel_angle) / 0.02
     return {"STEER_ANGLE": coarse * 1.5, "STEER_FRACTION": (tenths - 15 * coarse) / 10,
             "STEER_RATE": rate + rng.gauss(0.0, 0.5)}
 
 
-def _wheel_speeds(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+def _wheel_speeds(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, float]:
     side = ego.curvature * TRACK_WIDTH_M / 2  # the outer wheels run faster
     out = {}
     for name, lateral, tyre in (("FL", -side, _TYRES[0]), ("FR", side, _TYRES[1]),
@@ -252,7 +266,7 @@ def _wheel_speeds(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
     return out
 
 
-def _speed(ego: EgoTruth, rng: random.Random) -> dict[str, float]:
+def _speed(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, float]:
     return {"SPEED": ego.speed * KMH * SPEEDOMETER_GAIN + rng.gauss(0.0, 0.02), "CHECKSUM": 0}
 
 
@@ -264,12 +278,12 @@ def _car(run: _Run, db: cantools.database.can.Database, name: str, cycle_ms: int
     for tick, ts in run.ticks(rng, cycle_ms, (0, cycle_ms * 1000 // 2)):
         if ts >= run.end_ns:
             return
-        data = codec.encode(values(ego_at(tick / NS), rng))
+        data = codec.encode(values(ego_at(tick / NS, run.highway), rng, run.highway))
         yield out.frame(ts, codec, _with_checksum(codec, data) if checksum else data)
 
 
 def simulate_highway(*, duration_s: float = 60.0, seed: int = 0,
-                     start_ns: int = DEFAULT_START_NS) -> Iterator[Frame]:
+                     start_ns: int = DEFAULT_START_NS, road: str = "curve") -> Iterator[Frame]:
     """Frames of the simulated highway drive on ``can1`` (radar) and ``can0`` (car), in
     non-decreasing timestamp order, ``start_ns <= timestamp < start_ns + duration``.
 
@@ -277,10 +291,15 @@ def simulate_highway(*, duration_s: float = 60.0, seed: int = 0,
       docstring), so a run shorter than 60 s has only those before its end.
     - ``seed``: noise, jitter, phases and counters; the same seed gives identical frames.
     - ``start_ns``: the start of the run (default: 2026-01-01T12:00:00Z).
+    - ``road``: ``"curve"`` (the scenario's one left-hand curve), ``"winding"`` (five curves of
+      1 to 2 deg/s, left and right), ``"straight"``, or ``"weaving"`` (straight, the ego
+      changing lanes): the same traffic on another road.
     """
     if not duration_s > 0 or not math.isfinite(duration_s):
         raise ValueError(f"duration_s must be a positive number of seconds, not {duration_s!r}")
-    run = _Run(seed, start_ns, duration_s)
+    if road not in ROADS:
+        raise ValueError(f"road must be one of {', '.join(ROADS)}, not {road!r}")
+    run = _Run(seed, start_ns, duration_s, ROADS[road])
     car = highway_database("car")
     families = [
         _radar(run, highway_database("radar")),

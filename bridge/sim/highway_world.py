@@ -16,14 +16,19 @@ tells the timeline. The ground truth for tests:
 - :func:`lead_at`: which car is the lead (the nearest ahead in the ego lane).
 
 Geometry: the road is three lanes of :data:`LANE_WIDTH_M`; lateral offsets ``d`` are from the
-ego lane's centre, left positive (left lane +3.6, right lane -3.6). The ego's rear axle follows
-the ego lane centre (a few centimetres of wander), so its path curvature is the road's (plus the
-wander's), its heading the road's (plus the wander's), and its steering wheel angle is the
+ego lane's (the middle lane's) centre, left positive (left lane +3.6, right lane -3.6). The
+ego's rear axle follows the ego lane centre (a few centimetres of wander; on the weaving road,
+its lane changes too), so its path curvature is the road's (plus the wander's and the lane
+changes'), its heading the road's (plus theirs), and its steering wheel angle is the
 bicycle model's, ``STEERING_RATIO * atan(WHEELBASE_M * curvature)``: lanes extrapolated from the
 steering angle follow the road. A road user's position is the middle of its rear (what the radar
 sees), at ``gap`` metres along the road ahead of the radar (:data:`RADAR_X_M` ahead of the rear
 axle) and ``d`` to the side. Relative velocities and accelerations are central differences of
 the vehicle-frame positions (+-50 ms), as a radar measures them in its own, turning, frame.
+
+The road: :data:`HIGHWAY`'s one left-hand curve, or another of :data:`ROADS` (the same traffic
+on a winding or a straight highway, or on the straight one with the ego changing lanes): every
+function of the ego or the traffic takes the ``highway`` to describe, by default :data:`HIGHWAY`.
 
 Radar coverage: radar x (vehicle x - :data:`RADAR_X_M`) above 1 m, range up to
 ``HIGHWAY.radar_range_m``, azimuth within +-``HIGHWAY.radar_fov_deg``, on the true position.
@@ -55,12 +60,25 @@ SLOT_COUNT = 16
 
 
 @dataclass(frozen=True)
+class Curve:
+    """One curve of the road: the ego's rear axle enters its transition (curvature rising
+    linearly over ``transition_s`` of driving) at ``begin_s`` and leaves the transition out of it
+    at ``end_s``; radius ``radius_m`` in between, positive to the left, negative to the right."""
+
+    begin_s: float
+    end_s: float
+    radius_m: float
+    transition_s: float = 2.0
+
+
+@dataclass(frozen=True)
 class Highway:
     """The scenario's numbers (seconds since the start of the run, metres, m/s).
 
     The world is made from :data:`HIGHWAY`'s speed, curve, cut-in window and radar coverage; the
-    slots, gaps and the time left_far leaves follow from it (the tests check that they do): a
-    ``Highway`` made with other numbers describes nothing."""
+    slots, gaps and the time left_far leaves follow from it (the tests check that they do). The
+    one thing that may differ is the road's curves (``bends``: :data:`ROADS`); a ``Highway`` made
+    with other numbers describes nothing."""
 
     #: the ego's mean speed; it varies by +-0.25 m/s over 14 s
     ego_speed_mps: float = 30.0
@@ -71,6 +89,11 @@ class Highway:
     curve_end_s: float = 40.0
     curve_transition_s: float = 2.0
     curve_radius_m: float = 800.0
+    #: the road's curves, in time order, not overlapping; None: the one left-hand curve above
+    bends: tuple[Curve, ...] | None = None
+    #: the ego's lane changes, (begin_s, duration_s, offset_m) each, offset left positive: its
+    #: lateral acceleration one sine period (none in the scenario itself)
+    ego_lane_changes: tuple[tuple[float, float, float], ...] = ()
     #: the cut-in: the car in the right lane changes into the ego lane over these seconds
     #: (its centre crosses the lane line half way, at 37.5 s) and is the lead from then on
     cut_in_begin_s: float = 36.0
@@ -94,7 +117,29 @@ class Highway:
                                 "right_190")
 
 
+    def curves(self) -> tuple[Curve, ...]:
+        """The road's curves, in time order."""
+        if self.bends is not None:
+            return self.bends
+        return (Curve(self.curve_begin_s, self.curve_end_s, self.curve_radius_m,
+                      self.curve_transition_s),)
+
+
 HIGHWAY = Highway()
+#: The same drive on a winding highway: five curves of 1 to 2 deg/s at 30 m/s, left and right
+#: (left 1000 m, right 1600 m, left 1600 m, right 900 m, left 1200 m), straight between them.
+WINDING = Highway(bends=(Curve(4.0, 12.0, 1000.0), Curve(16.0, 24.0, -1600.0),
+                         Curve(28.0, 35.0, 1600.0), Curve(40.0, 48.0, -900.0),
+                         Curve(51.0, 58.0, 1200.0)))
+#: ... and on a straight highway: no curve at all.
+STRAIGHT = Highway(bends=())
+#: ... and on a straight highway where the ego changes lanes four times (left, back, right,
+#: back; 4 to 6 s each, up to 2.7 deg/s of yaw rate).
+WEAVING = Highway(bends=(), ego_lane_changes=(
+    (8.0, 5.0, LANE_WIDTH_M), (20.0, 4.0, -LANE_WIDTH_M), (32.0, 5.0, -LANE_WIDTH_M),
+    (46.0, 6.0, LANE_WIDTH_M)))
+#: The roads the highway car can drive (``simulate_highway(road=...)``).
+ROADS = {"curve": HIGHWAY, "winding": WINDING, "straight": STRAIGHT, "weaving": WEAVING}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -121,27 +166,15 @@ def _smoothstep(t: float, t0: float, duration: float) -> tuple[float, float]:
     return u * u * (3 - 2 * u), duration * (u**3 - u**4 / 2)
 
 
-class _Road:
-    """The ego lane's centre line: straight, a clothoid into a left curve of constant radius, a
-    clothoid out of it, straight again; position and heading as functions of the distance s."""
+class _Bend:
+    """One curve of the road by the distance s along it: clothoid in, constant radius, out."""
 
-    STEP = 1.0
-
-    def __init__(self) -> None:
-        h = HIGHWAY
-        self.k = 1.0 / h.curve_radius_m
-        self.s1 = _ego_s(h.curve_begin_s)
-        self.s2 = _ego_s(h.curve_end_s)
-        self.ramp = h.ego_speed_mps * h.curve_transition_s
+    def __init__(self, curve: Curve, speed: float) -> None:
+        self.k = 1.0 / curve.radius_m
+        self.s1 = _ego_s(curve.begin_s)
+        self.s2 = _ego_s(curve.end_s)
+        self.ramp = speed * curve.transition_s
         self.theta_end = self.k * (self.s2 - self.s1 - self.ramp)
-        self.ss = [self.s1 + i * self.STEP
-                   for i in range(math.ceil((self.s2 - self.s1) / self.STEP))] + [self.s2]
-        points = [(self.s1, 0.0)]
-        for a, b in itertools.pairwise(self.ss):
-            x, y = points[-1]
-            dx, dy = self._chord(a, b)
-            points.append((x + dx, y + dy))
-        self.points = points
 
     def curvature(self, s: float) -> float:
         s1, s2, r, k = self.s1, self.s2, self.ramp, self.k
@@ -165,6 +198,46 @@ class _Road:
             return k * r / 2 + k * (s - s1 - r)
         u = s2 - s
         return self.theta_end - k * u * u / (2 * r)
+
+
+class _Road:
+    """The ego lane's centre line: straight, and for each curve a clothoid into a curve of
+    constant radius and a clothoid out of it, straight again; position and heading as functions
+    of the distance s."""
+
+    STEP = 1.0
+
+    def __init__(self, h: Highway) -> None:
+        self.bends = [_Bend(c, h.ego_speed_mps) for c in h.curves()]
+        self.theta_end = 0.0
+        for bend in self.bends:
+            self.theta_end += bend.theta_end
+        if not self.bends:
+            self.s1 = self.s2 = 0.0
+            self.ss = [0.0]
+            self.points = [(0.0, 0.0)]
+            return
+        self.s1, self.s2 = self.bends[0].s1, self.bends[-1].s2
+        self.ss = [self.s1 + i * self.STEP
+                   for i in range(math.ceil((self.s2 - self.s1) / self.STEP))] + [self.s2]
+        points = [(self.s1, 0.0)]
+        for a, b in itertools.pairwise(self.ss):
+            x, y = points[-1]
+            dx, dy = self._chord(a, b)
+            points.append((x + dx, y + dy))
+        self.points = points
+
+    def curvature(self, s: float) -> float:
+        for bend in self.bends:
+            if s < bend.s2:
+                return bend.curvature(s)
+        return 0.0
+
+    def heading(self, s: float) -> float:
+        total = 0.0
+        for bend in self.bends:
+            total += bend.heading(s)
+        return total
 
     def _chord(self, a: float, b: float) -> tuple[float, float]:
         """Simpson's rule of (cos, sin) of the heading from a to b."""
@@ -193,13 +266,12 @@ class _Road:
         return x - d * math.sin(h), y + d * math.cos(h)
 
 
-_ROAD = _Road()
 
 
 @dataclass(frozen=True)
 class EgoTruth:
-    """The ego at one time: road distance, speed, acceleration, lateral offset from the lane
-    centre (left), heading relative to the road, path curvature (1/m, left), yaw rate (rad/s,
+    """The ego at one time: road distance, speed, acceleration, lateral offset from the middle
+    lane's centre (left), heading relative to the road, path curvature (1/m, left), yaw rate (rad/s,
     left) and steering wheel angle (rad, left)."""
 
     t: float
@@ -214,24 +286,32 @@ class EgoTruth:
     lateral_accel: float
 
 
-def ego_at(t: float) -> EgoTruth:
-    v0, w = HIGHWAY.ego_speed_mps, _SPEED_OMEGA
+def ego_at(t: float, highway: Highway = HIGHWAY) -> EgoTruth:
+    """The ego at ``t`` on ``highway``'s road."""
+    v0, w = highway.ego_speed_mps, _SPEED_OMEGA
     v = v0 + _SPEED_WAVE * math.sin(w * t)
     a = _SPEED_WAVE * w * math.cos(w * t)
     s = _ego_s(t)
     d = sum(amp * math.sin(om * t + ph) for amp, om, ph in _WANDER)
     d_dot = sum(amp * om * math.cos(om * t + ph) for amp, om, ph in _WANDER)
     d_ddot = -sum(amp * om * om * math.sin(om * t + ph) for amp, om, ph in _WANDER)
-    kappa = _ROAD.curvature(s) + d_ddot / (v * v)
+    for begin, duration, offset in highway.ego_lane_changes:
+        u = min(max((t - begin) / duration, 0.0), 1.0)
+        d += offset * (u - math.sin(2 * math.pi * u) / (2 * math.pi))
+        if 0.0 < u < 1.0:
+            d_dot += offset / duration * (1.0 - math.cos(2 * math.pi * u))
+            d_ddot += offset * 2 * math.pi / duration**2 * math.sin(2 * math.pi * u)
+    kappa = _world(highway).road.curvature(s) + d_ddot / (v * v)
     return EgoTruth(t, s, v, a, d, d_dot / v, kappa, v * kappa,
                     STEERING_RATIO * math.atan(WHEELBASE_M * kappa), v * v * kappa)
 
 
-def _ego_pose(t: float) -> tuple[float, float, float]:
+def _ego_pose(t: float, h: Highway) -> tuple[float, float, float]:
     """The rear axle's position and heading in the road's fixed frame."""
-    e = ego_at(t)
-    x, y = _ROAD.place(e.s, e.d)
-    return x, y, _ROAD.heading(e.s) + e.psi
+    e = ego_at(t, h)
+    road = _world(h).road
+    x, y = road.place(e.s, e.d)
+    return x, y, road.heading(e.s) + e.psi
 
 
 # ---------------------------------------------------------------------------------------------
@@ -265,24 +345,25 @@ _TRAFFIC: dict[str, tuple[Callable[[float], float], Callable[[float], float]]] =
 }
 
 
-def _positions(t: float) -> dict[str, tuple[float, float, float]]:
+def _positions(t: float, h: Highway) -> dict[str, tuple[float, float, float]]:
     """Each road user's vehicle-frame (x, y) and lateral offset d at ``t``."""
-    ex, ey, eh = _ego_pose(t)
+    ex, ey, eh = _ego_pose(t, h)
+    road = _world(h).road
     c, s = math.cos(eh), math.sin(eh)
     s_radar = _ego_s(t) + RADAR_X_M
     out = {}
     for name, (gap, lateral) in _TRAFFIC.items():
         d = lateral(t)
-        gx, gy = _ROAD.place(s_radar + gap(t), d)
+        gx, gy = road.place(s_radar + gap(t), d)
         dx, dy = gx - ex, gy - ey
         out[name] = (c * dx + s * dy, -s * dx + c * dy, d)
     return out
 
 
-def _covered(x: float, y: float) -> bool:
+def _covered(x: float, y: float, h: Highway) -> bool:
     xr = x - RADAR_X_M
-    return (xr > 1.0 and math.hypot(xr, y) <= HIGHWAY.radar_range_m
-            and abs(math.degrees(math.atan2(y, xr))) <= HIGHWAY.radar_fov_deg)
+    return (xr > 1.0 and math.hypot(xr, y) <= h.radar_range_m
+            and abs(math.degrees(math.atan2(y, xr))) <= h.radar_fov_deg)
 
 
 @dataclass(frozen=True)
@@ -304,13 +385,15 @@ class ObjectTruth:
 _H = 0.05
 
 
-def objects_at(t: float) -> tuple[ObjectTruth, ...]:
-    before, now, after = _positions(t - _H), _positions(t), _positions(t + _H)
+def objects_at(t: float, highway: Highway = HIGHWAY) -> tuple[ObjectTruth, ...]:
+    """Every road user at ``t`` on ``highway``'s road."""
+    h = highway
+    before, now, after = _positions(t - _H, h), _positions(t, h), _positions(t + _H, h)
     out = []
-    for name in HIGHWAY.objects:
+    for name in h.objects:
         (xm, ym, _), (x, y, d), (xp, yp, _) = before[name], now[name], after[name]
         out.append(ObjectTruth(name, x, y, (xp - xm) / (2 * _H), (yp - ym) / (2 * _H),
-                               (xp - 2 * x + xm) / (_H * _H), d, _covered(x, y)))
+                               (xp - 2 * x + xm) / (_H * _H), d, _covered(x, y, h)))
     return tuple(out)
 
 
@@ -400,7 +483,8 @@ class _SlotPlan:
     (nearest first), keep the slot they have; a newcomer takes the slot free for longest (never
     used slots first, lowest index first)."""
 
-    def __init__(self) -> None:
+    def __init__(self, h: Highway) -> None:
+        self.highway = h
         self.owners: list[tuple[tuple[str, bool] | None, ...]] = []
         self.where: dict[tuple[str, bool], int] = {}
         self.freed = [-1] * SLOT_COUNT
@@ -412,8 +496,9 @@ class _SlotPlan:
 
     def _step(self, cycle: int) -> None:
         t = cycle * RADAR_CYCLE_S
+        h = self.highway
         seen = sorted(((math.hypot(x - RADAR_X_M, y), name)
-                       for name, (x, y, _) in _positions(t).items() if _covered(x, y)))
+                       for name, (x, y, _) in _positions(t, h).items() if _covered(x, y, h)))
         keys = [(name, False) for _, name in seen]
         keys += [(name, True) for _, name in seen if twin_episode(name, t) is not None]
         keys = keys[:SLOT_COUNT]
@@ -432,7 +517,17 @@ class _SlotPlan:
         self.owners.append(tuple(owners))
 
 
-_PLAN = _SlotPlan()
+@dataclass(frozen=True)
+class _World:
+    """A road and the slots its traffic takes (made once per :class:`Highway`)."""
+
+    road: _Road
+    plan: _SlotPlan
+
+
+@functools.lru_cache(maxsize=8)
+def _world(h: Highway) -> _World:
+    return _World(_Road(h), _SlotPlan(h))
 
 
 def radar_cycle(t: float) -> int:
@@ -440,11 +535,12 @@ def radar_cycle(t: float) -> int:
     return max(0, math.floor(t / RADAR_CYCLE_S + 1e-9))
 
 
-def slots_at(t: float) -> tuple[SlotTruth | None, ...]:
+def slots_at(t: float, highway: Highway = HIGHWAY) -> tuple[SlotTruth | None, ...]:
     """Each of the 16 slots of the radar cycle measured at or before ``t`` (None: empty)."""
     cycle = radar_cycle(t)
-    owners = _PLAN.at(cycle)
-    before = _PLAN.at(cycle - 1) if cycle else (None,) * SLOT_COUNT
+    plan = _world(highway).plan
+    owners = plan.at(cycle)
+    before = plan.at(cycle - 1) if cycle else (None,) * SLOT_COUNT
     out: list[SlotTruth | None] = []
     for slot, key in enumerate(owners):
         if key is None:
@@ -456,10 +552,10 @@ def slots_at(t: float) -> tuple[SlotTruth | None, ...]:
     return tuple(out)
 
 
-def twins_at(t: float) -> set[frozenset[int]]:
+def twins_at(t: float, highway: Highway = HIGHWAY) -> set[frozenset[int]]:
     """The pairs of slots that hold one object, both sent valid, at the radar cycle measured at
     or before ``t``."""
-    slots = slots_at(t)
+    slots = slots_at(t, highway)
     where: dict[str, list[int]] = {}
     for i, s in enumerate(slots):
         if s is not None and s.valid:
