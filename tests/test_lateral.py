@@ -262,7 +262,8 @@ def test_a_flipped_sign_is_warned_on_log_once_and_shown_by_inspect(
     (verdict,) = metadata_verdicts(drive_path)
     assert verdict["verdict"] == "flipped" and verdict["sensor"] == "front_radar"
     report = format_summary(str(drive_path), summarize_file(drive_path)).splitlines()
-    heading = report.index("lateral sign (stationary objects against the turn):")
+    heading = report.index("lateral sign (stationary objects against the turn, vehicles ahead into "
+                           "the curves):")
     assert report[heading + 1] == f"  flipped  {verdict['message']}"
 
 

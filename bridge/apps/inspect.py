@@ -242,7 +242,8 @@ def format_summary(path: str, s: DriveSummary) -> str:
                        f"{a['message']}" for a in alarms], limit=50)
         lateral = _json(ours.get("lateral_sign", "[]"))
         if lateral:  # each sensor's verdict: bridge.world.lateral
-            lines += ["", "lateral sign (stationary objects against the turn):"]
+            lines += ["", "lateral sign (stationary objects against the turn, vehicles ahead "
+                      "into the curves):"]
             lines += [f"  {v['verdict']:<7}  {v['message']}" for v in lateral]
         issues = _json(ours.get("input_issues", "{}"))
         if issues.get("count"):

@@ -2,7 +2,8 @@
 
 ``--car`` chooses the car (:data:`CARS`): ``ecocar`` (the default: the student test car, one bus
 ``can0``, :func:`bridge.sim.drive.simulate`) or ``highway`` (a production car at highway range,
-radar bus ``can1`` and car bus ``can0``, :func:`bridge.sim.highway.simulate_highway`).
+radar bus ``can1`` and car bus ``can0``, :func:`bridge.sim.highway.simulate_highway`), on the
+road ``--road`` names (the highway car only: one curve, winding, straight, weaving).
 ``.mcap`` is the drive converted as ``tankviz convert`` would convert it (with the car's bundled
 profile, the simulation's seed and duration, and a car other than ecocar, in the metadata); any
 other suffix that python-can writes (.blf .asc .log .csv .db, the text formats also gzipped) is a
@@ -46,7 +47,7 @@ from bridge.frame import NS, Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
-from bridge.sim.highway import simulate_highway
+from bridge.sim.highway import ROADS, simulate_highway
 from bridge.sinks.outputs import atomic_output, check_output, publish
 
 #: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
@@ -85,6 +86,10 @@ def add_parser(sub: Subparsers) -> None:
     parser.add_argument("--car", choices=CARS, default="ecocar",
                         help="ecocar (default: the student test car, one bus) or highway (a "
                         "production car with a 16-slot radar on can1, chassis on can0)")
+    parser.add_argument("--road", choices=list(ROADS), default=None,
+                        help="the highway car's road: curve (default: one left-hand curve), "
+                        "winding (five curves of 1 to 2 deg/s), straight, or weaving (straight, "
+                        "the ego changing lanes)")
     parser.add_argument("--duration", default="60", metavar="S",
                         help="seconds of driving (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
@@ -206,11 +211,17 @@ def run(args: argparse.Namespace) -> int:
     car: str = args.car
     suffix = None if output.suffix.lower() == ".mcap" else log_format(output, car)
     check_output(output, force=args.force)
+    if args.road is not None and car != "highway":
+        raise UsageError(f"--road {args.road}: only the highway car has other roads "
+                         "(--car highway)")
     frames = (simulate(duration_s=duration, seed=args.seed) if car == "ecocar"
-              else simulate_highway(duration_s=duration, seed=args.seed))
+              else simulate_highway(duration_s=duration, seed=args.seed,
+                                    road=args.road or "curve"))
     simulated: dict[str, object] = {"seed": args.seed, "duration_s": duration}
     if car != "ecocar":  # an ecocar drive's metadata stays as it was
         simulated["car"] = car
+    if args.road is not None:  # the highway's default drive's metadata stays as it was
+        simulated["road"] = args.road
     bar = ProgressBar(sys.stderr)  # silent off a terminal
     frames = with_progress(frames, duration, bar)
     fd = 0

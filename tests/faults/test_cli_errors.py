@@ -90,3 +90,15 @@ def test_simulate_shows_its_progress_on_a_terminal() -> None:
     assert seen[-1] == (len(frames), 1.0)
     assert len(seen) > 3 and fractions == sorted(fractions)  # type: ignore[type-var]
     assert all(0.0 <= f <= 1.0 for f in fractions if f is not None)
+
+
+def test_the_highway_car_drives_the_road_asked_for(tmp_path: Path) -> None:
+    """``--road winding`` is the drive the lateral-sign check judges on gentle curves."""
+    done = tankviz("simulate", "--car", "highway", "--road", "winding", "--duration", "2",
+                   "-o", "w.mcap", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    from bridge.io.drives import read_drive
+
+    assert read_drive(tmp_path / "w.mcap").metadata["simulated"]["road"] == "winding"
+    line = one_error_line(tankviz("simulate", "--road", "winding", "-o", "e.blf", cwd=tmp_path))
+    assert line == "error: --road winding: only the highway car has other roads (--car highway)"
