@@ -222,7 +222,7 @@ def scene_at(drive: Path, seconds: float) -> dict[str, Any]:
     with drive.open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, channel, _, update in reader.iter_decoded_messages(
-                log_time_order=True, end_time=until + 1):
+                log_time_order=True, ending_before=until + 1):
             if channel.topic.startswith("/scene/"):
                 latest[channel.topic] = update
     return latest
