@@ -43,6 +43,34 @@ def steady(duration_s: float, *, seed: int = 0) -> Iterator[tuple[float, Frame]]
             timestamp_ns=now + frame.timestamp_ns - t0)
 
 
+
+def with_fault(drive: Iterator[tuple[float, Any]], fault: tuple[float, float],
+               ) -> Iterator[tuple[float, Any, bool]]:
+    """The car's ``drive`` with the lines ``fault begins`` and ``fault ends`` (what the harness
+    waits for) at the times of ``fault`` (seconds after the start); each item also says whether
+    it is inside the fault."""
+    began = ended = False
+    for at, item in drive:
+        if not began and at >= fault[0]:
+            began = True
+            yield at, "fault begins", False
+        if not ended and at >= fault[1]:
+            ended = True
+            yield at, "fault ends", False
+        yield at, item, began and not ended
+
+
+class Opener:
+    """An adapter whose opening fails as told, counting the attempts."""
+
+    def __init__(self, error: Exception) -> None:
+        self.error = error
+        self.opens = 0
+
+    def __call__(self, spec: Any) -> Any:
+        self.opens += 1
+        raise self.error
+
 @dataclass
 class LiveCar:
     """tankviz live with a car in a subprocess; its output lines with their arrival times."""

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import can
 import pytest
+from harness import Opener
 
 from bridge.errors import UsageError
 from bridge.io.buses import BusEvent, BusLink, BusSpec
@@ -54,18 +55,6 @@ def test_one_bad_bus_among_good_ones_stops_the_start(tmp_path: Path, shared_dbc:
     assert result.returncode == 1, result.stdout + result.stderr
     assert result.stderr.strip().startswith('error: --bus rear=nosuch:x: python-can has no '
                                             'interface "nosuch"')
-
-
-class Opener:
-    """An adapter whose opening fails as told, counting the attempts."""
-
-    def __init__(self, error: Exception) -> None:
-        self.error = error
-        self.opens = 0
-
-    def __call__(self, spec: BusSpec) -> can.BusABC:
-        self.opens += 1
-        raise self.error
 
 
 @pytest.mark.parametrize("error", [

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import can
 import pytest
+from harness import Opener
 
 from bridge.errors import UsageError
 from bridge.io.buses import BusEvent, BusLink, BusSpec, CanLogLimiter, one_line
@@ -81,18 +82,6 @@ def test_a_bad_bus_prints_nothing_before_its_error(tmp_path: Path) -> None:
     assert result.stdout == ""
     (line,) = result.stderr.splitlines()
     assert line.startswith("error: --bus nosuch: python-can's configuration has no interface")
-
-
-class Opener:
-    """An adapter whose opening fails as told, counting the attempts."""
-
-    def __init__(self, error: Exception) -> None:
-        self.error = error
-        self.opens = 0
-
-    def __call__(self, spec: BusSpec) -> can.BusABC:
-        self.opens += 1
-        raise self.error
 
 
 def test_a_bus_that_never_opens_is_an_error_after_the_wait_and_no_gap() -> None:

@@ -29,7 +29,7 @@ from typing import Any
 
 import can
 import pytest
-from harness import Viewer, assert_survived, start, steady
+from harness import Viewer, assert_survived, start, steady, with_fault
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -47,15 +47,8 @@ FAULT = (1.5, 3.0)
 
 def nan_stamps() -> Iterator[tuple[float, Any]]:
     """The steady drive, every 7th frame of the fault stamped NaN."""
-    began = ended = False
-    for i, (at, frame) in enumerate(steady(4.5)):
-        if not began and at >= FAULT[0]:
-            began = True
-            yield at, "fault begins"
-        if not ended and at >= FAULT[1]:
-            ended = True
-            yield at, "fault ends"
-        if began and not ended and i % 7 == 0:
+    for i, (at, frame, inside) in enumerate(with_fault(steady(4.5), FAULT)):
+        if inside and i % 7 == 0:
             frame = frame._replace(timestamp_ns=float("nan"))
             yield at, "nan"  # counted by the test
         yield at, frame

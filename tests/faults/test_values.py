@@ -21,7 +21,7 @@ import can
 import cantools
 import pytest
 from google.protobuf.message import Message
-from harness import Viewer, assert_survived, recorded, start, steady
+from harness import Viewer, assert_survived, recorded, start, steady, with_fault
 from mcap.reader import make_reader
 
 from bridge.cli import main
@@ -377,14 +377,7 @@ FAULT = (1.5, 2.5)
 def inf_steering() -> Iterator[tuple[float, Any]]:
     folder = Path(__file__).resolve().parent
     drive = with_float_steering(steady(4.0), _tmp(folder), FAULT, (INF,))
-    began = ended = False
-    for at, frame in drive:
-        if not began and at >= FAULT[0]:
-            began = True
-            yield at, "fault begins"
-        if not ended and at >= FAULT[1]:
-            ended = True
-            yield at, "fault ends"
+    for at, frame, _ in with_fault(drive, FAULT):
         yield at, frame
 
 
