@@ -40,8 +40,8 @@ VENV_BIN = Path(sys.executable).parent
 DAY_NS = 86_400 * NS
 MISALIGNED = "radar-camera.misaligned"
 
-#: The README's example queries (the 10 minutes of the second one are a parameter here: the
-#: simulated drives are seconds long).
+#: The example queries of docs/commands.md (`tankviz catalog`; the 10 minutes of the second one
+#: are a parameter here: the simulated drives are seconds long).
 FIRST_MISALIGNED_AND_SINCE = """
     SELECT d.path AS drive, d.start_time, a.raised, a.raised_ns
     FROM drives d LEFT JOIN alarms a ON a.drive = d.path AND a.alarm = 'radar-camera.misaligned'
@@ -134,7 +134,7 @@ def rows(catalogue: Path, sql: str, *params: Any) -> list[tuple[Any, ...]]:
     return catalog.query(catalogue, sql, params).rows
 
 
-# --- the README's example queries ----------------------------------------------------------------
+# --- the example queries of docs/commands.md ------------------------------------------------------
 
 def test_the_first_drive_with_a_misaligned_radar_and_every_drive_since(
         archive: Path, indexed: Path) -> None:
@@ -409,7 +409,7 @@ def test_a_drive_of_another_car_is_catalogued_with_its_own_names(
     assert groups[0][3] < 30.0 - 199 * 0.1 + 3.6 + 1.0  # the nearest point, from the mount
     assert rows(out, "SELECT count(*) FROM lead_changes") == [(0,)]
 
-    # the README's third question: recorded with a database whose hash differs from today's
+    # docs/commands.md's third question: recorded with a database whose hash differs from today's
     assert rows(out, DATABASE_CHANGED, "front_radar", str(dbc)) == []
     with dbc.open("a") as f:
         f.write('\nCM_ "today\'s edit";\n')

@@ -960,7 +960,8 @@ def naive_scene(latest: dict[str, dict[str, Any]], t_ns: int) -> list[tuple[str,
 
 
 def _bus_name(channel: Any) -> str:
-    """tankviz's bus name of a python-can channel (README: ``can<N>`` for numbered channels)."""
+    """tankviz's bus name of a python-can channel (docs/commands.md: ``can<N>`` for numbered
+    channels)."""
     if isinstance(channel, int):
         return f"can{channel}"
     return str(channel).strip() or "can"

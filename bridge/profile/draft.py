@@ -139,7 +139,7 @@ def draft_profile(databases: Sequence[tuple[str, Database]], *, name: str = "car
     w.add("# Every mapping below is a guess from signal names and units: each says why. Lines")
     w.add("# '# TODO:' name what the profile needs and was not found (it does not load until they")
     w.add("# are done); '# TODO (optional):' what is missing or unsure. Check it with")
-    w.add(f"#   tankviz profile check {name}.toml DRIVE   (README \"Vehicle profiles\")")
+    w.add(f"#   tankviz profile check {name}.toml DRIVE   (docs/profiles.md)")
     w.add()
     w.add("[profile]")
     w.key("name", _q(name))
@@ -163,7 +163,7 @@ def draft_profile(databases: Sequence[tuple[str, Database]], *, name: str = "car
     object_like, others = object_groups(families)
     if not object_like:
         w.add(f"{TODO_OPTIONAL} no family of numbered messages with positions found: write "
-              "[sensors.NAME] and [objects.GROUP] by hand (README \"Vehicle profiles\")")
+              "[sensors.NAME] and [objects.GROUP] by hand (docs/profiles.md)")
         w.add()
     plans = plan_sensors(object_like)
     for plan in plans:
@@ -441,10 +441,10 @@ def _write_ego(w: _Writer, signals: Sequence[tuple[str, Signal]],
         w.key("length", "100.0", "m drawn ahead")
         if lanes:
             w.add(f"{TODO_OPTIONAL} lane signals found in {', '.join(sorted(set(lanes)))}: map "
-                  "[lanes.left] and [lanes.right] (README \"Vehicle profiles\", Lanes)")
+                  "[lanes.left] and [lanes.right] (docs/profiles.md, Lanes)")
     elif lanes:
         w.add(f"{TODO_OPTIONAL} lane signals found in {', '.join(sorted(set(lanes)))}: map "
-              "[lanes] with [lanes.left] and [lanes.right] (README \"Vehicle profiles\", Lanes)")
+              "[lanes] with [lanes.left] and [lanes.right] (docs/profiles.md, Lanes)")
     else:
         w.add(f"{TODO_OPTIONAL} no lanes: no camera lane signals and no steering angle found")
 
