@@ -1,7 +1,7 @@
 """Reading and checking a vehicle profile: a TOML file that declares what the DBC signals of one
 car mean, read into a :class:`~bridge.profile.model.Profile` and checked on load.
 
-A team with another car writes a profile, not Python. The format is documented in README.md
+A team with another car writes a profile, not Python. The format is documented in docs/profiles.md
 ("Vehicle profiles"); bridge/data/ecocar.toml is a complete example.
 
 :func:`resolve_profile` takes the path of a profile file or the name of a bundled profile
@@ -44,7 +44,7 @@ from cantools.database.can.message import Message as DbcMessage
 
 from bridge.profile.expr import Expression, ExpressionError, parse
 from bridge.profile.model import (
-    _INDEX,
+    INDEX_PLACEHOLDER,
     Computed,
     EgoSpec,
     FamilyMember,
@@ -79,6 +79,10 @@ _RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "mio"}
 _ROLES = ("detections", "tracks")
 _TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
+#: The mapped fields of an object (``[objects.GROUP] x = ...``), in the order they are read.
+_GROUP_FIELDS = ("x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id")
+#: ``{i:0Nd}`` with a width of 3 digits or more (at most 2: :data:`INDEX_PLACEHOLDER`).
+_WIDE_INDEX = re.compile(r"\{i:0?(\d{3,})d\}")
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
 
 #: The largest time a profile may give (a lifetime, a lane's stale_after), in seconds: longer
@@ -184,6 +188,26 @@ def _closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
     if or_all and choices:
         return f"; there are: {', '.join(sorted(choices))}"
     return ""
+
+
+class _Unread(Exception):
+    """A name an expression reads that is not a signal it can read: why, as the error of a
+    validity rule says it (``rule '…' reads 'X', …``) and as that of a value."""
+
+    def __init__(self, as_rule: str, as_value: str) -> None:
+        super().__init__(as_value)
+        self.as_rule = as_rule
+        self.as_value = as_value
+
+
+@dataclasses.dataclass(frozen=True)
+class _Family:
+    """The messages of an object group: its templates, the template and object index of each
+    message, and the messages of each object (index), in template order."""
+
+    templates: tuple[str, ...]
+    members: dict[str, FamilyMember]
+    instances: dict[int | None, list[DbcMessage]]
 
 
 class _Loader:
@@ -306,45 +330,50 @@ class _Loader:
         of a validity rule (``rule``) name what it reads; those of a value, the column."""
         text = expression.text
         columns = expression.columns
-        where = ", ".join(m.name for m in messages or ())
         reads = []
         names = sorted(expression.names) if rule else sorted(
             expression.names, key=lambda n: (columns.get(n, 0), n))
         for name in names:
-
-            def fail(as_rule: str, as_value: str, name: str = name) -> ProfileError:
+            try:
+                message, signal = self.read(name, messages)
+            except _Unread as why:
                 if rule:
-                    return self.fail(key, f"rule {text!r} reads {name!r}, {as_rule}")
-                return self.fail(key, str(ExpressionError(text, columns.get(name, 1), as_value)))
-
-            message_name, _, signal_name = name.rpartition(".")
-            if messages is None:
-                if not message_name:
-                    raise fail("", f"write Message.Signal for {name!r}: ego values may come from "
-                               "any message")
-                if message_name not in self.messages:
-                    raise fail("", f"no message {message_name!r} in the databases"
-                               f"{_closest(message_name, self.messages)}")
-                candidates = [self.messages[message_name]]
-            elif message_name:
-                candidates = [m for m in messages if m.name == message_name]
-                if not candidates:
-                    raise fail(f"but {message_name!r} is not one of {where}",
-                               f"message {message_name!r} is not one of {where}"
-                               f"{_closest(message_name, [m.name for m in messages])}")
-            else:
-                candidates = list(messages)
-            owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
-            if not owners:
-                closest = _closest(signal_name, {s.name for m in candidates for s in m.signals})
-                named = message_name or where
-                raise fail(f"which is not a signal of {named}{closest}",
-                           f"no signal {signal_name!r} in {named}{closest}")
-            if len(owners) > 1:
-                both = f"{owners[0].name} and {owners[1].name}: write Message.Signal"
-                raise fail(f"which is in {both}", f"signal {signal_name!r} is in {both}")
-            reads.append((name, owners[0].name, signal_name))
+                    raise self.fail(key, f"rule {text!r} reads {name!r}, {why.as_rule}") from None
+                raise self.fail(key, str(ExpressionError(text, columns.get(name, 1),
+                                                         why.as_value))) from None
+            reads.append((name, message, signal))
         return tuple(reads)
+
+    def read(self, name: str, messages: Sequence[DbcMessage] | None) -> tuple[str, str]:
+        """The message and signal a name of an expression reads (:meth:`resolve`)."""
+        where = ", ".join(m.name for m in messages or ())
+        message_name, _, signal_name = name.rpartition(".")
+        if messages is None:
+            if not message_name:
+                raise _Unread("", f"write Message.Signal for {name!r}: ego values may come from "
+                              "any message")
+            if message_name not in self.messages:
+                raise _Unread("", f"no message {message_name!r} in the databases"
+                              f"{_closest(message_name, self.messages)}")
+            candidates = [self.messages[message_name]]
+        elif message_name:
+            candidates = [m for m in messages if m.name == message_name]
+            if not candidates:
+                raise _Unread(f"but {message_name!r} is not one of {where}",
+                              f"message {message_name!r} is not one of {where}"
+                              f"{_closest(message_name, [m.name for m in messages])}")
+        else:
+            candidates = list(messages)
+        owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
+        if not owners:
+            closest = _closest(signal_name, {s.name for m in candidates for s in m.signals})
+            named = message_name or where
+            raise _Unread(f"which is not a signal of {named}{closest}",
+                          f"no signal {signal_name!r} in {named}{closest}")
+        if len(owners) > 1:
+            both = f"{owners[0].name} and {owners[1].name}: write Message.Signal"
+            raise _Unread(f"which is in {both}", f"signal {signal_name!r} is in {both}")
+        return owners[0].name, signal_name
 
     def is_computed(self, value: Any, key: str) -> bool:
         """Whether a mapped field is an expression: ``{ value = ... }``, or a string that is more
@@ -360,18 +389,21 @@ class _Loader:
         """A value computed by an expression: "expr" or {value = "expr", scale =, offset =};
         ``{i}`` in it replaced by ``index``; its names checked against ``messages`` (any message,
         as Message.Signal, when None)."""
-        scale, offset = 1.0, 0.0
-        if isinstance(value, dict):
-            spec = self.table(value, key, {"value", "scale", "offset"}, required=["value"])
-            scale = self.number(spec, key, "scale", 1.0)
-            offset = self.number(spec, key, "offset", 0.0)
-            value = spec["value"]
-            key = f"{key}.value"
-            if not isinstance(value, str):
-                raise self.fail(key, f"expected an expression (string), got {_type_name(value)}")
-        assert isinstance(value, str)
+        value, key, scale, offset = self.converted(value, key, "value")
+        if not isinstance(value, str):
+            raise self.fail(key, f"expected an expression (string), got {_type_name(value)}")
         expression = self.parse(value if index is None else expand(value, index), key)
         return Computed(expression, self.resolve(expression, key, messages), scale, offset)
+
+    def converted(self, value: Any, key: str, name: str) -> tuple[Any, str, float, float]:
+        """A mapped field's ``name`` (signal or value), its key, scale and offset: ``{name =
+        ..., scale = .., offset = ..}``, or the field itself converting nothing."""
+        if not isinstance(value, dict):
+            return value, key, 1.0, 0.0
+        spec = self.table(value, key, {name, "scale", "offset"}, required=[name])
+        scale = self.number(spec, key, "scale", 1.0)
+        offset = self.number(spec, key, "offset", 0.0)
+        return spec[name], f"{key}.{name}", scale, offset
 
     def mapped(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> Field:
         """A mapped field: one signal (:meth:`signal`) or a value :meth:`computed` by an
@@ -382,13 +414,7 @@ class _Loader:
 
     def signal(self, value: Any, key: str, messages: Sequence[DbcMessage]) -> SignalRef:
         """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
-        scale, offset = 1.0, 0.0
-        if isinstance(value, dict):
-            spec = self.table(value, key, {"signal", "scale", "offset"}, required=["signal"])
-            scale = self.number(spec, key, "scale", 1.0)
-            offset = self.number(spec, key, "offset", 0.0)
-            value = spec["signal"]
-            key = f"{key}.signal"
+        value, key, scale, offset = self.converted(value, key, "signal")
         if not isinstance(value, str) or not value:
             raise self.fail(key, f"expected a signal name, got {_type_name(value)}")
         message_name, _, signal_name = value.rpartition(".")
@@ -396,11 +422,9 @@ class _Loader:
         if message_name:
             candidates = [m for m in messages if m.name == message_name]
             if not candidates:
-                if messages:
-                    names = [m.name for m in messages]
-                    raise self.fail(key, f"message {message_name!r} is not one of "
-                                    f"{', '.join(names)}{_closest(message_name, names)}")
-                candidates = [self.message(message_name, key)]
+                names = [m.name for m in messages]
+                raise self.fail(key, f"message {message_name!r} is not one of "
+                                f"{', '.join(names)}{_closest(message_name, names)}")
         owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
         if not owners:
             known = {s.name for m in candidates for s in m.signals}
@@ -468,8 +492,10 @@ class _Loader:
             raise self.fail("lanes", "no camera lines and no ego.steering_wheel_angle: nothing "
                             "to draw the lanes from")
         bitrates, data_bitrates = self.buses(doc.get("buses", {}))
-        return Profile(name, self.path, vehicle, sensors, groups, lead, lanes, ego,
-                       self.databases(), bitrates, data_bitrates)
+        return Profile(name=name, path=self.path, vehicle=vehicle, sensors=sensors,
+                       groups=groups, lead=lead, lanes=lanes, ego=ego,
+                       databases=self.databases(), bitrates=bitrates,
+                       data_bitrates=data_bitrates)
 
     def buses(self, value: Any) -> tuple[dict[str, int], dict[str, int]]:
         """``[buses.NAME] bitrate = …, data_bitrate = …``: for the bus load in /health."""
@@ -499,11 +525,13 @@ class _Loader:
             raise self.fail("vehicle.rear_overhang",
                             f"must be less than the length {length}, got {overhang}")
         return Vehicle(
-            self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True, **_VEHICLE),
-            self.number(t, "vehicle", "steering_ratio", d.steering_ratio, positive=True),
-            length,
-            self.number(t, "vehicle", "width", d.width_m, positive=True, **_VEHICLE),
-            self.number(t, "vehicle", "height", d.height_m, positive=True, **_VEHICLE),
+            wheelbase_m=self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True,
+                                    **_VEHICLE),
+            steering_ratio=self.number(t, "vehicle", "steering_ratio", d.steering_ratio,
+                                       positive=True),
+            length_m=length,
+            width_m=self.number(t, "vehicle", "width", d.width_m, positive=True, **_VEHICLE),
+            height_m=self.number(t, "vehicle", "height", d.height_m, positive=True, **_VEHICLE),
             origin=origin,
             rear_overhang_m=overhang,
         )
@@ -526,12 +554,12 @@ class _Loader:
             raise self.fail(f"{key}.fov.azimuth",
                             f"is a half angle: at most 180, got {fov_azimuth}")
         return Sensor(
-            name, kind, mount,
-            self.string(t, key, "lateral", "left", ["left", "right"]),
-            self.string(t, key, "coordinates", "cartesian", ["cartesian", "polar"]),
-            self.string(t, key, "angle_unit", "deg", ["deg", "rad"]),
-            self.number(t, key, "distance_scale", 1.0, positive=True),
-            fov_range, fov_azimuth,
+            name=name, kind=kind, mount=mount,
+            lateral=self.string(t, key, "lateral", "left", ["left", "right"]),
+            coordinates=self.string(t, key, "coordinates", "cartesian", ["cartesian", "polar"]),
+            angle_unit=self.string(t, key, "angle_unit", "deg", ["deg", "rad"]),
+            distance_scale=self.number(t, key, "distance_scale", 1.0, positive=True),
+            fov_range=fov_range, fov_azimuth_deg=fov_azimuth,
         )
 
     def sensor_of(self, t: Mapping[str, Any], key: str, sensors: Mapping[str, Sensor]) -> Sensor:
@@ -543,12 +571,29 @@ class _Loader:
 
     def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
               *, lifetime: float = 0.1) -> ObjectGroup:
-        fields = {"x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id"}
+        """An object group (``[objects.NAME]``, or ``[lead]`` without a role) and its family."""
         roles = {"role"} if key.startswith("objects.") else set()  # not on [lead]
         t = self.table(value, key, {"sensor", "messages", "index", "classes", "valid",
-                                    "lifetime"} | fields | roles, required=["sensor", "messages"])
+                                    "lifetime", *_GROUP_FIELDS} | roles,
+                       required=["sensor", "messages"])
         sensor = self.sensor_of(t, key, sensors)
         role = self.role(t, key, sensor) if roles else None
+        family = self.family(t, key, self.templates(t, key))
+        self.coordinates(t, key, sensor)
+        classes = self.classes(t, key)
+        rules = self.rules(t, key, family)
+        f = {field: self.family_field(t, key, field, family) for field in _GROUP_FIELDS}
+        return ObjectGroup(
+            name=name, sensor=sensor, templates=family.templates, members=family.members,
+            x=f["x"], y=f["y"], range=f["range"], azimuth=f["azimuth"], vx=f["vx"], vy=f["vy"],
+            probability=f["probability"], class_signal=f["class"], classes=classes, id=f["id"],
+            valid=rules,
+            lifetime_s=self.number(t, key, "lifetime", lifetime, non_negative=True, **_SECONDS),
+            role=role,
+        )
+
+    def templates(self, t: Mapping[str, Any], key: str) -> tuple[str, ...]:
+        """``messages``: one message name or several, each once (templates with {i})."""
         templates = t["messages"]
         if isinstance(templates, str):
             templates = [templates]
@@ -559,72 +604,58 @@ class _Loader:
         for n, template in enumerate(templates):
             if template in templates[:n]:
                 raise self.fail(f"{key}.messages", f"{template!r} is named twice")
-        members: dict[str, FamilyMember] = {}
-        #: the messages of each object (index), in template order
-        instances: dict[int | None, list[DbcMessage]] = {}
-        if "index" in t:
-            index = t["index"]
-            if (not isinstance(index, list) or len(index) != 2
-                    or not all(isinstance(i, int) and not isinstance(i, bool) for i in index)):
-                raise self.fail(f"{key}.index", "expected [first, last] object indices, e.g. "
-                                "[0, 31]")
-            first, last = index
-            if first < 0:
-                raise self.fail(f"{key}.index", f"indices cannot be negative, got "
-                                f"[{first}, {last}]")
-            if last < first:
-                raise self.fail(f"{key}.index", f"empty family: [{first}, {last}]")
-            for template in templates:
-                wide = re.search(r"\{i:0?(\d{3,})d\}", template)
-                if wide:
-                    raise self.fail(f"{key}.messages", f"{template!r}: the width of {{i:0Nd}} is "
-                                    f"at most 2 digits, got {wide.group(1)}")
-                if not _INDEX.search(template):
-                    raise self.fail(f"{key}.messages", f"{template!r} has no {{i}} for the index")
-                for i in range(first, last + 1):
-                    m = self.message(expand(template, i), f"{key}.messages")
-                    members[m.name] = FamilyMember(template, i)
-                    instances.setdefault(i, []).append(m)
-        else:
-            if "id" not in t:
-                raise self.fail(key, "without 'index' each frame carries one object: name the "
-                                "signal that says which with 'id'")
-            if len(templates) != 1:
-                raise self.fail(f"{key}.messages", "without 'index' the family is one message "
-                                "carrying one object per frame")
-            if _INDEX.search(templates[0]):
-                raise self.fail(f"{key}.messages", f"{templates[0]!r} has {{i}} but there is no "
-                                "'index' range")
-            m = self.message(templates[0], f"{key}.messages")
-            members[m.name] = FamilyMember(templates[0], None)
-            instances[None] = [m]
+        return tuple(templates)
 
-        def ref(name: str) -> Field | None:
-            """A field of every object of the family ({i} in names is each object's index)."""
-            if name not in t:
-                return None
-            value = t[name]
-            if self.is_computed(value, f"{key}.{name}"):
-                each = {i: self.computed(value, f"{key}.{name}", messages, i)
-                        for i, messages in instances.items()}
-                first = next(iter(each.values()))
-                return dataclasses.replace(
-                    first, objects={i: c for i, c in each.items() if i is not None})
-            text = value.get("signal") if isinstance(value, dict) else value
-            found: SignalRef | None = None
-            for i, messages in instances.items():
-                filled = value
-                if i is not None and isinstance(value, str):
-                    filled = expand(value, i)
-                elif i is not None and isinstance(value, dict) and isinstance(text, str):
-                    filled = {**value, "signal": expand(text, i)}
-                r = self.signal(filled, f"{key}.{name}", messages)
-                found = found or r
-            assert found is not None and isinstance(text, str)
-            # Kept as templates: each object reads its own message and signal.
-            return SignalRef(members[found.message].template, text.rpartition(".")[2],
-                             found.scale, found.offset)
+    def family(self, t: Mapping[str, Any], key: str, templates: tuple[str, ...]) -> _Family:
+        """The messages of every object: each template's for every index of ``index``."""
+        if "index" not in t:
+            return self.single(t, key, templates)
+        first, last = self.index(t, key)
+        family = _Family(templates, {}, {})
+        for template in templates:
+            wide = _WIDE_INDEX.search(template)
+            if wide:
+                raise self.fail(f"{key}.messages", f"{template!r}: the width of {{i:0Nd}} is "
+                                f"at most 2 digits, got {wide.group(1)}")
+            if not INDEX_PLACEHOLDER.search(template):
+                raise self.fail(f"{key}.messages", f"{template!r} has no {{i}} for the index")
+            for i in range(first, last + 1):
+                m = self.message(expand(template, i), f"{key}.messages")
+                family.members[m.name] = FamilyMember(template, i)
+                family.instances.setdefault(i, []).append(m)
+        return family
 
+    def index(self, t: Mapping[str, Any], key: str) -> tuple[int, int]:
+        """``index``: the first and last object indices of a family."""
+        index = t["index"]
+        if (not isinstance(index, list) or len(index) != 2
+                or not all(isinstance(i, int) and not isinstance(i, bool) for i in index)):
+            raise self.fail(f"{key}.index", "expected [first, last] object indices, e.g. "
+                            "[0, 31]")
+        first, last = index
+        if first < 0:
+            raise self.fail(f"{key}.index", f"indices cannot be negative, got "
+                            f"[{first}, {last}]")
+        if last < first:
+            raise self.fail(f"{key}.index", f"empty family: [{first}, {last}]")
+        return first, last
+
+    def single(self, t: Mapping[str, Any], key: str, templates: tuple[str, ...]) -> _Family:
+        """Without ``index``: one message carrying one object per frame, ``id`` says which."""
+        if "id" not in t:
+            raise self.fail(key, "without 'index' each frame carries one object: name the "
+                            "signal that says which with 'id'")
+        if len(templates) != 1:
+            raise self.fail(f"{key}.messages", "without 'index' the family is one message "
+                            "carrying one object per frame")
+        if INDEX_PLACEHOLDER.search(templates[0]):
+            raise self.fail(f"{key}.messages", f"{templates[0]!r} has {{i}} but there is no "
+                            "'index' range")
+        m = self.message(templates[0], f"{key}.messages")
+        return _Family(templates, {m.name: FamilyMember(templates[0], None)}, {None: [m]})
+
+    def coordinates(self, t: Mapping[str, Any], key: str, sensor: Sensor) -> None:
+        """The position fields are those of the sensor's coordinates: x and y, or polar."""
         if sensor.coordinates == "polar":
             if "x" in t or "y" in t:
                 raise self.fail(key, f"sensor {sensor.name!r} is polar: use range and azimuth, "
@@ -638,34 +669,62 @@ class _Loader:
                                 "coordinates = \"polar\" on the sensor)")
             if "x" not in t or "y" not in t:
                 raise self.fail(key, f"sensor {sensor.name!r} is cartesian: name 'x' and 'y'")
+
+    def classes(self, t: Mapping[str, Any], key: str) -> dict[int, ObjectClass]:
+        """``classes``: the object class of each raw value of the ``class`` signal."""
         classes: dict[int, ObjectClass] = {}
-        if "classes" in t:
-            if "class" not in t:
-                raise self.fail(f"{key}.classes", "given without a 'class' signal")
-            table = self.section(t["classes"], f"{key}.classes")
-            for raw, label in table.items():
-                if not isinstance(label, str):
-                    raise self.fail(f"{key}.classes.{raw}", f"expected a class name (string), "
-                                    f"got {_type_name(label)}")
-                if not re.fullmatch(r"-?\d+", raw):
-                    raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
-                                    "(integers)")
-                if label not in _CLASS_NAMES:
-                    raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
-                                    f"{', '.join(_CLASS_NAMES)}")
-                classes[int(raw)] = _CLASS_NAMES[label]
-        rules: dict[int | None, Rule] = {}  # per object: a rule may name signals with {i}
-        for object_index, messages in instances.items():
-            rule = self.rule(t, key, messages, object_index)
+        if "classes" not in t:
+            return classes
+        if "class" not in t:
+            raise self.fail(f"{key}.classes", "given without a 'class' signal")
+        for raw, label in self.section(t["classes"], f"{key}.classes").items():
+            if not isinstance(label, str):
+                raise self.fail(f"{key}.classes.{raw}", f"expected a class name (string), "
+                                f"got {_type_name(label)}")
+            if not re.fullmatch(r"-?\d+", raw):
+                raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
+                                "(integers)")
+            if label not in _CLASS_NAMES:
+                raise self.fail(f"{key}.classes.{raw}", f"unknown class {label!r}; one of "
+                                f"{', '.join(_CLASS_NAMES)}")
+            classes[int(raw)] = _CLASS_NAMES[label]
+        return classes
+
+    def rules(self, t: Mapping[str, Any], key: str, family: _Family) -> dict[int | None, Rule]:
+        """The validity rule of each object: a rule may name signals with {i}."""
+        rules: dict[int | None, Rule] = {}
+        for index, messages in family.instances.items():
+            rule = self.rule(t, key, messages, index)
             if rule is not None:
-                rules[object_index] = rule
-        return ObjectGroup(
-            name, sensor, tuple(templates), members,
-            ref("x"), ref("y"), ref("range"), ref("azimuth"), ref("vx"), ref("vy"),
-            ref("probability"), ref("class"), classes, ref("id"), rules,
-            self.number(t, key, "lifetime", lifetime, non_negative=True, **_SECONDS),
-            role=role,
-        )
+                rules[index] = rule
+        return rules
+
+    def family_field(self, t: Mapping[str, Any], key: str, name: str,
+                     family: _Family) -> Field | None:
+        """Field ``name`` of every object of the family ({i} in names is each object's index)."""
+        if name not in t:
+            return None
+        value, key = t[name], f"{key}.{name}"
+        if self.is_computed(value, key):
+            each = {i: self.computed(value, key, messages, i)
+                    for i, messages in family.instances.items()}
+            first = next(iter(each.values()))
+            return dataclasses.replace(
+                first, objects={i: c for i, c in each.items() if i is not None})
+        text = value.get("signal") if isinstance(value, dict) else value
+        found: SignalRef | None = None
+        for i, messages in family.instances.items():
+            filled = value
+            if i is not None and isinstance(value, str):
+                filled = expand(value, i)
+            elif i is not None and isinstance(value, dict) and isinstance(text, str):
+                filled = {**value, "signal": expand(text, i)}
+            r = self.signal(filled, key, messages)
+            found = found or r
+        assert found is not None and isinstance(text, str)
+        # Kept as templates: each object reads its own message and signal.
+        return SignalRef(family.members[found.message].template, text.rpartition(".")[2],
+                         found.scale, found.offset)
 
     def role(self, t: Mapping[str, Any], key: str, sensor: Sensor) -> str:
         """``role``: detections or tracks; by default tracks on a fusion sensor."""
@@ -682,12 +741,12 @@ class _Loader:
             self.string(value, key, "source", choices=["message", "tracks"])
         if isinstance(value, dict) and value.get("source") == "tracks":
             t = self.table(value, key, {"source", "lifetime"})
-            return LeadSpec("tracks", None, self.number(t, key, "lifetime", 0.3, **_SECONDS,
-                                                        non_negative=True))
+            return LeadSpec(source="tracks", lifetime_s=self.number(
+                t, key, "lifetime", 0.3, **_SECONDS, non_negative=True))
         if isinstance(value, dict):
             value = {k: v for k, v in value.items() if k != "source"}
         group = self.group(key, "lead", value, sensors, lifetime=0.3)
-        return LeadSpec("message", group, group.lifetime_s)
+        return LeadSpec(source="message", group=group, lifetime_s=group.lifetime_s)
 
     def lanes(self, value: Any, sensors: Mapping[str, Sensor]) -> LaneSpec:
         key = "lanes"
@@ -700,24 +759,7 @@ class _Loader:
                             "([lanes.left], [lanes.right]): lanes from the steering angle need "
                             "no sensor")
         sensor = self.sensor_of(t, key, sensors) if camera else None
-        lines = {}
-        for name in _LANE_NAMES:
-            if name not in t:
-                continue
-            lk = f"{key}.{name}"
-            lt = self.table(t[name], lk, {"message", "c0", "c1", "c2", "c3", "valid"},
-                            required=["message", "c0"])
-            message = self.message(self.string(lt, lk, "message"), f"{lk}.message")
-
-            def coefficient(c: str, lt: dict[str, Any] = lt, lk: str = lk,
-                            message: DbcMessage = message) -> Field | None:
-                return self.mapped(lt[c], f"{lk}.{c}", [message]) if c in lt else None
-
-            c0 = coefficient("c0")
-            assert c0 is not None
-            lines[name] = LaneLine(name, message.name, c0, coefficient("c1"), coefficient("c2"),
-                                   coefficient("c3"),
-                                   self.rule(lt, lk, [message]))
+        lines = {name: self.lane_line(name, t[name]) for name in _LANE_NAMES if name in t}
         if lines and ("left" not in lines or "right" not in lines):
             named: list[str] = [n for n in ("left", "right") if n in lines] or list(lines)
             given = ", ".join(f"[lanes.{n}]" for n in named)
@@ -726,35 +768,48 @@ class _Loader:
                             "or no camera lines at all for lanes from the steering angle only")
         fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
         return LaneSpec(
-            sensor, lines,
-            self.number(t, key, "stale_after", 0.5, positive=True, **_SECONDS),
-            self.number(t, key, "length", 100.0, positive=True, **_DISTANCE),
-            self.number(fallback, f"{key}.fallback", "left", 1.8, **_VEHICLE),
-            self.number(fallback, f"{key}.fallback", "right", -1.8, **_VEHICLE),
+            sensor=sensor, lines=lines,
+            stale_after_s=self.number(t, key, "stale_after", 0.5, positive=True, **_SECONDS),
+            length_m=self.number(t, key, "length", 100.0, positive=True, **_DISTANCE),
+            fallback_left_m=self.number(fallback, f"{key}.fallback", "left", 1.8, **_VEHICLE),
+            fallback_right_m=self.number(fallback, f"{key}.fallback", "right", -1.8, **_VEHICLE),
         )
+
+    def lane_line(self, name: str, value: Any) -> LaneLine:
+        """``[lanes.NAME]``: a camera line's coefficients, read from one message."""
+        key = f"lanes.{name}"
+        t = self.table(value, key, {"message", "c0", "c1", "c2", "c3", "valid"},
+                       required=["message", "c0"])
+        message = self.message(self.string(t, key, "message"), f"{key}.message")
+        c0, c1, c2, c3 = (self.mapped(t[c], f"{key}.{c}", [message]) if c in t else None
+                          for c in ("c0", "c1", "c2", "c3"))
+        assert c0 is not None
+        return LaneLine(name=name, message=message.name, c0=c0, c1=c1, c2=c2, c3=c3,
+                        valid=self.rule(t, key, [message]))
 
     def ego(self, value: Any) -> EgoSpec:
         t = self.table(value, "ego", {"speed", "yaw_rate", "steering_wheel_angle"})
+        return EgoSpec(speed=self.ego_field(t, "speed"), yaw_rate=self.ego_field(t, "yaw_rate"),
+                       steering_wheel_angle=self.ego_field(t, "steering_wheel_angle"))
 
-        def ref(name: str) -> Field | None:
-            if name not in t:
-                return None
-            raw, key = t[name], f"ego.{name}"
-            if self.is_computed(raw, key):
-                return self.computed(raw, key, None)
-            text = raw
-            if isinstance(raw, dict):
-                text = self.table(raw, key, {"signal", "scale", "offset"},
-                                  required=["signal"])["signal"]
-                key = f"{key}.signal"
-            if not isinstance(text, str):
-                raise self.fail(key, f"expected Message.Signal, got {_type_name(text)}")
-            message_name, _, signal_name = text.rpartition(".")
-            if not message_name or not signal_name:
-                raise self.fail(key, f"write Message.Signal, got {text!r}")
-            return self.signal(raw, f"ego.{name}", [self.message(message_name, key)])
-
-        return EgoSpec(ref("speed"), ref("yaw_rate"), ref("steering_wheel_angle"))
+    def ego_field(self, t: Mapping[str, Any], name: str) -> Field | None:
+        """An ego value: ``Message.Signal`` of any message, or computed from several."""
+        if name not in t:
+            return None
+        raw, key = t[name], f"ego.{name}"
+        if self.is_computed(raw, key):
+            return self.computed(raw, key, None)
+        text = raw
+        if isinstance(raw, dict):
+            text = self.table(raw, key, {"signal", "scale", "offset"},
+                              required=["signal"])["signal"]
+            key = f"{key}.signal"
+        if not isinstance(text, str):
+            raise self.fail(key, f"expected Message.Signal, got {_type_name(text)}")
+        message_name, _, signal_name = text.rpartition(".")
+        if not message_name or not signal_name:
+            raise self.fail(key, f"write Message.Signal, got {text!r}")
+        return self.signal(raw, f"ego.{name}", [self.message(message_name, key)])
 
 
 def _type_name(value: Any) -> str:

@@ -9,9 +9,10 @@ databases, and a profile that cannot be used is a :class:`ProfileError` naming t
 (if any) and what is wrong.
 
 In an object group, message and signal names are templates: ``{i}``, or ``{i:0Nd}`` with a width N
-of one or two digits (zero-padded), stands for the object index. :func:`expand` fills it in and
-:meth:`SignalRef.at` gives the reference of one object. A :class:`SignalRef` converts linearly,
-value·scale + offset, and reads as None when its signal is missing.
+of one or two digits (zero-padded), stands for the object index (:data:`INDEX_PLACEHOLDER`).
+:func:`expand` fills it in and :meth:`SignalRef.at` gives the reference of one object. A
+:class:`SignalRef` converts linearly, value·scale + offset, and reads as None when its signal is
+missing.
 
 A mapped field (an object's position, velocity, probability, class or id; an ego signal; a lane
 coefficient) is a :data:`Field`: one signal (:class:`SignalRef`) or a value computed from several
@@ -104,7 +105,7 @@ class Sensor:
 
 
 #: ``{i}`` or ``{i:0Nd}`` in a template (the object index; a width of at most 2 digits).
-_INDEX = re.compile(r"\{i(?::0?(\d{1,2})d)?\}")
+INDEX_PLACEHOLDER = re.compile(r"\{i(?::0?(\d{1,2})d)?\}")
 
 
 def expand(template: str, index: int) -> str:
@@ -114,7 +115,7 @@ def expand(template: str, index: int) -> str:
         width = match.group(1)
         return f"{index:0{int(width)}d}" if width else str(index)
 
-    return _INDEX.sub(fill, template)
+    return INDEX_PLACEHOLDER.sub(fill, template)
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from operator import itemgetter
 from typing import Any
 
@@ -366,11 +366,7 @@ class Observer:
         self._objects: dict[str, list[tuple[_GroupReader, FamilyMember]]] = {}
         readers = [_GroupReader(g) for g in profile.groups.values()]
         if profile.lead is not None and profile.lead.group is not None:
-            lead = profile.lead.group
-            readers.append(_GroupReader(ObjectGroup(
-                LEAD_GROUP, lead.sensor, lead.templates, lead.members, lead.x, lead.y, lead.range,
-                lead.azimuth, lead.vx, lead.vy, lead.probability, lead.class_signal,
-                lead.classes, lead.id, lead.valid, lead.lifetime_s)))
+            readers.append(_GroupReader(replace(profile.lead.group, name=LEAD_GROUP)))
         for reader in readers:
             for name, member in reader.group.members.items():
                 self._objects.setdefault(name, []).append((reader, member))
