@@ -18,9 +18,8 @@ group's messages (of the lane line's message), ``Message.Signal`` names one of t
 names ``Message.Signal`` of any message.
 
 Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
-value of the wrong type or out of range (times at most :data:`MAX_SECONDS`, distances at most
-:data:`MAX_METRES`, the vehicle's sizes and offsets at most :data:`MAX_VEHICLE_METRES`,
-bitrates at most :data:`MAX_BITRATE`), a message or signal not in the databases) raises
+value of the wrong type or out of range (:mod:`bridge.profile.values` reads each value and
+says its limits), a message or signal not in the databases) raises
 :class:`~bridge.profile.model.ProfileError` naming the profile file, the key (for an error in
 one), the bad name and, when some are close, the closest existing names. A profile drafted by
 ``tankviz profile new`` (:mod:`bridge.profile.draft`) that fails while it still has ``# TODO:``
@@ -31,8 +30,6 @@ lines (something it needs that the draft could not find) names the first of them
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import math
 import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -64,6 +61,15 @@ from bridge.profile.model import (
     Vehicle,
     expand,
 )
+from bridge.profile.values import (
+    BITRATE,
+    DISTANCE,
+    SECONDS,
+    VEHICLE,
+    ValueReader,
+    closest,
+    type_name,
+)
 from bridge.resources import data_dir
 from bridge.topics import VEHICLE_FRAME
 
@@ -85,20 +91,6 @@ _GROUP_FIELDS = ("x", "y", "range", "azimuth", "vx", "vy", "probability", "class
 _WIDE_INDEX = re.compile(r"\{i:0?(\d{3,})d\}")
 _LANE_NAMES = ("left", "right", "next_left", "next_right")
 
-#: The largest time a profile may give (a lifetime, a lane's stale_after), in seconds: longer
-#: would outlast any drive, and its nanoseconds would not fit the 64-bit times of the scene.
-MAX_SECONDS = 3600.0
-#: The largest distance a profile may give (a lane drawn ahead, a sensor's range), in metres:
-#: the scene samples lanes along it, so a longer one would never be drawn.
-MAX_METRES = 1000.0
-#: The largest size of the ego vehicle, a sensor's mounting offset or a lane fallback, in metres.
-MAX_VEHICLE_METRES = 100.0
-#: The largest bitrate of a bus, in bit/s (CAN XL reaches 20 Mbit/s).
-MAX_BITRATE = 100_000_000
-_SECONDS: dict[str, Any] = {"at_most": MAX_SECONDS, "unit": " s"}
-_DISTANCE: dict[str, Any] = {"at_most": MAX_METRES, "unit": " m"}
-_VEHICLE: dict[str, Any] = {"at_most": MAX_VEHICLE_METRES, "unit": " m"}
-_BITRATE: dict[str, Any] = {"at_most": MAX_BITRATE, "unit": " bit/s"}
 #: A mapped field written as one name ("Signal", "Message.Signal", "Obj{i}_A.X"): no operator, space
 #: or parenthesis. Anything else is an expression.
 _ONE_NAME = re.compile(r"[^\s()+\-*/,<>=!&|]*")
@@ -175,21 +167,6 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ProfileError(path, "", f"cannot read: {exc.strerror or exc}") from None
 
 
-def _closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
-    """``; closest: …`` naming likely meant names; with ``or_all``, else every name."""
-    choices = list(choices)
-    matches = difflib.get_close_matches(word, choices, n=3, cutoff=0.75)
-    if not matches:  # WheelSpeedFL for WHEEL_SPEED_FL: the same letters in another case
-        lower = {c.lower(): c for c in choices}
-        matches = [lower[m] for m in difflib.get_close_matches(word.lower(), lower, n=3,
-                                                              cutoff=0.75)]
-    if matches:
-        return f"; closest: {', '.join(matches)}"
-    if or_all and choices:
-        return f"; there are: {', '.join(sorted(choices))}"
-    return ""
-
-
 class _Unread(Exception):
     """A name an expression reads that is not a signal it can read: why, as the error of a
     validity rule says it (``rule '…' reads 'X', …``) and as that of a value."""
@@ -210,11 +187,11 @@ class _Family:
     instances: dict[int | None, list[DbcMessage]]
 
 
-class _Loader:
+class _Loader(ValueReader):
     """Reads one parsed TOML document into a :class:`Profile`, checking as it goes."""
 
     def __init__(self, path: Path, doc: dict[str, Any], databases: list[Database]) -> None:
-        self.path = path
+        super().__init__(path)
         self.doc = doc
         self.messages: dict[str, DbcMessage] = {}
         #: every expression parsed so far, by text
@@ -223,78 +200,11 @@ class _Loader:
             for m in db.messages:
                 self.messages.setdefault(m.name, m)
 
-    def fail(self, key: str, reason: str) -> ProfileError:
-        return ProfileError(self.path, key, reason)
-
-    # generic checks
-
-    def table(self, value: Any, key: str, allowed: set[str],
-              required: Sequence[str] = ()) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.fail(key, f"expected a table, got {_type_name(value)}")
-        for name in value:
-            if name not in allowed:
-                raise self.fail(f"{key}.{name}" if key else name,
-                                f"unknown key{_closest(name, allowed)} "
-                                f"(allowed: {', '.join(sorted(allowed))})")
-        for name in required:
-            if name not in value:
-                raise self.fail(key, f"missing required key '{name}'")
-        return value
-
-    def section(self, value: Any, key: str) -> dict[str, Any]:
-        """A table whose keys are names the user chooses (sensors, groups, classes)."""
-        if not isinstance(value, dict):
-            raise self.fail(key, f"expected a table, got {_type_name(value)}")
-        return value
-
-    def number(self, table: Mapping[str, Any], key: str, name: str, default: float | None = None,
-               *, positive: bool = False, non_negative: bool = False,
-               at_most: float | None = None, unit: str = "") -> float:
-        """A number of the table: finite, and within ``at_most`` (of either sign) where it is a
-        time or a distance the drive computes with (:data:`MAX_SECONDS`, :data:`MAX_METRES`)."""
-        value = table.get(name, default)
-        full = f"{key}.{name}"
-        if value is None:
-            raise self.fail(key, f"missing required key '{name}'")
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(full, f"expected a number, got {_type_name(value)}")
-        try:
-            finite = math.isfinite(value)
-        except OverflowError:  # an integer too large for a float
-            finite = False
-        if not finite:
-            text = str(value)
-            if len(text) > 20:
-                text = f"{text[:20]}… ({len(text.lstrip('-'))} digits)"
-            raise self.fail(full, f"must be finite, got {text}")
-        if positive and value <= 0:
-            raise self.fail(full, f"must be greater than 0, got {value}")
-        if non_negative and value < 0:
-            raise self.fail(full, f"must not be negative, got {value}")
-        if at_most is not None and abs(value) > at_most:
-            raise self.fail(full, f"must be at most {at_most:g}{unit}"
-                            f"{' either way' if not (positive or non_negative) else ''}, "
-                            f"got {value:g}")
-        return float(value)
-
-    def string(self, table: Mapping[str, Any], key: str, name: str, default: str | None = None,
-               choices: Sequence[str] | None = None) -> str:
-        value = table.get(name, default)
-        full = f"{key}.{name}"
-        if value is None:
-            raise self.fail(key, f"missing required key '{name}'")
-        if not isinstance(value, str):
-            raise self.fail(full, f"expected a string, got {_type_name(value)}")
-        if choices is not None and value not in choices:
-            raise self.fail(full, f"must be one of {', '.join(choices)}, got {value!r}")
-        return value
-
     def message(self, name: str, key: str) -> DbcMessage:
         m = self.messages.get(name)
         if m is None:
             raise self.fail(key, f"no message {name!r} in the databases"
-                            f"{_closest(name, self.messages)}")
+                            f"{closest(name, self.messages)}")
         return m
 
     def rule(self, table: Mapping[str, Any], key: str, messages: Sequence[DbcMessage],
@@ -305,7 +215,7 @@ class _Loader:
         if text is None:
             return None
         if not isinstance(text, str):
-            raise self.fail(f"{key}.valid", f"expected a rule (string), got {_type_name(text)}")
+            raise self.fail(f"{key}.valid", f"expected a rule (string), got {type_name(text)}")
         if index is not None:
             text = expand(text, index)
         expression = self.parse(text, f"{key}.valid")
@@ -354,22 +264,22 @@ class _Loader:
                               "any message")
             if message_name not in self.messages:
                 raise _Unread("", f"no message {message_name!r} in the databases"
-                              f"{_closest(message_name, self.messages)}")
+                              f"{closest(message_name, self.messages)}")
             candidates = [self.messages[message_name]]
         elif message_name:
             candidates = [m for m in messages if m.name == message_name]
             if not candidates:
                 raise _Unread(f"but {message_name!r} is not one of {where}",
                               f"message {message_name!r} is not one of {where}"
-                              f"{_closest(message_name, [m.name for m in messages])}")
+                              f"{closest(message_name, [m.name for m in messages])}")
         else:
             candidates = list(messages)
         owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
         if not owners:
-            closest = _closest(signal_name, {s.name for m in candidates for s in m.signals})
+            near = closest(signal_name, {s.name for m in candidates for s in m.signals})
             named = message_name or where
-            raise _Unread(f"which is not a signal of {named}{closest}",
-                          f"no signal {signal_name!r} in {named}{closest}")
+            raise _Unread(f"which is not a signal of {named}{near}",
+                          f"no signal {signal_name!r} in {named}{near}")
         if len(owners) > 1:
             both = f"{owners[0].name} and {owners[1].name}: write Message.Signal"
             raise _Unread(f"which is in {both}", f"signal {signal_name!r} is in {both}")
@@ -391,7 +301,7 @@ class _Loader:
         as Message.Signal, when None)."""
         value, key, scale, offset = self.converted(value, key, "value")
         if not isinstance(value, str):
-            raise self.fail(key, f"expected an expression (string), got {_type_name(value)}")
+            raise self.fail(key, f"expected an expression (string), got {type_name(value)}")
         expression = self.parse(value if index is None else expand(value, index), key)
         return Computed(expression, self.resolve(expression, key, messages), scale, offset)
 
@@ -416,7 +326,7 @@ class _Loader:
         """A signal reference: "Signal", "Message.Signal" or {signal=..., scale=, offset=}."""
         value, key, scale, offset = self.converted(value, key, "signal")
         if not isinstance(value, str) or not value:
-            raise self.fail(key, f"expected a signal name, got {_type_name(value)}")
+            raise self.fail(key, f"expected a signal name, got {type_name(value)}")
         message_name, _, signal_name = value.rpartition(".")
         candidates = list(messages)
         if message_name:
@@ -424,13 +334,13 @@ class _Loader:
             if not candidates:
                 names = [m.name for m in messages]
                 raise self.fail(key, f"message {message_name!r} is not one of "
-                                f"{', '.join(names)}{_closest(message_name, names)}")
+                                f"{', '.join(names)}{closest(message_name, names)}")
         owners = [m for m in candidates if any(s.name == signal_name for s in m.signals)]
         if not owners:
             known = {s.name for m in candidates for s in m.signals}
             where = ", ".join(m.name for m in candidates)
             raise self.fail(key, f"no signal {signal_name!r} in {where}"
-                            f"{_closest(signal_name, known)}")
+                            f"{closest(signal_name, known)}")
         if len(owners) > 1:
             raise self.fail(key, f"signal {signal_name!r} is in {owners[0].name} and "
                             f"{owners[1].name}: write Message.Signal")
@@ -451,7 +361,7 @@ class _Loader:
             if isinstance(files, str):
                 files = [files]
             if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
-                raise self.fail(key, f"expected a list of database files, got {_type_name(files)}")
+                raise self.fail(key, f"expected a list of database files, got {type_name(files)}")
             paths = []
             for f in files:
                 candidate = (self.path.parent / f)
@@ -504,20 +414,20 @@ class _Loader:
         for bus, spec in self.section(value, "buses").items():
             key = f"buses.{bus}"
             t = self.table(spec, key, {"bitrate", "data_bitrate"}, required=["bitrate"])
-            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True, **_BITRATE))
+            bitrates[bus] = round(self.number(t, key, "bitrate", positive=True, **BITRATE))
             if "data_bitrate" in t:
                 data_bitrates[bus] = round(self.number(t, key, "data_bitrate", positive=True,
-                                                          **_BITRATE))
+                                                          **BITRATE))
         return bitrates, data_bitrates
 
     def vehicle(self, value: Any) -> Vehicle:
         t = self.table(value, "vehicle", {"wheelbase", "steering_ratio", "length", "width",
                                           "height", "origin", "rear_overhang"})
         d = Vehicle()
-        length = self.number(t, "vehicle", "length", d.length_m, positive=True, **_VEHICLE)
+        length = self.number(t, "vehicle", "length", d.length_m, positive=True, **VEHICLE)
         origin = self.string(t, "vehicle", "origin", d.origin, choices=Vehicle.ORIGINS)
         overhang = self.number(t, "vehicle", "rear_overhang", d.rear_overhang_m,
-                               non_negative=True, **_VEHICLE)
+                               non_negative=True, **VEHICLE)
         if "rear_overhang" in t and origin != "rear_axle":
             raise self.fail("vehicle.rear_overhang",
                             f'only for origin = "rear_axle", the origin is {origin!r}')
@@ -526,12 +436,12 @@ class _Loader:
                             f"must be less than the length {length}, got {overhang}")
         return Vehicle(
             wheelbase_m=self.number(t, "vehicle", "wheelbase", d.wheelbase_m, positive=True,
-                                    **_VEHICLE),
+                                    **VEHICLE),
             steering_ratio=self.number(t, "vehicle", "steering_ratio", d.steering_ratio,
                                        positive=True),
             length_m=length,
-            width_m=self.number(t, "vehicle", "width", d.width_m, positive=True, **_VEHICLE),
-            height_m=self.number(t, "vehicle", "height", d.height_m, positive=True, **_VEHICLE),
+            width_m=self.number(t, "vehicle", "width", d.width_m, positive=True, **VEHICLE),
+            height_m=self.number(t, "vehicle", "height", d.height_m, positive=True, **VEHICLE),
             origin=origin,
             rear_overhang_m=overhang,
         )
@@ -543,10 +453,10 @@ class _Loader:
         kind = SensorKind(self.string(t, key, "kind", choices=[k.value for k in SensorKind]))
         mount_doc = self.table(t.get("mount", {}), f"{key}.mount", {"x", "y", "z", "yaw"})
         mount = Mount(*(self.number(mount_doc, f"{key}.mount", axis, 0.0,
-                                    **(_VEHICLE if axis != "yaw" else {}))
+                                    **(VEHICLE if axis != "yaw" else {}))
                         for axis in ("x", "y", "z", "yaw")))
         fov_doc = self.table(t.get("fov", {}), f"{key}.fov", {"range", "azimuth"})
-        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True, **_DISTANCE)
+        fov_range = (self.number(fov_doc, f"{key}.fov", "range", positive=True, **DISTANCE)
                      if "range" in fov_doc else None)
         fov_azimuth = (self.number(fov_doc, f"{key}.fov", "azimuth", positive=True)
                        if "azimuth" in fov_doc else None)
@@ -566,7 +476,7 @@ class _Loader:
         name = self.string(t, key, "sensor")
         if name not in sensors:
             raise self.fail(f"{key}.sensor", f"no sensor {name!r} in [sensors]"
-                            f"{_closest(name, sensors, or_all=True)}")
+                            f"{closest(name, sensors, or_all=True)}")
         return sensors[name]
 
     def group(self, key: str, name: str, value: Any, sensors: Mapping[str, Sensor],
@@ -588,7 +498,7 @@ class _Loader:
             x=f["x"], y=f["y"], range=f["range"], azimuth=f["azimuth"], vx=f["vx"], vy=f["vy"],
             probability=f["probability"], class_signal=f["class"], classes=classes, id=f["id"],
             valid=rules,
-            lifetime_s=self.number(t, key, "lifetime", lifetime, non_negative=True, **_SECONDS),
+            lifetime_s=self.number(t, key, "lifetime", lifetime, non_negative=True, **SECONDS),
             role=role,
         )
 
@@ -680,7 +590,7 @@ class _Loader:
         for raw, label in self.section(t["classes"], f"{key}.classes").items():
             if not isinstance(label, str):
                 raise self.fail(f"{key}.classes.{raw}", f"expected a class name (string), "
-                                f"got {_type_name(label)}")
+                                f"got {type_name(label)}")
             if not re.fullmatch(r"-?\d+", raw):
                 raise self.fail(f"{key}.classes.{raw}", "keys are the signal's raw values "
                                 "(integers)")
@@ -732,7 +642,7 @@ class _Loader:
         role = self.string(t, key, "role", default)
         if role not in _ROLES:
             raise self.fail(f"{key}.role", f"must be one of {', '.join(_ROLES)}, got {role!r}"
-                            f"{_closest(role, _ROLES)}")
+                            f"{closest(role, _ROLES)}")
         return role
 
     def lead(self, value: Any, sensors: Mapping[str, Sensor]) -> LeadSpec:
@@ -742,7 +652,7 @@ class _Loader:
         if isinstance(value, dict) and value.get("source") == "tracks":
             t = self.table(value, key, {"source", "lifetime"})
             return LeadSpec(source="tracks", lifetime_s=self.number(
-                t, key, "lifetime", 0.3, **_SECONDS, non_negative=True))
+                t, key, "lifetime", 0.3, **SECONDS, non_negative=True))
         if isinstance(value, dict):
             value = {k: v for k, v in value.items() if k != "source"}
         group = self.group(key, "lead", value, sensors, lifetime=0.3)
@@ -769,10 +679,10 @@ class _Loader:
         fallback = self.table(t.get("fallback", {}), f"{key}.fallback", {"left", "right"})
         return LaneSpec(
             sensor=sensor, lines=lines,
-            stale_after_s=self.number(t, key, "stale_after", 0.5, positive=True, **_SECONDS),
-            length_m=self.number(t, key, "length", 100.0, positive=True, **_DISTANCE),
-            fallback_left_m=self.number(fallback, f"{key}.fallback", "left", 1.8, **_VEHICLE),
-            fallback_right_m=self.number(fallback, f"{key}.fallback", "right", -1.8, **_VEHICLE),
+            stale_after_s=self.number(t, key, "stale_after", 0.5, positive=True, **SECONDS),
+            length_m=self.number(t, key, "length", 100.0, positive=True, **DISTANCE),
+            fallback_left_m=self.number(fallback, f"{key}.fallback", "left", 1.8, **VEHICLE),
+            fallback_right_m=self.number(fallback, f"{key}.fallback", "right", -1.8, **VEHICLE),
         )
 
     def lane_line(self, name: str, value: Any) -> LaneLine:
@@ -805,22 +715,8 @@ class _Loader:
                               required=["signal"])["signal"]
             key = f"{key}.signal"
         if not isinstance(text, str):
-            raise self.fail(key, f"expected Message.Signal, got {_type_name(text)}")
+            raise self.fail(key, f"expected Message.Signal, got {type_name(text)}")
         message_name, _, signal_name = text.rpartition(".")
         if not message_name or not signal_name:
             raise self.fail(key, f"write Message.Signal, got {text!r}")
         return self.signal(raw, f"ego.{name}", [self.message(message_name, key)])
-
-
-def _type_name(value: Any) -> str:
-    if isinstance(value, bool):
-        return f"a boolean ({str(value).lower()})"
-    if isinstance(value, int | float):
-        return f"a number ({value})"
-    if isinstance(value, str):
-        return f"a string ({value!r})"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, dict):
-        return "a table"
-    return type(value).__name__
