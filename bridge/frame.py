@@ -4,6 +4,11 @@ Log time is integer nanoseconds: since the Unix epoch for logs and buses with ab
 the log's own start otherwise. :data:`NS` is one second of it; :func:`to_ns` converts python-can's
 float seconds (once, at the source); :func:`timestamp` makes it the stamp of a protobuf message,
 and :func:`format_time` prints it for people.
+
+A CAN id is known by its number and its format: :func:`frame_key` makes the two one int (an 11-bit
+id and a 29-bit id with the same number are different keys: the 29-bit one has
+:data:`EXTENDED_KEY` set), the key of the decoder's tables and of the health monitor's counts per
+id; :func:`key_id` gives the number back.
 """
 
 from __future__ import annotations
@@ -15,6 +20,22 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 #: Nanoseconds per second: the unit of every time in the bridge.
 NS = 1_000_000_000
+
+
+#: The bit of a frame key (:func:`frame_key`) that marks a 29-bit id (no CAN id reaches it).
+EXTENDED_KEY = 1 << 31
+
+
+def frame_key(arbitration_id: int, extended: bool) -> int:
+    """One int for a CAN id and its format: ``arbitration_id``, with :data:`EXTENDED_KEY` set for
+    a 29-bit (extended) id. The per-frame paths (the decoder's and the health monitor's) write
+    it out inline, saying so: the call would cost them about 25 ns a frame."""
+    return arbitration_id | EXTENDED_KEY if extended else arbitration_id
+
+
+def key_id(key: int) -> int:
+    """The arbitration id of a frame key (:func:`frame_key`), without its format."""
+    return key & ~EXTENDED_KEY
 
 
 def to_ns(seconds: float) -> int:

@@ -9,10 +9,10 @@ import pytest
 from conftest import ECOCAR_DBC
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from bridge.decode.decoder import Decoder, load_database, parse_dbc_option
+from bridge.decode.decoder import Decoder, Outcome, load_database, parse_dbc_option
 from bridge.decode.proto_schema import MessageSchema
 from bridge.errors import DatabaseError, UsageError
-from bridge.frame import Frame
+from bridge.frame import EXTENDED_KEY, Frame, frame_key, key_id
 
 ECOCAR = load_database(ECOCAR_DBC)
 
@@ -129,6 +129,36 @@ def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
     assert stats["decode_errors"] == {"can0/0x700": 1}
     assert "SensorDiag" in stats["last_decode_error"]["can0/0x700"]
     assert stats["frames"] == {"can0": 3, "can1": 1}
+
+
+def test_each_frame_has_one_outcome_told_without_sorting_it_again(
+        ecocar: cantools.database.can.Database) -> None:
+    """What decode made of a frame: the latest frame that did not decode is remembered; a frame
+    fed by hand (never decoded) is sorted from its flags and its bus's databases alike."""
+    bad_mux = frame(ecocar, "SensorDiag")._replace(data=bytes([9]) + bytes(7))
+    cases = [
+        (frame(ecocar, "EgoMotion"), Outcome.DECODED),
+        (Frame(1, "can0", 0x7FF, bytes(8)), Outcome.UNKNOWN_ID),
+        (Frame(1, "can0", 0x100, b"", is_extended=True), Outcome.UNKNOWN_ID),  # 29-bit 0x100
+        (bad_mux, Outcome.DECODE_ERROR),
+        (Frame(2, "can0", 0x100, b"", is_error=True), Outcome.ERROR_FRAME),
+        (Frame(3, "can0", 0x100, b"", is_remote=True, dlc=8), Outcome.REMOTE),
+    ]
+    d = decoder()
+    for f, want in cases:
+        decoded = d.decode(f)
+        assert d.outcome(f, decoded) is want
+    by_hand = decoder()
+    for f, want in cases:
+        if want is not Outcome.DECODED:
+            assert by_hand.outcome(f, None) is want
+    assert by_hand.stats.frames == {}  # nothing decoded, nothing counted
+
+
+def test_a_frame_key_tells_a_29_bit_id_from_an_11_bit_one() -> None:
+    assert frame_key(0x100, False) == 0x100
+    assert frame_key(0x100, True) == 0x100 | EXTENDED_KEY != 0x100
+    assert key_id(frame_key(0x1FFFFFFF, True)) == 0x1FFFFFFF
 
 
 def test_each_bus_decodes_with_its_own_databases(

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import random
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,8 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from bridge.decode.decoder import DatabaseFile, Decoder
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame
-from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings
+from bridge.health import alarms
+from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings, alarm_id, alarm_notice
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.health.wire import estimate_frame_bits, frame_bits
@@ -447,6 +449,36 @@ def test_the_monitor_lists_active_alarms_for_the_overlay() -> None:
     assert dropout.monitor.active_alarms() == []  # all cleared by the end
     assert {"radar.silent", "camera.blind", "radar-camera.misaligned", "lanes.lost",
             "bus.can0.silent", "bus.can0.babbling"} <= set(dropout.monitor.alarm_ids())
+
+
+def test_alarm_ids_are_made_in_one_place_as_its_table_says() -> None:
+    """alarm_id gives every kind the id the table of bridge.health.alarms shows for it (each
+    kind once), so the table and the ids cannot drift apart."""
+    assert alarm_id(AlarmKind.SENSOR_SILENT, "radar") == "radar.silent"
+    assert alarm_id(AlarmKind.RATE_LOW, "ego") == "ego.rate"
+    assert alarm_id(AlarmKind.NO_OBJECTS, "camera") == "camera.blind"
+    assert alarm_id(AlarmKind.MISALIGNED, "radar-camera") == "radar-camera.misaligned"
+    assert alarm_id(AlarmKind.LANES_LOST, "lanes") == "lanes.lost"
+    assert alarm_id(AlarmKind.BUS_SILENT, "can0") == "bus.can0.silent"
+    assert alarm_id(AlarmKind.BABBLING, "can0") == "bus.can0.babbling"
+    assert alarm_id(AlarmKind.DISK_FULL, "recorder") == "recorder.disk_full"
+    assert alarm_id(AlarmKind.FRAMES_LOST, "can1") == "bus.can1.frames_lost"
+    assert alarm_id(AlarmKind.BAD_TIMESTAMPS, "can1") == "bus.can1.bad_timestamps"
+    doc = alarms.__doc__ or ""
+    rows = re.findall(r"^``(\S+)``\s+``([A-Z_]+)``", doc, re.MULTILINE)
+    assert sorted(kind for _, kind in rows) == sorted(k.name for k in AlarmKind)
+    for ident, kind in rows:
+        subject = re.fullmatch(re.escape(AlarmKind[kind].value).replace(r"\{\}", "(.+)"), ident)
+        assert subject is not None, (ident, kind)
+        assert alarm_id(AlarmKind[kind], subject.group(1)) == ident
+
+
+def test_alarm_notices_carry_their_log_level() -> None:
+    raised = alarm_notice(AlarmKind.DISK_FULL, "recorder", "disk full (/drives)")
+    cleared = alarm_notice(AlarmKind.DISK_FULL, "recorder", "recording resumed", cleared=True)
+    assert (raised, raised.level) == ("recorder.disk_full: disk full (/drives)", Log.WARNING)
+    assert (cleared, cleared.level) == ("recorder.disk_full cleared: recording resumed",
+                                        Log.INFO)
 
 
 def test_settings_must_be_positive() -> None:

@@ -15,9 +15,9 @@ before the chunk is timed, so that only ``on_frame`` is:
   of a foreign log.
 
 Each chunk goes through ``--repeat`` (3) monitors of the checkout (``new``) and as many of a
-reference (``old``: by default the committed ``bridge/health/wire.py`` and ``monitor.py``, from
-``git show HEAD:...``, each monitor with a copy of its own imported under another name, so that
-none shares another's caches), interleaved; it prints µs/frame of the best of each and the ratio
+reference (``old``: by default the committed ``bridge/health`` package, from ``git show
+HEAD:...``, each monitor with a copy of its own imported under another name, so that none shares
+another's caches), interleaved; it prints µs/frame of the best of each and the ratio
 old/new. It then compares the bits each counted on each bus (the bus load) with the exact count
 (the reference's ``frame_bits`` summed over every frame). ``--profile`` adds a cProfile of the
 first new monitor.
@@ -136,24 +136,38 @@ def candump_frames(n: int, seed: int = 7) -> list[Frame]:
 
 
 def reference_modules(ref: str, tag: str) -> tuple[types.ModuleType, types.ModuleType]:
-    """The wire and monitor modules of git revision ``ref``, imported under other names (the
-    reference monitor counts bits with the reference wire module; each ``tag`` is a copy of its
-    own, so that no two reference monitors share the wire module's caches)."""
-    def source(path: str) -> str:
-        return subprocess.run(["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True,
-                              capture_output=True, text=True).stdout
+    """The wire and monitor modules of git revision ``ref``, imported under other names with
+    every module of its ``bridge/health`` package (the reference monitor counts with the
+    reference's own counters and wire module, however the package was split then; each ``tag``
+    is a copy of its own, so that no two reference monitors share the wire module's caches)."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
+                              text=True).stdout
 
-    def module(name: str, text: str) -> types.ModuleType:
-        m = types.ModuleType(name)
-        m.__file__ = f"<{ref}:{name}>"
-        sys.modules[name] = m
+    package = f"_ref_health_{tag}"
+    names = [Path(p).stem for p in git("ls-tree", "--name-only", ref, "bridge/health/").split()
+             if p.endswith(".py") and not p.endswith("__init__.py")]
+    sys.modules[package] = types.ModuleType(package)
+    sys.modules[package].__path__ = []  # a package: its modules are put in sys.modules below
+    modules: dict[str, types.ModuleType] = {}
+
+    def load(name: str) -> types.ModuleType:
+        if name in modules:
+            return modules[name]
+        text = git("show", f"{ref}:bridge/health/{name}.py")
+        for other in names:  # the package's own imports: the reference's modules, loaded first
+            if f"bridge.health.{other} import" in text or f"bridge.health import {other}" in text:
+                load(other)
+        text = text.replace("from bridge.health.", f"from {package}.").replace(
+            "from bridge.health import", f"from {package} import")
+        m = modules[name] = types.ModuleType(f"{package}.{name}")
+        m.__file__ = f"<{ref}:bridge/health/{name}.py>"
+        sys.modules[m.__name__] = m
+        setattr(sys.modules[package], name, m)
         exec(compile(text, m.__file__, "exec"), m.__dict__)
         return m
 
-    wire = module(f"_ref_health_wire_{tag}", source("bridge/health/wire.py"))
-    monitor = module(f"_ref_health_monitor_{tag}", source("bridge/health/monitor.py").replace(
-        "from bridge.health.wire import", f"from _ref_health_wire_{tag} import"))
-    return wire, monitor
+    return load("wire"), load("monitor")
 
 
 @dataclass

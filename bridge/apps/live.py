@@ -325,13 +325,11 @@ class Live:
         """What the recorder says (the disk filled, recording resumed) on ``/log``, and its
         ``recorder.disk_full`` condition to the health monitor."""
         assert self.recorder is not None
-        for text in self.recorder.take_notices():
+        for notice in self.recorder.take_notices():
             t = max(time.time_ns(), self.pipeline.last_ns or 0)
-            level = Log.INFO if " cleared: " in text else Log.WARNING
-            self.pipeline.emit([log_message(t, level, text)])
-            self.say(text)
-        self.drive.health.hold("recorder.disk_full", AlarmKind.DISK_FULL, "recorder",
-                               self.recorder.disk_full)
+            self.pipeline.emit([log_message(t, notice.level, notice)])
+            self.say(notice)
+        self.drive.health.hold(AlarmKind.DISK_FULL, "recorder", self.recorder.disk_full)
 
     def _bus_event(self, event: BusEvent, offset_ns: int) -> None:
         """A bus lost or back, noted at the log time it happened (its wall time plus the

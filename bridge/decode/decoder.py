@@ -1,10 +1,12 @@
 """Decode: CAN frames to signals with cantools, by (bus, id), each bus with its own databases.
 
-A frame whose id no database of its bus defines, one that does not decode, and error frames are
-counted per (bus, id) in :class:`DecodeStats`, never raised: the recorder keeps every raw frame,
-so nothing is lost. Frames shorter than their DBC length decode what fits and are counted too;
-CAN FD frames longer than their message decode what the message defines and are counted with the
-longest length seen (``longer`` in the statistics).
+Every frame has one :class:`Outcome`: decoded, an unknown id (no database of its bus defines
+it), a decode error, an error frame or a remote frame. Those that do not decode are counted per
+bus, or per (bus, id), in :class:`DecodeStats`, never raised: the recorder keeps every raw frame,
+so nothing is lost. :meth:`Decoder.outcome` tells what :meth:`Decoder.decode` made of a frame, so
+that the health monitor counts it without sorting it again. Frames shorter than their DBC length
+decode what fits and are counted too; CAN FD frames longer than their message decode what the
+message defines and are counted with the longest length seen (``longer`` in the statistics).
 
 Decoding repeats: a payload seen before on a message returns the same :class:`Decoded` (a bounded
 cache per message, which a message whose payloads never repeat stops using for a while: see
@@ -32,6 +34,7 @@ import re
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from enum import Enum
 from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -45,11 +48,9 @@ from google.protobuf import descriptor_pool
 from bridge.decode.compiled import compile_decoder
 from bridge.decode.proto_schema import MessageSchema, identifier
 from bridge.errors import DatabaseError, UsageError
-from bridge.frame import Frame
+from bridge.frame import EXTENDED_KEY, Frame, frame_key
 from bridge.topics import message_topic
 
-#: Key bit that tells a 29-bit id from an 11-bit one with the same number.
-_EXTENDED = 1 << 31
 #: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
 #: 256 holds every payload of a static message with an 8-bit rolling counter; more hit no more
 #: often on the simulated or the Ford-like traffic of tools/bench_decode.py (1024, 256 and 64
@@ -249,8 +250,22 @@ def _layout(message: DbcMessage) -> tuple[Any, ...]:
     )
 
 
-def _key(frame_id: int, extended: bool) -> int:
-    return frame_id | _EXTENDED if extended else frame_id
+class Outcome(Enum):
+    """What the decoder made of a frame (as cantools' monitor has ``MessageFormattingResult``)."""
+
+    #: a message of its bus's databases, decoded
+    DECODED = "decoded"
+    #: no database of its bus defines its id
+    UNKNOWN_ID = "unknown_id"
+    #: a message of its bus's databases that cantools cannot decode
+    DECODE_ERROR = "decode_error"
+    ERROR_FRAME = "error_frame"
+    REMOTE = "remote"
+
+
+# The outcomes as module globals, for the per-frame paths (quicker than the class's attributes).
+_DECODED, _UNKNOWN_ID, _DECODE_ERROR = Outcome.DECODED, Outcome.UNKNOWN_ID, Outcome.DECODE_ERROR
+_ERROR_FRAME, _REMOTE = Outcome.ERROR_FRAME, Outcome.REMOTE
 
 
 @dataclass
@@ -302,6 +317,10 @@ class Decoder:
         self._tables: dict[str, dict[int, MessageCodec]] = {}
         self._database_names: dict[str, str] = {}
         self.stats = DecodeStats()
+        #: the latest frame :meth:`decode` returned None for, and why (read by :meth:`outcome`;
+        #: the health monitor reads them itself, as :meth:`outcome` does, in its per-frame path)
+        self.undecoded: Frame | None = None
+        self.why = Outcome.UNKNOWN_ID
         # Check every combination now, so a conflict is reported before any work is done.
         for bus in self._databases:
             self._check(self._files_for(bus))
@@ -352,7 +371,7 @@ class Decoder:
         names: dict[str, tuple[DatabaseFile, DbcMessage]] = {}
         for f in files:
             for message in f.db.messages:
-                key = _key(message.frame_id, message.is_extended_frame)
+                key = frame_key(message.frame_id, message.is_extended_frame)
                 if key in owner and _layout(owner[key][1]) != _layout(message):
                     other_file, other = owner[key]
                     raise DatabaseError(
@@ -404,7 +423,7 @@ class Decoder:
         for f in self._files_for(bus if bus in self._databases else None):
             self._database_name(f)
             for message in f.db.messages:
-                key = _key(message.frame_id, message.is_extended_frame)
+                key = frame_key(message.frame_id, message.is_extended_frame)
                 if key not in table:
                     table[key] = MessageCodec(message, f, partial(self._schema, f, message), bus,
                                               partial(self._decoder, message))
@@ -412,13 +431,15 @@ class Decoder:
         return table
 
     def decode(self, frame: Frame) -> Decoded | None:
-        """Decode one frame, or count why it cannot be decoded and return None."""
+        """Decode one frame, or count why it cannot be decoded (its :class:`Outcome`, which
+        :meth:`outcome` then tells) and return None."""
         bus = frame.bus
         table = self._tables.get(bus)
         if table is None:
             table = self._table(bus)
         self.stats.frames[bus] += 1
-        codec = table.get(frame.arbitration_id | _EXTENDED if frame.is_extended
+        # frame_key inlined (the per-frame path)
+        codec = table.get(frame.arbitration_id | EXTENDED_KEY if frame.is_extended
                           else frame.arbitration_id)
         if codec is not None and not (frame.is_error or frame.is_remote):
             try:
@@ -427,11 +448,37 @@ class Decoder:
                 key = (bus, frame.arbitration_id)
                 self.stats.errors[key] += 1
                 self.stats.last_error[key] = f"{codec.message.name}: {type(exc).__name__}: {exc}"
+                self.undecoded, self.why = frame, _DECODE_ERROR
                 return None
         if frame.is_error:
             self.stats.error_frames[bus] += 1
+            why = _ERROR_FRAME
         elif frame.is_remote:
             self.stats.remote_frames[bus] += 1
+            why = _REMOTE
         else:
             self.stats.unknown[(bus, frame.arbitration_id)] += 1
+            why = _UNKNOWN_ID
+        self.undecoded, self.why = frame, why
         return None
+
+    def outcome(self, frame: Frame, decoded: Decoded | None) -> Outcome:
+        """What :meth:`decode` made of ``frame``, given what it returned: for the latest frame
+        it returned None for, the outcome it found (:attr:`undecoded`, :attr:`why`). A frame it
+        did not just decode (a caller that feeds frames by hand) is sorted from its flags and
+        its bus's databases, without decoding it: a frame of a message they define that was not
+        decoded is a decode error."""
+        if decoded is not None:
+            return _DECODED
+        if frame is self.undecoded:
+            return self.why
+        if frame.is_error:
+            return _ERROR_FRAME
+        if frame.is_remote:
+            return _REMOTE
+        table = self._tables.get(frame.bus)
+        if table is None:
+            table = self._table(frame.bus)
+        # frame_key inlined (the health monitor's per-frame path, for frames fed by hand)
+        return (_DECODE_ERROR if (frame.arbitration_id | EXTENDED_KEY if frame.is_extended
+                                  else frame.arbitration_id) in table else _UNKNOWN_ID)

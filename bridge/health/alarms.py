@@ -5,27 +5,49 @@ time; each must be a positive number, ``rate_threshold`` below 1 and ``babble_sh
 (else :class:`~bridge.errors.UsageError`).
 
 An alarm's id names its subject and its kind (:class:`AlarmKind`; ``tankviz.AlarmKind`` in
-``/health``):
+``/health``): :func:`alarm_id` makes every id, and this is the one table of them. The subject is
+a sensor (or ``ego``, for the ego signals), a pair of sensors, ``lanes``, a bus or ``recorder``;
+the health monitor (:mod:`bridge.health.monitor`) checks when each condition holds:
 
-=============================  ==================  ==========================================
-id                             kind                subject
-=============================  ==================  ==========================================
-``<sensor>.silent``            ``SENSOR_SILENT``   a sensor, or ``ego`` for the ego signals
-``<sensor>.rate``              ``RATE_LOW``        a sensor, or ``ego``
-``<sensor>.blind``             ``NO_OBJECTS``      a sensor
-``<a>-<b>.misaligned``         ``MISALIGNED``      a pair of sensors
-``lanes.lost``                 ``LANES_LOST``      ``lanes``
-``bus.<bus>.silent``           ``BUS_SILENT``      a bus
-``bus.<bus>.babbling``         ``BABBLING``        a bus
-``recorder.disk_full``         ``DISK_FULL``       ``recorder``
-``bus.<bus>.frames_lost``      ``FRAMES_LOST``     a bus (live: the kernel dropped frames)
-``bus.<bus>.bad_timestamps``   ``BAD_TIMESTAMPS``  a bus (live: frames stamped NaN, ...)
-=============================  ==================  ==========================================
+============================  ==================  ================================================
+id                            kind                holds when
+============================  ==================  ================================================
+``<sensor>.silent``           ``SENSOR_SILENT``   no frame of one of the sensor's families for
+                                                  ``gap_factor`` x its cycle time (``ego.silent``
+                                                  for the ego signals)
+``<sensor>.rate``             ``RATE_LOW``        a family's rate is below ``rate_threshold`` of
+                                                  the expected rate (``ego.rate`` too)
+``<sensor>.blind``            ``NO_OBJECTS``      frames but no valid object (for as long as makes
+                                                  it silent), while another sensor sees objects
+                                                  (not stationary ones) inside this sensor's field
+                                                  of view
+``<a>-<b>.misaligned``        ``MISALIGNED``      detections both sensors see (groups of role
+                                                  detections, not tracks; greedy nearest
+                                                  neighbour within ``bias_gate_m``) are offset on
+                                                  average by more than ``bias_lateral_m`` or
+                                                  ``bias_angle_deg``: one sensor is misaligned
+``lanes.lost``                ``LANES_LOST``      no valid camera lanes (the steering fallback)
+                                                  for ``lane_loss_s`` (only with camera lines:
+                                                  steering-only lanes have none to lose)
+``bus.<bus>.silent``          ``BUS_SILENT``      no traffic at all on the bus (a gap)
+``bus.<bus>.babbling``        ``BABBLING``        one id far above its cycle time, or (without
+                                                  one) most of the bus
+``recorder.disk_full``        ``DISK_FULL``       live: the recorder stopped for want of disk
+                                                  space (told to the monitor, which raises and
+                                                  clears it at the next check, without waiting)
+``bus.<bus>.frames_lost``     ``FRAMES_LOST``     live: the kernel dropped frames of the bus (its
+                                                  receive buffer was full) within the last window
+``bus.<bus>.bad_timestamps``  ``BAD_TIMESTAMPS``  live: frames stamped NaN (or another non-time)
+                                                  came within the last window
+============================  ==================  ================================================
 
-The last two are live's (:mod:`bridge.health.receive`); ``/health``'s ``BusHealth`` also has
-their counts since the start (``bad_timestamps_total``, ``receive_dropped_total``).
+The last two are live's (:mod:`bridge.health.receive`), raised at once and made when first
+needed; ``/health``'s ``BusHealth`` also has their counts since the start
+(``bad_timestamps_total``, ``receive_dropped_total``).
 
-When each condition holds is the monitor's business (:mod:`bridge.health.monitor`).
+What is told about an alarm outside the monitor's own ``/log`` lines (the recorder's
+``recorder.disk_full``) is a :class:`Notice`, a line with its ``/log`` level:
+:func:`alarm_notice` makes ``<id>: <what>`` (a warning) and ``<id> cleared: <what>`` (info).
 
 :class:`Alarm` is one alarm and its hysteresis, in log time. Fed its condition at each check
 (:meth:`Alarm.update`), it is raised once the condition has held for its raise time
@@ -44,6 +66,8 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, fields
 from enum import Enum
+
+from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.errors import UsageError
 from bridge.frame import timestamp
@@ -105,18 +129,44 @@ class HealthSettings:
 
 
 class AlarmKind(str, Enum):
-    """What an alarm is about; the value is the last part of its id."""
+    """What an alarm is about; the value is the format of its ids, ``{}`` standing for the
+    subject (:func:`alarm_id`)."""
 
-    SENSOR_SILENT = "silent"
-    RATE_LOW = "rate"
-    NO_OBJECTS = "blind"
-    MISALIGNED = "misaligned"
-    LANES_LOST = "lost"
-    BUS_SILENT = "bus_silent"
-    BABBLING = "babbling"
-    DISK_FULL = "disk_full"
-    FRAMES_LOST = "frames_lost"
-    BAD_TIMESTAMPS = "bad_timestamps"
+    SENSOR_SILENT = "{}.silent"
+    RATE_LOW = "{}.rate"
+    NO_OBJECTS = "{}.blind"
+    MISALIGNED = "{}.misaligned"
+    LANES_LOST = "{}.lost"
+    BUS_SILENT = "bus.{}.silent"
+    BABBLING = "bus.{}.babbling"
+    DISK_FULL = "{}.disk_full"
+    FRAMES_LOST = "bus.{}.frames_lost"
+    BAD_TIMESTAMPS = "bus.{}.bad_timestamps"
+
+
+def alarm_id(kind: AlarmKind, subject: str) -> str:
+    """The id of the alarm of ``kind`` about ``subject`` (the module's table): a sensor, a pair
+    of sensors (``<a>-<b>``), ``lanes``, a bus or ``recorder``."""
+    return kind.value.format(subject)
+
+
+class Notice(str):
+    """A line to tell on ``/log``, and its level there (``foxglove.Log``'s)."""
+
+    level: int
+
+    def __new__(cls, text: str, level: int = Log.WARNING) -> Notice:
+        notice = super().__new__(cls, text)
+        notice.level = level
+        return notice
+
+
+def alarm_notice(kind: AlarmKind, subject: str, what: str, *, cleared: bool = False) -> Notice:
+    """A notice about an alarm: ``<id>: <what>``, a warning; or, once its condition is gone,
+    ``<id> cleared: <what>``, info."""
+    if cleared:
+        return Notice(f"{alarm_id(kind, subject)} cleared: {what}", Log.INFO)
+    return Notice(f"{alarm_id(kind, subject)}: {what}", Log.WARNING)
 
 
 _PB_KINDS = {

@@ -4,8 +4,8 @@ and the figures of ``/health`` it makes of those counts.
 - :class:`BusCounts`: one bus's frames, bits on the wire (:mod:`bridge.health.wire`), error
   frames, unknown ids, decode errors, non-finite values, gaps and frames per id, since its first
   frame; :func:`bus_figures` makes them ``tankviz.BusHealth`` over the last window (rates, load,
-  the busiest id) and :func:`bus_conditions` tells the bus alarms that hold
-  (``bus.<bus>.silent``, ``bus.<bus>.babbling``).
+  the busiest id) and :func:`bus_conditions` gives the bus alarms that hold
+  (``bus.<bus>.silent``, ``bus.<bus>.babbling``) with their reasons.
 - :class:`FamilyCounts`: one message family of the profile (an object group, the lead, the lane
   lines, the ego signals): its frames, their times, valid objects and failed validity rules;
   :func:`family_figures` makes them ``tankviz.FamilyHealth``.
@@ -19,11 +19,11 @@ gap threshold that is never exceeded.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
-from bridge.frame import NS
-from bridge.health.alarms import HealthSettings
+from bridge.frame import NS, key_id
+from bridge.health.alarms import AlarmKind, HealthSettings, alarm_id
 from bridge.health.wire import FrameKind, KindKey
 from bridge.pb import health_pb2
 from bridge.profile.model import Profile, Sensor
@@ -31,7 +31,6 @@ from bridge.world.observe import LEAD_GROUP
 
 NEVER = -(1 << 62)  # a time before everything
 UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
-EXTENDED = 1 << 31  # key bit that tells a 29-bit id from an 11-bit one (as the decoder does)
 
 
 def seconds(ns: int) -> float:
@@ -43,14 +42,13 @@ class BusCounts:
 
     __slots__ = ("bitrate", "bits", "brs_bits", "cycles", "data_bitrate", "decode_errors",
                  "error_frames", "families", "first_ns", "frames", "gap_ns", "gaps", "ids",
-                 "kinds", "known", "last_ns", "name", "non_finite", "unknown")
+                 "kinds", "last_ns", "name", "non_finite", "unknown")
 
-    def __init__(self, name: str, t_ns: int, known: frozenset[int], bitrate: int | None,
+    def __init__(self, name: str, t_ns: int, bitrate: int | None,
                  data_bitrate: int | None) -> None:
         self.name = name
         self.first_ns = t_ns
         self.last_ns = t_ns
-        self.known = known
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
         self.frames = 0
@@ -62,8 +60,8 @@ class BusCounts:
         self.non_finite = 0
         self.gaps = 0
         self.gap_ns = UNKNOWN
-        self.ids: Counter[int] = Counter()
-        self.cycles: dict[int, float] = {}  # id key -> database cycle time (s)
+        self.ids: Counter[int] = Counter()  # frames per frame key (bridge.frame.frame_key)
+        self.cycles: dict[int, float] = {}  # frame key -> database cycle time (s)
         self.families: set[str] = set()
         #: the bits of each kind of frame (exact for a sample, else its mean: bridge.health.wire)
         self.kinds: dict[KindKey, FrameKind] = {}
@@ -201,7 +199,7 @@ def bus_figures(buses: Mapping[str, BusCounts], base: Snapshot, t_ns: int, gap_f
                 if delta > top_count:
                     top, top_count = key, delta
             if top_count:
-                msg.top_id = top & ~EXTENDED
+                msg.top_id = key_id(top)
                 msg.top_id_hz = top_count / elapsed
                 msg.top_id_share = top_count / window_frames
                 top_keys[name] = top
@@ -210,26 +208,26 @@ def bus_figures(buses: Mapping[str, BusCounts], base: Snapshot, t_ns: int, gap_f
 
 
 def bus_conditions(buses: Mapping[str, BusCounts], figures: Mapping[str, health_pb2.BusHealth],
-                   top_keys: Mapping[str, int], settings: HealthSettings,
-                   hold: Callable[[str, str], None]) -> None:
-    """The bus alarms' conditions that hold, each told to ``hold(alarm id, why)``: a bus in a
-    gap is silent; its busiest id far above its cycle time (or, without one, most of the bus)
-    is babbling."""
+                   top_keys: Mapping[str, int], settings: HealthSettings
+                   ) -> Iterator[tuple[str, str]]:
+    """The bus alarms whose condition holds, as (alarm id, why): a bus in a gap is silent; its
+    busiest id far above its cycle time (or, without one, most of the bus) is babbling."""
     s = settings
     for name, msg in figures.items():
         if msg.gap:
-            hold(f"bus.{name}.silent", f"bus {name}: no frame for {msg.silent_s:.1f} s")
+            yield (alarm_id(AlarmKind.BUS_SILENT, name),
+                   f"bus {name}: no frame for {msg.silent_s:.1f} s")
         key = top_keys.get(name)
         if key is None or msg.top_id_hz < s.babble_min_hz:
             continue
         cycle = buses[name].cycles.get(key)
-        ident = f"0x{key & ~EXTENDED:X}"
+        ident = f"0x{key_id(key):X}"
         if cycle is not None and msg.top_id_hz > s.babble_factor / cycle:
-            hold(f"bus.{name}.babbling", f"bus {name}: id {ident} at {msg.top_id_hz:.0f} "
-                 f"frames/s, its cycle time is {cycle * 1000:g} ms")
+            yield (alarm_id(AlarmKind.BABBLING, name), f"bus {name}: id {ident} at "
+                   f"{msg.top_id_hz:.0f} frames/s, its cycle time is {cycle * 1000:g} ms")
         elif cycle is None and msg.top_id_share > s.babble_share:
-            hold(f"bus.{name}.babbling", f"bus {name}: id {ident} is "
-                 f"{msg.top_id_share:.0%} of the frames ({msg.top_id_hz:.0f}/s)")
+            yield (alarm_id(AlarmKind.BABBLING, name), f"bus {name}: id {ident} is "
+                   f"{msg.top_id_share:.0%} of the frames ({msg.top_id_hz:.0f}/s)")
 
 
 def family_figures(families: Iterable[FamilyCounts], base: Snapshot, t_ns: int

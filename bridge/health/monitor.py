@@ -20,32 +20,12 @@ The seed's team found a radar knocked out of alignment only because the blue sph
 
 and raises alarms with hysteresis (a condition must hold for ``raise_after_s`` to raise an alarm,
 and be gone for ``clear_after_s`` to clear it: :class:`bridge.health.alarms.Alarm`; thresholds
-and times are :class:`bridge.health.alarms.HealthSettings`):
-
-=========================  ===================================================================
-``<sensor>.silent``        no frame of one of the sensor's families for ``gap_factor`` x its
-                           cycle time (``ego.silent`` for the ego signals)
-``<sensor>.rate``          a family's rate below ``rate_threshold`` of the expected rate
-``<sensor>.blind``         frames but no valid object (for as long as makes it silent), while
-                           another sensor sees objects (not stationary ones) inside this
-                           sensor's field of view
-``<a>-<b>.misaligned``     detections both sensors see (groups of role detections, not tracks;
-                           greedy nearest neighbour within
-                           ``bias_gate_m``) are offset on average by more than
-                           ``bias_lateral_m`` or ``bias_angle_deg``: one sensor is misaligned
-``lanes.lost``             no valid camera lanes (the steering fallback) for ``lane_loss_s``
-                           (only with camera lines: steering-only lanes have none to lose)
-``bus.<bus>.silent``       no traffic at all on the bus (a gap)
-``bus.<bus>.babbling``     one id far above its cycle time, or (without one) most of the bus
-``recorder.disk_full``     the recorder stopped for want of disk space (live: its condition
-                           is told with :meth:`HealthMonitor.hold`; raised and cleared at the
-                           next check, without waiting)
-``bus.<bus>.frames_lost``  live: the kernel dropped frames of the bus (its receive buffer was
-                           full) within the last window; ``bus.<bus>.bad_timestamps``: frames
-                           stamped NaN (or another non-time) came within it (told with
-                           :meth:`HealthMonitor.note_receive`: :mod:`bridge.health.receive`;
-                           raised at once, made when first needed)
-=========================  ===================================================================
+and times are :class:`bridge.health.alarms.HealthSettings`). Every alarm, its id and when its
+condition holds are the table of :mod:`bridge.health.alarms`; the monitor checks them at each
+tick, one subject at a time (buses, sensors' families, sensor pairs, lanes), and is told the
+conditions it cannot see: ``recorder.disk_full`` (:meth:`HealthMonitor.hold`; raised and cleared
+at the next check, without waiting) and live's receive counts (:meth:`HealthMonitor.note_receive`:
+:mod:`bridge.health.receive`).
 
 A silent bus explains everything on it: while a bus is in a gap, the sensor alarms of families
 that only come on it are not raised. Likewise a silent lane family does not also raise
@@ -72,7 +52,9 @@ What it counts per bus and per family, and the figures of ``/health`` made of th
 :mod:`bridge.health.sight` (:func:`in_fov` and :func:`associate` are importable from here too).
 
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations,
-and the frame's bits counted exactly only for a sample); object checks run at scene ticks
+and the frame's bits counted exactly only for a sample); it takes a frame that did not decode as
+the decoder sorted it (:meth:`bridge.decode.decoder.Decoder.outcome`: an unknown id, a decode
+error, an error frame or a remote frame), without sorting it again. Object checks run at scene ticks
 (:meth:`HealthMonitor.on_world`).
 :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene overlay
 (:mod:`bridge.health.overlay`).
@@ -81,16 +63,16 @@ and the frame's bits counted exactly only for a sample); object checks run at sc
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from itertools import chain
 from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode.decoder import Decoded, Decoder, MessageCodec
-from bridge.frame import NS, Frame, timestamp
-from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings
+from bridge.decode.decoder import Decoded, Decoder, MessageCodec, Outcome
+from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key, timestamp
+from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings, alarm_id
 from bridge.health.counts import (
-    EXTENDED,
     NEVER,
     UNKNOWN,
     BusCounts,
@@ -115,6 +97,9 @@ from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
 
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
+# what the decoder made of a frame that did not decode (module globals: the per-frame path)
+_ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR = (Outcome.ERROR_FRAME, Outcome.UNKNOWN_ID,
+                                            Outcome.DECODE_ERROR)
 
 
 class HealthMonitor:
@@ -173,15 +158,13 @@ class HealthMonitor:
         for family in self.families:
             sensors = (family.subject,) if family.sensor is not None else ()
             for kind in (AlarmKind.SENSOR_SILENT, AlarmKind.RATE_LOW):
-                self._alarm(f"{family.subject}.{kind.value}", kind, family.subject, sensors)
+                self._alarm(kind, family.subject, sensors)
             if self._blind_checked(family):
-                self._alarm(f"{family.subject}.blind", AlarmKind.NO_OBJECTS, family.subject,
-                            sensors)
+                self._alarm(AlarmKind.NO_OBJECTS, family.subject, sensors)
         for pair in self._pairs:
-            self._alarm(f"{pair.name}.misaligned", AlarmKind.MISALIGNED, pair.name,
-                        (pair.a.subject, pair.b.subject))
+            self._alarm(AlarmKind.MISALIGNED, pair.name, (pair.a.subject, pair.b.subject))
         if profile is not None and profile.lanes is not None and profile.lanes.sensor is not None:
-            self._alarm("lanes.lost", AlarmKind.LANES_LOST, "lanes", (profile.lanes.sensor.name,),
+            self._alarm(AlarmKind.LANES_LOST, "lanes", (profile.lanes.sensor.name,),
                         raise_ns=round(s.lane_loss_s * NS))
         #: (count, latest value) of every signal that had a non-finite value, by bus/Message.Signal
         self._bad_values: dict[str, tuple[int, str]] = {}
@@ -223,24 +206,25 @@ class HealthMonitor:
         return (self._detections(family) and family.sensor is not None
                 and has_fov(family.sensor))
 
-    def _alarm(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
-               raise_ns: int | None = None) -> Alarm:
-        alarm = self._alarms.get(alarm_id)
+    def _alarm(self, kind: AlarmKind, subject: str, sensors: Iterable[str],
+               raise_ns: int | None = None, clear_ns: int | None = None) -> Alarm:
+        """The alarm of ``kind`` about ``subject``, made the first time (with the settings'
+        raise and clear times unless given)."""
+        ident = alarm_id(kind, subject)
+        alarm = self._alarms.get(ident)
         if alarm is None:
-            alarm = self._alarms[alarm_id] = Alarm(
-                alarm_id, kind, subject, sensors,
-                self._raise_ns if raise_ns is None else raise_ns, self._clear_ns)
+            alarm = self._alarms[ident] = Alarm(
+                ident, kind, subject, sensors, self._raise_ns if raise_ns is None else raise_ns,
+                self._clear_ns if clear_ns is None else clear_ns)
         return alarm
 
     def _add_bus(self, name: str, t_ns: int) -> BusCounts:
-        known = frozenset(c.message.frame_id | EXTENDED if c.message.is_extended_frame
-                          else c.message.frame_id for c in self.decoder.codecs_for(name))
-        bus = self._buses[name] = BusCounts(name, t_ns, known, self.bitrates.get(name),
-                                       self.data_bitrates.get(name))
+        bus = self._buses[name] = BusCounts(name, t_ns, self.bitrates.get(name),
+                                            self.data_bitrates.get(name))
         if self.first_ns is None:
             self.first_ns = t_ns
-        self._alarm(f"bus.{name}.silent", AlarmKind.BUS_SILENT, name, ())
-        self._alarm(f"bus.{name}.babbling", AlarmKind.BABBLING, name, ())
+        self._alarm(AlarmKind.BUS_SILENT, name, ())
+        self._alarm(AlarmKind.BABBLING, name, ())
         return bus
 
     def _resolve(self, bus: BusCounts, codec: MessageCodec) -> tuple[FamilyCounts, ...]:
@@ -253,8 +237,8 @@ class HealthMonitor:
             family.buses.add(bus.name)
             bus.families.add(family.name)
         if message.cycle_time:
-            key = message.frame_id | EXTENDED if message.is_extended_frame else message.frame_id
-            bus.cycles[key] = message.cycle_time / 1000.0
+            bus.cycles[frame_key(message.frame_id, message.is_extended_frame)] = (
+                message.cycle_time / 1000.0)
             gap = round(self.settings.gap_factor * message.cycle_time / 1000.0 * NS)
             bus.gap_ns = min(bus.gap_ns, gap)
         return families
@@ -262,7 +246,10 @@ class HealthMonitor:
     # --- the hot path ---------------------------------------------------------------------
 
     def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
-        """Count one frame (call it for every frame, after decoding it)."""
+        """Count one frame (call it for every frame, right after decoding it with the
+        monitor's decoder: a frame that did not decode is counted as the decoder sorted it)."""
+        # By position (the eleven fields by name cost ~100 ns more a frame): timestamp_ns, bus,
+        # arbitration_id, data, is_extended, is_fd, is_error, is_remote, bitrate_switch, esi, dlc.
         t, name, ident, data, extended, fd, error, remote, brs, esi, dlc = frame
         bus = self._buses.get(name)
         if bus is None:
@@ -285,17 +272,16 @@ class HealthMonitor:
         bus.bits += arbitration
         if data_phase:
             bus.brs_bits += data_phase
-        key = ident | EXTENDED if extended else ident
-        bus.ids[key] += 1
+        bus.ids[ident | EXTENDED_KEY if extended else ident] += 1  # frame_key, inlined
         if decoded is None:
-            if error:
-                bus.error_frames += 1
-            elif remote:
-                pass
-            elif key in bus.known:
-                bus.decode_errors += 1
-            else:
+            decoder = self.decoder  # its outcome, read here as Decoder.outcome reads it
+            why = decoder.why if frame is decoder.undecoded else decoder.outcome(frame, None)
+            if why is _UNKNOWN_ID:
                 bus.unknown += 1
+            elif why is _DECODE_ERROR:
+                bus.decode_errors += 1
+            elif why is _ERROR_FRAME:
+                bus.error_frames += 1
             return
         if decoded.non_finite:
             self._non_finite(bus, decoded)
@@ -458,24 +444,21 @@ class HealthMonitor:
             out.append(TopicMessage(HEALTH_TOPIC, self._health(t_ns, buses, families), t_ns))
         return out
 
-    def hold(self, alarm_id: str, kind: AlarmKind, subject: str, why: str | None) -> None:
+    def hold(self, kind: AlarmKind, subject: str, why: str | None) -> None:
         """A condition the monitor cannot see itself (``recorder.disk_full``): it holds for
         ``why`` (None: it does not), from the next check on; raised and cleared without delay."""
+        ident = alarm_id(kind, subject)
         if why is None:
-            self._held.pop(alarm_id, None)
+            self._held.pop(ident, None)
             return
-        if alarm_id not in self._alarms:
-            self._alarms[alarm_id] = Alarm(alarm_id, kind, subject, (), 0, 0)
-        self._held[alarm_id] = why
+        self._alarm(kind, subject, (), raise_ns=0, clear_ns=0)
+        self._held[ident] = why
 
     def note_receive(self, bus: str, counts: ReceiveCounts) -> None:
         """What live's reading of ``bus`` mended or lost so far (:mod:`bridge.health.receive`):
         said on ``/log``, and its alarms (made when a count first grows) hold while it grows."""
-        for alarm_id in self.receive.note(bus, counts):
-            if alarm_id not in self._alarms:
-                kind = (AlarmKind.FRAMES_LOST if alarm_id.endswith(".frames_lost")
-                        else AlarmKind.BAD_TIMESTAMPS)
-                self._alarm(alarm_id, kind, bus, (), raise_ns=0)
+        for kind in self.receive.note(bus, counts):
+            self._alarm(kind, bus, (), raise_ns=0)
 
     def _lateral_warnings(self, t_ns: int) -> list[TopicMessage]:
         """A ``/log`` warning, once per sensor, when its lateral sign looks flipped."""
@@ -554,76 +537,23 @@ class HealthMonitor:
 
     def _check(self, t_ns: int, buses: Mapping[str, health_pb2.BusHealth],
                families: Mapping[str, health_pb2.FamilyHealth]) -> list[tuple[Alarm, str]]:
-        s = self.settings
-        conditions: dict[str, list[str]] = {}  # alarm id -> why (empty: does not hold)
-
-        def hold(alarm_id: str, why: str) -> None:
-            conditions.setdefault(alarm_id, []).append(why)
-
-        for held_id, held_why in self._held.items():
-            hold(held_id, held_why)
-        self.receive.conditions(t_ns, self.window_ns, hold)
-        bus_conditions(self._buses, buses, self._top_keys, s, hold)
+        """Feed every alarm its condition at ``t_ns``: the raised and cleared ones."""
+        conditions: dict[str, list[str]] = {}  # alarm id -> why (absent: does not hold)
         in_gap = {name: msg.gap for name, msg in buses.items()}
-        started = self.first_ns is not None and t_ns - self.first_ns >= self.learning_ns
-        quiet: set[str] = set()  # families that are silent (or behind a silent bus)
-        for family in self.families:
-            fig = families[family.name]
-            behind_silent_bus = (all(in_gap.get(b, False) for b in family.buses) if family.buses
-                                 else bool(in_gap) and all(in_gap.values()))
-            never = family.last_ns == NEVER
-            if behind_silent_bus or fig.silent or (never and started):
-                quiet.add(family.name)
-            if behind_silent_bus:
-                continue
-            subject = family.subject
-            if fig.silent:
-                hold(f"{subject}.silent", f"{family.name}: no frame for {fig.age_s:.1f} s")
-            elif never and started:
-                hold(f"{subject}.silent", f"{family.name}: no frame since the start")
-            if never or fig.silent:
-                continue
-            window = family.rate_window_ns
-            if family.expected_hz and t_ns - family.resumed_ns >= window:
-                base = self._base(t_ns, window)
-                elapsed = seconds(t_ns - base.t_ns)
-                rate = (family.frames - base.families.get(family.name, 0)) / elapsed
-                if rate < s.rate_threshold * family.expected_hz:
-                    hold(f"{subject}.rate", f"{family.name}: {rate:.0f} frames/s, "
-                         f"{rate / family.expected_hz:.0%} of the expected "
-                         f"{family.expected_hz:.0f}/s")
-            nothing_since = max(family.last_valid_ns, family.resumed_ns)
-            if (self._blind_checked(family) and self._world_ns is not None
-                    and t_ns - nothing_since > family.gap_ns
-                    and t_ns - family.witnessed_ns < self.window_ns):
-                hold(f"{subject}.blind", f"{family.name}: frames but no valid object for "
-                     f"{seconds(t_ns - nothing_since):.1f} s while another sensor sees "
-                     "objects in its field of view" + (
-                         f" (its validity rule failed {family.rule_errors} times: "
-                         f"{family.why_rule})" if family.rule_errors else ""))
-        no_evidence = set()
-        for pair in self._pairs:
-            n, lateral, angular = self._bias_means[pair.name]
-            if n < s.bias_min_matches:
-                no_evidence.add(f"{pair.name}.misaligned")
-            elif abs(lateral) > s.bias_lateral_m or abs(angular) > s.bias_angle_deg:
-                a, b = pair.a.subject, pair.b.subject
-                side = "right" if angular < 0 else "left"
-                hold(f"{pair.name}.misaligned",
-                     f"{a} sees objects {abs(angular):.1f} deg ({abs(lateral):.1f} m) to the "
-                     f"{side} of where {b} sees them ({n} matches): one of them is misaligned")
-        lanes = next((f for f in self.families if f.kind == "lanes"), None)
-        if (lanes is not None and lanes.name not in quiet and self._lane_source is not None
-                and self._lane_source != "camera"):
-            hold("lanes.lost", "no valid camera lanes: lanes extrapolated from the steering"
-                 if self._lane_source == "steering" else "no valid camera lanes and no steering "
-                 "angle: no lanes")
+        for ident, why in chain(
+                self._held.items(), self.receive.conditions(t_ns, self.window_ns),
+                bus_conditions(self._buses, buses, self._top_keys, self.settings),
+                self._family_conditions(t_ns, families, in_gap), self._pair_conditions(),
+                self._lane_conditions(t_ns, families, in_gap)):
+            conditions.setdefault(ident, []).append(why)
+        no_evidence = {alarm_id(AlarmKind.MISALIGNED, pair.name) for pair in self._pairs
+                       if self._bias_means[pair.name][0] < self.settings.bias_min_matches}
         events = []
-        for alarm_id, alarm in self._alarms.items():
-            if alarm_id in no_evidence:
+        for ident, alarm in self._alarms.items():
+            if ident in no_evidence:
                 continue
-            why = conditions.get(alarm_id)
-            event = alarm.update(t_ns, why is not None, "; ".join(why or ()))
+            whys = conditions.get(ident)
+            event = alarm.update(t_ns, whys is not None, "; ".join(whys or ()))
             if event is not None:
                 if alarm.kind in (AlarmKind.BUS_SILENT, AlarmKind.BABBLING):
                     bus = self._buses.get(alarm.subject)
@@ -633,6 +563,82 @@ class HealthMonitor:
                 events.append((alarm, event))
                 self.events.append((alarm.id, event, t_ns, alarm.message))
         return events
+
+    def _behind_silent_bus(self, family: FamilyCounts, in_gap: Mapping[str, bool]) -> bool:
+        """Every bus the family came on is in a gap (or, before its first frame, every bus)."""
+        return (all(in_gap.get(b, False) for b in family.buses) if family.buses
+                else bool(in_gap) and all(in_gap.values()))
+
+    def _family_conditions(self, t_ns: int, families: Mapping[str, health_pb2.FamilyHealth],
+                           in_gap: Mapping[str, bool]) -> Iterator[tuple[str, str]]:
+        """The sensors' alarms (of each family) whose condition holds, as (alarm id, why):
+        silent, rate and blind; none for a family behind a silent bus."""
+        s = self.settings
+        started = self.first_ns is not None and t_ns - self.first_ns >= self.learning_ns
+        for family in self.families:
+            if self._behind_silent_bus(family, in_gap):
+                continue
+            fig = families[family.name]
+            subject = family.subject
+            never = family.last_ns == NEVER
+            if fig.silent:
+                yield (alarm_id(AlarmKind.SENSOR_SILENT, subject),
+                       f"{family.name}: no frame for {fig.age_s:.1f} s")
+            elif never and started:
+                yield (alarm_id(AlarmKind.SENSOR_SILENT, subject),
+                       f"{family.name}: no frame since the start")
+            if never or fig.silent:
+                continue
+            window = family.rate_window_ns
+            if family.expected_hz and t_ns - family.resumed_ns >= window:
+                base = self._base(t_ns, window)
+                elapsed = seconds(t_ns - base.t_ns)
+                rate = (family.frames - base.families.get(family.name, 0)) / elapsed
+                if rate < s.rate_threshold * family.expected_hz:
+                    yield (alarm_id(AlarmKind.RATE_LOW, subject),
+                           f"{family.name}: {rate:.0f} frames/s, "
+                           f"{rate / family.expected_hz:.0%} of the expected "
+                           f"{family.expected_hz:.0f}/s")
+            nothing_since = max(family.last_valid_ns, family.resumed_ns)
+            if (self._blind_checked(family) and self._world_ns is not None
+                    and t_ns - nothing_since > family.gap_ns
+                    and t_ns - family.witnessed_ns < self.window_ns):
+                yield (alarm_id(AlarmKind.NO_OBJECTS, subject),
+                       f"{family.name}: frames but no valid object for "
+                       f"{seconds(t_ns - nothing_since):.1f} s while another sensor sees "
+                       "objects in its field of view" + (
+                           f" (its validity rule failed {family.rule_errors} times: "
+                           f"{family.why_rule})" if family.rule_errors else ""))
+
+    def _pair_conditions(self) -> Iterator[tuple[str, str]]:
+        """The misalignment alarms whose condition holds, as (alarm id, why) (a pair without
+        enough matches has no evidence either way: :meth:`_check` leaves its alarm as it is)."""
+        s = self.settings
+        for pair in self._pairs:
+            n, lateral, angular = self._bias_means[pair.name]
+            if n >= s.bias_min_matches and (abs(lateral) > s.bias_lateral_m
+                                            or abs(angular) > s.bias_angle_deg):
+                a, b = pair.a.subject, pair.b.subject
+                side = "right" if angular < 0 else "left"
+                yield (alarm_id(AlarmKind.MISALIGNED, pair.name),
+                       f"{a} sees objects {abs(angular):.1f} deg ({abs(lateral):.1f} m) to the "
+                       f"{side} of where {b} sees them ({n} matches): one of them is misaligned")
+
+    def _lane_conditions(self, t_ns: int, families: Mapping[str, health_pb2.FamilyHealth],
+                         in_gap: Mapping[str, bool]) -> Iterator[tuple[str, str]]:
+        """``lanes.lost`` as (alarm id, why) when it holds: the lanes are not the camera's, and
+        the lane family is not silent (nor behind a silent bus, nor never seen once started)."""
+        lanes = next((f for f in self.families if f.kind == "lanes"), None)
+        if lanes is None or self._lane_source is None or self._lane_source == "camera":
+            return
+        started = self.first_ns is not None and t_ns - self.first_ns >= self.learning_ns
+        if (self._behind_silent_bus(lanes, in_gap) or families[lanes.name].silent
+                or (lanes.last_ns == NEVER and started)):
+            return
+        yield (alarm_id(AlarmKind.LANES_LOST, "lanes"),
+               "no valid camera lanes: lanes extrapolated from the steering"
+               if self._lane_source == "steering" else "no valid camera lanes and no steering "
+               "angle: no lanes")
 
     def _non_finite(self, bus: BusCounts, decoded: Decoded) -> None:
         """Count a frame's non-finite values (per signal, for the warnings on /log)."""

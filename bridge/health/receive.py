@@ -24,11 +24,12 @@ at once and cleared after the clear time (their message carries the count, so ``
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.frame import NS, timestamp
+from bridge.health.alarms import AlarmKind, alarm_id
 from bridge.io.buses import ReceiveCounts
 from bridge.topics import LOG_TOPIC, TopicMessage
 
@@ -55,12 +56,12 @@ def warning_text(bus: str, what: str, counts: ReceiveCounts) -> str:
             f"{counts.last_unreadable}): skipped")
 
 
-#: the alarm of a count: (its id's last part, the reason it holds)
-ALARMS: dict[str, tuple[str, Callable[[str, ReceiveCounts], str]]] = {
-    "bad_timestamps": ("bad_timestamps", lambda bus, c: (
+#: the alarm of a count: (its kind, the reason it holds)
+ALARMS: dict[str, tuple[AlarmKind, Callable[[str, ReceiveCounts], str]]] = {
+    "bad_timestamps": (AlarmKind.BAD_TIMESTAMPS, lambda bus, c: (
         f"bus {bus}: frames stamped {c.last_bad_timestamp} s ({c.bad_timestamps:,} since the "
         "start): stamped with the time they were received")),
-    "kernel_drops": ("frames_lost", lambda bus, c: (
+    "kernel_drops": (AlarmKind.FRAMES_LOST, lambda bus, c: (
         f"bus {bus}: frames lost in the receive buffer ({c.kernel_drops:,} since the start)")),
 }
 
@@ -75,23 +76,23 @@ class ReceiveWatch:
         #: (bus, count name) -> (the count said on /log, log time said)
         self._said: dict[tuple[str, str], tuple[int, int]] = {}
 
-    def note(self, bus: str, counts: ReceiveCounts) -> list[str]:
-        """A bus's counts now; returns the ids of alarms it may need from now on."""
+    def note(self, bus: str, counts: ReceiveCounts) -> list[AlarmKind]:
+        """A bus's counts now; returns the kinds of the bus's alarms it may need from now on."""
         self.counts[bus] = counts
-        return [f"bus.{bus}.{ALARMS[what][0]}" for what in ALARMS
-                if getattr(counts, what)]
+        return [kind for what, (kind, _) in ALARMS.items() if getattr(counts, what)]
 
-    def conditions(self, t_ns: int, window_ns: int, hold: Callable[[str, str], None]) -> None:
-        """Each alarm whose count grew within ``window_ns`` before ``t_ns`` holds."""
+    def conditions(self, t_ns: int, window_ns: int) -> Iterator[tuple[str, str]]:
+        """The alarms whose count grew within ``window_ns`` before ``t_ns``, as (alarm id,
+        why)."""
         for bus, counts in self.counts.items():
-            for what, (suffix, why) in ALARMS.items():
+            for what, (kind, why) in ALARMS.items():
                 n = getattr(counts, what)
                 before, grew_ns = self._grew.get((bus, what), (0, -(1 << 62)))
                 if n > before:
                     grew_ns = t_ns
                 self._grew[bus, what] = (n, grew_ns)
                 if t_ns - grew_ns < window_ns:
-                    hold(f"bus.{bus}.{suffix}", why(bus, counts))
+                    yield alarm_id(kind, bus), why(bus, counts)
 
     def rebase(self, shift_ns: int) -> None:
         """The clock stepped by ``shift_ns``: the times held move with it."""

@@ -162,6 +162,9 @@ def frame_bits(frame: Frame) -> tuple[float, float]:
     CAN FD frame with BRS; it is 0 for every other frame. A CAN FD payload between two lengths is
     padded to the next (with 0xCC); an error frame counts :data:`ERROR_FRAME_BITS`.
     """
+    # Unpacked by position (fields by name would cost ~100 ns more a frame): timestamp_ns, bus,
+    # arbitration_id, data, is_extended, is_fd, is_error, is_remote, bitrate_switch,
+    # error_state_indicator, dlc.
     _, _, arbitration_id, data, extended, fd, error, remote, brs, esi, dlc = frame
     if error:
         return float(ERROR_FRAME_BITS), 0.0
@@ -238,8 +241,9 @@ KindKey = tuple[int, bool, bool, bool, bool, bool, bool, int]
 
 def kind_key(frame: Frame) -> KindKey:
     """What makes frames of one kind (the monitor builds the same tuple inline)."""
-    _, _, arbitration_id, data, extended, fd, error, remote, brs, esi, dlc = frame
-    return (arbitration_id, extended, fd, error, remote, brs, esi, dlc if remote else len(data))
+    return (frame.arbitration_id, frame.is_extended, frame.is_fd, frame.is_error, frame.is_remote,
+            frame.bitrate_switch, frame.error_state_indicator,
+            frame.dlc if frame.is_remote else len(frame.data))
 
 
 class FrameKind:

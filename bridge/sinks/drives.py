@@ -62,6 +62,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from bridge.decode.decoder import Decoded
 from bridge.errors import OutputError
 from bridge.frame import Frame, timestamp
+from bridge.health.alarms import AlarmKind, Notice, alarm_notice
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.mcap import METADATA_NAME, Recorder
 from bridge.topics import LOG_TOPIC
@@ -229,7 +230,7 @@ class DriveRecorder(Sink):
     _next_check: float = 0.0
     _backlog: deque[tuple[Frame, bytes]] = field(default_factory=deque)
     _gap: dict[str, Any] | None = None
-    _notices: list[str] = field(default_factory=list)
+    _notices: list[Notice] = field(default_factory=list)
     _reserve_size: int = 0
     #: the drive's decode statistics when the last part was finished
     _statistics: dict[str, Any] = field(default_factory=dict)
@@ -308,13 +309,13 @@ class DriveRecorder(Sink):
         return (f"{free / MB:.0f} MB free in {self.folder}, below --min-free "
                 f"{self.min_free / MB:.0f} MB")
 
-    def take_notices(self) -> list[str]:
+    def take_notices(self) -> list[Notice]:
         """What happened to the recording since the last call (recording stopped, resumed,
         a part left unfinished), one line each, to tell on ``/log``."""
         notices, self._notices = self._notices, []
         return notices
 
-    def _note(self, text: str, *, record: bool) -> None:
+    def _note(self, text: Notice, *, record: bool) -> None:
         """A line to tell (:meth:`take_notices`), and if ``record`` on the part's own ``/log``
         (the part about to be finished: what is told comes too late for it)."""
         self._notices.append(text)
@@ -329,10 +330,11 @@ class DriveRecorder(Sink):
         if self._gap is None:
             self._gap = {"from_ns": time.time_ns(), "to_ns": None, "reason": reason,
                          "frames_kept": 0, "frames_not_recorded": 0, "messages_not_recorded": 0}
-        self._note(f"recorder.disk_full: {reason}: recording stopped (viewers are still "
-                   "served); it resumes in a new part when more than "
-                   f"{(self.min_free + self.reserve + self.resume_margin) / MB:.1f} MB is free",
-                   record=True)
+        self._note(alarm_notice(
+            AlarmKind.DISK_FULL, "recorder", f"{reason}: recording stopped (viewers are still "
+            "served); it resumes in a new part when more than "
+            f"{(self.min_free + self.reserve + self.resume_margin) / MB:.1f} MB is free"),
+            record=True)
         self._close()
 
     def _failed(self, exc: OSError) -> None:
@@ -343,8 +345,8 @@ class DriveRecorder(Sink):
         stream, self._stream = self._stream, None
         with contextlib.suppress(OSError):
             stream.close()
-        self._notices.append(f"recorder.disk_full: {reason}; the part is left unfinished "
-                             "(tankviz recover salvages it)")
+        self._notices.append(alarm_notice(AlarmKind.DISK_FULL, "recorder", f"{reason}; the "
+                                          "part is left unfinished (tankviz recover salvages it)"))
         self._stop(reason)
 
     def _resume(self, *, last: bool = False) -> None:
@@ -369,12 +371,13 @@ class DriveRecorder(Sink):
         gap["frames_not_recorded"] = self.frames_dropped
         self.recording_gaps.append(gap)
         self.disk_full = None
-        self._note(f"recorder.disk_full cleared: recording resumed in {self.files[-1].name} "
-                   f"after {(gap['to_ns'] - gap['from_ns']) / 1e9:.1f} s; the "
-                   f"{gap['frames_kept']} frames received meanwhile are in it "
-                   f"({gap['frames_not_recorded']} not recorded for want of memory), "
-                   f"{gap['messages_not_recorded']} decoded messages and scenes are not",
-                   record=False)
+        self._note(alarm_notice(
+            AlarmKind.DISK_FULL, "recorder", f"recording resumed in {self.files[-1].name} "
+            f"after {(gap['to_ns'] - gap['from_ns']) / 1e9:.1f} s; the "
+            f"{gap['frames_kept']} frames received meanwhile are in it "
+            f"({gap['frames_not_recorded']} not recorded for want of memory), "
+            f"{gap['messages_not_recorded']} decoded messages and scenes are not", cleared=True),
+            record=False)
         self.frames_dropped = 0
         write = self._recorder.write_frame
         try:
@@ -485,9 +488,9 @@ class DriveRecorder(Sink):
             self.frames_dropped += len(self._backlog)
             self._backlog.clear()
         if self.disk_full is not None and self.frames_dropped:
-            self._notices.append(f"recorder.disk_full: {self.frames_dropped} frames received "
-                                 "while the disk was full are not recorded (no room for them "
-                                 "when the drive ended)")
+            self._notices.append(alarm_notice(
+                AlarmKind.DISK_FULL, "recorder", f"{self.frames_dropped} frames received while "
+                "the disk was full are not recorded (no room for them when the drive ended)"))
         self._release()
 
     def tick(self) -> None:

@@ -178,7 +178,10 @@ _FRAME_HEADS: dict[tuple[Any, ...], bytes] = {}
 
 def frame_payload(frame: Frame) -> bytes:
     """The frame as a serialized ``tankviz.CanFrame``."""
-    key = frame[1:3] + frame[4:]  # everything but the time and the data
+    # Everything but the time and the data: bus, arbitration_id (frame[1:3]) and is_extended to
+    # dlc (frame[4:]). Sliced: the nine fields by name cost ~15 ns more a frame (of ~200 ns for
+    # the key and its look-up).
+    key = frame[1:3] + frame[4:]
     head = _FRAME_HEADS.get(key)
     if head is None:
         if len(_FRAME_HEADS) > 65536:  # ids x buses x flags: only a babbling bus gets here
