@@ -25,6 +25,7 @@ from conftest import ECOCAR_DBC, summary_counts
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from waiting import wait_for
 
 from bridge.apps.live import Live
 from bridge.frame import NS, Frame
@@ -34,7 +35,7 @@ from bridge.sim.drive import simulate
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.drives import DriveRecorder, drive_name
 from bridge.sinks.mcap import frame_payload
-from bridge.sinks.websocket import LiveServer, wait_for
+from bridge.sinks.server import LiveServer
 
 
 def frames_recorded(path: Path) -> int:

@@ -34,7 +34,7 @@ from bridge.io.drives import read_drive
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.server import LiveServer
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
 BOSCH = PROFILES / "bosch_radar.toml"

@@ -20,7 +20,7 @@ from bridge.errors import UsageError
 from bridge.frame import NS
 from bridge.pipeline.drive import load_stages
 from bridge.sim.drive import simulate
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.server import LiveServer
 
 PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import dataclasses
+import inspect
 import json
 import socket
 import struct
@@ -18,16 +20,11 @@ import pytest
 import websockets
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from waiting import wait_for
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.sinks.websocket import (
-    SEND_BUFFER_BYTES,
-    ClientStats,
-    LiveServer,
-    ServerError,
-    _Client,
-    wait_for,
-)
+from bridge.sinks.server import SEND_BUFFER_BYTES, ClientStats, LiveServer, ServerError
+from bridge.sinks.server.client import ClientQueue
 
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
 
@@ -140,7 +137,7 @@ def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """Publishers flush (after a scene, before they wait): what they published leaves at once,
     not at the next DRAIN_INTERVAL_S (the safety net for what nobody flushed, which the protocol
     test above relies on)."""
-    monkeypatch.setattr("bridge.sinks.websocket.DRAIN_INTERVAL_S", 3600.0)  # no safety net
+    monkeypatch.setattr("bridge.sinks.server.live.DRAIN_INTERVAL_S", 3600.0)  # no safety net
     with LiveServer(port=0) as server:
         scene = server.channel("/scene/ego", SceneUpdate)
 
@@ -253,7 +250,7 @@ def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> No
 
 
 def test_a_full_queue_drops_its_oldest_and_counts_them() -> None:
-    viewer = _Client(SimpleNamespace(subscriptions_by_channel={3: 1}), ClientStats("viewer"),
+    viewer = ClientQueue(SimpleNamespace(subscriptions_by_channel={3: 1}), ClientStats("viewer"),
                      limit=3)
     viewer.put([(3, 0, b"a"), (3, 1, b"b")])
     assert viewer.stats.dropped == 0
@@ -265,7 +262,7 @@ def test_a_full_queue_drops_its_oldest_and_counts_them() -> None:
 def test_a_message_queued_before_an_unsubscribe_is_not_sent() -> None:
     """A viewer that unsubscribed gets nothing more of that channel, even what was queued."""
     state = SimpleNamespace(subscriptions_by_channel={3: 1, 4: 2})
-    queued = _Client(state, ClientStats("viewer"), limit=10)
+    queued = ClientQueue(state, ClientStats("viewer"), limit=10)
     for t in range(3):
         queued.put([(3, t, b"radar"), (4, t, b"lanes")])
     # foxglove-websocket swaps in a new mapping at every (un)subscribe
@@ -283,7 +280,7 @@ def test_an_idle_viewer_gets_its_messages_at_once_unless_its_socket_is_full() ->
     buffered = [0]
     transport = SimpleNamespace(write=written.append, get_write_buffer_size=lambda: buffered[0])
     connection = SimpleNamespace(open=True, transport=transport, extensions=[])
-    viewer = _Client(SimpleNamespace(connection=connection, subscriptions_by_channel={3: 1}),
+    viewer = ClientQueue(SimpleNamespace(connection=connection, subscriptions_by_channel={3: 1}),
                      ClientStats("viewer"), limit=10)
     viewer.idle = True
     buffered[0] = 2**16  # the socket holds 64 KiB not yet sent: the viewer is behind
@@ -303,7 +300,7 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
     from bridge.frame import Frame
     from bridge.sinks.base import Channel, Serialized
 
-    monkeypatch.setattr("bridge.sinks.websocket.DRAIN_INTERVAL_S", 3600.0)  # no safety net
+    monkeypatch.setattr("bridge.sinks.server.live.DRAIN_INTERVAL_S", 3600.0)  # no safety net
     frame = Frame(5, "radar", 0x100, b"\x01", dlc=1)
     with LiveServer(port=0) as server:
         server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b""),
@@ -339,3 +336,78 @@ def test_server_info_says_whether_it_is_live_or_a_replay(mode: str) -> None:
 
         assert asyncio.run(hello())["metadata"] == {"tankviz": mode}
 
+
+
+# --- the fence: the library internals bridge.sinks.server.internals relies on -----------------
+
+def test_foxglove_websocket_is_a_release_the_fence_was_checked_against() -> None:
+    """A new foxglove-websocket release fails here: run the tests below against it, then add it
+    to CHECKED_FOXGLOVE_WEBSOCKET (bridge/sinks/server/internals.py)."""
+    from importlib.metadata import version
+
+    from bridge.sinks.server.internals import CHECKED_FOXGLOVE_WEBSOCKET
+
+    assert version("foxglove-websocket") in CHECKED_FOXGLOVE_WEBSOCKET
+
+
+def parameters(function: Any) -> list[str]:
+    return list(inspect.signature(function).parameters)
+
+
+def test_the_private_foxglove_websocket_methods_the_server_overrides_or_calls_are_unchanged(
+        ) -> None:
+    from foxglove_websocket.server import FoxgloveServer
+    from foxglove_websocket.server.client_state import ClientState
+
+    expected = {  # name: parameters (all coroutines)
+        "_handle_raw_client_message": ["self", "client", "raw_message"],  # overridden
+        "_handle_client_text_message": ["self", "client", "message"],  # called with what passed
+        "_send_json": ["self", "connection", "msg"],  # overridden: replies never wait
+        "_send_status": ["self", "connection", "level", "msg", "id"],  # called: refusals
+    }
+    for name, names in expected.items():
+        method = getattr(FoxgloveServer, name)
+        assert inspect.iscoroutinefunction(method), name
+        assert parameters(method) == names, name
+    # read (the connected clients) and written (the channels they may subscribe to)
+    assert {"_clients", "_channels"} <= set(FoxgloveServer.__annotations__)
+    assert {"connection", "subscriptions_by_channel"} <= {
+        f.name for f in dataclasses.fields(ClientState)}
+
+    async def made() -> tuple[Any, Any]:
+        server = FoxgloveServer(None, None, "fence")
+        return server._clients, server._channels
+
+    clients, channels = asyncio.run(made())
+    assert clients == () and channels == {}
+
+
+def test_the_private_websockets_legacy_methods_the_connection_uses_are_unchanged() -> None:
+    from websockets.legacy.framing import prepare_ctrl
+    from websockets.legacy.server import WebSocketServerProtocol
+
+    assert parameters(WebSocketServerProtocol.write_close_frame) == ["self", "close", "data"]
+    assert parameters(WebSocketServerProtocol.pong) == ["self", "data"]
+    assert parameters(WebSocketServerProtocol.write_frame_sync) == [
+        "self", "fin", "opcode", "data"]
+    assert parameters(prepare_ctrl) == ["data"]
+    assert parameters(WebSocketServerProtocol.ensure_open) == ["self"]
+    assert parameters(WebSocketServerProtocol.drain) == ["self"]
+    for name in ("write_close_frame", "pong", "ensure_open", "drain"):
+        assert inspect.iscoroutinefunction(getattr(WebSocketServerProtocol, name)), name
+    assert isinstance(WebSocketServerProtocol.open, property)
+
+    async def made() -> Any:
+        return WebSocketServerProtocol(lambda *_: None, None)  # (transport: once connected)
+
+    protocol = asyncio.run(made())
+    assert protocol.close_rcvd is None and protocol.extensions == []
+
+
+def test_the_message_headers_are_the_librarys() -> None:
+    """The server packs its messages with foxglove-websocket's own headers and opcodes."""
+    from foxglove_websocket.server import MessageDataHeader, TimeDataHeader
+    from foxglove_websocket.types import BinaryOpcode
+
+    assert MessageDataHeader.format == "<BIQ" and TimeDataHeader.format == "<BQ"
+    assert (BinaryOpcode.MESSAGE_DATA, BinaryOpcode.TIME) == (1, 2)

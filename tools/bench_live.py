@@ -3,7 +3,7 @@
 
 Three python-can ``virtual`` buses (``radar``, ``camera``, ``chassis``) each carry 4,000 frames/s
 for ``--duration`` seconds (default 60, ``--quick``: 10) into the live bridge
-(:class:`bridge.apps.live.Live` + :class:`bridge.sinks.websocket.LiveServer`, the bundled ecocar
+(:class:`bridge.apps.live.Live` + :class:`bridge.sinks.server.LiveServer`, the bundled ecocar
 profile, scene at 50 Hz, drives recorded into a temporary folder), while four
 ``foxglove.websocket.v1`` clients watch: three subscribe to every ``/scene/*`` topic and read
 everything, one subscribes to every channel (raw frames and decoded signals included) and then never
@@ -521,7 +521,7 @@ PROFILE_PARTS = (
     ("decode (cantools, protobuf)", "decoder.py", "decode"),
     ("record raw frames", "mcap.py", "write_frame"),
     ("record decoded messages", "mcap.py", "write_decoded"),
-    ("publish to the server", "websocket.py", "publish"),
+    ("publish to the server", "server/live.py", "publish"),
     ("recorder tick (flush)", "drives.py", "tick"),
 )
 
@@ -548,7 +548,8 @@ def run(args: argparse.Namespace) -> None:
     from bridge.apps.live import Live
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
-    from bridge.sinks.websocket import LiveServer, wait_for
+    from bridge.sinks.server import LiveServer
+    from tests.waiting import wait_for
 
     duration = 10.0 if args.quick else args.duration
     period_ms = 1000 / SCENE_RATE

@@ -87,7 +87,7 @@ from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
-from bridge.sinks.websocket import ClientStats, LiveServer
+from bridge.sinks.server import ClientStats, LiveServer
 from bridge.topics import LOG_TOPIC, TopicMessage
 from bridge.view.generate import DEFAULT_BUS, generate_layouts, layout_text
 

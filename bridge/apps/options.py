@@ -26,7 +26,7 @@ from bridge.resources import bundled_database
 
 if TYPE_CHECKING:
     from bridge.pipeline.drive import Stages
-    from bridge.sinks.websocket import LiveServer
+    from bridge.sinks.server import LiveServer
 
     Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
 else:
@@ -140,7 +140,7 @@ def start_server(args: argparse.Namespace, *, server_time: bool = False,
                  mode: str = "live") -> LiveServer:
     """The Foxglove server ``--host`` and ``--port`` name, started (``mode``: what it serves,
     told to viewers in serverInfo's metadata)."""
-    from bridge.sinks.websocket import LiveServer
+    from bridge.sinks.server import LiveServer
 
     server = LiveServer(host=args.host, port=args.port, server_time=server_time, mode=mode)
     server.start()

@@ -57,7 +57,7 @@ from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.server import LiveServer
 from bridge.view.generate import generate_layouts, layout_text
 
 #: Server time is published at least this often (ns of log time).

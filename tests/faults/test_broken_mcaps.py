@@ -25,7 +25,7 @@ from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sinks.outputs import atomic_output
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.server import LiveServer
 
 
 @pytest.fixture(scope="module")

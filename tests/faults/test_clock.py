@@ -280,7 +280,7 @@ def test_a_viewer_gets_the_latest_scene_of_a_catch_up_and_the_recording_all(
 
 def test_the_end_of_a_run_says_which_viewer_lost_which_topics() -> None:
     from bridge.apps.live import dropped_report
-    from bridge.sinks.websocket import ClientStats
+    from bridge.sinks.server import ClientStats
 
     stats = [ClientStats("10.0.0.5:51234", sent=900, dropped=120,
                          topics=Counter({"/can/can0/frames": 100, "/scene/ego": 20})),
@@ -295,7 +295,8 @@ def test_the_end_of_a_run_says_which_viewer_lost_which_topics() -> None:
 
 
 def test_a_full_viewer_queue_counts_what_it_drops_per_channel() -> None:
-    from bridge.sinks.websocket import ClientStats, _Client
+    from bridge.sinks.server.client import ClientQueue as _Client
+    from bridge.sinks.server.client import ClientStats
 
     stats = ClientStats("10.0.0.5:51234")
     client = _Client(None, stats, limit=3)

@@ -246,7 +246,7 @@ def test_a_run_that_got_no_frame_says_so(tmp_path: Path) -> None:
 
 def test_the_slow_viewers_line_is_short() -> None:
     from bridge.apps.live import dropped_report
-    from bridge.sinks.websocket import ClientStats
+    from bridge.sinks.server import ClientStats
 
     stats = [ClientStats(f"10.0.0.{v}:5{v:04d}", sent=10_000, dropped=4000 + v,
                          topics=Counter({f"/can/can0/Message{i:03d}": 100 + i + v

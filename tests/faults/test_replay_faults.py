@@ -27,7 +27,7 @@ from bridge.cli import main
 from bridge.errors import InputError, UsageError
 from bridge.io.readahead import THREAD_ITEMS, read_in_thread
 from bridge.sim.drive import simulate
-from bridge.sinks.websocket import LiveServer
+from bridge.sinks.server import LiveServer
 
 #: What a replay asked to stop may take at most to end: a hang fails, not freezes, the suite.
 LIMIT_S = 60.0

@@ -34,10 +34,11 @@ from harness import SUBPROTOCOL, Viewer, assert_survived, start
 
 from bridge.frame import NS, Frame
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.sinks.websocket import LiveServer, wait_for
+from bridge.sinks.server import LiveServer
 
 try:
     from conftest import SHARED_DBC, timeout_scale
+    from waiting import wait_for
 except ImportError:  # in the car's process (livecar.py), which only reads the radar's DBC
     SHARED_DBC = Path(__file__).resolve().parents[3] / "shared" / "data" / "dbc"
 

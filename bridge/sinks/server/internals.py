@@ -1,0 +1,156 @@
+"""The fence: every use of foxglove-websocket's and websockets' private internals, and only here.
+
+Written against **foxglove-websocket 0.1.4** (pyproject: ``foxglove-websocket>=0.1.4``; the
+releases checked are :data:`CHECKED_FOXGLOVE_WEBSOCKET`) and websockets' legacy server as
+websockets 12 to 17 ship it (pyproject: ``websockets>=12,<18``). tests/test_server.py asserts
+that every private name below still exists with the signature used here, and fails on a
+foxglove-websocket release not in :data:`CHECKED_FOXGLOVE_WEBSOCKET`: check those tests pass on
+it before adding it there.
+
+What is used, and why:
+
+- :class:`Server` subclasses ``FoxgloveServer`` and overrides ``_handle_raw_client_message``
+  (to check what a viewer sends with :func:`~bridge.sinks.server.viewer_input.client_message`
+  before foxglove-websocket sees it: it calls ``_handle_client_text_message`` with what passed
+  and answers the rest with ``_send_status``) and ``_send_json`` (to write replies without
+  waiting for the viewer; at most :data:`REPLY_LIMIT_BYTES` behind).
+- :func:`clients` reads ``FoxgloveServer._clients`` (the connected ``ClientState`` s; each has
+  ``connection`` and ``subscriptions_by_channel``, a new mapping at every (un)subscribe) and
+  :func:`add_channel` writes ``FoxgloveServer._channels`` (the channels a client may subscribe
+  to): the server sends advertisements itself, through each client's own queue.
+- :class:`Connection` subclasses websockets' legacy ``WebSocketServerProtocol``: it overrides
+  ``write_close_frame`` (reading ``close_rcvd``) and ``pong`` (with ``write_frame_sync`` and
+  ``prepare_ctrl``). :func:`write_frames`, :func:`ensure_open` and :func:`drain` write to a
+  connection's transport and wait for it the way the legacy protocol does itself.
+
+Refusals: a viewer that sends what the server does not take gets the protocol's ``status``
+message (level error) saying what was wrong, the console one line (logger ``tankviz.server``,
+warning, no traceback; at most :data:`REFUSALS_LOGGED` per viewer), and nothing else happens.
+
+A viewer that closes the connection while it still has not read what was sent to it (its socket
+buffers are full) is dropped at once: the echo of its close frame could only reach it behind all
+that, so the connection is aborted instead of waiting for websockets' close timeout.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import weakref
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from foxglove_websocket.server import FoxgloveServer
+from foxglove_websocket.types import ChannelId, StatusLevel
+from websockets.exceptions import ConnectionClosed
+from websockets.frames import Frame, Opcode
+from websockets.legacy.framing import prepare_ctrl
+from websockets.legacy.server import WebSocketServerProtocol
+from websockets.typing import DataLike
+
+from bridge.sinks.server.viewer_input import ViewerInputError, client_message
+
+#: foxglove-websocket releases this module was checked against (tests/test_server.py).
+CHECKED_FOXGLOVE_WEBSOCKET = ("0.1.4",)
+#: Console lines for one viewer's refused messages; it gets a status for every one.
+REFUSALS_LOGGED = 20
+#: A viewer this far behind (bytes not yet taken by its socket) gets no more replies.
+REPLY_LIMIT_BYTES = 2**20
+
+log = logging.getLogger("tankviz.server")
+
+
+def viewer_name(connection: Any) -> str:
+    """``host:port`` of a viewer's connection (``?`` when unknown)."""
+    address = connection.remote_address
+    return f"{address[0]}:{address[1]}" if address else "?"
+
+
+class Server(FoxgloveServer):  # type: ignore[misc]
+    """foxglove-websocket's server, taking from viewers only what
+    :func:`~bridge.sinks.server.viewer_input.client_message` lets through, and replying without
+    waiting for the viewer to read."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._refusals: weakref.WeakKeyDictionary[Any, int] = weakref.WeakKeyDictionary()
+
+    async def _handle_raw_client_message(self, client: Any, raw_message: str | bytes) -> None:
+        try:
+            message = client_message(raw_message)
+            await self._handle_client_text_message(client, message)
+        except ConnectionClosed:
+            pass
+        except ViewerInputError as exc:
+            await self._refuse(client.connection, str(exc))
+        except Exception as exc:  # checked, and foxglove-websocket refused it all the same
+            await self._refuse(client.connection, f"{type(exc).__name__}: {exc}")
+
+    async def _refuse(self, connection: Any, problem: str) -> None:
+        count = self._refusals[connection] = self._refusals.get(connection, 0) + 1
+        if count <= REFUSALS_LOGGED:
+            log.warning("viewer %s: %s: ignored%s", viewer_name(connection), problem,
+                        " (its next ones are not logged)" if count == REFUSALS_LOGGED else "")
+        await self._send_status(connection, StatusLevel.ERROR, problem)
+
+    async def _send_json(self, connection: Any, msg: Any) -> None:
+        """Written at once, never awaited: only our sender task waits for a viewer's socket
+        (websockets' legacy connections cannot have two waiting at once)."""
+        if (connection.open
+                and connection.transport.get_write_buffer_size() < REPLY_LIMIT_BYTES):
+            write_frames(connection, [Frame(
+                Opcode.TEXT, json.dumps(msg, separators=(",", ":")).encode())])
+
+
+def clients(server: FoxgloveServer | None) -> tuple[Any, ...]:
+    """The connected clients (foxglove-websocket's ``ClientState`` s); none before the server
+    runs."""
+    return tuple(server._clients) if server is not None else ()
+
+
+def add_channel(server: FoxgloveServer, channel: dict[str, Any]) -> None:
+    """Make ``channel`` (an ``advertise`` entry, with its ``id``) one that clients may subscribe
+    to; advertising it is the caller's business."""
+    server._channels[ChannelId(channel["id"])] = channel
+
+
+class Connection(WebSocketServerProtocol):
+    """websockets' server connection, which lets a viewer go at once when it closes without
+    having read what was sent to it, and answers its pings without waiting.
+
+    Only our sender task may wait for a full socket (websockets' legacy connections fail with an
+    AssertionError, logged with its traceback, when two wait at once): the echo of a close frame
+    and a pong are written and never waited for.
+    """
+
+    async def write_close_frame(self, close: Any, data: Any = None) -> None:
+        transport = self.transport
+        if (self.close_rcvd is not None
+                and transport.get_write_buffer_size() > transport.get_write_buffer_limits()[0]):
+            # The viewer said goodbye; the echo would wait behind all it never read.
+            transport.abort()
+            return
+        await super().write_close_frame(close, data)
+
+    async def pong(self, data: DataLike = b"") -> None:
+        await self.ensure_open()
+        self.write_frame_sync(True, Opcode.PONG, prepare_ctrl(data))
+
+
+def write_frames(connection: Any, frames: Sequence[Frame] | Iterable[Frame]) -> None:
+    """Several messages, one write to the connection's transport: each still its own WebSocket
+    message, framed by websockets itself. Never waits."""
+    extensions = connection.extensions
+    connection.transport.write(b"".join(frame.serialize(mask=False, extensions=extensions)
+                                        for frame in frames))
+
+
+async def ensure_open(connection: Any) -> None:
+    """Raises websockets' ``ConnectionClosed`` once the connection is closing or closed."""
+    await connection.ensure_open()
+
+
+async def drain(connection: Any) -> None:
+    """Waits while the connection's transport holds more than its write limit (websockets'
+    flow control)."""
+    await connection.drain()
