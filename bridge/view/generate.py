@@ -40,6 +40,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from bridge.decode.decoder import Decoder
+from bridge.health.alarms import AlarmKind, alarm_id
 from bridge.profile.model import Field, ObjectGroup, Profile
 from bridge.scene.camera import camera_for, view_range
 from bridge.topics import (
@@ -348,9 +349,10 @@ BUS_HEALTH_WEIGHTS = (1.0, 1.0, 2.67, 2.67, 2.67)
 
 def _bus_health(bus: str) -> tuple[dict[str, Any], Any]:
     where = f'{HEALTH_TOPIC}.buses[:]{{bus=="{bus}"}}'
+    silent, babbling = alarm_id(AlarmKind.BUS_SILENT, bus), alarm_id(AlarmKind.BABBLING, bus)
     configs = {
-        f"Indicator!bus.{bus}.silent": indicator(f"bus.{bus}.silent"),
-        f"Indicator!bus.{bus}.babbling": indicator(f"bus.{bus}.babbling"),
+        f"Indicator!{silent}": indicator(silent),
+        f"Indicator!{babbling}": indicator(babbling),
         f"Plot!bus-{bus}-rate": plot(f"Bus {bus}: frames/s (/health)", [
             _path(f"{where}.frames_per_s", f"{bus} frames/s")], legend="top", sidebar=34),
         f"Plot!bus-{bus}-load": plot(f"Bus {bus}: load (share of the bitrate)", [
@@ -363,7 +365,7 @@ def _bus_health(bus: str) -> tuple[dict[str, Any], Any]:
         f"RawMessages!frames-{bus}": raw_messages(f"Raw frames {frames_topic(bus)}",
                                                   frames_topic(bus)),
     }
-    health = weighted([f"Indicator!bus.{bus}.silent", f"Indicator!bus.{bus}.babbling",
+    health = weighted([f"Indicator!{silent}", f"Indicator!{babbling}",
                        f"Plot!bus-{bus}-rate", f"Plot!bus-{bus}-load",
                        f"Plot!bus-{bus}-errors"], BUS_HEALTH_WEIGHTS, "column")
     return configs, health
