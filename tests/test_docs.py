@@ -6,7 +6,8 @@ reference) and DEVELOPING.md.
 - every relative link of the documentation points to a file that exists, and a ``#anchor`` to a
   heading of it (GitHub's slugs);
 - the front page stays short, with the quick start .ci/run runs (two commands between markers);
-- the front page's Python example runs, and prints what the front page says (numbers aside).
+- the front page's Python example runs, and prints what the front page says (numbers aside);
+- the front page's workflows, typed in a fresh folder, run and print the lines it shows.
 """
 
 from __future__ import annotations
@@ -221,3 +222,60 @@ def test_the_front_page_python_example_runs_and_prints_what_the_front_page_shows
         exec(compile(code, "README.md (python example)", "exec"), {"__name__": "readme_example"})
     assert (tmp_path / "trip.mcap").is_file()
     assert shape(printed.getvalue()) == shape(shown)
+
+
+# --- the front page's workflows, as a newcomer types them ----------------------------------------
+
+#: What varies from run to run in a command's output: numbers (counts, times, ports, dates).
+_VARYING = re.compile(r"\d[\d,.:TZ-]*")
+
+
+def workflow_sessions() -> list[tuple[str, list[str]]]:
+    """Each ``$ tankviz …`` command of the front page's workflows with the lines shown after it
+    (the lines with an ellipsis are shortened: left out)."""
+    text = README.read_text().split("## Three workflows", 1)[1].split("\n## ", 1)[0]
+    sessions: list[tuple[str, list[str]]] = []
+    for block in re.findall(r"```\n(.*?)```", text, flags=re.DOTALL):
+        for line in block.splitlines():
+            if line.startswith("$ "):
+                sessions.append((line[2:], []))
+            elif sessions and "…" not in line:
+                sessions[-1][1].append(line)
+    return sessions
+
+
+def test_the_front_page_workflows_run_as_shown(tmp_path: Path) -> None:
+    """The front page's commands, typed in a fresh folder in their order, exit 0 and print the
+    lines shown (numbers aside); the own-car workflow needs the highway car's databases and the
+    log its note says how to make."""
+    import os
+    import shlex
+    import subprocess
+    import sys
+
+    from bridge.resources import data_dir
+
+    for name in ("highway_radar.dbc", "highway_car.dbc"):
+        (tmp_path / name).write_bytes((data_dir() / name).read_bytes())
+    environment = {**{k: v for k, v in os.environ.items() if k != "TANKVIZ_DRIVES"},
+                   "TANKVIZ_PORT": "0"}  # drives into ./drives, the default
+    sessions = workflow_sessions()
+    assert [command.split()[1] for command, _ in sessions] == [
+        "demo", "simulate", "convert", "inspect", "profile", "profile", "convert"]
+    subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", "highway", "--road",
+                    "winding", "-o", "highway.blf"], cwd=tmp_path, check=True,
+                   capture_output=True)
+    for command, shown in sessions:
+        words, _, edit = command.partition("#")
+        if "lateral" in edit:  # the fix check asked for, made before this command
+            profile = tmp_path / "mycar.toml"
+            profile.write_text(profile.read_text().replace('lateral = "left"',
+                                                           'lateral = "right"'))
+        done = subprocess.run([sys.executable, "-m", "bridge", *shlex.split(words)[1:]],
+                              cwd=tmp_path, capture_output=True, text=True, env=environment,
+                              timeout=300)
+        assert done.returncode == 0, f"{command}: {done.stderr}"
+        printed = {_VARYING.sub("#", line.strip()) for line in done.stdout.splitlines()}
+        for line in shown:
+            assert _VARYING.sub("#", line.strip()) in printed, f"{command}: {line!r} not in\n" \
+                + done.stdout
