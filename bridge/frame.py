@@ -20,6 +20,10 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 #: Nanoseconds per second: the unit of every time in the bridge.
 NS = 1_000_000_000
+#: A log time before every frame's (nothing happened yet), and one after every frame's (nothing
+#: is due): integer markers, so that every time held is an int (no float infinities).
+NEVER_NS = -(1 << 62)
+END_NS = 1 << 62
 
 
 #: The bit of a frame key (:func:`frame_key`) that marks a 29-bit id (no CAN id reaches it).

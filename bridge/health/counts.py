@@ -22,14 +22,14 @@ from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
-from bridge.frame import NS, key_id
+from bridge.frame import NEVER_NS, NS, key_id
 from bridge.health.alarms import AlarmKind, HealthSettings, alarm_id
 from bridge.health.wire import FrameKind, KindKey
 from bridge.pb import health_pb2
 from bridge.profile.model import Profile, Sensor
 from bridge.world.observe import LEAD_GROUP
 
-NEVER = -(1 << 62)  # a time before everything
+NEVER = NEVER_NS  # a time before everything
 UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
 
 

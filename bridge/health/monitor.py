@@ -70,7 +70,7 @@ from typing import Any
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec, Outcome
-from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key, timestamp
+from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame, frame_key, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings, alarm_id
 from bridge.health.counts import (
     NEVER,
@@ -130,7 +130,7 @@ class HealthMonitor:
         self._raise_ns = round(s.raise_after_s * NS)
         self._clear_ns = round(s.clear_after_s * NS)
         #: log time of the next check; frames at or after it make it happen
-        self.next_tick_ns: int | float = float("-inf")
+        self.next_tick_ns = NEVER_NS  # (no frame yet)
         self._next_publish_ns: int | None = None
         self.first_ns: int | None = None
         self.last_tick_ns: int | None = None
@@ -358,12 +358,12 @@ class HealthMonitor:
         :meth:`on_frame`, and with the clock when no frame comes); cheap unless one is due."""
         if t_ns < self.next_tick_ns:
             return []
-        if self.next_tick_ns == float("-inf"):
+        if self.next_tick_ns == NEVER_NS:
             self.next_tick_ns = (t_ns // self.period_ns + 1) * self.period_ns
             if self.first_ns is None:
                 self.first_ns = t_ns
             return []
-        tick = int(self.next_tick_ns)
+        tick = self.next_tick_ns
         due = (t_ns - tick) // self.period_ns + 1
         out: list[TopicMessage] = []
         limit = 600  # a gap of more than a minute: the first minute, then the latest tick
@@ -379,7 +379,7 @@ class HealthMonitor:
 
     def finish(self, t_ns: int) -> list[TopicMessage]:
         """The checks still due at the end of the drive (log time ``t_ns``)."""
-        return self.advance(t_ns + 1) if self.next_tick_ns != float("-inf") else []
+        return self.advance(t_ns + 1) if self.next_tick_ns != NEVER_NS else []
 
     def rebase(self, shift_ns: int, t_ns: int) -> None:
         """The clock stepped by ``shift_ns`` to log time ``t_ns`` (a frame's stamp): every log
@@ -390,7 +390,7 @@ class HealthMonitor:
         def moved(t: int) -> int:
             return t if t == NEVER else t + shift_ns
 
-        if self.next_tick_ns != float("-inf"):
+        if self.next_tick_ns != NEVER_NS:
             self.next_tick_ns = t_ns // self.period_ns * self.period_ns  # (made at once)
         if self._next_publish_ns is not None:
             self._next_publish_ns += shift_ns

@@ -32,7 +32,7 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bridge.errors import UsageError
-from bridge.frame import NS
+from bridge.frame import NEVER_NS, NS
 from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObjects
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
@@ -76,7 +76,7 @@ class Perception:
         #: the view the scene's marks and labels are made for (the generated layouts' camera)
         self.camera = camera_for(view_range(profile))
         #: log time of the next scene; frames at or after it make it happen
-        self.next_tick_ns: int | float = float("-inf")
+        self.next_tick_ns = NEVER_NS
         self._started = False
         self.ticks = 0
         self.messages = self.observer.messages
@@ -153,7 +153,7 @@ class Perception:
         if t_ns < self.next_tick_ns:
             return []
         period = self.period_ns
-        tick = int(self.next_tick_ns)
+        tick = self.next_tick_ns
         due = (t_ns - tick) // period + 1
         limit = MAX_FILL_NS // period
         ticks = list(range(tick, tick + min(due, limit) * period, period))

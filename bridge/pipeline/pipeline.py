@@ -24,7 +24,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
-from bridge.frame import Frame
+from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrame
@@ -35,8 +35,6 @@ from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
 from bridge.sinks.mcap import frame_payload
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
-
-INF = float("inf")
 
 
 class Pipeline:
@@ -56,8 +54,8 @@ class Pipeline:
         self._wanted = self.perception.messages if self.perception is not None else frozenset()
         #: whether perception takes a codec's messages (filled as they come)
         self._fed: dict[MessageCodec, bool] = {}
-        self._next_tick: int | float = (float("-inf") if self.perception is not None
-                                        or health is not None else float("inf"))
+        self._next_tick = (NEVER_NS if self.perception is not None or health is not None
+                           else END_NS)
         self.frames = 0
         self.last_ns: int | None = None
         #: tells clock steps from the frames (and, live, from the wall clock: :meth:`advance`)
@@ -143,9 +141,9 @@ class Pipeline:
             self.emit(health.advance(t_ns))
         self._next_tick = self._next_due()
 
-    def _next_due(self) -> int | float:
-        return min(self.perception.next_tick_ns if self.perception is not None else INF,
-                   self.health.next_tick_ns if self.health is not None else INF)
+    def _next_due(self) -> int:
+        return min(self.perception.next_tick_ns if self.perception is not None else END_NS,
+                   self.health.next_tick_ns if self.health is not None else END_NS)
 
     def _health_scene(self, perception: Perception, health: HealthMonitor,
                       t_ns: int) -> TopicMessage:
@@ -168,7 +166,7 @@ class Pipeline:
         self.advance(self.last_ns + 1)
         perception = self.perception
         if perception is not None and perception.pending:
-            self.advance(int(perception.next_tick_ns))
+            self.advance(perception.next_tick_ns)
 
     def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False) -> None:
         """Scene, perception and other messages to every sink, serialized once (``catching_up``:
