@@ -27,8 +27,6 @@ from conftest import T0, message, timeout_scale
 from mcap.records import Attachment, AttachmentIndex, DataEnd, Footer, Metadata
 from mcap.stream_reader import StreamReader
 
-from bridge.apps.convert import convert
-from bridge.apps.simulate import write_log as write_sim_log
 from bridge.cli import main
 from bridge.errors import UsageError
 from bridge.fleet.batch import (
@@ -40,7 +38,9 @@ from bridge.fleet.batch import (
 )
 from bridge.frame import Frame
 from bridge.io.logs import supported_suffixes
+from bridge.pipeline.convert import convert
 from bridge.sim.drive import simulate
+from bridge.sinks.logs import write_log as write_sim_log
 
 VENV_BIN = Path(sys.executable).parent
 LOGS = tuple(supported_suffixes())

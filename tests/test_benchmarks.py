@@ -181,7 +181,7 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
     from mcap.records import MessageIndex
     from mcap.stream_reader import StreamReader
 
-    from bridge.apps.convert import convert
+    from bridge.pipeline.convert import convert
     from bridge.resources import data_dir
 
     drive = tmp_path / "sample.mcap"

@@ -24,13 +24,13 @@ from conftest import T0, message
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from bridge.apps.convert import convert
 from bridge.cli import main
 from bridge.errors import UsageError
 from bridge.fleet import catalog
 from bridge.fleet.catalog import DriveRows, index, read_here
 from bridge.frame import NS
 from bridge.pb import health_pb2
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sim.scenario import DEFAULT_START_NS

@@ -16,10 +16,10 @@ from conftest import ECOCAR_DBC, T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert, record_drive
 from bridge.apps.inspect import format_summary, summarize, summarize_file
 from bridge.errors import InputError, OutputError
 from bridge.io.logs import LogSource
+from bridge.pipeline.convert import convert, record_drive
 from bridge.pipeline.drive import build_decoder
 
 

@@ -24,7 +24,7 @@ import can
 from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 
-from bridge.apps.convert import convert
+from bridge.pipeline.convert import convert
 from bridge.resources import data_dir
 
 GOLDEN = Path(__file__).resolve().parent / "golden" / "drive_hashes.json"

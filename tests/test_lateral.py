@@ -29,8 +29,8 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
 from bridge.apps.inspect import format_summary, summarize_file
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile

@@ -26,8 +26,8 @@ import cantools
 import pytest
 from conftest import T0, WriteLog, message
 
-from bridge.apps.convert import convert
 from bridge.cli import main
+from bridge.pipeline.convert import convert
 from bridge.resources import layouts_dir
 
 PROFILE = Path(__file__).resolve().parent / "profiles" / "mazda_radar.toml"

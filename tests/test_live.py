@@ -27,10 +27,10 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from waiting import wait_for
 
-from bridge.apps.live import Live
 from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec, ReadSchedule, merge_batches
 from bridge.pipeline.drive import Drive, load_stages
+from bridge.pipeline.live import Live
 from bridge.sim.drive import simulate
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.drives import DriveRecorder, drive_name

@@ -25,7 +25,7 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import Computed
 from bridge.topics import EGO_TOPIC, HEALTH_TOPIC, LANES_TOPIC, objects_topic, scene_topic

@@ -19,7 +19,7 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import Profile, ProfileError
 from bridge.scene.entities import STEERING_LANE_COLOR

@@ -24,8 +24,8 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
 from bridge.apps.inspect import summarize_file
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.scene.entities import TRACK_COLOR
 from bridge.sinks.mcap import METADATA_NAME

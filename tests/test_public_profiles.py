@@ -26,8 +26,8 @@ from conftest import T0, WriteLog, message
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
 from bridge.pb.perception_pb2 import ObjectClass
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile

@@ -26,11 +26,11 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.apps.convert import convert
 from bridge.apps.replay import replay_drive
 from bridge.cli import main
 from bridge.errors import InputError
 from bridge.io.drives import read_drive
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir

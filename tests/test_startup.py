@@ -148,10 +148,10 @@ def test_live_collector_frees_cycles_at_a_quiet_moment_when_due() -> None:
 
 def test_live_applies_the_collector_settings(tmp_path: Path) -> None:
     """While live runs, the collector has live's thresholds."""
-    from bridge.apps.live import Live
     from bridge.frame import Frame
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
+    from bridge.pipeline.live import Live
 
     seen: list[tuple[int, int, int]] = []
     live = Live([BusSpec("can0", "virtual", f"startup-gc-{os.getpid()}")],

@@ -7,10 +7,11 @@ It simulates ``--drives`` drives of ``--duration`` seconds (the ecocar drive wit
 and fault scenarios, written as BLF logs into ``--workdir``, reused when present), then for each
 worker count starts a local Dask cluster (as ``tankviz batch`` does: one process per worker, one
 thread each), converts every drive with the ecocar profile through the very task of ``tankviz
-batch`` (:func:`bridge.fleet.batch.convert_task` running :func:`bridge.apps.convert.convert`), and
-times it from the first task submitted to the last result (the cluster's start is timed
-apart). It prints the speed-up per added core first, then the table. On a machine that others
-share, the figures say what the machine gave, not what the code can do.
+batch`` (:func:`bridge.fleet.batch.convert_task` running
+:func:`bridge.pipeline.convert.convert`), and times it from the first task submitted to the last
+result (the cluster's start is timed apart). It prints the speed-up per added core first, then
+the table. On a machine that others share, the figures say what the machine gave, not what the
+code can do.
 
     python tools/bench_batch.py                 # 8 drives of 20 s, 1 vs all cores
     python tools/bench_batch.py --drives 16 --duration 60 --workers 4
@@ -26,8 +27,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from bridge.apps.convert import convert
-from bridge.apps.simulate import write_log
 from bridge.fleet.batch import (
     DriveJob,
     Settings,
@@ -35,8 +34,10 @@ from bridge.fleet.batch import (
     dask_client,
     run_batch,
 )
+from bridge.pipeline.convert import convert
 from bridge.sim.drive import simulate
 from bridge.sim.scenario import SCENARIOS
+from bridge.sinks.logs import write_log
 
 
 def make_drives(folder: Path, count: int, duration: float) -> list[Path]:

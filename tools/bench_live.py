@@ -3,7 +3,7 @@
 
 Three python-can ``virtual`` buses (``radar``, ``camera``, ``chassis``) each carry 4,000 frames/s
 for ``--duration`` seconds (default 60, ``--quick``: 10) into the live bridge
-(:class:`bridge.apps.live.Live` + :class:`bridge.sinks.server.LiveServer`, the bundled ecocar
+(:class:`bridge.pipeline.live.Live` + :class:`bridge.sinks.server.LiveServer`, the bundled ecocar
 profile, scene at 50 Hz, drives recorded into a temporary folder), while four
 ``foxglove.websocket.v1`` clients watch: three subscribe to every ``/scene/*`` topic and read
 everything, one subscribes to every channel (raw frames and decoded signals included) and then never
@@ -545,9 +545,9 @@ def print_profile_summary(stats: Any) -> None:
 def run(args: argparse.Namespace) -> None:
     import can  # noqa: F401  (imported before the CPU window)
 
-    from bridge.apps.live import Live
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
+    from bridge.pipeline.live import Live
     from bridge.sinks.server import LiveServer
     from tests.waiting import wait_for
 

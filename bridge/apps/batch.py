@@ -3,7 +3,7 @@
 ``tankviz batch convert INPUTS… --out DIR`` converts CAN logs, ``tankviz batch rederive DRIVES…
 --out DIR`` converts tankviz drives (``.mcap``) again, e.g. with a fixed profile. Which files
 make one drive and what its output is called: :mod:`bridge.fleet.batch`. Each drive is one Dask
-task running :func:`bridge.apps.convert.convert`, the very function of ``tankviz convert``, on a
+task running :func:`bridge.pipeline.convert.convert`, the very function of ``tankviz convert``, on a
 local cluster (``--workers`` processes, one per core by default) or on the cluster at
 ``--scheduler``.
 
@@ -32,7 +32,6 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-from bridge.apps.convert import convert
 from bridge.apps.options import Subparsers, add_stage_options, dbc_option
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import OutputError, UsageError
@@ -56,6 +55,7 @@ from bridge.fleet.batch import (
     slow_drives,
 )
 from bridge.io.logs import supported_suffixes
+from bridge.pipeline.convert import convert
 
 
 def add_parser(sub: Subparsers) -> None:

@@ -1,41 +1,23 @@
 """``tankviz live``: CAN buses in, Foxglove live, every drive recorded.
 
-The pipeline thread reads every bus (python-can's own bus creation: any interface, several at
-once) a few times per scene period, just after each scene tick and between, and turns the frames
-into the recording (never dropping one) and the live scene (never waiting for a viewer). Each
-bus has a thread that opens it. Every bus is opened before anything is printed: a bus that
-cannot work at all (an unknown interface, a NAME without python-can configuration) is an error
-at once, never retried; a bus that does not open (a socketcand server that is down, an address
-that is not one, an interface that is not there) is retried for at most
-:data:`~bridge.io.buses.OPEN_WAIT_S` seconds (15; less if the run is stopped first: ``--for``,
-Ctrl+C), and if it has never opened by then it is an error: one line, exit 1, nothing recorded.
-When a bus that had opened fails (adapter unplugged, interface down) live says so, retries with
-backoff for as long as it runs and says when it is back; the pipeline keeps running, viewers get
-a ``foxglove.Log`` on ``/log``, and the recording marks the gap (``bus_gaps``; its reason is one
-line). python-can's own log lines are said once per cause, then counted
+The engine is :class:`bridge.pipeline.live.Live` (how the buses are read, opened and reopened,
+recorded and served; what their reading mends or loses; the disk filling; clock steps; the
+garbage collector): see :mod:`bridge.pipeline.live`. This command builds it from its options,
+runs it and prints what it did.
+
+Every bus is opened before anything is printed: a bus that cannot work at all (an unknown
+interface, a NAME without python-can configuration) is an error at once, never retried; a bus
+that does not open is retried for at most :data:`~bridge.io.buses.OPEN_WAIT_S` seconds (15; less
+if the run is stopped first: ``--for``, Ctrl+C), and if it has never opened by then it is an
+error: one line, exit 1, nothing recorded. A bus that had opened and fails is said (and when it
+is back) as the run goes. python-can's own log lines are said once per cause, then counted
 (:class:`~bridge.io.buses.CanLogLimiter`).
 
-What the reading of a bus mends or loses (:class:`~bridge.health.receive.ReceiveCounts`: frames
-stamped NaN, kept and stamped when read; what is not a frame; frames the kernel dropped because
-live read too late, where python-can exposes the socket) goes to the health monitor (``/log``
-warnings, the ``bus.<bus>.bad_timestamps`` and ``bus.<bus>.frames_lost`` alarms on ``/health``),
-into the drive's metadata (``bus_receive``: the counts per bus) and into the end-of-run lines.
-A full disk (or free space below ``--min-free``) stops the recording, not the drive: the part is
-finished, ``recorder.disk_full`` is raised on ``/log`` and ``/health``, viewers are still served
-and recording resumes in a new part when there is room (:mod:`bridge.sinks.drives`).
-
-Log time is the frames' clock (:class:`~bridge.io.buses.ReadSchedule` follows it with the wall
-clock). When it steps (:mod:`bridge.pipeline.clock`: a frame stamped more than a second before log
-time, or more than two seconds after it), the pipeline re-bases its scene ticks, health windows
-and lifetimes at once and says so on ``/log``, the schedule takes the new offset at once, and the
-drive's metadata lists the step (``clock_steps``); every frame is recorded with its own stamp.
-When the pipeline falls behind (a loaded machine), the scenes of every tick it missed are made
-and recorded; viewers get the latest. Once started, the garbage collector runs with
-:func:`bridge.pipeline.collector.steady_stream`'s settings (start-up frozen, rare young
-collections, a full one a minute where the loop waits), and the process's own come back at the
-end. At the end it prints how many messages slow viewers lost: which viewers, and of which
-topics (the few that lost most, the rest counted); a run that got no frame says so (and, on a
-``virtual`` bus, that only the same process can send onto it).
+At the end it prints the files recorded, what the buses' reading mended or lost
+(:func:`receive_report`) and how many messages slow viewers lost: which viewers, and of which
+topics (the few that lost most, the rest counted: :func:`dropped_report`); a run that got no
+frame says so (and, on a ``virtual`` bus, that only the same process can send onto it:
+:func:`nothing_came`).
 
 At start it names the layout to import (:func:`layout_hint`): the bundled one for the bundled
 ecocar profile; for another profile the layouts made for it and these buses, written into
@@ -46,19 +28,11 @@ the ``tankviz layouts`` command that writes them.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import queue
 import shlex
 import sys
 import threading
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import can
-from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.apps import hints, options
 from bridge.apps.options import (
@@ -70,43 +44,11 @@ from bridge.apps.options import (
 )
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import UsageError
-from bridge.frame import NS, Frame, timestamp
-from bridge.health.alarms import AlarmKind
-from bridge.io.buses import (
-    OPEN_WAIT_S,
-    BusEvent,
-    BusLink,
-    BusSpec,
-    ReadSchedule,
-    ReceiveCounts,
-    limit_can_logs,
-    merge_batches,
-)
-from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
-from bridge.pipeline.collector import steady_stream
-from bridge.pipeline.drive import Drive, Stages
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
-from bridge.sinks.drives import Gap
-from bridge.sinks.server import ClientStats, LiveServer
-from bridge.topics import LOG_TOPIC, TopicMessage
+from bridge.io.buses import BusSpec, ReceiveCounts, limit_can_logs
+from bridge.pipeline.drive import Stages
+from bridge.pipeline.live import Live
+from bridge.sinks.server import ClientStats
 from bridge.view.generate import DEFAULT_BUS, generate_layouts, layout_text
-
-
-def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
-    return TopicMessage(LOG_TOPIC, Log(timestamp=timestamp(t_ns), level=level, message=text,
-                                       name="tankviz"), t_ns)
-
-
-@dataclass
-class LiveReport:
-    frames: int
-    files: list[Path]
-    gaps: list[Gap]
-    dropped: int
-    #: every viewer, with what it lost
-    viewers: list[ClientStats] = field(default_factory=list)
-    #: what each bus's reading mended or lost
-    receive: dict[str, ReceiveCounts] = field(default_factory=dict)
 
 
 def dropped_report(viewers: Sequence[ClientStats], *, most: int = 3) -> str:
@@ -159,195 +101,6 @@ def receive_report(receive: dict[str, ReceiveCounts]) -> list[str]:
         if said:
             lines.append(f"bus {bus}: " + "; ".join(said))
     return lines
-
-
-_NOTHING = ReceiveCounts()
-
-
-class Live:
-    """The live pipeline: the buses, the pipeline thread's loop, recorder and server."""
-
-    def __init__(self, buses: Sequence[BusSpec], stages: Stages, *,
-                 scene_rate: float = DEFAULT_SCENE_RATE,
-                 drives: Path | None = Path("drives"), server: LiveServer | None = None,
-                 split_size: int | None = None, split_duration_s: float | None = None,
-                 min_free: int = 0,
-                 open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
-                 open_wait_s: float = OPEN_WAIT_S,
-                 say: Callable[[str], None] = print) -> None:
-        names = [b.name for b in buses]
-        if len(set(names)) != len(names):
-            raise UsageError(f"--bus: a bus name is used twice ({', '.join(names)})")
-        self.buses = list(buses)
-        self.scene_rate = scene_rate
-        self.server = server
-        self.say = say
-        self.open_wait_s = open_wait_s
-        self.events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
-        self.links = [BusLink(spec, self.events, open_bus=open_bus) for spec in buses]
-        self.drive = Drive(stages, scene_rate=scene_rate,
-                           bitrates={b.name: b.bitrate for b in buses if b.bitrate is not None},
-                           extra={"buses": [str(b) for b in self.buses]})
-        #: what each bus's reading mended or lost, as last told (in the metadata: bus_receive)
-        self.receive: dict[str, ReceiveCounts] = {}
-        self._receive_record: dict[str, dict[str, Any]] = {}
-        self.drive.extra["bus_receive"] = self._receive_record
-        # Live knows log time from the wall clock too: a step a few seconds ahead is one.
-        self.drive.pipeline.clock = StepDetector(forward_ns=LIVE_FORWARD_NS)
-        if server is not None:
-            # first: viewers wait for a scene, the recorder does not; and viewers may get fewer
-            # scenes when the pipeline catches up, the recording gets every one
-            self.drive.pipeline.add_viewer(server)
-        self.recorder = (self.drive.record_parts(drives, split_size=split_size,
-                                                 split_duration_s=split_duration_s)
-                         if drives is not None else None)
-        if self.recorder is not None:
-            self.recorder.min_free = min_free
-            self.recorder.check_space()
-        self.pipeline = self.drive.pipeline
-        self.pipeline.advertise(names)
-        self.stopping = threading.Event()
-        self._down: dict[str, Gap] = {}
-
-    def stop(self) -> None:
-        self.stopping.set()
-
-    def start(self) -> None:
-        """Open the buses (each by its opener thread); returns once each is open. A bus that
-        cannot work (:func:`bridge.io.buses.configuration_error`) raises its ``UsageError`` at
-        once; a bus that has not opened after :attr:`open_wait_s` seconds (or when the run is
-        stopped first) raises one saying so. Then the buses are closed and nothing is
-        recorded."""
-        for link in self.links:
-            link.start()
-        began = time.monotonic()
-        while True:
-            error = next((link.error for link in self.links if link.error is not None), None)
-            waiting = [link for link in self.links if not link.opened.is_set()]
-            if (error is not None or not waiting or self.stopping.is_set()
-                    or time.monotonic() - began >= self.open_wait_s):
-                break
-            self.stopping.wait(0.02)
-        if error is None and not waiting:
-            return
-        took = time.monotonic() - began
-        for link in self.links:
-            link.stop()
-            link.close()
-        if self.recorder is not None:
-            self.recorder.finish()
-        if error is None:
-            link = waiting[0]
-            when = (f"in {self.open_wait_s:g} s" if took >= self.open_wait_s else
-                    f"before the run was stopped after {took:.1f} s")
-            tries = f"{link.tries} tr{'y' if link.tries == 1 else 'ies'}"
-            why = (f"{link.failure} ({tries})" if link.failure else
-                   "python-can's first try to open it had not ended")
-            error = UsageError(f"--bus {link.spec}: did not open {when}: {why}")
-        raise error
-
-    def _poll(self) -> list[Frame]:
-        """Every bus's new frames, in time order."""
-        polled = [frames for link in self.links if (frames := link.poll())]
-        return merge_batches(polled) if polled else []
-
-    def run(self) -> LiveReport:
-        """Until :meth:`stop`: read, record, serve. Files are finished cleanly on the way out."""
-        self.start()
-        # What is loaded by now (databases, profile, schemas) lives as long as the process:
-        # frozen out of the collector's way; full collections only at quiet moments.
-        collector = steady_stream()
-        pipeline, events = self.pipeline, self.events
-        process = pipeline.process
-        schedule = ReadSchedule(round(NS / self.scene_rate))
-        try:
-            while not self.stopping.is_set():
-                collector.quiet()  # (where the loop waits: a full collection when one is due)
-                schedule.wait()
-                while True:
-                    try:
-                        self._bus_event(events.get_nowait(), schedule.offset_ns or 0)
-                    except queue.Empty:
-                        break
-                frames = self._poll()
-                if frames:
-                    read_ns = time.time_ns()
-                    schedule.saw(frames[-1].timestamp_ns, read_ns)
-                    steps = len(pipeline.steps)
-                    for frame in frames:
-                        process(frame)
-                    if len(pipeline.steps) != steps:  # the clock stepped: log time with it
-                        schedule.restart(frames[-1].timestamp_ns, read_ns)
-                # Every frame stamped before this was read: the scenes due go out now, whether
-                # or not a later frame came (a quiet or silent bus).
-                log_now = schedule.log_time(time.time_ns())
-                if log_now is not None:
-                    pipeline.advance(log_now)
-                if self.server is not None:
-                    self.server.flush()  # raw frames and signals for who subscribed to them
-                if self.recorder is not None:
-                    self.recorder.tick()
-                    self._recorder_state()
-                self._receive_state()
-        finally:
-            for link in self.links:
-                link.stop()
-            # What the interfaces have already received (a bounded while: a busy bus never
-            # runs dry).
-            until = time.monotonic() + 0.25
-            while time.monotonic() < until and (frames := self._poll()):
-                for frame in frames:
-                    process(frame)
-            for link in self.links:
-                link.close()
-            self._receive_state()
-            self.drive.finish()
-            if self.recorder is not None:
-                for text in self.recorder.take_notices():
-                    self.say(text)
-            collector.restore()
-        viewers = self.server.client_stats() if self.server else []
-        return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
-                          self.recorder.gaps if self.recorder else [],
-                          sum(s.dropped for s in viewers), viewers, dict(self.receive))
-
-    def _receive_state(self) -> None:
-        """What each bus's reading mended or lost, when it changed: to the health monitor
-        (``/log``, ``/health``) and into the metadata (``bus_receive``)."""
-        for link in self.links:
-            counts = link.receive
-            if counts != self.receive.get(link.spec.name, _NOTHING):
-                copy = self.receive[link.spec.name] = dataclasses.replace(counts)
-                self.drive.health.note_receive(link.spec.name, copy)
-                self._receive_record[link.spec.name] = copy.to_dict()
-
-    def _recorder_state(self) -> None:
-        """What the recorder says (the disk filled, recording resumed) on ``/log``, and its
-        ``recorder.disk_full`` condition to the health monitor."""
-        assert self.recorder is not None
-        for notice in self.recorder.take_notices():
-            t = max(time.time_ns(), self.pipeline.last_ns or 0)
-            self.pipeline.emit([log_message(t, notice.level, notice)])
-            self.say(notice)
-        self.drive.health.hold(AlarmKind.DISK_FULL, "recorder", self.recorder.disk_full)
-
-    def _bus_event(self, event: BusEvent, offset_ns: int) -> None:
-        """A bus lost or back, noted at the log time it happened (its wall time plus the
-        offset the frames tell: an adapter's own clock, a clock step), never before the last
-        frame."""
-        t = max(event.t_ns + offset_ns, self.pipeline.last_ns or 0)
-        if not event.up:
-            gap = self._down[event.bus] = Gap(event.bus, t, None, event.reason)
-            if self.recorder is not None:
-                self.recorder.gaps.append(gap)
-            text = f"bus {event.bus} lost: {event.reason}; retrying"
-            self.pipeline.emit([log_message(t, Log.WARNING, text)])
-        else:
-            gap = self._down.pop(event.bus, Gap(event.bus, t, None, ""))
-            gap.end_ns = t
-            text = f"bus {event.bus} is back after {(t - gap.start_ns) / 1e9:.1f} s"
-            self.pipeline.emit([log_message(t, Log.INFO, text)])
-        self.say(text)
 
 
 def add_parser(sub: Subparsers) -> None:

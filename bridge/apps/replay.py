@@ -39,7 +39,6 @@ from mcap.records import Attachment, Chunk, DataEnd, Footer, Message
 from mcap.stream_reader import StreamReader
 
 from bridge.apps import hints, options
-from bridge.apps.convert import Source
 from bridge.apps.options import (
     Subparsers,
     add_run_for,
@@ -54,6 +53,7 @@ from bridge.io.drives import METADATA_NAME, DriveSource, RecordedDrive, read_dri
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import why_unreadable
+from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages

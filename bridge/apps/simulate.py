@@ -19,26 +19,20 @@ CSV and SQLite have no column for the CAN FD flags: their frames keep id, time a
 byte, and the command warns about the flags it leaves out. The output is checked before anything
 is simulated and appears only complete: a log is written under a hidden name of the run's own
 (``.NAME_partial_<pid>-<random>.SUFFIX``) and given its name when python-can has written every
-frame (an MCAP: :func:`bridge.sinks.outputs.atomic_output`). Two runs writing one output never mix
-their bytes: with ``--force`` the last to finish wins, without it the second keeps the first's
-file and fails saying so (:func:`bridge.sinks.outputs.publish`). Stopped by SIGTERM or SIGHUP, it
-leaves nothing behind, as on Ctrl+C. On a terminal it shows its progress as ``convert`` does
-(:func:`with_progress`).
+frame (:func:`bridge.sinks.logs.write_log`; an MCAP: :func:`bridge.sinks.outputs.atomic_output`).
+Two runs writing one output never mix their bytes: with ``--force`` the last to finish wins,
+without it the second keeps the first's file and fails saying so
+(:func:`bridge.sinks.outputs.publish`). Stopped by SIGTERM or SIGHUP, it leaves nothing behind, as
+on Ctrl+C. On a terminal it shows its progress as ``convert`` does (:func:`with_progress`).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
-import re
-import secrets
 import sys
-import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-
-import can
 
 from bridge.apps.options import Stopped, Subparsers, stopped_by_signals
 from bridge.apps.progress import ProgressBar
@@ -48,7 +42,8 @@ from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.drive import simulate
 from bridge.sim.highway import ROADS, simulate_highway
-from bridge.sinks.outputs import atomic_output, check_output, publish
+from bridge.sinks.logs import write_log
+from bridge.sinks.outputs import atomic_output, check_output
 
 #: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
 CANNOT_HOLD = {
@@ -124,26 +119,6 @@ def log_format(output: Path, car: str = "ecocar") -> str:
     return suffix
 
 
-class _CompleteSqliteWriter(can.SqliteWriter):
-    """python-can's SQLite writer, writing everything it is given.
-
-    Its writer thread ends on ``stop()`` after at most one more batch (~500 frames), and whatever
-    is still queued is lost; this one waits for the queue to be taken first.
-    """
-
-    def stop(self) -> None:
-        thread = self._writer_thread
-        while not self.buffer.empty() and thread.is_alive():
-            time.sleep(0.01)
-        super().stop()
-
-
-def log_channel(bus: str) -> int | str:
-    """The python-can channel a bus is written on: N for ``can<N>`` (read back as ``can<N>``:
-    :func:`bridge.io.logs.bus_name`), else the bus name itself."""
-    return int(bus[3:]) if re.fullmatch(r"can\d+", bus) else bus
-
-
 def with_progress(frames: Iterable[Frame], duration_s: float,
                   progress: Callable[[int, float | None], None], *,
                   every: int = 4096) -> Iterator[Frame]:
@@ -164,45 +139,6 @@ def _noting_buses(frames: Iterable[Frame], buses: set[str]) -> Iterator[Frame]:
     for frame in frames:
         buses.add(frame.bus)
         yield frame
-
-
-def write_log(frames: Iterator[Frame], output: Path, suffix: str, *,
-              force: bool | None = None) -> tuple[int, int]:
-    """Write ``frames`` with python-can's writer for ``suffix``, under a hidden name of its own
-    given its name when every frame is written (``force``: as
-    :func:`bridge.sinks.outputs.atomic_output` takes it). Returns how many frames, and how many of
-    them CAN FD."""
-    replace = os.path.lexists(output) if force is None else force
-    # python-can chooses its writer by the suffixes (exactly two for gzip): keep only those
-    base = output.name[:-len(suffix)].replace('.', '_')
-    partial = output.with_name(f".{base}_partial_{os.getpid()}-{secrets.token_hex(4)}{suffix}")
-    count = fd = 0
-    try:
-        try:
-            writer: can.Listener = (_CompleteSqliteWriter(partial) if suffix == ".db"
-                                    else can.Logger(partial))
-        except NotImplementedError as exc:  # MF4 without asammdf
-            raise OutputError(output, f"{exc}; pip install 'tankviz[mf4]'") from None
-        try:
-            for frame in frames:
-                writer.on_message_received(can.Message(
-                    timestamp=frame.timestamp_ns / 1e9, arbitration_id=frame.arbitration_id,
-                    data=frame.data, is_extended_id=frame.is_extended, is_fd=frame.is_fd,
-                    bitrate_switch=frame.bitrate_switch, dlc=frame.dlc,
-                    channel=log_channel(frame.bus)))
-                count += 1
-                fd += frame.is_fd
-        finally:
-            writer.stop()
-        if isinstance(writer, can.SqliteWriter) and writer.num_frames != count:
-            raise OutputError(output, f"python-can's SQLite writer wrote {writer.num_frames:,} "
-                              f"of {count:,} frames")
-        publish(partial, output, replace=replace)
-    except OSError as exc:
-        raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
-    finally:
-        partial.unlink(missing_ok=True)
-    return count, fd
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,7 +23,7 @@ one conversion per drive on a Dask cluster (``tankviz batch``).
   conversion function it is given (``tankviz convert``'s own, :func:`convert_task`) with the
   drive's inputs, which writes the output atomically (and refuses one file given twice, and warns
   about inputs that are one log twice over, e.g. ``trip.blf`` and ``trip.asc``: see
-  :mod:`bridge.apps.convert`). A drive that fails (an error of its input or database, any
+  :mod:`bridge.pipeline.convert`). A drive that fails (an error of its input or database, any
   exception, its worker dying) gives a :class:`DriveResult` with its one-line error; the others
   go on. A drive written from inputs with issues (damaged or unreadable parts skipped, times
   that jump back) gives how many and the first (the batch's summary names each such drive:
@@ -278,7 +278,7 @@ class Converted(Protocol):
 
 
 class ConvertFunction(Protocol):
-    """``tankviz convert``'s function (:func:`bridge.apps.convert.convert`)."""
+    """``tankviz convert``'s function (:func:`bridge.pipeline.convert.convert`)."""
 
     def __call__(self, inputs: Sequence[Path | str], output: Path | str,
                  dbc_options: Sequence[str], *, profile: str | Path | None,
@@ -313,7 +313,7 @@ class DriveResult:
     #: the issues of the inputs (damaged or unreadable parts skipped, ...): how many, the first
     issues: int = 0
     first_issue: str = ""
-    #: inputs that are one log twice over (:func:`bridge.apps.convert.overlapping_inputs`)
+    #: inputs that are one log twice over (:func:`bridge.pipeline.convert.overlapping_inputs`)
     warnings: tuple[str, ...] = ()
 
 

@@ -18,7 +18,6 @@ import can
 import pytest
 from conftest import T0, WriteLog
 
-from bridge.apps.convert import convert
 from bridge.cli import main
 from bridge.fleet.batch import (
     DriveJob,
@@ -30,6 +29,7 @@ from bridge.fleet.batch import (
     progress_line,
     slow_drives,
 )
+from bridge.pipeline.convert import convert
 
 MB = 10**6
 

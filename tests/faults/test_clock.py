@@ -21,9 +21,9 @@ import pytest
 from harness import Viewer, assert_survived, start, steady
 from mcap.reader import make_reader
 
-from bridge.apps.convert import convert
 from bridge.decode.decoder import Decoded
 from bridge.frame import NS, Frame
+from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sinks.base import Serialized, Sink
 from bridge.topics import HEALTH_TOPIC, scene_topic

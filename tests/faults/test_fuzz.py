@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_logs import within_limit
 
-from bridge.apps.convert import ConvertReport, convert
 from bridge.errors import BridgeError
+from bridge.pipeline.convert import ConvertReport, convert
 
 PROFILE = Path(__file__).resolve().parents[1] / "profiles" / "delphi_esr.toml"
 DBC = SHARED_DBC / "ESR.dbc"

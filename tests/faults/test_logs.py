@@ -20,10 +20,10 @@ from conftest import T0, WriteLog, timeout_scale
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.apps.convert import convert
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
+from bridge.pipeline.convert import convert
 
 #: What reading one small damaged log may take at most: a hang fails, not freezes, the suite.
 LIMIT_S = 20.0

@@ -25,15 +25,15 @@ import pytest
 from conftest import T0, WriteLog, timeout_scale
 from mcap.reader import make_reader
 
-from bridge.apps.convert import convert, same_frames
 from bridge.apps.recover import recover_file
-from bridge.apps.simulate import write_log as write_sim_log
 from bridge.cli import main
 from bridge.errors import OutputError, UsageError
 from bridge.fleet.batch import find_inputs, group_drives, plan_jobs
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
+from bridge.pipeline.convert import convert, same_frames
 from bridge.sim.drive import simulate
+from bridge.sinks.logs import write_log as write_sim_log
 from bridge.sinks.outputs import atomic_output
 
 DRIVE_S = 2.0

@@ -22,11 +22,11 @@ from conftest import timeout_scale
 from mcap.writer import IndexType, Writer
 
 from bridge.apps.replay import replay_mcap
-from bridge.apps.simulate import write_log
 from bridge.cli import main
 from bridge.errors import InputError, UsageError
 from bridge.io.readahead import THREAD_ITEMS, read_in_thread
 from bridge.sim.drive import simulate
+from bridge.sinks.logs import write_log
 from bridge.sinks.server import LiveServer
 
 #: What a replay asked to stop may take at most to end: a hang fails, not freezes, the suite.

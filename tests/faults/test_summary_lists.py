@@ -10,14 +10,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bridge.apps.convert import (
-    MAX_ISSUES_RECORDED,
-    ConvertReport,
-    format_report,
-    recorded_issues,
-)
+from bridge.apps.convert import format_report
 from bridge.io.issues import summarize_issues
 from bridge.io.logs import SourceIssue
+from bridge.pipeline.convert import MAX_ISSUES_RECORDED, ConvertReport, recorded_issues
 
 STATISTICS = {"decoded": {}, "unknown_ids": {}, "decode_errors": {}, "truncated": {},
               "error_frames": {}}

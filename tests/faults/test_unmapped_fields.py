@@ -17,9 +17,9 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from bridge.apps.convert import convert
 from bridge.cli import main
 from bridge.pb import perception_pb2
+from bridge.pipeline.convert import convert
 from bridge.profile.model import Mount, Sensor, SensorKind
 from bridge.resources import data_dir
 from bridge.topics import LEAD_TOPIC, objects_topic
