@@ -39,7 +39,7 @@ from bridge.fleet.batch import (
 from bridge.frame import Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.convert import convert
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.logs import write_log as write_sim_log
 
 VENV_BIN = Path(sys.executable).parent
@@ -392,20 +392,20 @@ class _Terminal(io.StringIO):
 
 def test_the_batch_line_counts_drives_under_way_and_ignores_late_events(tmp_path: Path) -> None:
     from bridge.apps.batch import _BatchProgress
-    from bridge.fleet.batch import DriveJob, DriveResult
+    from bridge.fleet.batch import ConvertJob, JobResult
 
     logs = []
     for name in ("a.blf", "b.blf"):
         (tmp_path / name).write_bytes(b"x" * 1000)
         logs.append(str(tmp_path / name))
-    a, b = (DriveJob(n, (log,), str(tmp_path / f"{n}.mcap"))
+    a, b = (ConvertJob(n, (log,), str(tmp_path / f"{n}.mcap"))
             for n, log in zip("ab", logs, strict=True))
     terminal = _Terminal()
     bar = _BatchProgress([a, b], terminal, hz=1e9)
     bar.progress(b.output, 500, 0.5)
     assert terminal.getvalue().rsplit("\r", 1)[-1].startswith("\033[K[#####.....")
     assert "0/2 drives  500 frames" in terminal.getvalue()
-    bar.result(DriveResult(a, frames=2000, seconds=1.0, worker="w1"))
+    bar.result(JobResult(a, frames=2000, seconds=1.0, worker="w1"))
     bar.progress(a.output, 1500, 0.9)  # an event sent before the result, received after it
     line = terminal.getvalue().rsplit("\r", 1)[-1]
     assert "1/2 drives  2,500 frames" in line and "[###############.....]" in line

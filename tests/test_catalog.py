@@ -32,7 +32,7 @@ from bridge.frame import NS
 from bridge.pb import health_pb2
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sim.scenario import DEFAULT_START_NS
 from bridge.sinks.outputs import atomic_output
 

@@ -33,7 +33,7 @@ from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
 from bridge.resources import data_dir
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sim.frames import load_ecocar
 from bridge.sim.scenario import DEFAULT_START_NS, FAULT_ONSET_S, FAULT_RECOVERY_S, SCENARIOS
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage

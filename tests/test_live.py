@@ -31,9 +31,9 @@ from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec, ReadSchedule, merge_batches
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.pipeline.live import Live
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.base import Serialized, Sink
-from bridge.sinks.drives import DriveRecorder, drive_name
+from bridge.sinks.drives import PartsRecorder, drive_name
 from bridge.sinks.mcap import frame_payload
 from bridge.sinks.server import LiveServer
 
@@ -474,7 +474,7 @@ def test_live_refuses_nonsense(tmp_path: Path) -> None:
 def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> None:
     """Writing a second's chunk takes ~10 ms: right after a scene, it delays no scene."""
     now = [100.0]
-    drive = DriveRecorder(tmp_path, lambda recorder, extra: None, flush_interval_s=1.0,
+    drive = PartsRecorder(tmp_path, lambda recorder, extra: None, flush_interval_s=1.0,
                           flush_wait_s=0.1, clock=lambda: now[0])
     frame = Frame(1, "can0", 0x100, b"\x01\x02", False, False, False, False, False, False, 2)
 

@@ -19,7 +19,7 @@ from bridge.cli import main
 from bridge.errors import UsageError
 from bridge.frame import NS
 from bridge.pipeline.drive import load_stages
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.server import LiveServer
 
 PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]

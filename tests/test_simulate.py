@@ -20,7 +20,7 @@ from cantools.database.namedsignalvalue import NamedSignalValue
 
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sim.ego import STEERING_RATIO, WHEELBASE_M
 from bridge.sim.frames import load_ecocar
 from bridge.sim.scenario import (

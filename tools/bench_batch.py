@@ -28,14 +28,14 @@ import time
 from pathlib import Path
 
 from bridge.fleet.batch import (
-    DriveJob,
+    ConvertJob,
     Settings,
     convert_task,
     dask_client,
     run_batch,
 )
 from bridge.pipeline.convert import convert
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sim.scenario import SCENARIOS
 from bridge.sinks.logs import write_log
 
@@ -56,7 +56,7 @@ def make_drives(folder: Path, count: int, duration: float) -> list[Path]:
 
 def run(logs: list[Path], out: Path, workers: int) -> dict[str, float]:
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [DriveJob(log.stem, (str(log),), str(out / f"{log.stem}.mcap")) for log in logs]
+    jobs = [ConvertJob(log.stem, (str(log),), str(out / f"{log.stem}.mcap")) for log in logs]
     task = functools.partial(convert_task, convert=convert,
                              settings=Settings((), "ecocar", 20.0, True))
     started = time.perf_counter()

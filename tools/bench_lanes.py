@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the lanes of a scene tick, old against new, in one run (a report, not a test).
 
-A simulated ecocar drive (:func:`bridge.sim.drive.simulate`, ``--seconds`` long, seed 0) is
+A simulated ecocar drive (:func:`bridge.sim.ecocar.simulate`, ``--seconds`` long, seed 0) is
 decoded and observed once with tankviz's own decoder and :class:`~bridge.pipeline.perception.
 Perception` (20 Hz scene, the default); at every tick the lane lines and the steering angle of the
 world are kept. Then, interleaved and best of ``--repeat`` (default 3), both versions replay those
@@ -54,7 +54,7 @@ from bridge.profile.model import Profile  # noqa: E402
 from bridge.resources import data_dir  # noqa: E402
 from bridge.scene import entities as new_entities  # noqa: E402
 from bridge.scene import semantic as new_semantic  # noqa: E402
-from bridge.sim.drive import simulate  # noqa: E402
+from bridge.sim.ecocar import simulate  # noqa: E402
 from bridge.world import model as new_model  # noqa: E402
 from bridge.world.model import polynomial  # noqa: E402
 

@@ -16,7 +16,7 @@ a separate process (this script with ``--client``), so their CPU is not counted.
 other processes used during the run is printed too (``/proc/<pid>/stat``): other processes on a
 small machine distort every figure here, latency most.
 
-Traffic. The payloads are the simulated ecocar drive (:func:`bridge.sim.drive.simulate`, every
+Traffic. The payloads are the simulated ecocar drive (:func:`bridge.sim.ecocar.simulate`, every
 payload encoded with the bundled DBC), split by sensor: ``radar`` carries RadarObj*/RadarHeader/
 RadarStatus, ``camera`` CamObstacle*/CamLane*, ``chassis`` everything else (fusion tracks, lead
 vehicle, ego motion, steering, driver inputs, position, diagnostics). Each sender cycles through
@@ -215,7 +215,7 @@ def traffic(duration_s: float) -> dict[str, list[Any]]:
     """The simulated ecocar drive's frames as python-can messages, split by sensor bus."""
     import can
 
-    from bridge.sim.drive import simulate
+    from bridge.sim.ecocar import simulate
     from bridge.sim.frames import load_ecocar
 
     db = load_ecocar()

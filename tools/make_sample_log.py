@@ -1,5 +1,5 @@
 """Write the bundled sample log ``bridge/data/ecocar_sample.blf``: 10 s of simulated ecocar
-traffic (seed 0, bus ``can0``) from :func:`bridge.sim.drive.simulate`, as python-can's BLF writer
+traffic (seed 0, bus ``can0``) from :func:`bridge.sim.ecocar.simulate`, as python-can's BLF writer
 stores it.
 
     python tools/make_sample_log.py [OUTPUT]
@@ -21,7 +21,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bridge.frame import Frame  # noqa: E402
-from bridge.sim.drive import simulate  # noqa: E402
+from bridge.sim.ecocar import simulate  # noqa: E402
 
 DEFAULT_OUTPUT = ROOT / "bridge" / "data" / "ecocar_sample.blf"
 DURATION_S = 10.0

@@ -36,8 +36,8 @@ from bridge.apps.options import Subparsers, add_stage_options, dbc_option
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import OutputError, UsageError
 from bridge.fleet.batch import (
-    DriveJob,
-    DriveResult,
+    ConvertJob,
+    JobResult,
     Running,
     Settings,
     convert_task,
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     for job in skipped:
         print(f"skipped {job.output}: finished already (--force converts it again)")
     started = time.monotonic()
-    results: list[DriveResult] = []
+    results: list[JobResult] = []
     if todo:
         try:
             out.mkdir(parents=True, exist_ok=True)
@@ -146,7 +146,7 @@ class _BatchProgress:
     """The batch's one progress line on a terminal, from drives finished and the progress events
     of the drives under way; and each drive's line as it finishes."""
 
-    def __init__(self, todo: list[DriveJob], stream: TextIO | None = None, hz: float = 5.0
+    def __init__(self, todo: list[ConvertJob], stream: TextIO | None = None, hz: float = 5.0
                  ) -> None:
         self.stream = stream if stream is not None else sys.stderr  # (the one of the moment)
         self.tty = self.stream.isatty()
@@ -196,7 +196,7 @@ class _BatchProgress:
                 self._last = now
                 self._draw()
 
-    def result(self, result: DriveResult) -> None:
+    def result(self, result: JobResult) -> None:
         job = result.job
         with self._lock:
             self.running.pop(job.output, None)
@@ -232,7 +232,7 @@ class _BatchProgress:
                 self.stream.flush()
 
 
-def _run(args: argparse.Namespace, todo: list[DriveJob], settings: Settings) -> list[DriveResult]:
+def _run(args: argparse.Namespace, todo: list[ConvertJob], settings: Settings) -> list[JobResult]:
     topic = progress_topic()
     task = functools.partial(convert_task, convert=convert,
                              settings=dataclasses.replace(settings, progress_topic=topic))

@@ -3,7 +3,7 @@
 An MCAP is served as recorded: every channel with its schema, every message at its log time. A
 CAN log goes through the pipeline (decode, profile, scene) as if it came from the bus. A drive
 (MCAP) given with ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live: its raw frames
-(:class:`~bridge.io.drives.DriveSource`) go through the pipeline as a log's do, decoded with the
+(:class:`~bridge.io.drives.ArchiveSource`) go through the pipeline as a log's do, decoded with the
 given databases and profile or else the attached ones (as ``tankviz convert DRIVE.mcap`` does,
 :func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
 protocol's ``time`` capability), so viewers follow log time.
@@ -49,7 +49,7 @@ from bridge.apps.options import (
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import BridgeError, InputError, UsageError
 from bridge.frame import NS
-from bridge.io.drives import METADATA_NAME, DriveSource, RecordedDrive, read_drive
+from bridge.io.drives import METADATA_NAME, ArchiveContents, ArchiveSource, read_drive
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import why_unreadable
@@ -192,7 +192,7 @@ def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
                  speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
                  stopping: threading.Event | None = None) -> ReplayReport:
     """Re-derive a recorded drive live: its raw frames through the pipeline in real time."""
-    return _replay_frames(lambda: [DriveSource(path)], stages, server, scene_rate=scene_rate,
+    return _replay_frames(lambda: [ArchiveSource(path)], stages, server, scene_rate=scene_rate,
                           speed=speed, loop=loop, start_s=start_s, stopping=stopping)
 
 
@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
         return _serve(args, mcap, stages, hint)
 
 
-def drive_layout_hint(drive: RecordedDrive, stages: Stages, profile: str | None,
+def drive_layout_hint(drive: ArchiveContents, stages: Stages, profile: str | None,
                       dbcs: Sequence[str]) -> hints.LayoutHint:
     """The layout to import for a recorded drive decoded with ``stages``: those made for its
     profile in ``layouts/<profile>/`` beside it (where ``tankviz live`` writes them) when they
@@ -312,7 +312,7 @@ def layout_files(stages: Stages, buses: Sequence[str] | None) -> dict[str, str]:
             in generate_layouts(stages.profile, stages.decoder, buses).items()}
 
 
-def recorded_dbcs(drive: RecordedDrive) -> list[str]:
+def recorded_dbcs(drive: ArchiveContents) -> list[str]:
     """The ``--dbc`` arguments a drive was recorded with (its metadata: each database's path
     and buses), else the names of its database attachments."""
     entries = drive.metadata.get("databases")
@@ -337,7 +337,7 @@ def _recorded_hint(path: Path, folder: Path) -> hints.LayoutHint | None:
         return None
 
 
-def _attached(path: Path) -> RecordedDrive:
+def _attached(path: Path) -> ArchiveContents:
     """The attachments and ``tankviz`` metadata of an MCAP, read through its summary (a drive
     cut short has none: its attachments are read at its start, where tankviz writes them)."""
     attachments: dict[str, bytes] = {}
@@ -356,14 +356,14 @@ def _attached(path: Path) -> RecordedDrive:
                         attachments.setdefault(record.name, bytes(record.data))
                     elif isinstance(record, (Chunk, Message, DataEnd, Footer)):
                         break
-            return RecordedDrive(path, 0, "", metadata, attachments, complete=False)
+            return ArchiveContents(path, 0, "", metadata, attachments, complete=False)
         for a in reader.iter_attachments():
             attachments.setdefault(a.name, bytes(a.data))
         for m in reader.iter_metadata():
             if m.name == METADATA_NAME:
                 metadata = {key: json.loads(text) if text[:1] in "[{" or text == "null" else text
                             for key, text in m.metadata.items()}
-    return RecordedDrive(path, 0, "", metadata, attachments)
+    return ArchiveContents(path, 0, "", metadata, attachments)
 
 
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,

@@ -1,7 +1,7 @@
 """``tankviz simulate``: a simulated drive written as a file.
 
 ``--car`` chooses the car (:data:`CARS`): ``ecocar`` (the default: the student test car, one bus
-``can0``, :func:`bridge.sim.drive.simulate`) or ``highway`` (a production car at highway range,
+``can0``, :func:`bridge.sim.ecocar.simulate`) or ``highway`` (a production car at highway range,
 radar bus ``can1`` and car bus ``can0``, :func:`bridge.sim.highway.simulate_highway`), on the
 road ``--road`` names (the highway car only: one curve, winding, straight, weaving).
 ``.mcap`` is the drive converted as ``tankviz convert`` would convert it (with the car's bundled
@@ -40,7 +40,7 @@ from bridge.errors import OutputError, UsageError
 from bridge.frame import NS, Frame
 from bridge.io.logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sim.highway import ROADS, simulate_highway
 from bridge.sinks.logs import write_log
 from bridge.sinks.outputs import atomic_output, check_output

@@ -24,7 +24,7 @@ one conversion per drive on a Dask cluster (``tankviz batch``).
   drive's inputs, which writes the output atomically (and refuses one file given twice, and warns
   about inputs that are one log twice over, e.g. ``trip.blf`` and ``trip.asc``: see
   :mod:`bridge.pipeline.convert`). A drive that fails (an error of its input or database, any
-  exception, its worker dying) gives a :class:`DriveResult` with its one-line error; the others
+  exception, its worker dying) gives a :class:`JobResult` with its one-line error; the others
   go on. A drive written from inputs with issues (damaged or unreadable parts skipped, times
   that jump back) gives how many and the first (the batch's summary names each such drive:
   :func:`input_issue_lines`). Outputs that exist already
@@ -161,7 +161,7 @@ def file_span(path: Path) -> Span:
 
 
 @dataclass(frozen=True)
-class DriveFiles:
+class BatchDrive:
     """The files of one drive, and the name of its output under the output folder."""
 
     name: str
@@ -175,7 +175,7 @@ def _utc(ns: int) -> str:
 
 def group_drives(files: Sequence[tuple[Path, Path]], suffixes: Sequence[str], *,
                  span: Callable[[Path], Span] = file_span,
-                 merge: bool = True) -> list[DriveFiles]:
+                 merge: bool = True) -> list[BatchDrive]:
     """The drives that ``files`` (from :func:`find_inputs`) make: one stem in one folder, with
     overlapping or adjacent time spans (only files sharing a stem are asked their ``span``).
     Without ``merge`` every file is a drive of its own, named after the file (tankviz drives:
@@ -186,12 +186,12 @@ def group_drives(files: Sequence[tuple[Path, Path]], suffixes: Sequence[str], *,
         suffix = format_suffix(path, suffixes) or path.suffix
         stem = drive_stem(path, suffixes) if merge else path.name[:len(path.name) - len(suffix)]
         by_stem.setdefault((path.parent, stem), []).append(path)
-    drives: list[DriveFiles] = []
+    drives: list[BatchDrive] = []
     for (folder, stem), paths in by_stem.items():
         rel = folder.relative_to(base_of[paths[0]]).as_posix()
         prefix = "" if rel == "." else f"{rel}/"
         if len(paths) == 1:
-            drives.append(DriveFiles(prefix + stem, (paths[0],)))
+            drives.append(BatchDrive(prefix + stem, (paths[0],)))
             continue
         spans = sorted((span(p), p) for p in paths)
         groups: list[tuple[int, int, list[Path]]] = []
@@ -203,12 +203,12 @@ def group_drives(files: Sequence[tuple[Path, Path]], suffixes: Sequence[str], *,
                 groups.append((start, end, [p]))
         for start, _, members in groups:
             name = stem if start == groups[0][0] else f"{stem}_{_utc(start)}"
-            drives.append(DriveFiles(prefix + name, tuple(sorted(members))))
+            drives.append(BatchDrive(prefix + name, tuple(sorted(members))))
     return sorted(drives, key=lambda d: d.name)
 
 
 @dataclass(frozen=True)
-class DriveJob:
+class ConvertJob:
     """One task: the drive's input files and its output, absolute paths as text."""
 
     name: str
@@ -216,11 +216,11 @@ class DriveJob:
     output: str
 
 
-def plan_jobs(drives: Sequence[DriveFiles], out: Path) -> list[DriveJob]:
+def plan_jobs(drives: Sequence[BatchDrive], out: Path) -> list[ConvertJob]:
     """One job per drive, writing ``OUT/<name>.mcap``; refuses two drives with one output and an
     output that is an input."""
     out = out.expanduser().absolute()
-    jobs: dict[Path, DriveJob] = {}
+    jobs: dict[Path, ConvertJob] = {}
     inputs = _identities(p for d in drives for p in d.inputs)
     for drive in drives:
         output = out / f"{drive.name}.mcap"
@@ -231,7 +231,7 @@ def plan_jobs(drives: Sequence[DriveFiles], out: Path) -> list[DriveJob]:
             if key in inputs:
                 raise UsageError(f"{output}: is an input ({inputs[key]}) and would be "
                                  "overwritten: choose another --out folder")
-        jobs[output] = DriveJob(drive.name, tuple(str(p) for p in drive.inputs), str(output))
+        jobs[output] = ConvertJob(drive.name, tuple(str(p) for p in drive.inputs), str(output))
     return list(jobs.values())
 
 
@@ -247,7 +247,8 @@ def _identities(paths: Iterable[Path]) -> dict[object, Path]:
     return keys
 
 
-def finished(jobs: Sequence[DriveJob], *, force: bool) -> tuple[list[DriveJob], list[DriveJob]]:
+def finished(jobs: Sequence[ConvertJob], *, force: bool
+             ) -> tuple[list[ConvertJob], list[ConvertJob]]:
     """The jobs to run and those skipped: an output that exists is complete (it is written
     atomically), so it is skipped unless ``force``."""
     if force:
@@ -256,7 +257,7 @@ def finished(jobs: Sequence[DriveJob], *, force: bool) -> tuple[list[DriveJob], 
     return [j for j in jobs if j not in done], done
 
 
-def input_bytes(job: DriveJob) -> int:
+def input_bytes(job: ConvertJob) -> int:
     """The size of a drive's inputs, for the batch's ETA."""
     return sum(os.path.getsize(p) for p in job.inputs if os.path.exists(p))
 
@@ -302,10 +303,10 @@ PROGRESS_EVERY_S = 0.5
 
 
 @dataclass(frozen=True)
-class DriveResult:
+class JobResult:
     """How one drive went: frames written, or its one-line error."""
 
-    job: DriveJob
+    job: ConvertJob
     frames: int = 0
     seconds: float = 0.0
     error: str | None = None
@@ -326,7 +327,7 @@ def _worker_name() -> str:
         return ""
 
 
-def _progress_events(job: DriveJob, topic: str | None
+def _progress_events(job: ConvertJob, topic: str | None
                      ) -> Callable[[int, float | None], None] | None:
     """A progress callback that logs Dask events (``{"output", "frames", "fraction"}``) on
     ``topic`` at most every :data:`PROGRESS_EVERY_S`; None outside a Dask worker."""
@@ -350,7 +351,7 @@ def _progress_events(job: DriveJob, topic: str | None
     return progress
 
 
-def convert_task(job: DriveJob, convert: ConvertFunction, settings: Settings) -> DriveResult:
+def convert_task(job: ConvertJob, convert: ConvertFunction, settings: Settings) -> JobResult:
     """Convert one drive with ``convert``; any failure is the result's one-line error. In a Dask
     worker, its progress goes out as events on ``settings.progress_topic``."""
     started = time.perf_counter()
@@ -362,17 +363,17 @@ def convert_task(job: DriveJob, convert: ConvertFunction, settings: Settings) ->
                          profile=settings.profile, scene_rate=settings.scene_rate,
                          force=settings.force, progress=progress)
     except BridgeError as exc:
-        return DriveResult(job, error=str(exc), worker=_worker_name())
+        return JobResult(job, error=str(exc), worker=_worker_name())
     except Exception as exc:  # a bug must not stop the other drives: it is reported with them
-        return DriveResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}",
+        return JobResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}",
                            worker=_worker_name())
-    return DriveResult(job, report.frames, time.perf_counter() - started,
+    return JobResult(job, report.frames, time.perf_counter() - started,
                        worker=_worker_name(), issues=len(report.issues),
                        first_issue=str(report.issues[0]) if report.issues else "",
                        warnings=tuple(report.input_warnings))
 
 
-def input_issue_lines(results: Sequence[DriveResult]) -> list[str]:
+def input_issue_lines(results: Sequence[JobResult]) -> list[str]:
     """The batch summary's lines on input issues: how many drives, then each written drive whose
     inputs had issues, with their count, the first and where all are listed (pure, for tests)."""
     written = [r for r in results if r.error is None]
@@ -497,12 +498,12 @@ def progress_topic() -> str:
     return f"tankviz-batch-{uuid.uuid4().hex[:12]}"
 
 
-def run_batch(client: Client, jobs: Sequence[DriveJob],
-              task: Callable[[DriveJob], DriveResult],
-              on_result: Callable[[DriveResult], None] | None = None, *,
+def run_batch(client: Client, jobs: Sequence[ConvertJob],
+              task: Callable[[ConvertJob], JobResult],
+              on_result: Callable[[JobResult], None] | None = None, *,
               topic: str | None = None,
               on_progress: Callable[[str, int, float | None], None] | None = None
-              ) -> list[DriveResult]:
+              ) -> list[JobResult]:
     """Run ``task`` for every job on the cluster, one Dask task each and no retries, and return
     the results as they complete; a task that raises or whose worker dies is a failed result.
     ``on_progress`` (output, frames, fraction) is told the progress events of ``topic`` (from
@@ -523,9 +524,9 @@ def run_batch(client: Client, jobs: Sequence[DriveJob],
         for future in as_completed(futures):  # type: ignore[no-untyped-call]
             job = futures[future]
             try:
-                result: DriveResult = future.result()
+                result: JobResult = future.result()
             except Exception as exc:  # the worker died (KilledWorker), or the task did not run
-                result = DriveResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}")
+                result = JobResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}")
             results.append(result)
             if on_result is not None:
                 on_result(result)

@@ -12,7 +12,7 @@ values; loading databases and a profile from them is the pipeline's and the apps
   metadata (JSON values decoded; empty for a file cut short before it was finished), its size
   and SHA-256. A file that is not an MCAP, or an MCAP without raw-frame topics, is an
   :class:`~bridge.errors.InputError` naming the file and what it lacks.
-- :class:`DriveSource`: every raw frame in the order it was recorded (the order the pipeline saw
+- :class:`ArchiveSource`: every raw frame in the order it was recorded (the order the pipeline saw
   them when the drive was made: log-time order, with any step back of the clock where it
   happened, so re-deriving reproduces the drive). The file is streamed record by record, so a
   drive cut short (a power loss) gives every frame of its complete chunks; where reading stops
@@ -56,7 +56,7 @@ def is_drive(path: Path | str) -> bool:
 
 
 @dataclass(frozen=True)
-class RecordedDrive:
+class ArchiveContents:
     """What a recorded drive holds besides its frames."""
 
     path: Path
@@ -97,7 +97,7 @@ def _open(path: Path) -> IO[bytes]:
     return stream
 
 
-def read_drive(path: Path | str) -> RecordedDrive:
+def read_drive(path: Path | str) -> ArchiveContents:
     """The attachments and metadata of the drive at ``path``; refuses what is not a drive."""
     path = Path(path)
     attachments: dict[str, bytes] = {}
@@ -134,7 +134,7 @@ def read_drive(path: Path | str) -> RecordedDrive:
                         topics.add(record.topic)
                     elif isinstance(record, (DataEnd, Footer)):
                         break
-            except Exception:  # the end of what can be read: DriveSource reports it
+            except Exception:  # the end of what can be read: ArchiveSource reports it
                 pass
     if not any(FRAMES_TOPIC.fullmatch(t) for t in topics):
         if not complete:
@@ -143,11 +143,11 @@ def read_drive(path: Path | str) -> RecordedDrive:
                              "(tankviz recover salvages what is complete)")
         raise InputError(path, "not a tankviz drive: it has no raw CAN frames "
                          "(/can/<bus>/frames), so there is nothing to decode again")
-    return RecordedDrive(path, size, digest, metadata, attachments, complete)
+    return ArchiveContents(path, size, digest, metadata, attachments, complete)
 
 
 @dataclass
-class DriveSource:
+class ArchiveSource:
     """Every raw frame of a recorded drive, in the order it was recorded.
 
     Iterate once. As :class:`~bridge.io.logs.LogSource`: ``issues`` lists what could not be read

@@ -70,7 +70,7 @@ _T = TypeVar("_T")
 
 class Source(Protocol):
     """What :class:`ReadAhead` reads: a :class:`~bridge.io.logs.LogSource` or a
-    :class:`~bridge.io.drives.DriveSource`."""
+    :class:`~bridge.io.drives.ArchiveSource`."""
 
     issues: list[SourceIssue]
     frames: int

@@ -46,7 +46,7 @@ from typing import IO, Any
 
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError, InputError, OutputError
-from bridge.io.drives import DriveSource, is_drive, read_drive
+from bridge.io.drives import ArchiveSource, is_drive, read_drive
 from bridge.io.logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.readahead import ReadAhead
 from bridge.pipeline.drive import Drive, Stages, load_stages
@@ -67,7 +67,7 @@ Progress = Callable[[int, float | None], None]
 """Called now and then with (frames so far, fraction of the input read or None)."""
 
 #: Where frames come from: CAN logs, or a recorded drive's raw frames.
-Source = LogSource | DriveSource
+Source = LogSource | ArchiveSource
 
 #: How many first frames of two inputs are compared to tell one log given twice.
 OVERLAP_FRAMES = 16
@@ -252,7 +252,7 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
         if warn is not None:
             for text in stages.decoder.warnings():
                 warn(text)
-        sources = [DriveSource(drive.path, strict=strict)]
+        sources = [ArchiveSource(drive.path, strict=strict)]
         rate = scene_rate if scene_rate is not None else recorded_scene_rate(drive)
         with atomic_output(output, force=force) as stream:
             report = record_drive(sources, stages.decoder, stream, profile=stages.profile,

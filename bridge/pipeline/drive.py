@@ -40,7 +40,7 @@ from bridge.pipeline.pipeline import Pipeline
 from bridge.profile.loader import load_profile, read_profile_databases, resolve_profile
 from bridge.profile.model import Profile
 from bridge.sinks.base import Sink
-from bridge.sinks.drives import DriveRecorder
+from bridge.sinks.drives import PartsRecorder
 from bridge.sinks.mcap import Recorder
 
 
@@ -134,9 +134,9 @@ class Drive:
         return recorder
 
     def record_parts(self, folder: Path, *, split_size: int | None = None,
-                     split_duration_s: float | None = None) -> DriveRecorder:
+                     split_duration_s: float | None = None) -> PartsRecorder:
         """Record the drive into ``folder``, one MCAP per part, each described."""
-        recorder = DriveRecorder(folder, self.describe, split_size, split_duration_s,
+        recorder = PartsRecorder(folder, self.describe, split_size, split_duration_s,
                                  attach=self.attach)
         self.add(recorder)
         return recorder

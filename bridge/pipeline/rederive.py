@@ -24,14 +24,14 @@ from typing import Any
 
 from bridge.decode.decoder import DatabaseFile, Decoder, database_warnings, load_database
 from bridge.errors import DatabaseError, InputError
-from bridge.io.drives import RecordedDrive
+from bridge.io.drives import ArchiveContents
 from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.profile.loader import load_profile, resolve_profile
 from bridge.profile.model import ProfileError
 
 
-def _attached_database(drive: RecordedDrive, folder: Path, name: str, data: bytes,
+def _attached_database(drive: ArchiveContents, folder: Path, name: str, data: bytes,
                        db_name: str | None) -> DatabaseFile:
     """An attached database, loaded as cantools loads its file, named ``DRIVE.mcap/NAME``."""
     where = Path(drive.path.name) / name
@@ -45,7 +45,7 @@ def _attached_database(drive: RecordedDrive, folder: Path, name: str, data: byte
                         database_warnings(where, loaded.db))
 
 
-def attached_decoder(drive: RecordedDrive, folder: Path) -> Decoder:
+def attached_decoder(drive: ArchiveContents, folder: Path) -> Decoder:
     """A decoder of the databases attached to ``drive``, on the buses its metadata records
     (on every bus where it records none: a drive cut short before its end). Each attachment is
     written into ``folder`` for cantools to load."""
@@ -68,7 +68,7 @@ def attached_decoder(drive: RecordedDrive, folder: Path) -> Decoder:
     return Decoder(by_bus)
 
 
-def attached_profile(drive: RecordedDrive, folder: Path) -> Path | None:
+def attached_profile(drive: ArchiveContents, folder: Path) -> Path | None:
     """The profile attached to ``drive``, written into ``folder`` under its own file name (so
     the re-derived drive attaches it under the same name); None if the drive has none."""
     name: str | None = None
@@ -85,7 +85,7 @@ def attached_profile(drive: RecordedDrive, folder: Path) -> Path | None:
     return path
 
 
-def rederive_stages(drive: RecordedDrive, dbc_options: Sequence[str],
+def rederive_stages(drive: ArchiveContents, dbc_options: Sequence[str],
                     profile: str | Path | None, folder: Path) -> Stages:
     """The stages that re-derive ``drive``: the databases of ``dbc_options``, else the attached
     ones; the ``profile``, else the attached one (if any). Attachments are written into
@@ -108,7 +108,7 @@ def rederive_stages(drive: RecordedDrive, dbc_options: Sequence[str],
                            exc.reason) from None
 
 
-def describe_rederive(drive: RecordedDrive, stages: Stages, dbc_options: Sequence[str],
+def describe_rederive(drive: ArchiveContents, stages: Stages, dbc_options: Sequence[str],
                       profile: str | Path | None) -> str:
     """What a drive is re-derived with, for people."""
     decoder, loaded = stages
@@ -119,7 +119,7 @@ def describe_rederive(drive: RecordedDrive, stages: Stages, dbc_options: Sequenc
     return f"re-deriving {drive.path} with {databases}, {with_profile}"
 
 
-def source_record(drive: RecordedDrive) -> dict[str, Any]:
+def source_record(drive: ArchiveContents) -> dict[str, Any]:
     """What the metadata of a re-derived drive says of the drive it was re-derived from."""
     record: dict[str, Any] = {
         "source": {"file": drive.path.name, "size": drive.size, "sha256": drive.sha256,
@@ -129,7 +129,7 @@ def source_record(drive: RecordedDrive) -> dict[str, Any]:
     return record
 
 
-def recorded_scene_rate(drive: RecordedDrive) -> float:
+def recorded_scene_rate(drive: ArchiveContents) -> float:
     """The scene rate a drive was recorded at (its metadata), else the default."""
     described = drive.metadata.get("profile")
     rate = described.get("scene_rate_hz") if isinstance(described, dict) else None

@@ -12,7 +12,7 @@ import time
 
 import can
 
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 
 #: The virtual bus channel the demo car and the live pipeline share.
 DEMO_CHANNEL = "tankviz-demo"

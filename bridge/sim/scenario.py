@@ -79,7 +79,7 @@ class Episode:
 
 @dataclass(frozen=True)
 class Timeline:
-    """When each scripted event of :func:`~bridge.sim.drive.simulate` happens (fractions of the
+    """When each scripted event of :func:`~bridge.sim.ecocar.simulate` happens (fractions of the
     duration).
 
     - ``lead_braking``: the lead brakes hard at the start; the gap shrinks from 40 m to about
@@ -120,7 +120,7 @@ BABBLE_PERIOD_US = 1000
 
 @dataclass(frozen=True)
 class Scenario:
-    """A named scenario of :func:`~bridge.sim.drive.simulate` and when its fault happens
+    """A named scenario of :func:`~bridge.sim.ecocar.simulate` and when its fault happens
     (seconds since the start of the run)."""
 
     name: str

@@ -13,7 +13,7 @@ A drive's sinks get, in log time order:
   left and goes on serving (the next drive, a replay's next pass).
 
 The recorder (:class:`bridge.sinks.mcap.Recorder`), a drive split into parts
-(:class:`bridge.sinks.drives.DriveRecorder`) and the live server
+(:class:`bridge.sinks.drives.PartsRecorder`) and the live server
 (:class:`bridge.sinks.server.LiveServer`) implement it, and so do test fakes. Subclass
 :class:`Sink` to inherit methods that do nothing; a sink must not block the pipeline.
 """

@@ -1,7 +1,7 @@
 """Per-drive files: one MCAP per drive in a folder, split into complete parts, flushed often.
 
 A drive is named by its UTC start time (:func:`drive_name`); parts after the first get
-``_partNNN``. :class:`DriveRecorder` is the pipeline's :class:`~bridge.sinks.base.Sink` for
+``_partNNN``. :class:`PartsRecorder` is the pipeline's :class:`~bridge.sinks.base.Sink` for
 ``tankviz live``: it opens the first part at the first frame, starts each part with the drive's
 attachments (databases, profile: a part cut short still has them), describes and finishes each
 part when it is closed, and notes the bus gaps of the drive. A part's decode statistics
@@ -15,8 +15,8 @@ folder that cannot be written is an :class:`~bridge.errors.OutputError`), and a 
 ``min_free`` when that is less than twice the reserve. A write that finds the disk full frees the
 reserve and is retried, so the part is then finished cleanly (its summary fits in the reserve);
 so is it, now and then (every ``check_interval_s``), when the free space is below ``min_free``.
-Recording then stops (:attr:`DriveRecorder.disk_full` says why, and
-:meth:`DriveRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and the
+Recording then stops (:attr:`PartsRecorder.disk_full` says why, and
+:meth:`PartsRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and the
 raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest not
 recorded and counted).
 
@@ -180,7 +180,7 @@ class _PartMetadata:
 
 
 @dataclass
-class DriveRecorder(Sink):
+class PartsRecorder(Sink):
     """One MCAP per drive in ``folder``, split into complete parts by size or duration.
 
     ``attach`` is called with each part's recorder as the part is opened, before its first

@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.frame import NS, Frame
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 
 LIVECAR = Path(__file__).resolve().parent / "livecar.py"
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")

@@ -20,8 +20,8 @@ from conftest import T0, WriteLog
 
 from bridge.cli import main
 from bridge.fleet.batch import (
-    DriveJob,
-    DriveResult,
+    ConvertJob,
+    JobResult,
     Running,
     Settings,
     convert_task,
@@ -55,8 +55,8 @@ def broken(write_log: WriteLog) -> Path:
     return damage(write_log("broken.blf", frames(20_000)))
 
 
-def job(tmp_path: Path, name: str, *inputs: Path) -> DriveJob:
-    return DriveJob(name, tuple(map(str, inputs)), str(tmp_path / "out" / f"{name}.mcap"))
+def job(tmp_path: Path, name: str, *inputs: Path) -> ConvertJob:
+    return ConvertJob(name, tuple(map(str, inputs)), str(tmp_path / "out" / f"{name}.mcap"))
 
 
 # --- damaged inputs -----------------------------------------------------------------------------
@@ -71,10 +71,10 @@ def test_a_drive_converted_from_a_damaged_blf_says_how_much_was_skipped(
 
 
 def test_the_summary_names_every_drive_with_damaged_inputs(tmp_path: Path) -> None:
-    good = DriveResult(job(tmp_path, "good", tmp_path / "good.blf"), frames=100, seconds=1.0)
-    bad = DriveResult(job(tmp_path, "week/bad", tmp_path / "bad.blf"), frames=90, seconds=1.0,
+    good = JobResult(job(tmp_path, "good", tmp_path / "good.blf"), frames=100, seconds=1.0)
+    bad = JobResult(job(tmp_path, "week/bad", tmp_path / "bad.blf"), frames=90, seconds=1.0,
                       issues=3, first_issue="bad.blf:byte 4096: the container is damaged")
-    failed = DriveResult(job(tmp_path, "gone", tmp_path / "gone.blf"), error="gone.blf: no such")
+    failed = JobResult(job(tmp_path, "gone", tmp_path / "gone.blf"), error="gone.blf: no such")
     assert input_issue_lines([good, failed]) == []
     assert input_issue_lines([good, bad, failed]) == [
         "input issues in 1 of 2 drives written (what a log could not give was skipped, the rest "

@@ -23,7 +23,7 @@ from bridge.io.issues import summarize_issues
 from bridge.io.logs import SourceIssue
 from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.outputs import atomic_output
 from bridge.sinks.server import LiveServer
 

@@ -20,7 +20,7 @@ from bridge.fleet import catalog
 from bridge.fleet.catalog import index, read_drive
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.resources import data_dir
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.outputs import atomic_output
 
 

@@ -81,7 +81,7 @@ def test_simulate_and_replay_say_what_their_file_is(tmp_path: Path) -> None:
 def test_simulate_shows_its_progress_on_a_terminal() -> None:
     """22 s for a 300 s drive, without a word: now a bar as convert's (only on a terminal)."""
     from bridge.apps.simulate import with_progress
-    from bridge.sim.drive import simulate
+    from bridge.sim.ecocar import simulate
 
     seen: list[tuple[int, float | None]] = []
     frames = list(with_progress(simulate(duration_s=2.0), 2.0,

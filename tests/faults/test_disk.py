@@ -24,7 +24,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.frame import Frame
 from bridge.pb import health_pb2
-from bridge.sinks.drives import RESERVE_NAME, DriveRecorder
+from bridge.sinks.drives import RESERVE_NAME, PartsRecorder
 from bridge.sinks.mcap import frame_payload
 
 MB = 1_000_000
@@ -87,7 +87,7 @@ def test_a_full_disk_finishes_the_part_and_recording_resumes_when_there_is_room(
         tmp_path: Path) -> None:
     now = [0.0]
     with tmpfs(tmp_path / "disk", 16) as drives:
-        recorder = DriveRecorder(drives, lambda r, part: r.add_metadata(dict(part)),
+        recorder = PartsRecorder(drives, lambda r, part: r.add_metadata(dict(part)),
                                  reserve=2 * MB, clock=lambda: now[0])
         assert (drives / RESERVE_NAME).stat().st_size == 2 * MB
         for i in range(1000):
@@ -136,7 +136,7 @@ def test_a_full_disk_finishes_the_part_and_recording_resumes_when_there_is_room(
 def test_below_min_free_recording_stops_before_the_disk_is_full(tmp_path: Path) -> None:
     free = [500 * MB]
     now = [0.0]
-    recorder = DriveRecorder(tmp_path, lambda r, part: None, min_free=200 * MB, reserve=MB,
+    recorder = PartsRecorder(tmp_path, lambda r, part: None, min_free=200 * MB, reserve=MB,
                              free_space=lambda folder: free[0], clock=lambda: now[0])
     recorder.on_frame(frame(0), frame_payload(frame(0)))
     free[0] = 150 * MB

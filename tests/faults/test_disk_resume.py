@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from test_disk import complete, frame, tmpfs
 
 from bridge.apps.inspect import format_summary, summarize_file
-from bridge.sinks.drives import DriveRecorder
+from bridge.sinks.drives import PartsRecorder
 from bridge.sinks.mcap import frame_payload
 
 MB = 1_000_000
@@ -40,16 +40,16 @@ class Disk:
         self.free = free
         self.now = 0.0
 
-    def recorder(self, folder: Path, **options: Any) -> DriveRecorder:
-        return DriveRecorder(folder, describe, free_space=lambda _: self.free,
+    def recorder(self, folder: Path, **options: Any) -> PartsRecorder:
+        return PartsRecorder(folder, describe, free_space=lambda _: self.free,
                              clock=lambda: self.now, **options)
 
-    def tick(self, recorder: DriveRecorder) -> None:
+    def tick(self, recorder: PartsRecorder) -> None:
         self.now += 1.0
         recorder.tick()
 
 
-def send(recorder: DriveRecorder, first: int, count: int) -> int:
+def send(recorder: PartsRecorder, first: int, count: int) -> int:
     for i in range(first, first + count):
         recorder.on_frame(frame(i), frame_payload(frame(i)))
     return first + count
@@ -82,7 +82,7 @@ def test_recording_resumes_when_min_free_plus_9_mib_is_free_and_does_not_flap(
 def test_a_drive_started_with_less_than_the_reserve_free_records(tmp_path: Path) -> None:
     """6 MiB of disk, less than the 8 MiB reserve: ``--min-free 1`` allows recording."""
     with tmpfs(tmp_path / "disk", 6) as drives:
-        recorder = DriveRecorder(drives, describe, min_free=1 * MB)
+        recorder = PartsRecorder(drives, describe, min_free=1 * MB)
         assert recorder.disk_full is None, recorder.disk_full
         i = send(recorder, 0, 2000)
         recorder.finish()

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 from bridge.frame import Frame
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.base import Serialized, Sink
 
 PERIOD_NS = 50_000_000  # the default scene rate, 20 Hz

@@ -23,7 +23,7 @@ from conftest import timeout_scale
 
 from bridge.errors import InputError
 from bridge.io.logs import LogSource, supported_suffixes
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.logs import write_log
 
 #: The bytes of each log cut: every length from 0 to this (the header and the first frames).

@@ -21,7 +21,7 @@ import pytest
 from bridge.cli import main
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.topics import frames_topic
 
 DURATION = "1.5"

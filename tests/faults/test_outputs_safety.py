@@ -32,7 +32,7 @@ from bridge.fleet.batch import find_inputs, group_drives, plan_jobs
 from bridge.frame import Frame
 from bridge.io.logs import LogSource
 from bridge.pipeline.convert import convert, same_frames
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.logs import write_log as write_sim_log
 from bridge.sinks.outputs import atomic_output
 

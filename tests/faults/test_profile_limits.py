@@ -17,7 +17,7 @@ import pytest
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 
 PROFILE = data_dir() / "ecocar.toml"
 NUMBER = re.compile(r"(?P<key>\b[a-z_]+)\s*=\s*(?P<value>-?\d+(?:\.\d+)?)(?=\s*[,}#\n])")

@@ -25,7 +25,7 @@ from bridge.apps.replay import replay_mcap
 from bridge.cli import main
 from bridge.errors import InputError, UsageError
 from bridge.io.readahead import THREAD_ITEMS, read_in_thread
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 from bridge.sinks.logs import write_log
 from bridge.sinks.server import LiveServer
 

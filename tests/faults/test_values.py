@@ -27,7 +27,7 @@ from mcap.reader import make_reader
 from bridge.cli import main
 from bridge.frame import NS, Frame
 from bridge.resources import data_dir
-from bridge.sim.drive import simulate
+from bridge.sim.ecocar import simulate
 
 INF, NAN = float("inf"), float("nan")
 STEERING = 257  # ecocar's Steering message
