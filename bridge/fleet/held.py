@@ -63,12 +63,14 @@ def held_metadata(reader: Any, channels: Sequence[Any], counts: dict[int, int],
 
 
 def _profile_name(data: bytes) -> str | None:
+    """The ``[profile] name`` of an attached profile, if it has one."""
     if sys.version_info >= (3, 11):
         import tomllib
     else:  # pragma: no cover - Python 3.10
         import tomli as tomllib
     try:
-        name = tomllib.loads(data.decode()).get("name")
+        section = tomllib.loads(data.decode()).get("profile")
     except (ValueError, UnicodeDecodeError):
         return None
+    name = section.get("name") if isinstance(section, dict) else None
     return name if isinstance(name, str) else None

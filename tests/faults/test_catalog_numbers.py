@@ -117,3 +117,16 @@ def test_one_drive_named_through_dotdot_or_a_link_is_indexed_once(tmp_path: Path
         (str((folder / "drv.mcap").resolve()),)]
     again = index(out, [str(tmp_path / "link" / "drv.mcap")])
     assert again.unchanged == [str((folder / "drv.mcap").resolve())] and not again.new
+
+
+def test_a_recovered_drive_names_its_profile_as_the_profile_says() -> None:
+    """The attachment is named after the profile's file; the name is the one inside it."""
+    from types import SimpleNamespace
+
+    from bridge.fleet.held import held_metadata
+
+    profile = SimpleNamespace(name="profile-mycar.toml",
+                              data=b'[profile]\nname = "rav4"\ndatabases = []\n')
+    reader = SimpleNamespace(iter_attachments=lambda: [profile])
+    held = held_metadata(reader, [], {}, None)
+    assert json.loads(held["profile"]) == {"name": "rav4", "attachment": "profile-mycar.toml"}
