@@ -96,8 +96,10 @@ def duration(seconds: float) -> Duration:
 # builders add their entities in place to a SceneUpdate's ``entities`` (no copy into it). An
 # entity starts as a copy of a cached template of all that does not change from tick to tick
 # (frame, lifetime, sizes, colours, class label, metadata); then only its id, time, positions
-# and label are set: 2x faster than building each one. A lane line's entity is cached whole while
-# the world hands out the same line (lane_entity). Cached messages are only ever copied.
+# and label are set: 2x faster than building each one. An object's entity goes further: it is
+# parsed from wire bytes, its template's and its own fields' (object_entities). A lane line's
+# entity is cached whole while the world hands out the same line (lane_entity), the sensor
+# frames once per profile (frame_transforms). Cached messages are only ever copied.
 Entities: TypeAlias = RepeatedCompositeFieldContainer[SceneEntity]
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 _stamp = lru_cache(maxsize=4)(timestamp)
@@ -235,23 +237,87 @@ def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
         e.timestamp.CopyFrom(stamp)
 
 
+# An object's entity is parsed from its wire bytes in one call (MergeFromString): a cached
+# template's bytes (_object_parts), then the tick's stamp, its id, its mark and its metadata,
+# each a protobuf field encoded here. Parsed, they make the message that setting each field
+# would make (a repeated field keeps the order of its items; the message is serialised by
+# protobuf later, from its fields): the scene's bytes are the same (tests/test_drive_bytes.py,
+# tests/test_scene.py), faster than setting the fields one by one.
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append(n & 0x7F | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+_FIELDS = SceneEntity.DESCRIPTOR.fields_by_name
+#: The tags (as wire bytes) of SceneEntity's length-delimited fields.
+_STAMP_TAG, _ID_TAG, _METADATA_TAG, _SPHERES_TAG = (
+    _varint(_FIELDS[name].number << 3 | 2) for name in ("timestamp", "id", "metadata", "spheres"))
+#: A Vector3 field as wire bytes: its tag, length 27 and x, y, z (fields 1, 2, 3: doubles).
+_VECTOR = struct.Struct("<BBBdBdBd")
+
+
+def _field(tag: bytes, data: bytes) -> bytes:
+    """A length-delimited field (string, bytes, message) as wire bytes: ``tag``, the length
+    and ``data``."""
+    n = len(data)
+    return tag + (_BYTES[n] if n < 0x80 else _varint(n)) + data
+
+
+#: The one-byte varints (a short field's length).
+_BYTES = [bytes((n,)) for n in range(0x80)]
+
+
+@lru_cache(maxsize=8)
+def _key(key: str) -> bytes:
+    return _field(b"\x0a", key.encode())
+
+
+def _pair(key: str, value: str) -> bytes:
+    """A SceneEntity's metadata item (a KeyValuePair: key 1, value 2) as wire bytes."""
+    return _field(_METADATA_TAG, _key(key) + _field(b"\x12", value.encode()))
+
+
+@lru_cache(maxsize=4)
+def _stamp_field(t_ns: int) -> bytes:
+    return _field(_STAMP_TAG, _stamp(t_ns).SerializeToString())
+
+
+@dataclass(frozen=True)
+class _ObjectParts:
+    """What every object entity of one kind, role and class shares, as wire bytes."""
+
+    template: bytes  # frame, lifetime, pedestrian cylinder (at x = y = 0), class metadata
+    head: bytes  # the mark's field up to its position (SpherePrimitive.pose.position)
+    middle: bytes  # between the position and the size (the pose's orientation)
+    tail: bytes  # after the size (the colour)
+    size: float  # the mark's base diameter
+    height: float  # and height
+
+
 @lru_cache(maxsize=256)
-def _object_template(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
-                     track: bool) -> SceneEntity:
-    """What every object entity of this kind, role and class shares; its sphere and pedestrian
-    cylinder stand at x = y = 0, at their base size. Never changed, only copied."""
+def _object_parts(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
+                  track: bool) -> _ObjectParts:
     e = _template("", lifetime_s)
-    if track:
-        add_sphere(e, 0.0, 0.0, OBJECT_Z, TRACK_SIZE, TRACK_COLOR, TRACK_HEIGHT)
-    else:
-        add_sphere(e, 0.0, 0.0, OBJECT_Z, DETECTION_SIZE,
-                   RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR)
     if object_class is ObjectClass.PEDESTRIAN:
         e.cylinders.append(CylinderPrimitive(
             pose=pose(0.0, 0.0, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
             top_scale=1.0, color=color(PEDESTRIAN_COLOR)))
     e.metadata.add(key="class", value=object_class.value)
-    return e
+    if track:
+        size, height, rgba = TRACK_SIZE, TRACK_HEIGHT, TRACK_COLOR
+    else:
+        size = height = DETECTION_SIZE
+        rgba = RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR
+    middle = _field(b"\x12", _IDENTITY.SerializeToString())  # Pose.orientation
+    tail = _field(b"\x1a", color(rgba).SerializeToString())  # SpherePrimitive.color
+    pose_length = _VECTOR.size + len(middle)
+    sphere_length = len(_varint(pose_length)) + 1 + pose_length + _VECTOR.size + len(tail)
+    head = _SPHERES_TAG + _varint(sphere_length) + b"\x0a" + _varint(pose_length)
+    return _ObjectParts(e.SerializeToString(), head, middle, tail, size, height)
 
 
 @dataclass(frozen=True)
@@ -313,12 +379,16 @@ def drawn_objects(objects: Mapping[int, ObjectObservation],
     one object at the mean of its members' places, by lowest id."""
     out = []
     for i in sorted(objects):
-        ids = twins.get(i, (i,))
+        o = objects[i]
+        ids = twins.get(i)
+        if ids is None:  # alone: the mean of one place (0 + x, so -0.0 is 0.0 as in a sum)
+            out.append(Drawn(o.group, (i,), o.x + 0.0, o.y + 0.0, o))
+            continue
         if ids[0] != i:
             continue  # drawn with the set's lowest id
         members = [objects[m] for m in ids if m in objects]
-        out.append(Drawn(objects[i].group, ids, sum(o.x for o in members) / len(members),
-                         sum(o.y for o in members) / len(members), objects[i]))
+        out.append(Drawn(o.group, ids, sum(m.x for m in members) / len(members),
+                         sum(m.y for m in members) / len(members), o))
     return out
 
 
@@ -334,40 +404,38 @@ def object_entities(into: Entities, objects: Iterable[Drawn], kind: SensorKind, 
     that is ``lead`` has none (the lead's label names it). A detection's label is its class,
     where known, unless the detection is at a track's place (``places``: the track's block
     carries it). Each entity's metadata holds its ids, place and velocity."""
-    stamp = _stamp(t_ns)
+    stamp = _stamp_field(t_ns)
+    pack = _VECTOR.pack
     labels = []
     for o in objects:
         first = o.first
-        e = into.add()
-        e.MergeFrom(_object_template(kind, lifetime_s, first.object_class, track))
-        e.id = f"{o.group}-{o.ids[0]}"
-        e.timestamp.CopyFrom(stamp)
+        object_class = first.object_class
+        parts = _object_parts(kind, lifetime_s, object_class, track)
         x, y = o.x, o.y
         f = camera.scale(x, y, DETECTION_SIZE)
-        mark = e.spheres[0]
-        position = mark.pose.position
-        position.x, position.y, position.z = x, y, OBJECT_Z * f
-        size = mark.size
-        size.x *= f
-        size.y *= f
-        size.z *= f
-        if first.object_class is ObjectClass.PEDESTRIAN:
-            _place(e.cylinders[0], x, y)
-        e.metadata.add(key="ids", value=o.id_text)
-        e.metadata.add(key="place", value=f"x {x:.2f} m, y {y:.2f} m")
+        size = parts.size * f
+        id_text = o.id_text
+        metadata = (_pair("ids", id_text)
+                    + _pair("place", f"x {x:.2f} m, y {y:.2f} m"))
         if first.vx is not None:
-            e.metadata.add(key="vx", value=f"{first.vx:.2f} m/s")
-        distance = f"{math.hypot(x, y):.0f} m"
+            metadata += _pair("vx", f"{first.vx:.2f} m/s")
+        e = into.add()
+        e.MergeFromString(b"".join((
+            parts.template, stamp, _field(_ID_TAG, f"{o.group}-{o.ids[0]}".encode()),
+            parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
+            pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
+            metadata)))
+        if object_class is ObjectClass.PEDESTRIAN:
+            _place(e.cylinders[0], x, y)
         if track:
             if o is lead:
                 continue
             full = track_label(o, place_notes(places, o))
-            compact = f"TrackID: {o.id_text} \u00b7 {distance}"
+            compact = f"TrackID: {id_text} \u00b7 {math.hypot(x, y):.0f} m"
             labels.append(Label(e, x, y, 1.6 * f, full, compact, compact,
                                 (TRACKS_NEXT, x)))
-        elif (first.object_class in CLASS_LABELS
-              and (o.group, o.ids[0]) not in places.covered):
-            name = CLASS_LABELS[first.object_class]
+        elif object_class in CLASS_LABELS and (o.group, o.ids[0]) not in places.covered:
+            name = CLASS_LABELS[object_class]
             labels.append(Label(e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
                                 (DETECTIONS_LAST, x)))
     return labels
@@ -456,16 +524,31 @@ def draw_labels(blocks: Iterable[Block]) -> None:
             leader.color.CopyFrom(_color(LEADER_COLOR))
 
 
+#: Each profile's transforms without their timestamps, by the id of the profile (held with
+#: it, so that its id stays its own): built once, then copied and stamped at each tick.
+_TRANSFORMS: dict[int, tuple[Profile, FrameTransforms]] = {}
+
+
 def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
     """One transform per sensor mount, parent the vehicle frame."""
-    transforms = []
-    for sensor in profile.sensors.values():
-        yaw = math.radians(sensor.mount.yaw_deg)
-        transforms.append(FrameTransform(
-            timestamp=timestamp(t_ns), parent_frame_id=VEHICLE_FRAME, child_frame_id=sensor.name,
-            translation=Vector3(x=sensor.mount.x, y=sensor.mount.y, z=sensor.mount.z),
-            rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))))
-    return FrameTransforms(transforms=transforms)
+    held = _TRANSFORMS.get(id(profile))
+    if held is None or held[0] is not profile:
+        transforms = []
+        for sensor in profile.sensors.values():
+            yaw = math.radians(sensor.mount.yaw_deg)
+            transforms.append(FrameTransform(
+                parent_frame_id=VEHICLE_FRAME, child_frame_id=sensor.name,
+                translation=Vector3(x=sensor.mount.x, y=sensor.mount.y, z=sensor.mount.z),
+                rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))))
+        if len(_TRANSFORMS) >= 16:
+            _TRANSFORMS.clear()
+        held = _TRANSFORMS[id(profile)] = (profile, FrameTransforms(transforms=transforms))
+    out = FrameTransforms()
+    out.CopyFrom(held[1])
+    stamp = _stamp(t_ns)
+    for transform in out.transforms:
+        transform.timestamp.CopyFrom(stamp)
+    return out
 
 
 @dataclass

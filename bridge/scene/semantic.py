@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Iterable, Mapping, Sequence
 
 from bridge.frame import NS, timestamp
@@ -45,14 +46,55 @@ def perceived(o: ObjectObservation, t_ns: int, twins: Sequence[int] = ()) -> Per
     return msg
 
 
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append(n & 0x7F | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+# An object of PerceivedObjects as wire bytes (what :func:`perceived` makes, serialised): parsed
+# at once into the group's message, faster than building each object. Fields by number: id 1
+# (varint), x 2, y 3, vx 4, vy 5, probability 6 (doubles), object_class 7 (varint), distance 8,
+# age 9 (doubles), twins 10 (packed varints); the objects are field 6 of PerceivedObjects. A
+# field written with its default value (proto3, not optional) is dropped when parsed, as if not
+# set: the message is the same (tests/test_drive_bytes.py).
+_DOUBLE = struct.Struct("<Bd")
+_XY = struct.Struct("<BdBd")
+_TAIL = struct.Struct("<BdBd")
+
+
+def _object_bytes(o: ObjectObservation, t_ns: int, twins: Sequence[int]) -> bytes:
+    x, y = o.x, o.y
+    parts = [b"\x08", _varint(o.object_id), _XY.pack(0x11, x, 0x19, y)]
+    if o.vx is not None:
+        parts.append(_DOUBLE.pack(0x21, o.vx))
+    if o.vy is not None:
+        parts.append(_DOUBLE.pack(0x29, o.vy))
+    if o.probability is not None:
+        parts.append(_DOUBLE.pack(0x31, o.probability))
+    parts += (b"\x38", _varint(_CLASSES[o.object_class]),
+              _TAIL.pack(0x41, math.hypot(x, y), 0x49, (t_ns - o.t_ns) / NS))
+    others = b"".join([_varint(i) for i in twins if i != o.object_id])
+    if others:
+        parts += (b"\x52", _varint(len(others)), others)
+    data = b"".join(parts)
+    return b"\x32" + _varint(len(data)) + data
+
+
 def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: int,
             twins: Mapping[int, Sequence[int]] | None = None) -> PerceivedObjects:
-    """Every object of a group, each with its twins (id -> its set, :func:`twin_sets`)."""
+    """Every object of a group, each with its twins (id -> its set, :func:`twin_sets`): each
+    object as :func:`perceived` makes it."""
     twins = twins or {}
-    items = [perceived(o, t_ns, twins.get(o.object_id, ()))
+    items = [_object_bytes(o, t_ns, twins.get(o.object_id, ()))
              for o in sorted(found, key=lambda o: o.object_id)]
-    return PerceivedObjects(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, group=group,
-                            sensor=sensor, count=len(items), objects=items)
+    msg = PerceivedObjects(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, group=group,
+                           sensor=sensor, count=len(items))
+    msg.MergeFromString(b"".join(items))
+    return msg
 
 
 def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVehicle:
