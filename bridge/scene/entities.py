@@ -47,6 +47,7 @@ from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.scene.camera import ViewCamera, camera_for, view_range
 from bridge.scene.labels import Block, Label, lay_out
+from bridge.scene.protowire import varint
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
 from bridge.world.observe import ObjectObservation
@@ -243,19 +244,10 @@ def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
 # would make (a repeated field keeps the order of its items; the message is serialised by
 # protobuf later, from its fields): the scene's bytes are the same (tests/test_drive_bytes.py,
 # tests/test_scene.py), faster than setting the fields one by one.
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    while n >= 0x80:
-        out.append(n & 0x7F | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
-
-
 _FIELDS = SceneEntity.DESCRIPTOR.fields_by_name
 #: The tags (as wire bytes) of SceneEntity's length-delimited fields.
 _STAMP_TAG, _ID_TAG, _METADATA_TAG, _SPHERES_TAG = (
-    _varint(_FIELDS[name].number << 3 | 2) for name in ("timestamp", "id", "metadata", "spheres"))
+    varint(_FIELDS[name].number << 3 | 2) for name in ("timestamp", "id", "metadata", "spheres"))
 #: A Vector3 field as wire bytes: its tag, length 27 and x, y, z (fields 1, 2, 3: doubles).
 _VECTOR = struct.Struct("<BBBdBdBd")
 
@@ -264,7 +256,7 @@ def _field(tag: bytes, data: bytes) -> bytes:
     """A length-delimited field (string, bytes, message) as wire bytes: ``tag``, the length
     and ``data``."""
     n = len(data)
-    return tag + (_BYTES[n] if n < 0x80 else _varint(n)) + data
+    return tag + (_BYTES[n] if n < 0x80 else varint(n)) + data
 
 
 #: The one-byte varints (a short field's length).
@@ -315,8 +307,8 @@ def _object_parts(kind: SensorKind, lifetime_s: float, object_class: ObjectClass
     middle = _field(b"\x12", _IDENTITY.SerializeToString())  # Pose.orientation
     tail = _field(b"\x1a", color(rgba).SerializeToString())  # SpherePrimitive.color
     pose_length = _VECTOR.size + len(middle)
-    sphere_length = len(_varint(pose_length)) + 1 + pose_length + _VECTOR.size + len(tail)
-    head = _SPHERES_TAG + _varint(sphere_length) + b"\x0a" + _varint(pose_length)
+    sphere_length = len(varint(pose_length)) + 1 + pose_length + _VECTOR.size + len(tail)
+    head = _SPHERES_TAG + varint(sphere_length) + b"\x0a" + varint(pose_length)
     return _ObjectParts(e.SerializeToString(), head, middle, tail, size, height)
 
 

@@ -18,6 +18,7 @@ from bridge.pb.perception_pb2 import (
 )
 from bridge.profile.model import ObjectClass as Kind
 from bridge.profile.model import Profile
+from bridge.scene.protowire import varint
 from bridge.topics import VEHICLE_FRAME
 from bridge.world.lead import SteadyLead
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
@@ -46,15 +47,6 @@ def perceived(o: ObjectObservation, t_ns: int, twins: Sequence[int] = ()) -> Per
     return msg
 
 
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    while n >= 0x80:
-        out.append(n & 0x7F | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
-
-
 # An object of PerceivedObjects as wire bytes (what :func:`perceived` makes, serialised): parsed
 # at once into the group's message, faster than building each object. Fields by number: id 1
 # (varint), x 2, y 3, vx 4, vy 5, probability 6 (doubles), object_class 7 (varint), distance 8,
@@ -68,20 +60,20 @@ _TAIL = struct.Struct("<BdBd")
 
 def _object_bytes(o: ObjectObservation, t_ns: int, twins: Sequence[int]) -> bytes:
     x, y = o.x, o.y
-    parts = [b"\x08", _varint(o.object_id), _XY.pack(0x11, x, 0x19, y)]
+    parts = [b"\x08", varint(o.object_id), _XY.pack(0x11, x, 0x19, y)]
     if o.vx is not None:
         parts.append(_DOUBLE.pack(0x21, o.vx))
     if o.vy is not None:
         parts.append(_DOUBLE.pack(0x29, o.vy))
     if o.probability is not None:
         parts.append(_DOUBLE.pack(0x31, o.probability))
-    parts += (b"\x38", _varint(_CLASSES[o.object_class]),
+    parts += (b"\x38", varint(_CLASSES[o.object_class]),
               _TAIL.pack(0x41, math.hypot(x, y), 0x49, (t_ns - o.t_ns) / NS))
-    others = b"".join([_varint(i) for i in twins if i != o.object_id])
+    others = b"".join([varint(i) for i in twins if i != o.object_id])
     if others:
-        parts += (b"\x52", _varint(len(others)), others)
+        parts += (b"\x52", varint(len(others)), others)
     data = b"".join(parts)
-    return b"\x32" + _varint(len(data)) + data
+    return b"\x32" + varint(len(data)) + data
 
 
 def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: int,
