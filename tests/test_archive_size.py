@@ -25,6 +25,7 @@ from mcap.writer import IndexType
 from bridge.apps.replay import _mcap_messages
 from bridge.frame import Frame
 from bridge.sinks.mcap import Recorder
+from bridge.sinks.raw import cut
 
 BROWSER = Path(__file__).resolve().parent / "browser"
 T0_NS = 1_700_000_000_000_000_000
@@ -37,9 +38,9 @@ def record_drive(path: Path, **writer: Any) -> None:
     recorder = Recorder(out, chunk_size=8 * 1024, **writer)
     for i in range(3000):
         t = T0_NS + i * STEP_NS
-        recorder.write_frame(Frame(t, "chassis", 0x1F0 + i % 4, bytes([i % 256, 7, 0, 1])))
-        recorder.write_frame(Frame(t + 300_000, "powertrain", 0x18FF00 | i % 3,
-                                   i.to_bytes(8, "little"), is_extended=True))
+        recorder.on_raw(cut([Frame(t, "chassis", 0x1F0 + i % 4, bytes([i % 256, 7, 0, 1]))]))
+        recorder.on_raw(cut([Frame(t + 300_000, "powertrain", 0x18FF00 | i % 3,
+                                   i.to_bytes(8, "little"), is_extended=True)]))
         if i % 100 == 0:
             recorder.write("/log", Log(message=f"second {i // 1000}"), t + 500_000)
     recorder.finish()

@@ -29,6 +29,7 @@ from bridge.errors import UsageError
 from bridge.fleet import catalog
 from bridge.fleet.catalog import DriveRows, index, read_here
 from bridge.frame import NS
+from bridge.io.drives import ArchiveSource
 from bridge.pb import health_pb2
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages
@@ -200,7 +201,7 @@ def test_the_drives_table_holds_what_the_drive_says_of_itself(archive: Path,
     assert (profile, buses, errors) == ("ecocar", ["can0"], 0)
     counts = {summary.channels[i].topic: n
               for i, n in summary.statistics.channel_message_counts.items()}
-    assert frames == counts["/can/can0/frames"]
+    assert frames == len(list(ArchiveSource(path))) > counts["/can/can0/frames"]  # in blocks
     assert version
     topics = dict((t, (n, rate)) for t, n, rate in rows(
         indexed, "SELECT topic, count, rate_hz FROM topics WHERE drive = ?", path))

@@ -7,7 +7,7 @@ import io
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import can
 import cantools
@@ -18,6 +18,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.apps.inspect import format_summary, summarize, summarize_file
 from bridge.errors import InputError, OutputError
+from bridge.frame import Frame
+from bridge.io.drives import BlockMerger, block_frames
 from bridge.io.logs import LogSource
 from bridge.pipeline.convert import convert, record_drive
 from bridge.pipeline.drive import build_decoder
@@ -46,19 +48,23 @@ def drive(db: cantools.database.can.Database) -> list[can.Message]:
 
 @dataclass
 class RawFrame:
-    """A recorded CanFrame and its log time."""
+    """A recorded raw frame, by the field names of its schema, and its log time."""
 
-    log_time: int
-    frame: Any
+    frame: Frame
+    NAMES: ClassVar[dict[str, str]] = {
+        "log_time": "timestamp_ns", "id": "arbitration_id", "extended": "is_extended",
+        "fd": "is_fd", "error": "is_error", "remote": "is_remote"}
 
     def __getattr__(self, name: str) -> Any:
-        return getattr(self.frame, name)
+        return getattr(self.frame, self.NAMES.get(name, name))
 
 
-def read_back(stream: io.BytesIO | Path) -> tuple[dict[str, list[Any]], list[Any]]:
-    """Every decoded message by topic, and the raw frames in file order (with ``log_time``)."""
+def read_back(stream: io.BytesIO | Path) -> tuple[dict[str, list[Any]], list[RawFrame]]:
+    """Every decoded message by topic, and the raw frames in the order they were recorded
+    (read back from their blocks as a drive's reader does)."""
     by_topic: dict[str, list[Any]] = {}
-    raw: list[Any] = []
+    raw: list[RawFrame] = []
+    merger = BlockMerger()
     handle = stream.open("rb") if isinstance(stream, Path) else stream
     with handle:
         handle.seek(0)
@@ -66,7 +72,8 @@ def read_back(stream: io.BytesIO | Path) -> tuple[dict[str, list[Any]], list[Any
         for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             by_topic.setdefault(channel.topic, []).append(decoded)
             if channel.topic.endswith("/frames"):
-                raw.append(RawFrame(message.log_time, decoded))
+                raw += map(RawFrame, merger.add(block_frames(message.log_time, decoded)))
+    raw += map(RawFrame, merger.finish())
     return by_topic, raw
 
 
@@ -80,6 +87,9 @@ def test_every_frame_is_recorded_raw_and_every_known_one_decoded(
     by_topic, raw = read_back(out)
 
     assert report.frames == len(messages) == len(raw)
+    # in time order; two buses' frames stamped alike in the order of their blocks
+    raw.sort(key=lambda f: (f.log_time, f.bus))
+    messages.sort(key=lambda m: (m.timestamp, m.channel))
     assert [(f.id, f.data, f.log_time, f.fd, f.error) for f in raw] == [
         (m.arbitration_id, bytes(m.data), round(m.timestamp * 1e6) * 1000, m.is_fd,
          m.is_error_frame) for m in messages]
@@ -138,7 +148,9 @@ def test_chunks_are_zstd_and_the_summary_counts_every_topic(
     assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
     counts = {summary.channels[i].topic: n
               for i, n in summary.statistics.channel_message_counts.items()}
-    assert counts["/can/can0/frames"] + counts["/can/can1/frames"] == 254
+    _, raw = read_back(out)
+    assert len(raw) == 254
+    assert 0 < counts["/can/can0/frames"] + counts["/can/can1/frames"] < 254  # in blocks
     assert counts["/can/can0/SensorDiag"] == 50
 
 

@@ -481,8 +481,11 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
              "via": "import", "layout": str(LAYOUTS / "can-debug.json"),
              "plots": True, "plotExtent": 0.8,
              "indicators": indicators("can-debug.json", radar_alarms),
-             "panelText": {"RawMessages!frames-can0": ["tankviz.CanFrame @", "dlc", "data"],
-                           "SourceInfo!topics": ["/can/can0/frames", "tankviz.CanFrame",
+             "panelText": {"RawMessages!frames-can0": ["tankviz.CanFrameBlock @", "frames",
+                                                       "offset_ns", "data"],
+                           # one id's frames, found in the blocks by a message-path filter
+                           "RawMessages!frames-can0-id": ["id", "256", "offset_ns"],
+                           "SourceInfo!topics": ["/can/can0/frames", "tankviz.CanFrameBlock",
                                                  "/health", "tankviz.Health"]},
              "screenshot": str(out / "can-debug.png")},
             # A track and its detections at one place: both drawn, each in its own colour.
@@ -829,7 +832,7 @@ def test_live_demo_with_foxglove_ws_protocol_client() -> None:
             assert channel["messages"] > 0, f"{topic}: no message within 30 s"
             assert not channel.get("decodeErrors"), topic
     assert channels["/scene/lanes"]["schemaName"] == "foxglove.SceneUpdate"
-    assert channels["/can/can0/frames"]["schemaName"] == "tankviz.CanFrame"
+    assert channels["/can/can0/frames"]["schemaName"] == "tankviz.CanFrameBlock"
 
 
 def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:

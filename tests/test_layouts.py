@@ -25,6 +25,7 @@ from bridge.apps.layouts import (
 from bridge.errors import BridgeError
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
+from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pb.perception_pb2 import EgoState, LeadVehicle, PerceivedObjects
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
@@ -122,7 +123,7 @@ def test_the_bundled_layouts_with_their_previews() -> None:
     assert found["tank-viz"].summary == "2 3D panels"
     assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, 14 Indicator panels"
     assert (found["can-debug"].summary
-            == "9 plots, 2 Indicator panels, Raw Messages, Data Source Info")
+            == "9 plots, 2 Indicator panels, 2 Raw Messages panels, Data Source Info")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -212,8 +213,13 @@ def test_engineer_layout(made: Produced, alarm_ids: list[str]) -> None:
 
 def test_can_debug_layout(made: Produced) -> None:
     data = layout("can-debug")
-    (raw,) = panels(data, "RawMessages").values()
+    raw, one_id = panels(data, "RawMessages").values()
     assert raw["topicPath"] == frames_topic(BUS)
+    # one id's frames, found in the blocks with a filter (the ego's first message: EgoMotion)
+    assert one_id["topicPath"] == f"{frames_topic(BUS)}.frames[:]{{id==256}}"
+    assert "EgoMotion" in one_id["foxglovePanelTitle"]
+    resolved = resolve_path(one_id["topicPath"], made)
+    assert resolved.schema == CanFrameBlock.DESCRIPTOR.full_name
     assert panels(data, "SourceInfo"), "topics with message counts and rates"
     plots = panels(data, "Plot")
     signals = [p["value"] for plot_id, plot in plots.items() for p in plot["paths"]

@@ -141,8 +141,11 @@ def test_generated_layouts_name_only_what_the_profile_produces(car: str) -> None
         g is not None and g.vx is not None for g in lead_groups)
     # can-debug: per bus its raw frames, health figures and bus alarms.
     debug = layouts["can-debug"]
-    assert {p["topicPath"] for p in panels(debug, "RawMessages").values()} == {
-        frames_topic(b) for b in buses}
+    raw = {p["topicPath"] for p in panels(debug, "RawMessages").values()}
+    assert {path for path in raw if "{" not in path} == {frames_topic(b) for b in buses}
+    one_id = raw - {frames_topic(b) for b in buses}  # one id's frames, by a filter
+    assert one_id and all(re.fullmatch(r"/can/\w+/frames\.frames\[:\]\{id==\d+\}", path)
+                          for path in one_id), one_id
     assert sorted(indicated(debug)) == sorted(
         f"bus.{b}.{kind}" for b in buses for kind in ("silent", "babbling"))
     signals = {p for p in plotted(debug) if p.startswith("/can/")}
@@ -231,8 +234,14 @@ def test_a_two_bus_car_without_camera_or_lead(two_bus: tuple[Path, list[str]]) -
     assert "RawMessages!lead" not in engineer["configById"], "no lead: no lead panel"
     assert engineer["configById"]["Plot!counts"]["foxglovePanelTitle"] == "Valid tracks"
     debug = layouts["can-debug"]
-    assert {p["topicPath"] for p in panels(debug, "RawMessages").values()} == {
+    raw = {p["topicPath"]: p["foxglovePanelTitle"] for p in panels(debug, "RawMessages").values()}
+    assert {path for path in raw if "{" not in path} == {
         "/can/front_radar/frames", "/can/chassis/frames"}
+    assert {path: title for path, title in raw.items() if "{" in path} == {
+        "/can/chassis/frames.frames[:]{id==300}":
+            "Raw frames of Chassis (id 300 = 0x12C; another id: edit the path)",
+        "/can/front_radar/frames.frames[:]{id==1280}":
+            "Raw frames of Trk_0 (id 1280 = 0x500; another id: edit the path)"}
     signals = {p["value"]: p["label"] for plot in panels(debug, "Plot").values()
                for p in plot["paths"] if p["value"].startswith("/can/")}
     assert signals == {

@@ -12,8 +12,9 @@ from mcap.writer import IndexType
 from mcap.writer import Writer as McapWriter
 
 from bridge.frame import Frame
-from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.mcap import FastWriter, Recorder
+from bridge.sinks.raw import cut
 
 FRAME = Frame(1_000, "can0", 0x100, b"\x01\x02", dlc=2)
 
@@ -56,25 +57,33 @@ def test_without_message_indexes_the_fast_writer_writes_what_mcap_writes() -> No
     assert len(written) < len(write_with(McapWriter)) - 16 * 3000
 
 
-def test_raw_frames_serialize_exactly_like_a_whole_canframe() -> None:
+def test_raw_frames_serialize_exactly_like_a_whole_canframeblock() -> None:
+    """Every flag, lengths from none to longer than CAN (other sources), a requested length
+    that is not the data's: the recorder's blocks are what protobuf writes."""
     recorder_out = io.BytesIO()
     recorder = Recorder(recorder_out)
-    expected = []
+    frames = []
     for n, flags in enumerate(itertools.product([False, True], repeat=6)):
-        for length in (0, 1, 8, 12, 64, 127, 128, 300):  # longer than CAN: other sources
+        for length in (0, 1, 8, 12, 64, 127, 128, 300):
             ext, fd, err, rtr, brs, esi = flags
-            frame = Frame(n * 100 + length, "radar", 0x1ABCDEF if ext else 0x7FF,
-                          bytes(i % 256 for i in range(length)), ext, fd, err, rtr, brs, esi,
-                          length)
-            recorder.write_frame(frame)
-            expected.append(CanFrame(bus="radar", id=frame.arbitration_id, extended=ext, fd=fd,
-                                     error=err, remote=rtr, bitrate_switch=brs,
-                                     error_state_indicator=esi, dlc=length,
-                                     data=frame.data).SerializeToString())
+            frames.append(Frame(n * 100 + length, "radar", 0x1ABCDEF if ext else 0x7FF,
+                                bytes(i % 256 for i in range(length)), ext, fd, err, rtr, brs,
+                                esi, 8 if rtr else length))
+    frames.sort(key=lambda f: f.timestamp_ns)
+    recorder.on_raw(cut(frames))
     recorder.finish()
+    expected = CanFrameBlock(bus="radar")
+    for frame in frames:
+        row = expected.frames.add(
+            id=frame.arbitration_id, extended=frame.is_extended, fd=frame.is_fd,
+            error=frame.is_error, remote=frame.is_remote, bitrate_switch=frame.bitrate_switch,
+            error_state_indicator=frame.error_state_indicator, data=frame.data,
+            offset_ns=frame.timestamp_ns - frames[0].timestamp_ns)
+        if frame.dlc != len(frame.data):
+            row.dlc = frame.dlc
     recorder_out.seek(0)
-    got = [m.data for _, _, m in make_reader(recorder_out).iter_messages(log_time_order=False)]
-    assert got == expected
+    (got,) = [(c.topic, m.data) for _, c, m in make_reader(recorder_out).iter_messages()]
+    assert got == ("/can/radar/frames", expected.SerializeToString())
 
 
 def test_a_topic_keeps_its_one_message_type() -> None:
@@ -110,7 +119,7 @@ def test_a_recorder_describes_its_drive_once_just_before_it_is_finished() -> Non
 
     out = io.BytesIO()
     recorder = Recorder(out, describe=describe)
-    recorder.on_frame(FRAME, b"")
+    recorder.on_raw(cut([FRAME]))
     assert described == []
     recorder.finish()
     recorder.finish()

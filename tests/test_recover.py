@@ -28,6 +28,7 @@ from bridge.apps.recover import METADATA_NAME, RecoverReport, format_report, rec
 from bridge.errors import InputError, OutputError
 from bridge.frame import Frame
 from bridge.sinks.mcap import Recorder
+from bridge.sinks.raw import cut as blocks
 
 T0 = 1_700_000_000_000_000_000
 DBC = b'VERSION ""\n\nBU_: ECU\n\nBO_ 256 Speed: 8 ECU\n SG_ V : 0|16@1+ (0.01,0) [0|655] "" ECU\n'
@@ -57,7 +58,8 @@ def record(stream: IO[bytes], frames: int = 1200) -> None:
     for i in range(frames):
         t = T0 + i * 1_000_000
         bus = "radar" if i % 3 else "vehicle"
-        recorder.write_frame(Frame(t, bus, 0x100 + i % 7, bytes([i % 256] * (i % 9)), dlc=i % 9))
+        frame = Frame(t, bus, 0x100 + i % 7, bytes([i % 256] * (i % 9)), dlc=i % 9)
+        recorder.on_raw(blocks([frame]))  # a block a frame: as many messages
         if i % 40 == 0:
             recorder.write("/log", Log(message=f"frame {i}", name="test"), t)
         if i == frames // 8:

@@ -299,12 +299,13 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
     go only to who subscribed to their bus; what the pipeline advertises is advertised once."""
     from bridge.frame import Frame
     from bridge.sinks.base import Channel, Serialized
+    from bridge.sinks.raw import cut
 
     monkeypatch.setattr("bridge.sinks.server.live.DRAIN_INTERVAL_S", 3600.0)  # no safety net
     frame = Frame(5, "radar", 0x100, b"\x01", dlc=1)
     with LiveServer(port=0) as server:
         server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b""),
-                          Channel("/can/radar/frames", "tankviz.CanFrame", lambda: b"")])
+                          Channel("/can/radar/frames", "tankviz.CanFrameBlock", lambda: b"")])
         server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b"")])
 
         async def session() -> tuple[list[str], list[int]]:
@@ -315,7 +316,7 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
                     {"id": 1, "channelId": ids["/scene/ego"]}]}))
                 assert await asyncio.to_thread(wait_for,
                                                lambda: server.wanted(ids["/scene/ego"]))
-                server.on_frame(frame, b"frame")  # nobody subscribed to the radar's frames
+                server.on_raw(cut([frame]))  # nobody subscribed to the radar's frames
                 server.on_messages([Serialized("/scene/ego", SceneUpdate, b"", 7),
                                     Serialized("/scene/ego", SceneUpdate, b"", 8)])
                 times = [struct.unpack_from("<BIQ", await next_binary(ws))[2] for _ in "ab"]

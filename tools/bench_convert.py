@@ -15,8 +15,9 @@ as ASC (the same frames, python-can's ``ASCWriter``):
 
 - bare ``can.LogReader`` iteration (the floor: python-can's reading alone);
 - the naive converter, raw + decoded: LogReader → cantools ``decode_message`` →
-  ``mcap_protobuf.writer.Writer`` (zstd), writing the same raw (``/can/<bus>/frames``,
-  :class:`bridge.pb.can_frame_pb2.CanFrame`) and decoded (``/can/<bus>/<Message>``, the very
+  ``mcap_protobuf.writer.Writer`` (zstd), writing raw frames on the same topics
+  (``/can/<bus>/frames``, one :class:`bridge.pb.can_frame_pb2.CanFrame` a frame, as tankviz did
+  before it wrote them in blocks, :mod:`bridge.sinks.raw`) and decoded (``/can/<bus>/<Message>``, the very
   protobuf types tankviz generates, from :class:`bridge.decode.proto_schema.MessageSchema`)
   topics;
 - the naive converter with the scene: the same, plus :func:`naive_scene` at 20 Hz of log time,
@@ -1080,13 +1081,20 @@ def startup_seconds() -> float:
 
 
 def topic_counts(path: Path) -> dict[str, int]:
+    """Messages per topic, but frames on the raw-frame topics (tankviz writes them in blocks)."""
     from mcap.reader import make_reader
 
+    from bridge.io.drives import raw_frame_counts
+    from bridge.topics import frames_topic
+
     with path.open("rb") as stream:
-        summary = make_reader(stream).get_summary()
-    assert summary is not None and summary.statistics is not None, f"{path}: no summary"
-    return {summary.channels[cid].topic: n
-            for cid, n in summary.statistics.channel_message_counts.items()}
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, f"{path}: no summary"
+        counts = {summary.channels[cid].topic: n
+                  for cid, n in summary.statistics.channel_message_counts.items()}
+        counts.update({frames_topic(bus): n for bus, n in raw_frame_counts(reader).items()})
+    return counts
 
 
 def index_bytes(path: Path) -> int:
@@ -1102,7 +1110,8 @@ def index_bytes(path: Path) -> int:
 
 
 def compare_outputs(naive: Path, ours: Path) -> list[str]:
-    """Topics the naive converter wrote whose message counts differ in tankviz's MCAP (tankviz's
+    """Topics the naive converter wrote whose message counts (frames, on the raw-frame topics)
+    differ in tankviz's MCAP (tankviz's
     extra topics - perception, health, /tf, /ego - are not compared; a scene category may
     differ by one tick at the end of the log)."""
     a, b = topic_counts(naive), topic_counts(ours)

@@ -63,11 +63,10 @@ pessimistic.
 Latency. "From a frame's timestamp to a client receiving the scene that contains it." The scene
 tick at log time T (the WebSocket message timestamp; ticks are multiples of 20 ms at 50 Hz) is
 emitted by the pipeline when it processes the first frame stamped >= T (or at its read of the
-buses just after T, if none came), and contains exactly the frames processed before it. The
-recorder writes frames and scenes in that same processing order, so reading the drive's MCAP in
-file order tells, for every frame, the scene that contains it: the first ``/scene/ego`` written
-after it (a frame stamped before T but read after scene T went out lands in the next scene,
-and is counted so). A reading client has received scene T
+buses just after T, if none came), and contains exactly the frames processed before it: the
+harness notes how many that is at every tick, and takes the drive's frames, read back from
+their blocks, in that order (a frame stamped before T but read after scene T went out lands in
+the next scene, and is counted so). A reading client has received scene T
 when it has as many ``/scene/*`` messages stamped T as the drive recorded: the arrival of the last
 one (wall clock, in the client process; the same clock as the frame stamps). Then per frame and
 reading client::
@@ -395,59 +394,49 @@ class DriveAnalysis:
 def summary_frame_counts(files: Sequence[Path]) -> dict[str, int]:
     from mcap.reader import make_reader
 
+    from bridge.io.drives import raw_frame_counts
+
     counts: dict[str, int] = {}
     for path in files:
         with path.open("rb") as f:
-            summary = make_reader(f).get_summary()
-        assert summary is not None and summary.statistics is not None
-        for channel_id, n in summary.statistics.channel_message_counts.items():
-            topic = summary.channels[channel_id].topic
-            if topic.startswith("/can/") and topic.endswith("/frames"):
-                bus = topic.split("/")[2]
+            for bus, n in raw_frame_counts(make_reader(f)).items():
                 counts[bus] = counts.get(bus, 0) + n
     return counts
 
 
 def analyse(files: Sequence[Path], received: list[dict[int, tuple[int, int]]],
-            window: tuple[int, int]) -> DriveAnalysis:
-    """Which scene contains which frame (MCAP file order), and the latencies at the readers.
+            window: tuple[int, int], frames_before: dict[int, int]) -> DriveAnalysis:
+    """Which scene contains which frame, and the latencies at the readers.
 
     ``received``: per reading client, tick -> (when the last of its /scene/* messages stamped
     with that tick arrived, how many arrived). A tick counts as received when the client got as
-    many /scene/* messages stamped with it as the drive recorded.
+    many /scene/* messages stamped with it as the drive recorded. ``frames_before``: tick -> how
+    many frames the pipeline had processed when it began the tick (:func:`time_scene_stages`):
+    the tick's scene contains them. The drive's frames, read back from their blocks
+    (:class:`bridge.io.drives.ArchiveSource`), are taken in that order.
     """
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
+    from mcap.reader import make_reader
+
+    from bridge.io.drives import ArchiveSource
 
     result = DriveAnalysis(summary_frame_counts(files), 0, Histogram(),
                            scenes_missed=[0] * len(received))
     lo, hi = window
-    pending = array("q")
+    stamps = array("q", (f.timestamp_ns for path in files for f in ArchiveSource(path)))
     scenes: list[tuple[int, array[int]]] = []  # tick, the frames it contains (in the window)
+    done = 0
+    for tick, before in sorted(frames_before.items()):
+        scenes.append((tick, array("q", (t for t in stamps[done:before] if lo <= t < hi))))
+        done = max(done, before)
     recorded: dict[int, int] = {}  # tick -> /scene/* messages recorded with that time
     for path in files:
-        frame_channels: set[int] = set()
-        scene_channels: set[int] = set()
-        tick_channel = -1
         with path.open("rb") as f:
-            for record in StreamReader(f).records:
-                if isinstance(record, Message):
-                    cid = record.channel_id
-                    if cid in frame_channels:
-                        if lo <= record.log_time < hi:
-                            pending.append(record.log_time)
-                    elif cid in scene_channels:
-                        recorded[record.log_time] = recorded.get(record.log_time, 0) + 1
-                        if cid == tick_channel:
-                            scenes.append((record.log_time, pending))
-                            pending = array("q")
-                elif isinstance(record, Channel):
-                    if record.topic.startswith("/can/") and record.topic.endswith("/frames"):
-                        frame_channels.add(record.id)
-                    elif record.topic.startswith("/scene/"):
-                        scene_channels.add(record.id)
-                        if record.topic == "/scene/ego":  # written first at every tick
-                            tick_channel = record.id
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            topics = [c.topic for c in summary.channels.values()
+                      if c.topic.startswith("/scene/")] if summary is not None else []
+            for _, _, message in reader.iter_messages(topics=topics):
+                recorded[message.log_time] = recorded.get(message.log_time, 0) + 1
     result.scenes = len(scenes)
     complete = result.complete = [
         {t: at for t, (at, n) in got.items() if n >= recorded.get(t, 0)} for got in received]
@@ -488,7 +477,8 @@ def scene_receipts(client: dict[str, Any]) -> dict[int, tuple[int, int]]:
 
 def time_scene_stages(pipeline: Any) -> dict[int, list[int]]:
     """Wall times of each scene tick inside the bridge: tick -> [the pipeline starts computing
-    it, computed, serialised + recorded + handed to the server]. Wraps two methods of this
+    it, computed, serialised + recorded + handed to the server, and the frames processed before
+    it (the frames its scene contains)]. Wraps two methods of this
     pipeline's instances (50 calls a second; the bridge's code is unchanged): the perception's
     ``tick`` (one scene tick) and the pipeline's ``emit``."""
     stages: dict[int, list[int]] = {}
@@ -497,8 +487,9 @@ def time_scene_stages(pipeline: Any) -> dict[int, list[int]]:
 
     def timed_tick(t_ns: int) -> Any:
         start = time.time_ns()
+        before = pipeline.frames
         out = tick(t_ns)
-        stages[t_ns] = [start, time.time_ns(), 0]
+        stages[t_ns] = [start, time.time_ns(), 0, before]
         return out
 
     def timed_emit(outputs: Any, **options: Any) -> None:
@@ -519,7 +510,8 @@ PROFILE_PARTS = (
     ("scene ticks (observe, world, lanes, scene, semantic)", "perception.py", "tick"),
     ("scene emit (serialise, record, publish)", "pipeline.py", "emit"),
     ("decode (cantools, protobuf)", "decoder.py", "decode"),
-    ("record raw frames", "mcap.py", "write_frame"),
+    ("cut raw frames into blocks", "raw.py", "add"),
+    ("record raw blocks", "mcap.py", "write_raw"),
     ("record decoded messages", "mcap.py", "write_decoded"),
     ("publish to the server", "server/live.py", "publish"),
     ("recorder tick (flush)", "drives.py", "tick"),
@@ -711,7 +703,8 @@ def run(args: argparse.Namespace) -> None:
     report = outcome.get("report")
     files = list(report.files) if report is not None else sorted(drives.glob("*.mcap"))
     t = time.perf_counter()
-    analysis = analyse(files, receipts, window)
+    analysis = analyse(files, receipts, window,
+                       {tick: noted[3] for tick, noted in stages.items()})
     analyse_s = time.perf_counter() - t
     drive_mb = sum(p.stat().st_size for p in files) / 1e6
 
@@ -875,9 +868,10 @@ def _everyone_wants() -> Any:
             self.channels: dict[str, int] = {}
             self.published = 0
 
-        def on_frame(self, frame: Any, payload: bytes, /) -> None:
-            self.channels.setdefault(frame.bus, len(self.channels))
-            self.published += 1
+        def on_raw(self, blocks: Any, /) -> None:
+            for block in blocks:
+                self.channels.setdefault(block.bus, len(self.channels))
+                self.published += 1
 
         def on_decoded(self, t_ns: int, decoded: Any, /) -> None:
             self.channels.setdefault(decoded.codec.topic, len(self.channels))

@@ -6,7 +6,9 @@ It converts the synthetic 3-bus drive of tools/bench_convert.py (the same genera
 cached in ``--workdir``) three ways with ``tankviz convert`` — raw frames only, raw + decoded
 (``--dbc ecocar``), with the scene (``--profile ecocar``) — and prints for each:
 
-- the archive size and its ratio to the BLF (goals: raw ≤ 1.2x, with decoded + scene ≤ 3x);
+- the archive size and its ratio to the BLF (issue #26's goals: raw ≤ 1.0x, with decoded +
+  scene ≤ 4x); for raw frames also as packed columns, the layout not taken (one array per
+  field instead of a row per frame: ``docs/archive.md`` says why);
 - bytes and count per MCAP record type, read with mcap's StreamReader (chunks not opened), and
   what the file would be without its MessageIndex records;
 - the uncompressed message bytes per topic family (``frames``, decoded, ``/scene``, others);
@@ -31,6 +33,7 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import zstandard
 from mcap.opcode import Opcode
@@ -206,10 +209,56 @@ def main(argv: list[str] | None = None) -> int:
                   f"fields ({decoded[1] / decoded[0]:.0%} of the payload bytes)")
         if args.levels:
             levels_report(output)
+        if kind == "raw":
+            columns = output.with_name(output.stem + "-columns.mcap")
+            write_columns(output, columns)
+            rows.append(("raw, as packed columns (not taken)", columns.stat().st_size,
+                         columns.stat().st_size - record_bytes(columns)["MESSAGE_INDEX"]))
     print("\n| archive | size | x BLF | x BLF without MessageIndex |\n|---|---|---|---|")
     for kind, size, without in rows:
         print(f"| {kind} | {size / 1e6:.1f} MB | {size / blf:.2f} | {without / blf:.2f} |")
     return 0
+
+
+def columns_class() -> Any:
+    """The alternative to tankviz.CanFrameBlock's rows: one packed array per field."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    F = descriptor_pb2.FieldDescriptorProto
+    file = descriptor_pb2.FileDescriptorProto(name="bench_columns.proto", package="bench",
+                                              syntax="proto3")
+    message = file.message_type.add(name="CanFrameColumns")
+    for number, (name, kind, repeated) in enumerate(
+            [("bus", F.TYPE_STRING, False), ("id", F.TYPE_UINT32, True),
+             ("offset_ns", F.TYPE_UINT32, True), ("length", F.TYPE_UINT32, True),
+             ("flags", F.TYPE_UINT32, True), ("data", F.TYPE_BYTES, False)], start=1):
+        message.field.add(name=name, number=number, type=kind,
+                          label=F.LABEL_REPEATED if repeated else F.LABEL_OPTIONAL)
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName("bench.CanFrameColumns"))
+
+
+def write_columns(raw: Path, output: Path) -> None:
+    """The raw archive's blocks again, each as packed columns (same blocks, same recorder)."""
+    from bridge.io.drives import ArchiveSource
+    from bridge.pb.can_frame_pb2 import CanFrameBlock
+    from bridge.sinks.mcap import Recorder
+    from bridge.sinks.raw import cut
+
+    columns = columns_class()
+    with output.open("wb") as f:
+        recorder = Recorder(f)
+        for block in cut(ArchiveSource(raw)):
+            rows = CanFrameBlock.FromString(block.payload).frames
+            message = columns(
+                bus=block.bus, id=[r.id for r in rows], offset_ns=[r.offset_ns for r in rows],
+                length=[len(r.data) for r in rows], data=b"".join(r.data for r in rows),
+                flags=[r.extended | r.fd << 1 | r.bitrate_switch << 2
+                       | r.error_state_indicator << 3 | r.error << 4 | r.remote << 5
+                       for r in rows])
+            recorder.write(f"/can/{block.bus}/frames", message, block.t_ns)
+        recorder.finish()
 
 
 def _record_class(opcode_name: str) -> str:

@@ -1,6 +1,7 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
-Besides times, topics, attachments and the decode statistics it prints what the ``tankviz``
+Besides times, topics (raw frames are counted in blocks there, and in frames under the decode
+statistics), attachments and the decode statistics it prints what the ``tankviz``
 metadata record says of the drive: inputs, databases, clock steps, bus gaps (a bus lost and back,
 live), recording pauses (the disk was full: when, why, and what was not recorded), warnings, the
 alarms raised and cleared, each sensor's lateral sign verdict (``ok``, ``flipped`` or
@@ -28,9 +29,11 @@ from mcap.reader import make_reader
 from bridge.apps.options import Subparsers
 from bridge.errors import InputError
 from bridge.frame import format_time
+from bridge.io.drives import BLOCK_SCHEMA
 from bridge.io.issues import summarize_issues
 from bridge.io.unreadable import why_unreadable
 from bridge.sinks.mcap import METADATA_NAME
+from bridge.sinks.raw import WINDOW_NS
 
 
 @dataclass
@@ -179,6 +182,9 @@ def format_summary(path: str, s: DriveSummary) -> str:
     width = max((len(t.topic) for t in s.topics), default=10)
     for t in s.topics:
         lines.append(f"  {t.topic:<{width}}  {t.messages:>10,}  {t.schema} ({t.encoding})")
+    if any(t.schema == BLOCK_SCHEMA for t in s.topics):
+        lines.append(f"  (raw frames: a {BLOCK_SCHEMA} per bus per {WINDOW_NS // 1_000_000} ms; "
+                     "frames are counted under decode statistics)")
     meta = dict(s.metadata)
     ours = meta.pop(METADATA_NAME, None)
     if ours is not None:

@@ -1,14 +1,16 @@
 """The drive catalogue: what an archive of recorded drives holds, as one DuckDB file.
 
 :func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table
-(:class:`DriveRows`). It reads the file's summary (times, topics and their counts), the
+(:class:`DriveRows`). It reads the file's summary (times, topics and their message counts: on
+``/can/<bus>/frames`` blocks of frames, :mod:`bridge.sinks.raw`), the
 ``tankviz`` metadata record (:meth:`bridge.pipeline.drive.Drive.describe`: version, profile,
 databases with their SHA-256, decode statistics, alarm events) and the messages of the
 perception topics (``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``);
 nothing is decoded again. A drive without the ``tankviz`` record (one cut short and recovered)
 takes what it holds from the file instead (:mod:`bridge.fleet.held`): its alarms from the
 ``/log`` messages of the health monitor (``ALARM <id>: ...``, ``cleared <id> ...``), its frames
-per bus from the counts of its raw-frame channels (``/can/<bus>/frames``), its databases (name,
+per bus from its raw-frame channels (``/can/<bus>/frames``: the rows of their blocks, or their
+message counts in a drive of one frame a message), its databases (name,
 SHA-256; buses unknown: empty) and profile from its attachments, and what ``tankviz recover``
 says of it (its ``tankviz.recover`` record) into ``statistics`` (``recovered``). A recovered
 drive that kept its ``tankviz`` record counts its frames per bus the same way (the record counts
@@ -69,6 +71,7 @@ from mcap.reader import make_reader
 from bridge.errors import BridgeError, InputError, UsageError
 from bridge.fleet.held import RECOVER_RECORD, held_metadata
 from bridge.frame import NS, format_time
+from bridge.io.drives import raw_frame_counts
 from bridge.io.unreadable import why_unreadable
 from bridge.pb import perception_pb2
 from bridge.sinks.mcap import METADATA_NAME
@@ -257,9 +260,9 @@ def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
                          f"no {HEALTH_SCHEMA} channel")
     counts = stats.channel_message_counts
     if meta is None:  # cut short (and recovered): what the file holds
-        meta = held_metadata(reader, channels, counts, records.get(RECOVER_RECORD))
+        meta = held_metadata(reader, raw_frame_counts(reader), records.get(RECOVER_RECORD))
     elif RECOVER_RECORD in records:  # recovered: its frames are those it holds, not all it had
-        held = _json(held_metadata(None, channels, counts, records[RECOVER_RECORD]),
+        held = _json(held_metadata(None, raw_frame_counts(reader), records[RECOVER_RECORD]),
                      "statistics", {})
         meta = {**meta, "statistics": json.dumps({**_json(meta, "statistics", {}), **held})}
     topics = [(drive, c.topic, schemas.get(c.schema_id, ""), c.message_encoding,

@@ -3,7 +3,8 @@
 A drive cut short (a power loss) and recovered with ``tankviz recover`` has no ``tankviz`` record
 (it is written when a drive is finished). :func:`held_metadata` makes the entries the catalogue
 reads of that record (:mod:`bridge.fleet.catalog`) from what the file holds: frames per bus from
-the counts of its raw-frame channels (``/can/<bus>/frames``), its databases (name, SHA-256; the
+its raw-frame channels (``/can/<bus>/frames``: :func:`bridge.io.drives.raw_frame_counts`), its
+databases (name, SHA-256; the
 buses they were for are not known: empty) and profile from its attachments, and what the
 ``tankviz.recover`` record says of it into ``statistics.recovered``.
 """
@@ -12,9 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,22 +27,16 @@ def _value(text: str) -> Any:
 
 #: The metadata record ``tankviz recover`` writes (:mod:`bridge.apps.recover`).
 RECOVER_RECORD = "tankviz.recover"
-#: The raw-frame topics (``bridge.topics.frames_topic``).
-_FRAMES_TOPIC = re.compile(r"/can/(?P<bus>[^/]+)/frames")
 #: The name prefix of a drive's profile attachment (``bridge.pipeline.drive.PROFILE_PREFIX``).
 _PROFILE_PREFIX = "profile-"
 
 
-def held_metadata(reader: Any, channels: Sequence[Any], counts: dict[int, int],
+def held_metadata(reader: Any, frames: dict[str, int],
                   recovered: dict[str, str] | None) -> dict[str, str]:
     """The metadata entries the catalogue reads, made from what a drive without its ``tankviz``
-    record holds: frames per bus (its raw-frame channels), databases and profile (its
-    attachments, unless ``reader`` is None), and the ``tankviz.recover`` record
+    record holds: ``frames`` per bus (:func:`bridge.io.drives.raw_frame_counts`), databases and
+    profile (its attachments, unless ``reader`` is None), and the ``tankviz.recover`` record
     (``statistics.recovered``)."""
-    frames: dict[str, int] = {}
-    for c in channels:
-        if (m := _FRAMES_TOPIC.fullmatch(c.topic)) is not None:
-            frames[m["bus"]] = frames.get(m["bus"], 0) + counts.get(c.id, 0)
     statistics: dict[str, Any] = {"frames": dict(sorted(frames.items()))}
     if recovered is not None:
         statistics["recovered"] = {k: _value(recovered[k]) for k in (

@@ -1,7 +1,8 @@
 """Sources: the raw CAN frames of a recorded drive (an MCAP tankviz wrote), and what it holds.
 
 A drive that ``tankviz convert``, ``live`` or ``simulate`` recorded keeps every raw frame on
-``/can/<bus>/frames`` (``tankviz.CanFrame``), its databases and profile as attachments at the
+``/can/<bus>/frames`` (in blocks, ``tankviz.CanFrameBlock``: :mod:`bridge.sinks.raw`; drives
+recorded before blocks, one ``tankviz.CanFrame`` a message), its databases and profile as attachments at the
 start of the file, and the ``tankviz`` metadata record at its end. With them the whole pipeline
 can run again on the drive (``tankviz convert DRIVE.mcap``, ``tankviz replay DRIVE.mcap
 --profile P``). This module only reads: it gives frames, raw attachment bytes and the metadata
@@ -14,39 +15,45 @@ values; loading databases and a profile from them is the pipeline's and the apps
   :class:`~bridge.errors.InputError` naming the file and what it lacks.
 - :class:`ArchiveSource`: every raw frame in the order it was recorded (the order the pipeline saw
   them when the drive was made: log-time order, with any step back of the clock where it
-  happened, so re-deriving reproduces the drive). The file is streamed record by record, so a
-  drive cut short (a power loss) gives every frame of its complete chunks; where reading stops
-  is one :class:`~bridge.io.logs.SourceIssue` that points to ``tankviz recover``. A frame whose
-  bytes are not a ``tankviz.CanFrame`` is skipped and reported; the others go on.
+  happened, so re-deriving reproduces the drive; blocks are merged back into that order by
+  :class:`BlockMerger`, exact for each bus). The file is streamed record by record, so a drive
+  cut short (a power loss) gives every frame of its complete chunks; where reading stops is one
+  :class:`~bridge.io.logs.SourceIssue` that points to ``tankviz recover``. A block (or frame)
+  whose bytes are not a ``tankviz.CanFrameBlock`` (``tankviz.CanFrame``) is skipped and
+  reported; the others go on.
+- :func:`raw_frame_counts`: frames per bus a finished drive holds, counted from its blocks.
 """
 
 from __future__ import annotations
 
 import hashlib
+import heapq
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
 from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata
+from mcap.reader import McapReader, make_reader
+from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from bridge.errors import InputError
-from bridge.frame import Frame
+from bridge.frame import NEVER_NS, Frame
 from bridge.io.logs import IssueKind, SourceIssue
-from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
 
 #: The suffix of a recorded drive.
 DRIVE_SUFFIX = ".mcap"
 #: The name of tankviz' metadata record (as :mod:`bridge.sinks.mcap` writes it).
 METADATA_NAME = "tankviz"
 #: The raw-frame topics (``bridge.topics.frames_topic``).
-FRAMES_TOPIC = re.compile(r"/can/[^/]+/frames")
+FRAMES_TOPIC = re.compile(r"/can/(?P<bus>[^/]+)/frames")
+#: The schema of raw frames in blocks (``bridge.sinks.raw``); any other is one frame a message.
+BLOCK_SCHEMA = CanFrameBlock.DESCRIPTOR.full_name
 _MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -181,16 +188,36 @@ class ArchiveSource:
         self.issues.append(SourceIssue(str(self.path), where, reason, kind, group))
 
     def __iter__(self) -> Iterator[Frame]:
-        channels: set[int] = set()
+        kinds: dict[int, str] = {}  # schema id -> name
+        channels: dict[int, bool] = {}  # raw-frame channel id -> whether it carries blocks
+        merged = BlockMerger()
         last_ns: int | None = None
+
+        def count(frames: Iterable[Frame]) -> Iterator[Frame]:
+            nonlocal last_ns
+            for frame in frames:
+                t = frame.timestamp_ns
+                if last_ns is not None and t < last_ns:
+                    self.backwards += 1
+                last_ns = t
+                self.frames += 1
+                yield frame
+
         with _open(self.path) as stream:
             self._stream = stream
             reader = StreamReader(stream)
             try:
                 for record in reader.records:
                     if isinstance(record, Message):
-                        if record.channel_id not in channels:
+                        blocks = channels.get(record.channel_id)
+                        if blocks is None:
                             continue
+                        if blocks:
+                            block = self._block(record)
+                            if block is not None:
+                                yield from count(merged.add(block_frames(record.log_time, block)))
+                            continue
+                        yield from count(merged.finish())
                         try:
                             f = CanFrame.FromString(record.data)
                         except DecodeError as exc:
@@ -198,16 +225,14 @@ class ArchiveSource:
                                           f"not a tankviz.CanFrame ({exc})", "skip",
                                           "not a tankviz.CanFrame")
                             continue
-                        t = record.log_time
-                        if last_ns is not None and t < last_ns:
-                            self.backwards += 1
-                        last_ns = t
-                        self.frames += 1
-                        yield Frame(t, f.bus, f.id, f.data, f.extended, f.fd, f.error, f.remote,
-                                    f.bitrate_switch, f.error_state_indicator, f.dlc)
+                        yield from count((Frame(
+                            record.log_time, f.bus, f.id, f.data, f.extended, f.fd, f.error,
+                            f.remote, f.bitrate_switch, f.error_state_indicator, f.dlc),))
+                    elif isinstance(record, Schema):
+                        kinds[record.id] = record.name
                     elif isinstance(record, Channel):
                         if FRAMES_TOPIC.fullmatch(record.topic):
-                            channels.add(record.id)
+                            channels[record.id] = kinds.get(record.schema_id) == BLOCK_SCHEMA
                     elif isinstance(record, (DataEnd, Footer)):
                         break
             except InputError:
@@ -218,3 +243,108 @@ class ArchiveSource:
                               f"({reason}): the frames after it are lost; tankviz recover "
                               "salvages every complete record into a new file", "stop",
                               "drive cut short")
+            yield from count(merged.finish())
+
+    def _block(self, record: Message) -> CanFrameBlock | None:
+        try:
+            block: CanFrameBlock = CanFrameBlock.FromString(record.data)
+        except DecodeError as exc:
+            self._problem(f"frame {self.frames + 1}", "skipped a block of raw frames that is not "
+                          f"a tankviz.CanFrameBlock ({exc}; log time {record.log_time})",
+                          "skip", "not a tankviz.CanFrameBlock")
+            return None
+        return block
+
+
+def block_frames(t_ns: int, block: CanFrameBlock) -> list[Frame]:
+    """The frames of one block whose log time is ``t_ns``, in their order."""
+    bus = block.bus
+    return [Frame(t_ns + r.offset_ns, bus, r.id, r.data, r.extended, r.fd, r.error, r.remote,
+                  r.bitrate_switch, r.error_state_indicator,
+                  r.dlc if r.HasField("dlc") else len(r.data))
+            for r in block.frames]
+
+
+class BlockMerger:
+    """The frames of a drive's blocks (:mod:`bridge.sinks.raw`), given in file order, back in
+    the order the pipeline saw them.
+
+    Blocks are written in the order of their starts, and no frame is before its block's start:
+    so the frames of the blocks read so far that are earlier than the start of the block just
+    read can all go, merged by time (each block's in its order; two frames stamped alike in the
+    order of their blocks in the file). A block that starts before the one read before it comes
+    after a clock step back (or a frame of a bus stamped back): everything read so far goes
+    first."""
+
+    def __init__(self) -> None:
+        self._pending: list[list[Frame]] = []
+        self._last = NEVER_NS
+
+    def add(self, frames: list[Frame]) -> list[Frame]:
+        """The frames that can go now, given the next block's (in file order)."""
+        if not frames:
+            return []
+        start = frames[0].timestamp_ns
+        out = self.finish() if start < self._last else self._before(start)
+        self._pending.append(frames)
+        self._last = start
+        return out
+
+    def finish(self) -> list[Frame]:
+        """Every frame still held, in order."""
+        pending, self._pending = self._pending, []
+        return _merged(pending)
+
+    def _before(self, horizon: int) -> list[Frame]:
+        ready, keep = [], []
+        for frames in self._pending:
+            n = 0
+            for f in frames:
+                if f.timestamp_ns >= horizon:
+                    break
+                n += 1
+            if n:
+                ready.append(frames[:n])
+            if n < len(frames):
+                keep.append(frames[n:])
+        self._pending = keep
+        return _merged(ready)
+
+
+def _merged(lists: list[list[Frame]]) -> list[Frame]:
+    if len(lists) <= 1:
+        return lists[0] if lists else []
+    return list(heapq.merge(*lists, key=_time))
+
+
+def _time(frame: Frame) -> int:
+    return frame.timestamp_ns
+
+
+def raw_frame_counts(reader: McapReader) -> dict[str, int]:
+    """Frames per bus held by a finished drive (``reader``: mcap's, of its file), counted from
+    its raw-frame channels: their message counts (one frame a message) or, for blocks, the rows of
+    every block (read: a drive's metadata says it without reading; this is for one that lost it,
+    or a recovered drive, which holds fewer than its metadata says)."""
+    counts: dict[str, int] = {}
+    summary = reader.get_summary()
+    if summary is None:
+        return counts
+    per_message = (summary.statistics.channel_message_counts
+                   if summary.statistics is not None else {})
+    blocked: list[str] = []
+    for c in summary.channels.values():
+        if (bus := FRAMES_TOPIC.fullmatch(c.topic)) is None:
+            continue
+        schema = summary.schemas.get(c.schema_id)
+        if schema is not None and schema.name == BLOCK_SCHEMA:
+            blocked.append(c.topic)
+        else:
+            counts[bus["bus"]] = counts.get(bus["bus"], 0) + per_message.get(c.id, 0)
+    if blocked:
+        for _, channel, message in reader.iter_messages(topics=blocked):
+            bus = FRAMES_TOPIC.fullmatch(channel.topic)
+            assert bus is not None
+            rows = len(CanFrameBlock.FromString(message.data).frames)
+            counts[bus["bus"]] = counts.get(bus["bus"], 0) + rows
+    return dict(sorted(counts.items()))

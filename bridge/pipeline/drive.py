@@ -179,7 +179,10 @@ class Drive:
 
     def describe(self, recorder: Recorder, part: Mapping[str, Any] | None = None) -> None:
         """Write the ``tankviz`` metadata record (with :attr:`extra`, the alarms so far and
-        ``part``'s own entries); :meth:`attach` has attached the databases and the profile."""
+        ``part``'s own entries); :meth:`attach` has attached the databases and the profile.
+        The open window of raw frames is recorded first, so the frames the statistics count are
+        those the file holds."""
+        self.pipeline.flush_raw()
         decoder, profile = self.decoder, self.profile
         names = attachment_names(decoder.files)
         buses: dict[str, list[str]] = {}

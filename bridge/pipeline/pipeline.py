@@ -1,16 +1,18 @@
 """The data path of one drive: frames → decode → perception and health → sinks.
 
 :class:`Pipeline` is what every command runs for every frame (:class:`bridge.pipeline.drive.Drive`
-assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets every raw frame, every decoded
-message, and the scene, perception and health messages made at each tick, in the order the sinks
-were given (the live server first: viewers wait for a scene, the recorder does not). Every scene
-tick of log time is made and recorded (at the end of the input, a final tick draws the frames
-after the last one); when the pipeline catches up several ticks at once (it fell
-behind), viewers (:meth:`Pipeline.add_viewer`) get the latest only. A clock step (a frame stamped
-far before or after log time, :mod:`bridge.pipeline.clock`) re-bases scene ticks, health windows
-and lifetimes at once, is said on ``/log`` and noted in :attr:`Pipeline.steps`; frames keep their
-own stamps. Each message is serialized once for all sinks; the live server itself sends raw
-frames and decoded signals only to viewers that subscribed to them.
+assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets the raw frames in blocks (a
+block per bus per window of at most 20 ms, :mod:`bridge.sinks.raw`; live, a window is sent once
+the clock passes it), every decoded message, and the scene, perception and health messages made
+at each tick, in the order the sinks were given (the live server first: viewers wait for a
+scene, the recorder does not). Every scene tick of log time is made and recorded (at the end of
+the input, a final tick draws the frames after the last one); when the pipeline catches up
+several ticks at once (it fell behind), viewers (:meth:`Pipeline.add_viewer`) get the latest
+only. A clock step (a frame stamped far before or after log time, :mod:`bridge.pipeline.clock`)
+re-bases scene ticks, health windows and lifetimes at once, is said on ``/log`` and noted in
+:attr:`Pipeline.steps`; frames keep their own stamps. Each message is serialized once for all
+sinks; the live server itself sends raw frames and decoded signals only to viewers that
+subscribed to them.
 """
 
 from __future__ import annotations
@@ -27,13 +29,13 @@ from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
-from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pipeline.clock import ClockStep, StepDetector
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
-from bridge.sinks.mcap import frame_payload
+from bridge.sinks.raw import Blocker, RawBlock
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
 
 
@@ -65,7 +67,7 @@ class Pipeline:
         #: sinks that may get fewer scenes (live viewers): not those of a catch-up
         self.viewers: list[Sink] = []
         self._archives: list[Sink] = []
-        self._on_frame: list[Callable[[Frame, bytes], None]] = []
+        self._blocker = Blocker(self._emit_raw)
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
@@ -74,7 +76,6 @@ class Pipeline:
         """One more sink, after those there are (before the first frame)."""
         self.sinks.append(sink)
         self._archives = [s for s in self.sinks if s not in self.viewers]
-        self._on_frame = [s.on_frame for s in self.sinks]
         self._on_decoded = [s.on_decoded for s in self.sinks]
 
     def process(self, frame: Frame) -> None:
@@ -86,9 +87,7 @@ class Pipeline:
         if t >= self._next_tick:
             self.advance(t)
         if self.sinks:
-            payload = frame_payload(frame)
-            for on_frame in self._on_frame:
-                on_frame(frame, payload)
+            self._blocker.add(frame)
         decoded = self.decoder.decode(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
@@ -114,6 +113,7 @@ class Pipeline:
         """The clock stepped: scene ticks, health windows and lifetimes go on from the new log
         time at once; the step is said on ``/log`` and noted (:attr:`steps`)."""
         self.steps.append(step)
+        self.flush_raw()  # the frames before the step, before those after it
         if self.perception is not None:
             self.perception.rebase(step.shift_ns, step.to_ns)
         if self.health is not None:
@@ -126,6 +126,8 @@ class Pipeline:
         comes: live's clock), every scene tick in turn, each with the health checks due by
         then."""
         self.clock.passed(t_ns)
+        if self._blocker.due(t_ns):
+            self._blocker.flush_due(t_ns)
         perception, health = self.perception, self.health
         if perception is not None:
             ticks = perception.due_ticks(t_ns)
@@ -163,10 +165,20 @@ class Pipeline:
         the next frame would have made (else up to one period of frames reach no scene)."""
         if self.last_ns is None:
             return
+        self.flush_raw()
         self.advance(self.last_ns + 1)
         perception = self.perception
         if perception is not None and perception.pending:
             self.advance(perception.next_tick_ns)
+
+    def flush_raw(self) -> None:
+        """Close the open window of raw frames now: a part of a drive that ends takes every
+        frame decoded so far with it (its statistics count them)."""
+        self._blocker.flush()
+
+    def _emit_raw(self, blocks: list[RawBlock]) -> None:
+        for sink in self.sinks:
+            sink.on_raw(blocks)
 
     def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False) -> None:
         """Scene, perception and other messages to every sink, serialized once (``catching_up``:
@@ -188,8 +200,8 @@ class Pipeline:
         out = [Channel(topic, cls.DESCRIPTOR.full_name, partial(_fds, cls))
                for topic, cls in [*topics, (LOG_TOPIC, Log)]]
         for bus in buses:
-            out.append(Channel(frames_topic(bus), CanFrame.DESCRIPTOR.full_name,
-                               partial(_fds, CanFrame)))
+            out.append(Channel(frames_topic(bus), CanFrameBlock.DESCRIPTOR.full_name,
+                               partial(_fds, CanFrameBlock)))
             out += [Channel(codec.topic, codec.schema.full_name,
                             codec.schema.file_descriptor_set)
                     for codec in self.decoder.codecs_for(bus)]

@@ -3,7 +3,8 @@ model: the pipeline calls each sink in turn; a sink never calls back).
 
 A drive's sinks get, in log time order:
 
-- every raw frame with its serialized ``tankviz.CanFrame`` (serialized once, for all sinks);
+- the raw frames, in blocks: each closed window's :class:`~bridge.sinks.raw.RawBlock`, one per
+  bus, serialized once for all sinks (:mod:`bridge.sinks.raw`);
 - every decoded message (its codec knows its topic and schema; its payload is serialized);
 - the messages the pipeline makes at one log time (a scene tick, a health tick, a log line), as
   one batch of :class:`Serialized` messages, each serialized once for all sinks;
@@ -24,7 +25,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, Protocol
 
 from bridge.decode.decoder import Decoded
-from bridge.frame import Frame
+from bridge.sinks.raw import RawBlock
 
 
 class Serialized(NamedTuple):
@@ -48,8 +49,8 @@ class Channel(NamedTuple):
 class Sink(Protocol):
     """Where a drive's frames, decoded messages and made messages go."""
 
-    def on_frame(self, frame: Frame, payload: bytes, /) -> None:
-        """A raw frame; ``payload`` is its serialized ``tankviz.CanFrame``."""
+    def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
+        """The raw frames of one closed window, a block per bus."""
         return None
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:

@@ -18,7 +18,7 @@ so is it, now and then (every ``check_interval_s``), when the free space is belo
 Recording then stops (:attr:`PartsRecorder.disk_full` says why, and
 :meth:`PartsRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and the
 raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest not
-recorded and counted).
+recorded and counted; they are kept in their blocks, :mod:`bridge.sinks.raw`).
 
 The rules, with the default reserve (8 MiB) and ``resume_margin`` (1 MiB):
 
@@ -61,10 +61,11 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.decode.decoder import Decoded
 from bridge.errors import OutputError
-from bridge.frame import Frame, timestamp
+from bridge.frame import timestamp
 from bridge.health.alarms import AlarmKind, Notice, alarm_notice
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.mcap import METADATA_NAME, Recorder
+from bridge.sinks.raw import RawBlock
 from bridge.topics import LOG_TOPIC
 
 #: The file in a drives folder that keeps room for finishing a part when the disk is full.
@@ -228,7 +229,8 @@ class PartsRecorder(Sink):
     _emitted: bool = False  # a scene (or other pipeline output) was written since the last tick
     _file: _PartFile | None = None
     _next_check: float = 0.0
-    _backlog: deque[tuple[Frame, bytes]] = field(default_factory=deque)
+    _backlog: deque[RawBlock] = field(default_factory=deque)
+    _backlog_frames: int = 0
     _gap: dict[str, Any] | None = None
     _notices: list[Notice] = field(default_factory=list)
     _reserve_size: int = 0
@@ -367,7 +369,7 @@ class PartsRecorder(Sink):
         assert gap is not None and self._recorder is not None
         gap["to_ns"] = time.time_ns()
         gap["resumed_in"] = self.files[-1].name
-        gap["frames_kept"] = len(self._backlog)
+        gap["frames_kept"] = self._backlog_frames
         gap["frames_not_recorded"] = self.frames_dropped
         self.recording_gaps.append(gap)
         self.disk_full = None
@@ -379,20 +381,26 @@ class PartsRecorder(Sink):
             f"{gap['messages_not_recorded']} decoded messages and scenes are not", cleared=True),
             record=False)
         self.frames_dropped = 0
-        write = self._recorder.write_frame
+        write = self._recorder.write_raw
         try:
             while self._backlog:
-                write(*self._backlog[0])
+                block = self._backlog[0]
+                write(block)
                 self._backlog.popleft()
-                self.frames += 1
+                self._backlog_frames -= block.frames
+                self.frames += block.frames
         except OSError as exc:
             self._failed(exc)
 
-    def _keep(self, frame: Frame, payload: bytes) -> None:
-        if len(self._backlog) >= self.backlog_limit:
-            self._backlog.popleft()
-            self.frames_dropped += 1
-        self._backlog.append((frame, payload))
+    def _keep(self, blocks: Sequence[RawBlock]) -> None:
+        backlog = self._backlog
+        for block in blocks:
+            backlog.append(block)
+            self._backlog_frames += block.frames
+        while self._backlog_frames > self.backlog_limit:  # the oldest blocks go
+            dropped = backlog.popleft()
+            self._backlog_frames -= dropped.frames
+            self.frames_dropped += dropped.frames
 
     @property
     def recorder(self) -> Recorder:
@@ -442,18 +450,19 @@ class PartsRecorder(Sink):
                 self._stop(f"cannot open a part: {exc.strerror or exc}")
         return self._recorder
 
-    def on_frame(self, frame: Frame, payload: bytes, /) -> None:
+    def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
         recorder = self._recorder or self._part()
         if recorder is None:
-            self._keep(frame, payload)
+            self._keep(blocks)
             return
-        try:
-            recorder.write_frame(frame, payload)
-        except OSError as exc:
-            self._failed(exc)
-            self._keep(frame, payload)
-            return
-        self.frames += 1
+        for i, block in enumerate(blocks):
+            try:
+                recorder.write_raw(block)
+            except OSError as exc:
+                self._failed(exc)
+                self._keep(blocks[i:])
+                return
+            self.frames += block.frames
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
         recorder = self._recorder or self._part()
@@ -485,8 +494,9 @@ class PartsRecorder(Sink):
             self._resume(last=True)
         self._close()
         if self._backlog:
-            self.frames_dropped += len(self._backlog)
+            self.frames_dropped += self._backlog_frames
             self._backlog.clear()
+            self._backlog_frames = 0
         if self.disk_full is not None and self.frames_dropped:
             self._notices.append(alarm_notice(
                 AlarmKind.DISK_FULL, "recorder", f"{self.frames_dropped} frames received while "

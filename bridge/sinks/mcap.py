@@ -7,7 +7,8 @@ chunks; a live drive closes its chunk every second).
 
 Indexes: the summary (schemas, channels, statistics), a chunk index per chunk, attachment and
 metadata indexes, and after each chunk one MessageIndex record per channel (16 bytes a message,
-uncompressed: the larger part of a raw-frames archive). The message indexes stay: @mcap/core, the
+uncompressed: what made a raw-frames archive of one message per frame 2.45x its BLF; raw frames
+are blocks now, :mod:`bridge.sinks.raw`). The message indexes stay: @mcap/core, the
 reader the Foxglove app uses for any file with chunk indexes, refuses a chunk with messages but
 no message indexes (tests/test_archive_size.py). ``index_types`` can leave them out for a reader
 that does not need them (mcap's Python reader seeks by chunk indexes alone).
@@ -34,9 +35,9 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
 from bridge.decode.decoder import Decoded, MessageCodec
-from bridge.frame import Frame
-from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Serialized, Sink
+from bridge.sinks.raw import RawBlock
 from bridge.topics import frames_topic
 
 #: MCAP metadata record written by tankviz (see :func:`Recorder.add_metadata`).
@@ -85,7 +86,7 @@ class FastWriter(McapWriter):
 
     mcap's own ``add_message`` spends about 3 µs per message building a record object and
     writing it field by field, and updating the chunk's and the file's statistics; a drive writes
-    two messages per frame. This one appends the same record bytes to the same chunk builder
+    a decoded message per frame. This one appends the same record bytes to the same chunk builder
     with one ``struct.pack`` and notes (log time, offset) in the chunk's message index; the
     statistics (message counts, first and last times) are worked out from those indexes just
     before mcap finishes each chunk. mcap still writes chunks, indexes and the summary. It relies
@@ -173,38 +174,6 @@ class FastWriter(McapWriter):
             self._settle_and_finalize()
 
 
-_FRAME_HEADS: dict[tuple[Any, ...], bytes] = {}
-
-
-def frame_payload(frame: Frame) -> bytes:
-    """The frame as a serialized ``tankviz.CanFrame``."""
-    # Everything but the time and the data: bus, arbitration_id (frame[1:3]) and is_extended to
-    # dlc (frame[4:]). Sliced: the nine fields by name cost ~15 ns more a frame (of ~200 ns for
-    # the key and its look-up).
-    key = frame[1:3] + frame[4:]
-    head = _FRAME_HEADS.get(key)
-    if head is None:
-        if len(_FRAME_HEADS) > 65536:  # ids x buses x flags: only a babbling bus gets here
-            _FRAME_HEADS.clear()
-        head = _FRAME_HEADS[key] = CanFrame(
-            bus=frame.bus, id=frame.arbitration_id, extended=frame.is_extended,
-            fd=frame.is_fd, bitrate_switch=frame.bitrate_switch,
-            error_state_indicator=frame.error_state_indicator, error=frame.is_error,
-            remote=frame.is_remote, dlc=frame.dlc).SerializeToString()
-    # Serialized protobuf messages concatenate into their merge, and data is the last field, so
-    # this is byte for byte what serializing the whole CanFrame gives: its tag, its length (one
-    # byte up to 127: every CAN and CAN FD payload) and the bytes; nothing when empty.
-    data = frame.data
-    n = len(data)
-    if n < 128:
-        return head + _DATA_FIELD[n] + data if n else head
-    return head + bytes(CanFrame(data=data).SerializeToString())
-
-
-#: CanFrame's ``data`` field (11, length-delimited) with each length up to 127.
-_DATA_FIELD = [bytes((11 << 3 | 2, n)) for n in range(128)]
-
-
 #: Called with a recorder: when it starts, to attach what its drive is decoded with (databases,
 #: profile), so that a file cut before its end still has them; and just before it is finished, to
 #: note what describes its drive (the metadata record).
@@ -241,7 +210,6 @@ class Recorder(Sink):
         self._payload_channels: dict[str, tuple[int, Any]] = {}
         self._frame_channels: dict[str, int] = {}
         self._codec_channels: dict[MessageCodec, int] = {}
-        self._frame_schema: int | None = None
         self.messages = 0
         self._finished = False
         if attach is not None:
@@ -268,15 +236,15 @@ class Recorder(Sink):
                              f"cannot write a {schema_name}")
         return channel_id
 
-    def write_frame(self, frame: Frame, payload: bytes | None = None) -> None:
-        """A raw frame on ``/can/<bus>/frames`` (``payload``: its :func:`frame_payload`)."""
-        channel_id = self._frame_channels.get(frame.bus)
+    def write_raw(self, block: RawBlock) -> None:
+        """A block of raw frames on ``/can/<bus>/frames`` (:mod:`bridge.sinks.raw`)."""
+        channel_id = self._frame_channels.get(block.bus)
         if channel_id is None:
-            channel_id = self._frame_channels[frame.bus] = self.channel(
-                frames_topic(frame.bus), CanFrame.DESCRIPTOR.full_name,
-                build_file_descriptor_set(CanFrame).SerializeToString())
-        t = frame.timestamp_ns
-        self._writer.add_message(channel_id, t, payload or frame_payload(frame), t)
+            channel_id = self._frame_channels[block.bus] = self.channel(
+                frames_topic(block.bus), CanFrameBlock.DESCRIPTOR.full_name,
+                build_file_descriptor_set(CanFrameBlock).SerializeToString())
+        t = block.t_ns
+        self._writer.add_message(channel_id, t, block.payload, t)
         self.messages += 1
 
     def write_decoded(self, timestamp_ns: int, decoded: Decoded) -> None:
@@ -307,8 +275,11 @@ class Recorder(Sink):
         self.messages += 1
 
     # the Sink interface, for the pipeline
-    on_frame = write_frame
     on_decoded = write_decoded
+
+    def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
+        for block in blocks:
+            self.write_raw(block)
 
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
         write = self.write_payload

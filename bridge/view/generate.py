@@ -337,6 +337,17 @@ def signal_families(profile: Profile) -> list[tuple[str, list[tuple[str, str]]]]
     return [(name, pairs) for name, pairs in out if pairs]
 
 
+def raw_frames_of(bus: str, frame_id: int) -> str:
+    """The message path of one id's frames in a bus's blocks of raw frames (ids are decimal)."""
+    return f"{frames_topic(bus)}.frames[:]{{id=={frame_id}}}"
+
+
+def _one_id(decoder: Decoder, bus: str, messages: Iterable[str]) -> tuple[str, int] | None:
+    """The first of ``messages`` the databases of ``bus`` define, and its id."""
+    ids = {codec.message.name: codec.message.frame_id for codec in decoder.codecs_for(bus)}
+    return next(((m, ids[m]) for m in messages if m in ids), None)
+
+
 def _units(decoder: Decoder, bus: str) -> dict[tuple[str, str], str]:
     """(message, signal) -> unit of every signal the databases of ``bus`` define."""
     return {(codec.message.name, signal.name): signal.unit or ""
@@ -373,7 +384,9 @@ def _bus_health(bus: str) -> tuple[dict[str, Any], Any]:
 
 def can_debug(made: Produced, profile: Profile, decoder: Decoder,
               buses: Iterable[str]) -> dict[str, Any]:
-    """The can-debug layout: decoded signals, each bus's health and raw frames, the topics."""
+    """The can-debug layout: decoded signals, each bus's health and raw frames (its latest block,
+    and the frames of one id the profile reads: the filter a user edits to follow another), the
+    topics."""
     buses = list(buses)
     configs: dict[str, Any] = {}
     signal_plots = []
@@ -398,7 +411,18 @@ def can_debug(made: Produced, profile: Profile, decoder: Decoder,
         configs.update(bus_configs)
         columns.append(column)
     configs["SourceInfo!topics"] = {"foxglovePanelTitle": "Topics, message counts and rates"}
-    raw = stack([f"RawMessages!frames-{bus}" for bus in buses], "column")
+    raw_panels = []
+    for bus in buses:
+        raw_panels.append(f"RawMessages!frames-{bus}")
+        one = _one_id(decoder, bus, [m for _, pairs in signal_families(profile) for m, _ in pairs])
+        if one is not None:
+            message, frame_id = one
+            path = raw_frames_of(bus, frame_id)
+            configs[f"RawMessages!frames-{bus}-id"] = raw_messages(
+                f"Raw frames of {message} (id {frame_id} = 0x{frame_id:X}; another id: edit "
+                f"the path)", path)
+            raw_panels.append(f"RawMessages!frames-{bus}-id")
+    raw = stack(raw_panels, "column")
     rest = split(stack(columns, "row"), split(raw, "SourceInfo!topics", "column", 55.0), "row",
                  50.0)
     return _layout(configs, split(stack(signal_plots, "column"), rest, "row", 36.0))

@@ -195,7 +195,7 @@ def assert_survived(car: LiveCar, viewer: Viewer | None, *, fault_ended: float,
     assert "Traceback" not in car.output, car.output
     sent = int(re.search(r"car: sent (\d+) frames", car.output)[1])  # type: ignore[index]
     recording = recorded(car.drives)
-    frames = len(recording.get("/can/can0/frames", []))
+    frames = sum(len(block.frames) for block in recording.get("/can/can0/frames", []))
     assert frames == sent, f"{sent} frames sent, {frames} recorded"
     if viewer is not None:
         after = viewer.scenes_after(fault_ended)

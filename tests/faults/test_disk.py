@@ -25,7 +25,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from bridge.frame import Frame
 from bridge.pb import health_pb2
 from bridge.sinks.drives import RESERVE_NAME, PartsRecorder
-from bridge.sinks.mcap import frame_payload
+from bridge.sinks.raw import cut
 
 MB = 1_000_000
 
@@ -91,12 +91,12 @@ def test_a_full_disk_finishes_the_part_and_recording_resumes_when_there_is_room(
                                  reserve=2 * MB, clock=lambda: now[0])
         assert (drives / RESERVE_NAME).stat().st_size == 2 * MB
         for i in range(1000):
-            recorder.on_frame(frame(i), frame_payload(frame(i)))
+            recorder.on_raw(cut([frame(i)]))
         filler = fill(drives)
         i = 1000
         while recorder.disk_full is None:  # the chunks written find the disk full
             for _ in range(500):
-                recorder.on_frame(frame(i), frame_payload(frame(i)))
+                recorder.on_raw(cut([frame(i)]))
                 i += 1
             now[0] += 1.2
             recorder.tick()
@@ -106,7 +106,7 @@ def test_a_full_disk_finishes_the_part_and_recording_resumes_when_there_is_room(
         assert notices and notices[0].startswith("recorder.disk_full: disk full"), notices
         recorded = complete(first)["/can/can0/frames"]
         for _ in range(300):  # while the disk is full: kept
-            recorder.on_frame(frame(i), frame_payload(frame(i)))
+            recorder.on_raw(cut([frame(i)]))
             i += 1
         now[0] += 1.2
         recorder.tick()
@@ -138,16 +138,16 @@ def test_below_min_free_recording_stops_before_the_disk_is_full(tmp_path: Path) 
     now = [0.0]
     recorder = PartsRecorder(tmp_path, lambda r, part: None, min_free=200 * MB, reserve=MB,
                              free_space=lambda folder: free[0], clock=lambda: now[0])
-    recorder.on_frame(frame(0), frame_payload(frame(0)))
+    recorder.on_raw(cut([frame(0)]))
     free[0] = 150 * MB
-    recorder.on_frame(frame(1), frame_payload(frame(1)))
+    recorder.on_raw(cut([frame(1)]))
     recorder.tick()  # not checked at every frame, nor at every tick
     assert recorder.disk_full is None
     now[0] += 1.0
     recorder.tick()
     assert recorder.disk_full == f"150 MB free in {tmp_path}, below --min-free 200 MB"
     assert complete(recorder.files[0])["/can/can0/frames"] == 2
-    recorder.on_frame(frame(2), frame_payload(frame(2)))
+    recorder.on_raw(cut([frame(2)]))
     free[0] = 201 * MB  # not enough to start again: min_free, the reserve and a 1 MiB margin
     now[0] += 1.0
     recorder.tick()

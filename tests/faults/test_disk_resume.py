@@ -18,7 +18,7 @@ from test_disk import complete, frame, tmpfs
 
 from bridge.apps.inspect import format_summary, summarize_file
 from bridge.sinks.drives import PartsRecorder
-from bridge.sinks.mcap import frame_payload
+from bridge.sinks.raw import cut
 
 MB = 1_000_000
 MIB = 1024 * 1024
@@ -51,7 +51,7 @@ class Disk:
 
 def send(recorder: PartsRecorder, first: int, count: int) -> int:
     for i in range(first, first + count):
-        recorder.on_frame(frame(i), frame_payload(frame(i)))
+        recorder.on_raw(cut([frame(i)]))
     return first + count
 
 

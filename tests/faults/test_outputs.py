@@ -17,9 +17,11 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from bridge.cli import main
 from bridge.frame import Frame
+from bridge.io.drives import raw_frame_counts
 from bridge.io.logs import LogSource
 from bridge.sim.ecocar import simulate
 from bridge.topics import frames_topic
@@ -86,10 +88,10 @@ def test_the_drive_as_mcap_holds_every_frame(tmp_path: Path,
     path = tmp_path / "drive.mcap"
     said = written(capsys, path)
     frames = simulated()
-    counts = summary_counts(path)
     assert said == len(frames)
-    assert sum(n for topic, n in counts.items() if topic.endswith("/frames")) == len(frames)
-    assert counts[frames_topic("can0")] == len(frames)
+    with path.open("rb") as f:
+        assert raw_frame_counts(make_reader(f)) == {"can0": len(frames)}
+    assert summary_counts(path)[frames_topic("can0")] < len(frames)  # in blocks
 
 
 def test_forcing_over_an_sqlite_log_replaces_it(tmp_path: Path,

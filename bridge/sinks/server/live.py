@@ -41,9 +41,9 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge.decode.decoder import Decoded, MessageCodec
 from bridge.errors import BridgeError
-from bridge.frame import Frame
-from bridge.pb.can_frame_pb2 import CanFrame
+from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Channel, Serialized, Sink
+from bridge.sinks.raw import RawBlock
 from bridge.sinks.server import internals
 from bridge.sinks.server.addresses import viewer_urls
 from bridge.sinks.server.client import ClientQueue, ClientStats
@@ -271,13 +271,13 @@ class LiveServer(Sink):
 
     # --- the Sink interface, for the pipeline (its thread only) -------------------------------
 
-    def on_frame(self, frame: Frame, payload: bytes, /) -> None:
-        channel = self._frame_channels.get(frame.bus)
-        if channel is None:
-            channel = self._frame_channels[frame.bus] = self.channel(frames_topic(frame.bus),
-                                                                     CanFrame)
-        if channel in self._wanted:  # (publish, inlined: once per frame)
-            self._inbox.append((channel, frame.timestamp_ns, payload))
+    def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
+        for block in blocks:
+            channel = self._frame_channels.get(block.bus)
+            if channel is None:
+                channel = self._frame_channels[block.bus] = self.channel(
+                    frames_topic(block.bus), CanFrameBlock)
+            self.publish(channel, block.t_ns, block.payload)
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
         codec = decoded.codec
