@@ -8,16 +8,18 @@ its :class:`Perception` (each decoded message fed, each tick) is recorded. Then,
 interleaved and best of ``--repeat`` (default 3), those calls are replayed on a new
 ``Perception`` of the drive's profile, timing the ticks only, twice:
 
-- ``reference``: ``bridge/pipeline/perception.py`` and every module of ``bridge/scene`` as they
-  are at git revision ``--ref`` (default ``HEAD``), read with ``git show`` and imported under
-  other names (the world and the rest of ``bridge`` are the working tree's);
+- ``reference``: ``bridge/pipeline/perception.py`` and every module of ``bridge/scene`` and
+  ``bridge/world`` as they are at git revision ``--ref`` (default ``HEAD``), read with ``git
+  show`` and imported under other names (the rest of ``bridge`` is the working tree's);
 - ``current``: the modules of the working tree.
 
-It prints ms per tick of each, their ratio reference / current (above 1: the current code is
-faster), and whether every message of every tick serialises to the same bytes in both.
+It prints ms per tick of each (``--clock wall``, the default, or ``cpu``: the process's CPU
+time, which other work on a shared machine disturbs less), their ratio reference / current
+(above 1: the current code is faster), and whether every message of every tick serialises to
+the same bytes in both.
 
     python tools/bench_scene.py
-    python tools/bench_scene.py --duration 30 --repeat 5 --ref HEAD~2
+    python tools/bench_scene.py --duration 30 --repeat 5 --ref HEAD~2 --clock cpu
 """
 
 from __future__ import annotations
@@ -47,39 +49,52 @@ Call = tuple[Any, ...]
 DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
 
 
+#: The packages the reference takes from git revision ``--ref`` (with perception.py).
+PACKAGES = ("scene", "world")
+
+
 def reference_perception(ref: str) -> types.ModuleType:
     """``bridge/pipeline/perception.py`` of git revision ``ref``, imported under another name
-    with every module of its ``bridge/scene`` package (rewritten to import each other)."""
+    with every module of its ``bridge/scene`` and ``bridge/world`` packages (rewritten to
+    import each other: package ``bridge.NAME`` as ``_ref_NAME``)."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
                               text=True).stdout
 
-    package = "_ref_scene"
-    names = [Path(p).stem for p in git("ls-tree", "--name-only", ref, "bridge/scene/").split()
-             if p.endswith(".py") and not p.endswith("__init__.py")]
-    sys.modules[package] = types.ModuleType(package)
-    sys.modules[package].__path__ = []  # a package: its modules are put in sys.modules below
-    modules: dict[str, types.ModuleType] = {}
+    names: dict[str, list[str]] = {}
+    for package in PACKAGES:
+        names[package] = [
+            Path(p).stem for p in git("ls-tree", "--name-only", ref, f"bridge/{package}/").split()
+            if p.endswith(".py") and not p.endswith("__init__.py")]
+        alias = f"_ref_{package}"
+        sys.modules[alias] = types.ModuleType(alias)
+        sys.modules[alias].__path__ = []  # a package: its modules are put in sys.modules below
+    modules: dict[tuple[str, str], types.ModuleType] = {}
 
     def rewrite(text: str) -> str:
-        return text.replace("from bridge.scene.", f"from {package}.").replace(
-            "from bridge.scene import", f"from {package} import")
+        for package in PACKAGES:
+            text = text.replace(f"from bridge.{package}.", f"from _ref_{package}.").replace(
+                f"from bridge.{package} import", f"from _ref_{package} import")
+        return text
 
-    def load(name: str, path: str) -> types.ModuleType:
-        if name in modules:
-            return modules[name]
+    def load(package: str, name: str, path: str) -> types.ModuleType:
+        if (package, name) in modules:
+            return modules[package, name]
         text = git("show", f"{ref}:{path}")
-        for other in names:  # the package's own imports: the reference's modules, loaded first
-            if f"bridge.scene.{other} import" in text or f"bridge.scene import {other}" in text:
-                load(other, f"bridge/scene/{other}.py")
-        m = modules[name] = types.ModuleType(f"{package}.{name}")
+        for other_package, others in names.items():  # the reference's own imports, first
+            for other in others:
+                if (f"bridge.{other_package}.{other} import" in text
+                        or f"bridge.{other_package} import {other}" in text):
+                    load(other_package, other, f"bridge/{other_package}/{other}.py")
+        m = modules[package, name] = types.ModuleType(f"_ref_{package}.{name}")
         m.__file__ = f"<{ref}:{path}>"
         sys.modules[m.__name__] = m
-        setattr(sys.modules[package], name, m)
+        if package in PACKAGES:
+            setattr(sys.modules[f"_ref_{package}"], name, m)
         exec(compile(rewrite(text), m.__file__, "exec"), m.__dict__)
         return m
 
-    return load("perception", "bridge/pipeline/perception.py")
+    return load("pipeline", "perception", "bridge/pipeline/perception.py")
 
 
 def record(log: Path, profile: str, folder: Path) -> list[Call]:
@@ -106,9 +121,10 @@ def record(log: Path, profile: str, folder: Path) -> list[Call]:
     return calls
 
 
-def replay(module: types.ModuleType, profile: Profile, calls: list[Call]) -> tuple[float, str]:
-    """Seconds spent in the ticks of ``calls`` on a new Perception of ``module``, and a digest
-    of every message they made (topic, time, serialised bytes)."""
+def replay(module: types.ModuleType, profile: Profile, calls: list[Call],
+           clock: Any = time.perf_counter) -> tuple[float, str]:
+    """Seconds spent in the ticks of ``calls`` on a new Perception of ``module`` (by
+    ``clock``), and a digest of every message they made (topic, time, serialised bytes)."""
     perception = module.Perception(profile)
     digest = hashlib.sha256()
     spent = 0.0
@@ -117,9 +133,9 @@ def replay(module: types.ModuleType, profile: Profile, calls: list[Call]) -> tup
         if call[0] == "feed":
             perception.feed(call[1], call[2], call[3])
             continue
-        start = time.perf_counter()
+        start = clock()
         out = perception.tick(call[1])
-        spent += time.perf_counter() - start
+        spent += clock() - start
         for message in out:
             digest.update(f"{message.topic} {message.t_ns}".encode())
             digest.update(message.message.SerializeToString())
@@ -131,7 +147,11 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="s of each drive")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--ref", default="HEAD", help="git revision of the reference")
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="time the ticks by the wall clock or by this process's CPU time "
+                             "(which a loaded shared machine disturbs less)")
     args = parser.parse_args()
+    clock = time.perf_counter if args.clock == "wall" else time.process_time
     reference = reference_perception(args.ref)
     same = True
     with tempfile.TemporaryDirectory() as tmp:
@@ -149,7 +169,7 @@ def main() -> int:
             digests: dict[str, str] = {}
             for _ in range(args.repeat):
                 for name, module in (("reference", reference), ("current", current)):
-                    spent, digests[name] = replay(module, profile, calls)
+                    spent, digests[name] = replay(module, profile, calls, clock)
                     best[name] = min(best[name], spent)
             agree = digests["reference"] == digests["current"]
             same &= agree

@@ -124,6 +124,18 @@ def run_world(module: types.ModuleType, profile: Profile, drive: list[Message],
         apply(observation)
 
     world.apply = counting
+    if hasattr(world, "apply_all"):  # it applies an object's observation itself, others by apply
+        apply_all = world.apply_all
+        inline = sys.modules[type(world).__module__].ObjectObservation
+
+        def counting_all(observations: Any) -> None:
+            nonlocal applied
+            observations = list(observations)
+            applied += sum(1 for o in observations
+                           if o.__class__ is inline and not o.rule_error)
+            apply_all(observations)
+
+        world.apply_all = counting_all
     due, feed = perception.due_ticks, perception.feed
     gc.collect()
     started = time.perf_counter()

@@ -126,16 +126,14 @@ class Perception:
         and every frame of a list message (a group without an index range: one object per
         frame, so the newest alone would lose the others)."""
         pending, frames = self._pending, self._pending_frames
-        apply = self.world.apply
+        apply_all = self.world.apply_all
         if pending:
-            for observation in self.observer.observe_latest(pending):
-                apply(observation)
+            apply_all(self.observer.observe_latest(pending))
             pending.clear()
         if frames:
             observe = self.observer.observe
             for message, values, t_ns in frames:
-                for observation in observe(message, values, t_ns):
-                    apply(observation)
+                apply_all(observe(message, values, t_ns))
             frames.clear()
 
     def due_ticks(self, t_ns: int) -> list[int]:

@@ -101,12 +101,15 @@ class ViewCamera:
 
     def px_per_m(self, x: float, y: float, z: float = 0.0) -> float:
         """How many pixels a metre across the line of sight takes at the point."""
-        return self.focal_px / max(self.depth(x, y, z), 0.1)
+        cos, sin = self._sight  # depth(x, y, z), inline
+        return self.focal_px / max((x - self.eye_x) * cos - (z - self.eye_z) * sin, 0.1)
 
     def scale(self, x: float, y: float, base_m: float, min_px: float = MIN_MARK_PX) -> float:
         """The factor (>= 1) that makes a mark of ``base_m`` at (x, y) at least ``min_px``
         wide on the panel."""
-        return max(1.0, min_px / (base_m * self.px_per_m(x, y)))
+        cos, sin = self._sight  # px_per_m(x, y) at z = 0, inline (a few calls a mark)
+        px = self.focal_px / max((x - self.eye_x) * cos - (0.0 - self.eye_z) * sin, 0.1)
+        return max(1.0, min_px / (base_m * px))
 
     def foxglove_state(self) -> dict[str, object]:
         """The 3D panel's ``cameraState`` for this camera (following the vehicle frame)."""

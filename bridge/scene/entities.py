@@ -25,7 +25,7 @@ import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any, TypeAlias
+from typing import Any, NamedTuple, TypeAlias
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -86,6 +86,8 @@ CLASS_LABELS = {
     ObjectClass.PEDESTRIAN: "PEDESTRIAN",
     ObjectClass.STATIONARY: "stationary",
 }
+#: CLASS_LABELS by the class's value (a str hashes faster than an Enum member)
+_LABELS = {kind._value_: label for kind, label in CLASS_LABELS.items()}
 
 
 def duration(seconds: float) -> Duration:
@@ -93,14 +95,18 @@ def duration(seconds: float) -> Duration:
     return Duration(seconds=ns // NS, nanos=ns % NS)
 
 
-# Building a scene is ~20 entities a tick, 50 times a second. The category
-# builders add their entities in place to a SceneUpdate's ``entities`` (no copy into it). An
-# entity starts as a copy of a cached template of all that does not change from tick to tick
-# (frame, lifetime, sizes, colours, class label, metadata); then only its id, time, positions
-# and label are set: 2x faster than building each one. An object's entity goes further: it is
-# parsed from wire bytes, its template's and its own fields' (object_entities). A lane line's
-# entity is cached whole while the world hands out the same line (lane_entity), the sensor
-# frames once per profile (frame_transforms). Cached messages are only ever copied.
+# Building a scene is ~20 entities a tick, 50 times a second. scene_updates builds each
+# entity as the wire bytes of its fields (a WireEntity): a cached template of all that does not
+# change from tick to tick (frame, lifetime, sizes, colours, class label, metadata), the tick's
+# stamp, and only then its id, positions and label, each a protobuf field encoded here; each
+# category's SceneUpdate is parsed from its entities' bytes in one call (scene_update). Parsed,
+# the bytes make the message that setting each field would make (a repeated field keeps the
+# order of its items; the message is serialised by protobuf later, from its fields): the
+# scene's bytes are the same (tests/test_drive_bytes.py, tests/test_scene.py), faster than
+# building each entity field by field. A lane line's bytes are cached whole while the world
+# hands out the same line (_lane_bytes), the sensor frames' bytes once per profile
+# (frame_transforms). lane_entities and update build SceneEntity messages for other callers;
+# their cached messages are only ever copied.
 Entities: TypeAlias = RepeatedCompositeFieldContainer[SceneEntity]
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 _stamp = lru_cache(maxsize=4)(timestamp)
@@ -173,12 +179,6 @@ def _ego_template(v: Vehicle) -> SceneEntity:
     return e
 
 
-def ego_entities(into: Entities, profile: Profile, t_ns: int) -> None:
-    e = into.add()
-    e.MergeFrom(_ego_template(profile.vehicle))
-    e.timestamp.CopyFrom(_stamp(t_ns))
-
-
 @lru_cache(maxsize=64)
 def _lane_template(name: str, rgba: RGBA, source: str) -> SceneEntity:
     """A lane line's entity without points and timestamp. Never changed, only copied."""
@@ -225,29 +225,29 @@ def lane_entity(line: LaneCurve, rgba: RGBA, source: str) -> SceneEntity:
     return e
 
 
+def _lane_color(line: LaneCurve, source: str) -> RGBA:
+    """Steering lanes in their colour, camera lanes in theirs (the next lanes lighter)."""
+    if source == "steering":
+        return STEERING_LANE_COLOR
+    return NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
+
+
 def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
     stamp = _stamp(t_ns)
     source = lanes.source
     for line in lanes.lines:
-        if source == "steering":
-            rgba = STEERING_LANE_COLOR
-        else:
-            rgba = NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
         e = into.add()
-        e.MergeFrom(lane_entity(line, rgba, source))
+        e.MergeFrom(lane_entity(line, _lane_color(line, source), source))
         e.timestamp.CopyFrom(stamp)
 
 
-# An object's entity is parsed from its wire bytes in one call (MergeFromString): a cached
-# template's bytes (_object_parts), then the tick's stamp, its id, its mark and its metadata,
-# each a protobuf field encoded here. Parsed, they make the message that setting each field
-# would make (a repeated field keeps the order of its items; the message is serialised by
-# protobuf later, from its fields): the scene's bytes are the same (tests/test_drive_bytes.py,
-# tests/test_scene.py), faster than setting the fields one by one.
 _FIELDS = SceneEntity.DESCRIPTOR.fields_by_name
 #: The tags (as wire bytes) of SceneEntity's length-delimited fields.
-_STAMP_TAG, _ID_TAG, _METADATA_TAG, _SPHERES_TAG = (
-    varint(_FIELDS[name].number << 3 | 2) for name in ("timestamp", "id", "metadata", "spheres"))
+_STAMP_TAG, _ID_TAG, _METADATA_TAG, _SPHERES_TAG, _CYLINDERS_TAG, _LINES_TAG, _TEXTS_TAG = (
+    varint(_FIELDS[name].number << 3 | 2) for name in (
+        "timestamp", "id", "metadata", "spheres", "cylinders", "lines", "texts"))
+#: SceneUpdate's entities field's tag.
+_ENTITIES_TAG = varint(SceneUpdate.DESCRIPTOR.fields_by_name["entities"].number << 3 | 2)
 #: A Vector3 field as wire bytes: its tag, length 27 and x, y, z (fields 1, 2, 3: doubles).
 _VECTOR = struct.Struct("<BBBdBdBd")
 
@@ -278,11 +278,79 @@ def _stamp_field(t_ns: int) -> bytes:
     return _field(_STAMP_TAG, _stamp(t_ns).SerializeToString())
 
 
+class WireEntity:
+    """A SceneEntity being built as the wire bytes of its fields (``parts``, in order: a
+    label's text is added as one more), and its ``id``; :func:`scene_update` parses the
+    entities of a category at once."""
+
+    __slots__ = ("id", "parts")
+
+    def __init__(self, entity_id: str, parts: list[bytes]) -> None:
+        self.id = entity_id
+        self.parts = parts
+
+
+def scene_update(entities: Iterable[WireEntity]) -> SceneUpdate:
+    """A SceneUpdate of ``entities``, in order, parsed from their wire bytes in one call."""
+    items: list[bytes] = []
+    for e in entities:
+        data = b"".join(e.parts)
+        n = len(data)
+        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else varint(n), data)
+    update: SceneUpdate = SceneUpdate.FromString(b"".join(items))
+    return update
+
+
+@lru_cache(maxsize=4)
+def _ego_bytes(v: Vehicle) -> bytes:
+    data: bytes = _ego_template(v).SerializeToString()
+    return data
+
+
+#: Each lane line's entity as wire bytes (all but its timestamp) by (id of the LaneCurve,
+#: colour, source), with the LaneCurve itself (so that its id stays its own while it is held
+#: here): made once per line, as :func:`lane_entity` makes it.
+_LANE_BYTES: dict[tuple[int, RGBA, str], tuple[LaneCurve, bytes]] = {}
+
+
+@lru_cache(maxsize=64)
+def _lane_parts(name: str, rgba: RGBA, source: str) -> tuple[bytes, bytes]:
+    """A lane line's template (:func:`_lane_template`) as wire bytes: the entity without its
+    line, and the line without its points."""
+    e = SceneEntity()
+    e.CopyFrom(_lane_template(name, rgba, source))
+    line = e.lines[0].SerializeToString()
+    e.ClearField("lines")
+    return e.SerializeToString(), line
+
+
+def _lane_bytes(line: LaneCurve, rgba: RGBA, source: str) -> bytes:
+    key = (id(line), rgba, source)
+    held = _LANE_BYTES.get(key)
+    if held is not None and held[0] is line:
+        return held[1]
+    head, primitive = _lane_parts(line.name, rgba, source)
+    data = head + _field(_LINES_TAG, primitive + line_points(line.points, LANE_Z))
+    if len(_LANE_BYTES) >= 64:  # the lines of a few ticks are enough to hold
+        _LANE_BYTES.clear()
+    _LANE_BYTES[key] = (line, data)
+    return data
+
+
+def _lane_wire(into: list[WireEntity], lanes: LaneModel, t_ns: int) -> None:
+    """What :func:`lane_entities` draws, as wire entities."""
+    stamp = _stamp_field(t_ns)
+    source = lanes.source
+    for line in lanes.lines:
+        into.append(WireEntity(f"lane-{line.name}",
+                               [_lane_bytes(line, _lane_color(line, source), source), stamp]))
+
+
 @dataclass(frozen=True)
 class _ObjectParts:
     """What every object entity of one kind, role and class shares, as wire bytes."""
 
-    template: bytes  # frame, lifetime, pedestrian cylinder (at x = y = 0), class metadata
+    template: bytes  # frame, lifetime, class metadata
     head: bytes  # the mark's field up to its position (SpherePrimitive.pose.position)
     middle: bytes  # between the position and the size (the pose's orientation)
     tail: bytes  # after the size (the colour)
@@ -294,10 +362,6 @@ class _ObjectParts:
 def _object_parts(kind: SensorKind, lifetime_s: float, object_class: ObjectClass,
                   track: bool) -> _ObjectParts:
     e = _template("", lifetime_s)
-    if object_class is ObjectClass.PEDESTRIAN:
-        e.cylinders.append(CylinderPrimitive(
-            pose=pose(0.0, 0.0, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
-            top_scale=1.0, color=color(PEDESTRIAN_COLOR)))
     e.metadata.add(key="class", value=object_class.value)
     if track:
         size, height, rgba = TRACK_SIZE, TRACK_HEIGHT, TRACK_COLOR
@@ -310,6 +374,13 @@ def _object_parts(kind: SensorKind, lifetime_s: float, object_class: ObjectClass
     sphere_length = len(varint(pose_length)) + 1 + pose_length + _VECTOR.size + len(tail)
     head = _SPHERES_TAG + varint(sphere_length) + b"\x0a" + varint(pose_length)
     return _ObjectParts(e.SerializeToString(), head, middle, tail, size, height)
+
+
+def _pedestrian(x: float, y: float) -> bytes:
+    """A pedestrian's tall yellow cylinder at (x, y), as a SceneEntity's field."""
+    return _field(_CYLINDERS_TAG, CylinderPrimitive(
+        pose=pose(x, y, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
+        top_scale=1.0, color=_color(PEDESTRIAN_COLOR)).SerializeToString())
 
 
 @dataclass(frozen=True)
@@ -329,12 +400,21 @@ def shared_places(tracks: Sequence[ObjectObservation],
     a class other than its own."""
     covered: set[tuple[str, int]] = set()
     notes: dict[tuple[str, int], set[str]] = {}
+    if not tracks:
+        return _NOWHERE
     limit = SHARED_PLACE_M ** 2
+    places = [(t.x, t.y, t) for t in tracks]
     for d in detections:
-        if d.object_class not in CLASS_LABELS or not tracks:
+        if d.object_class._value_ not in _LABELS:
             continue
-        nearest = min(tracks, key=lambda t: (t.x - d.x) ** 2 + (t.y - d.y) ** 2)
-        if (nearest.x - d.x) ** 2 + (nearest.y - d.y) ** 2 >= limit:
+        dx, dy = d.x, d.y
+        nearest = tracks[0]  # the first of the nearest, as min() picks it
+        best = math.inf
+        for tx, ty, t in places:
+            gap = (tx - dx) ** 2 + (ty - dy) ** 2
+            if gap < best:
+                best, nearest = gap, t
+        if best >= limit:
             continue
         covered.add((d.group, d.object_id))
         if d.object_class is not nearest.object_class:
@@ -349,8 +429,7 @@ _NOWHERE = SharedPlaces()
 MIO_FIRST, LEAD_NEXT, TRACKS_NEXT, DETECTIONS_LAST = 0, 1, 2, 3
 
 
-@dataclass(frozen=True)
-class Drawn:
+class Drawn(NamedTuple):
     """One object as drawn: a set of twins (or one object alone) at its mean place."""
 
     group: str
@@ -362,7 +441,8 @@ class Drawn:
     @property
     def id_text(self) -> str:
         """The ids, as a label names them: ``2/8`` for twins."""
-        return "/".join(str(i) for i in self.ids)
+        ids = self.ids
+        return str(ids[0]) if len(ids) == 1 else "/".join(str(i) for i in ids)
 
 
 def drawn_objects(objects: Mapping[int, ObjectObservation],
@@ -384,50 +464,90 @@ def drawn_objects(objects: Mapping[int, ObjectObservation],
     return out
 
 
-def object_entities(into: Entities, objects: Iterable[Drawn], kind: SensorKind, t_ns: int,
-                    lifetime_s: float, camera: ViewCamera, *, track: bool,
+#: The metadata keys of an object's entity as wire bytes (KeyValuePair.key).
+_IDS_KEY, _PLACE_KEY, _VX_KEY = (_field(b"\x0a", k.encode()) for k in ("ids", "place", "vx"))
+
+#: What names an object drawn (its group and ids): its entity's id, its ids as a label names
+#: them (Drawn.id_text), and the entity's id field and "ids" metadata as wire bytes.
+_Named = tuple[str, str, bytes, bytes]
+_NAMES: dict[tuple[str, tuple[int, ...]], _Named] = {}
+
+
+def _name(group: str, ids: tuple[int, ...]) -> _Named:
+    """What names the object ``ids`` of ``group`` (held in _NAMES, for the next ticks)."""
+    entity_id = f"{group}-{ids[0]}"
+    id_text = "/".join(str(i) for i in ids)
+    named = (entity_id, id_text, _field(_ID_TAG, entity_id.encode()),
+             _field(_METADATA_TAG, _IDS_KEY + _field(b"\x12", id_text.encode())))
+    if len(_NAMES) >= 4096:  # the objects of many ticks; a drive renumbers them now and then
+        _NAMES.clear()
+    _NAMES[group, ids] = named
+    return named
+
+
+def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: SensorKind,
+                    t_ns: int, lifetime_s: float, camera: ViewCamera, *, track: bool,
                     lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
     """Detections (radar blue, camera white balls) or tracks (red discs), each set of twins as
     one object, each mark at least MIN_MARK_PX wide from the generated camera (its size, and
     heights, grow with the distance: :meth:`ViewCamera.scale`); returns their labels to lay out
     (:func:`bridge.scene.labels.lay_out`).
 
-    A track's label is "TrackID: n / x: … / y: …" and its class (``2/8`` for twins); the track
-    that is ``lead`` has none (the lead's label names it). A detection's label is its class,
-    where known, unless the detection is at a track's place (``places``: the track's block
-    carries it). Each entity's metadata holds its ids, place and velocity."""
+    A track's label is the seed's "TrackID: n / x: … / y: …" (``2/8`` for twins), then its
+    class and the notes of its place (``places``: the other classes seen there), one a line;
+    the track that is ``lead`` has none (the lead's label names it). A detection's label is its
+    class, where known, unless the detection is at a track's place (``places``: the track's
+    block carries it). Each entity (a :class:`WireEntity`, added to ``into``) carries its
+    label's text once laid out (:func:`draw_labels`); its metadata holds its ids, place and
+    velocity."""
     stamp = _stamp_field(t_ns)
     pack = _VECTOR.pack
+    field_ = _field
+    scale = camera.scale
+    covered, notes = places.covered, places.notes
     labels = []
+    kinds: dict[str, _ObjectParts] = {}  # by class value (an Enum hashes slowly)
     for o in objects:
         first = o.first
         object_class = first.object_class
-        parts = _object_parts(kind, lifetime_s, object_class, track)
+        value = object_class._value_
+        parts = kinds.get(value)
+        if parts is None:
+            parts = kinds[value] = _object_parts(kind, lifetime_s, object_class, track)
+        name = _LABELS.get(value)  # the class's label, where it has one
         x, y = o.x, o.y
-        f = camera.scale(x, y, DETECTION_SIZE)
+        f = scale(x, y, DETECTION_SIZE)
         size = parts.size * f
-        id_text = o.id_text
-        metadata = (_pair("ids", id_text)
-                    + _pair("place", f"x {x:.2f} m, y {y:.2f} m"))
-        if first.vx is not None:
-            metadata += _pair("vx", f"{first.vx:.2f} m/s")
-        e = into.add()
-        e.MergeFromString(b"".join((
-            parts.template, stamp, _field(_ID_TAG, f"{o.group}-{o.ids[0]}".encode()),
+        named = _NAMES.get((o.group, o.ids))
+        if named is None:
+            named = _name(o.group, o.ids)
+        entity_id, id_text, id_field, ids_field = named
+        x2, y2 = f"{x:.2f}", f"{y:.2f}"
+        e = WireEntity(entity_id, [
+            parts.template, stamp, id_field,
             parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
             pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
-            metadata)))
+            ids_field,
+            field_(_METADATA_TAG, _PLACE_KEY + field_(b"\x12",
+                                                      f"x {x2} m, y {y2} m".encode()))])
+        if first.vx is not None:
+            e.parts.append(field_(_METADATA_TAG, _VX_KEY + field_(
+                b"\x12", f"{first.vx:.2f} m/s".encode())))
         if object_class is ObjectClass.PEDESTRIAN:
-            _place(e.cylinders[0], x, y)
+            e.parts.append(_pedestrian(x, y))
+        into.append(e)
         if track:
             if o is lead:
                 continue
-            full = track_label(o, place_notes(places, o))
+            full = f"TrackID: {id_text}\nx: {x2}\ny: {y2}"
+            if name is not None:
+                full += f"\n{name}"
+            if notes:
+                full = "\n".join([full, *place_notes(places, o)])
             compact = f"TrackID: {id_text} \u00b7 {math.hypot(x, y):.0f} m"
             labels.append(Label(e, x, y, 1.6 * f, full, compact, compact,
                                 (TRACKS_NEXT, x)))
-        elif object_class in CLASS_LABELS and (o.group, o.ids[0]) not in places.covered:
-            name = CLASS_LABELS[object_class]
+        elif name is not None and (o.group, o.ids[0]) not in covered:
             labels.append(Label(e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
                                 (DETECTIONS_LAST, x)))
     return labels
@@ -436,14 +556,6 @@ def object_entities(into: Entities, objects: Iterable[Drawn], kind: SensorKind, 
 def place_notes(places: SharedPlaces, o: Drawn) -> tuple[str, ...]:
     """The notes of the places of every twin of ``o``, each once."""
     return tuple(sorted({n for i in o.ids for n in places.notes.get((o.group, i), ())}))
-
-
-def track_label(o: Drawn, notes: Sequence[str] = ()) -> str:
-    """The seed's "TrackID: n / x: … / y: …", then the class, then ``notes`` (one a line)."""
-    label = f"TrackID: {o.id_text}\nx: {o.x:.2f}\ny: {o.y:.2f}"
-    if o.first.object_class in CLASS_LABELS:
-        label += f"\n{CLASS_LABELS[o.first.object_class]}"
-    return "\n".join([label, *notes])
 
 
 @lru_cache(maxsize=16)
@@ -457,17 +569,33 @@ def _lead_template(lifetime_s: float) -> SceneEntity:
     return e
 
 
-def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
+@lru_cache(maxsize=16)
+def _lead_parts(lifetime_s: float) -> tuple[bytes, bytes]:
+    """The lead's template (:func:`_lead_template`) as wire bytes: the entity without its box,
+    and the box (a CubePrimitive) without its pose."""
+    e = SceneEntity()
+    e.CopyFrom(_lead_template(lifetime_s))
+    cube = e.cubes[0]
+    cube.ClearField("pose")
+    rest: bytes = cube.SerializeToString()
+    e.ClearField("cubes")
+    head: bytes = e.SerializeToString()
+    return head, rest
+
+
+_CUBES_TAG = varint(_FIELDS["cubes"].number << 3 | 2)
+#: A primitive's pose (field 1: a position, then the orientation) up to its position's x, y, z.
+_POSE_HEAD = b"\x0a" + varint(_VECTOR.size + len(_field(b"\x12",
+                                                          _IDENTITY.SerializeToString())))
+
+
+def lead_entities(into: list[WireEntity], lead: ObjectObservation | None, t_ns: int,
                   lifetime_s: float, track: Drawn | None = None,
                   notes: Sequence[str] = ()) -> list[Label]:
     """The lead box; its label "Lead Vehicle · TrackID: n / x / y" names its ``track`` (the
     track's own label is not drawn), then the track's class and the ``notes`` of its place."""
     if lead is None:
         return []
-    e = into.add()
-    e.MergeFrom(_lead_template(lifetime_s))
-    e.timestamp.CopyFrom(_stamp(t_ns))
-    _place(e.cubes[0], lead.x + LEAD_BOX[0] / 2, lead.y)
     title = "Lead Vehicle"
     if track is not None:
         title += f" \u00b7 TrackID: {track.id_text}"
@@ -475,14 +603,23 @@ def lead_entities(into: Entities, lead: ObjectObservation | None, t_ns: int,
     if track is not None and track.first.object_class in CLASS_LABELS:
         label += f"\n{CLASS_LABELS[track.first.object_class]}"
     label = "\n".join([label, *notes])
-    e.metadata.add(key="label", value=label)
     compact = f"Lead \u00b7 {lead.x:.0f} m" + (f" \u00b7 TrackID: {track.id_text}"
                                             if track is not None else "")
-    return [Label(e, lead.x, lead.y, LEAD_BOX[2] + 1.4, label, compact, compact,
+    head, rest = _lead_parts(lifetime_s)
+    # the template's box moved to the lead: its centre half a box ahead of the lead's place
+    place = _VECTOR.pack(0x0A, 27, 0x09, lead.x + LEAD_BOX[0] / 2, 0x11, lead.y, 0x19,
+                         LEAD_BOX[2] / 2)
+    wire = WireEntity("lead", [
+        head, _stamp_field(t_ns),
+        _field(_CUBES_TAG, _POSE_HEAD + place + _ORIENTATION + rest),
+        _pair("label", label)])
+    into.append(wire)
+    return [Label(wire, lead.x, lead.y, LEAD_BOX[2] + 1.4, label, compact, compact,
                   (LEAD_NEXT, lead.x))]
 
 
-def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) -> list[Label]:
+def mio_entities(into: list[WireEntity], check: MioCheck, t_ns: int,
+                 lifetime_s: float) -> list[Label]:
     """Nothing when the lead is the closest in-lane track; otherwise a ring and the reason."""
     if check.ok:
         return []
@@ -495,30 +632,56 @@ def mio_entities(into: Entities, check: MioCheck, t_ns: int, lifetime_s: float) 
         x, y = target.x, target.y
     else:
         x, y = 5.0, 0.0
-    into.append(e)  # (rare: a copy costs nothing here)
+    wire = WireEntity("mio-check", [e.SerializeToString()])
+    into.append(wire)
     words = f"MIO CHECK: {check.reason}"
-    return [Label(into[-1], x, y, 3.2, words, "MIO CHECK", "MIO CHECK", (MIO_FIRST, x))]
+    return [Label(wire, x, y, 3.2, words, "MIO CHECK", "MIO CHECK", (MIO_FIRST, x))]
+
+
+#: A label's text as wire bytes: a TextPrimitive's pose up to its position, the pose's
+#: orientation, then its other fields but the text (billboard, font size, scale invariance,
+#: colour), as :func:`add_text` sets them.
+_TEXT_REST = TextPrimitive(billboard=True, font_size=FONT_SIZE, scale_invariant=True,
+                           color=color(TEXT_COLOR)).SerializeToString()
+_ORIENTATION = _field(b"\x12", _IDENTITY.SerializeToString())  # Pose.orientation
+_TEXT_POSE_HEAD = b"\x0a" + varint(_VECTOR.size + len(_ORIENTATION))  # TextPrimitive.pose
+
+
+def _leader_head() -> bytes:
+    """A leader line (a LinePrimitive) as wire bytes, without its points."""
+    leader = LinePrimitive(type=LinePrimitive.LINE_STRIP, thickness=LEADER_PX,
+                           scale_invariant=True)
+    set_pose(leader.pose, 0.0, 0.0, 0.0)
+    leader.color.CopyFrom(_color(LEADER_COLOR))
+    data: bytes = leader.SerializeToString()
+    return data
+
+
+_LEADER_HEAD = _leader_head()
 
 
 def draw_labels(blocks: Iterable[Block]) -> None:
-    """Each laid-out block as a text of the entity that carries it; a block moved off its
-    place with a thin leader line from where its label would have stood to its edge."""
+    """Each laid-out block as a text of the entity that carries it (a :class:`WireEntity`); a
+    block moved off its place with a thin leader line from where its label would have stood to
+    its edge."""
+    pack = _VECTOR.pack
     for b in blocks:
         owner = b.owner
-        assert isinstance(owner, SceneEntity)
-        add_text(owner, b.x, b.y, b.z, b.text)
+        assert isinstance(owner, WireEntity)
+        owner.parts.append(_field(_TEXTS_TAG, b"".join((
+            _TEXT_POSE_HEAD, pack(0x0A, 27, 0x09, b.x, 0x11, b.y, 0x19, b.z), _ORIENTATION,
+            _TEXT_REST, _field(b"\x32", b.text.encode())))))
         if b.leader is not None:
-            leader = owner.lines.add(type=LinePrimitive.LINE_STRIP, thickness=LEADER_PX,
-                                     scale_invariant=True)
-            set_pose(leader.pose, 0.0, 0.0, 0.0)
-            for x, y, z in b.leader:
-                leader.points.add(x=x, y=y, z=z)
-            leader.color.CopyFrom(_color(LEADER_COLOR))
+            owner.parts.append(_field(_LINES_TAG, _LEADER_HEAD + b"".join(
+                [pack(_POINTS_TAG, 27, 0x09, x, 0x11, y, 0x19, z) for x, y, z in b.leader])))
 
 
-#: Each profile's transforms without their timestamps, by the id of the profile (held with
-#: it, so that its id stays its own): built once, then copied and stamped at each tick.
-_TRANSFORMS: dict[int, tuple[Profile, FrameTransforms]] = {}
+
+
+#: Each profile's transforms without their timestamps, as wire bytes (each FrameTransform's
+#: fields), by the id of the profile (held with it, so that its id stays its own): built once,
+#: then stamped and parsed at each tick.
+_TRANSFORMS: dict[int, tuple[Profile, tuple[bytes, ...]]] = {}
 
 
 def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
@@ -531,15 +694,15 @@ def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
             transforms.append(FrameTransform(
                 parent_frame_id=VEHICLE_FRAME, child_frame_id=sensor.name,
                 translation=Vector3(x=sensor.mount.x, y=sensor.mount.y, z=sensor.mount.z),
-                rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))))
+                rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+            ).SerializeToString())
         if len(_TRANSFORMS) >= 16:
             _TRANSFORMS.clear()
-        held = _TRANSFORMS[id(profile)] = (profile, FrameTransforms(transforms=transforms))
-    out = FrameTransforms()
-    out.CopyFrom(held[1])
-    stamp = _stamp(t_ns)
-    for transform in out.transforms:
-        transform.timestamp.CopyFrom(stamp)
+        held = _TRANSFORMS[id(profile)] = (profile, tuple(transforms))
+    # each transform (FrameTransforms field 1) with the tick's stamp (FrameTransform field 1)
+    stamp = _stamp_field(t_ns)  # FrameTransform's timestamp is field 1, as SceneEntity's
+    out: FrameTransforms = FrameTransforms.FromString(b"".join(
+        [_field(b"\x0a", stamp + transform) for transform in held[1]]))
     return out
 
 
@@ -559,14 +722,20 @@ def update(topic: str, entities: Iterable[SceneEntity], t_ns: int,
 def with_deletions(topic: str, scene_update: SceneUpdate, t_ns: int,
                    state: SceneState) -> SceneUpdate:
     """``scene_update`` with deletions of what was sent on ``topic`` before and is gone now."""
-    ids = {e.id for e in scene_update.entities}
-    gone = sorted(state.sent.get(topic, set()) - ids)
+    return _delete(topic, scene_update, {e.id for e in scene_update.entities}, t_ns, state)
+
+
+def _delete(topic: str, scene_update: SceneUpdate, ids: set[str], t_ns: int,
+            state: SceneState) -> SceneUpdate:
+    """``scene_update`` (its entities' ``ids``) with deletions of what was sent on ``topic``
+    before and is gone now."""
+    sent = state.sent.get(topic)
     state.sent[topic] = ids
-    if gone:
+    if sent and not sent <= ids:
         stamp = timestamp(t_ns)
         scene_update.deletions.extend(
             SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.MATCHING_ID, id=i)
-            for i in gone)
+            for i in sorted(sent - ids))
     return scene_update
 
 
@@ -584,14 +753,15 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
     twins = twins or {}
     if camera is None:
         camera = camera_for(view_range(profile))
-    out: dict[str, SceneUpdate] = {}
+    out: dict[str, list[WireEntity]] = {}
 
-    def category(name: str) -> Entities:
-        out[name] = SceneUpdate()
-        return out[name].entities
+    def category(name: str) -> list[WireEntity]:
+        out[name] = []
+        return out[name]
 
-    ego_entities(category("ego"), profile, t_ns)
-    lane_entities(category("lanes"), lanes, t_ns)
+    category("ego").append(WireEntity("ego", [_ego_bytes(profile.vehicle),
+                                              _stamp_field(t_ns)]))
+    _lane_wire(category("lanes"), lanes, t_ns)
     if lead_track is None and check.ok and check.lead is not None:
         lead_track = check.expected
     drawn = {name: drawn_objects(world.objects[name], twins.get(name, {}))
@@ -615,4 +785,6 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
                                 lead_drawn, lead_notes)
         labels += mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
     draw_labels(lay_out(labels, camera))
-    return {name: with_deletions(scene_topic(name), u, t_ns, state) for name, u in out.items()}
+    return {name: _delete(scene_topic(name), scene_update(entities),
+                          {e.id for e in entities}, t_ns, state)
+            for name, entities in out.items()}

@@ -32,7 +32,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from operator import attrgetter
+from typing import NamedTuple
 
 from bridge.scene.camera import ViewCamera
 
@@ -47,8 +48,7 @@ MARGIN_PX = 4.0
 MAX_RAISES = 3
 
 
-@dataclass(frozen=True)
-class Label:
+class Label(NamedTuple):
     """A label the scene would draw for one thing (an object, the lead, the MIO check)."""
 
     owner: object  # who carries the block's text (the scene's entity key)
@@ -61,8 +61,7 @@ class Label:
     priority: tuple[int, float]  # lower first: (kind, distance ahead)
 
 
-@dataclass(frozen=True)
-class Block:
+class Block(NamedTuple):
     """A text block to draw: carried by ``owner``'s entity at (x, y, z)."""
 
     owner: object
@@ -80,8 +79,9 @@ class Block:
 def places(labels: Sequence[Label]) -> list[list[Label]]:
     """The labels grouped by place (anchors within PLACE_M, transitively), each place in order
     of priority and the places by their first label's priority."""
-    order = sorted(labels, key=lambda label: label.priority)
-    parent = list(range(len(order)))
+    order = sorted(labels, key=attrgetter("priority"))
+    n = len(order)
+    parent = list(range(n))
 
     def root(i: int) -> int:
         while parent[i] != i:
@@ -90,15 +90,20 @@ def places(labels: Sequence[Label]) -> list[list[Label]]:
         return i
 
     limit = PLACE_M ** 2
-    for i, a in enumerate(order):
-        for j in range(i + 1, len(order)):
-            b = order[j]
-            if (a.x - b.x) ** 2 + (a.y - b.y) ** 2 < limit:
+    spots = [(label.x, label.y) for label in order]
+    for i, (ax, ay) in enumerate(spots):
+        for j in range(i + 1, n):
+            bx, by = spots[j]
+            if (ax - bx) ** 2 + (ay - by) ** 2 < limit:
                 parent[root(j)] = root(i)
     grouped: dict[int, list[Label]] = {}
     for i, label in enumerate(order):
         grouped.setdefault(root(i), []).append(label)
-    return sorted(grouped.values(), key=lambda place: place[0].priority)
+    return sorted(grouped.values(), key=_first_priority)
+
+
+def _first_priority(place: list[Label]) -> tuple[int, float]:
+    return place[0].priority
 
 
 Box = tuple[float, float, float, float]  # left, top, right, bottom (px from the panel's centre)
@@ -129,44 +134,69 @@ def _overlaps(a: Box, b: Box) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-Place = tuple[str, float, float, float]  # a text and where it stands
+#: A try of a block: its text, where it stands (x, y, z), and the height its text stands at
+#: unmoved (so a block at another height was moved)
+Place = tuple[str, float, float, float, float]
 
 
 def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterator[Place]:
-    """The texts and places to try for a place's block, in order (see the module's rules)."""
+    """The texts and places to try for a place's block, in order (see the module's rules),
+    each with the height its text stands at unmoved (:func:`lifted` at its anchor)."""
     x, y = first.x, first.y
-    full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)])
-    yield full, x, y, lifted(camera, x, y, first.z, full)
+    full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)]) if others \
+        else first.text
+    z = lifted(camera, x, y, first.z, full)
+    yield full, x, y, z, z
     z = lifted(camera, x, y, first.z, first.compact)
-    yield first.compact, x, y, z
+    yield first.compact, x, y, z, z
     metre = camera.px_per_m(x, y, z)
     aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
     up = (LINE_PX + 2 * MARGIN_PX) / metre  # one line's height, m
     for side in (1, -1) if y < 0 else (-1, 1):  # towards the middle first (y points left)
-        yield first.compact, x, y + side * aside, z
+        yield first.compact, x, y + side * aside, z, z
     for k in range(1, MAX_RAISES + 1):
-        yield first.compact, x, y, z + k * up
+        yield first.compact, x, y, z + k * up, z
 
 
 def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
     """The blocks to draw for one tick's ``labels`` (see the module's rules)."""
     drawn: list[Box] = []
     blocks: list[Block] = []
+    limit = PLACE_M ** 2
+    project = camera.project
+    # camera.on_panel's bounds
+    half_h, half_w = camera.height_px / 2, camera.height_px * camera.aspect / 2
     for place in places(labels):
         first, others = place[0], place[1:]
-        for text, x, y, z in _tries(first, others, camera):
-            at = box(camera, x, y, z, text)
-            if at is None or not camera.on_panel(*at):
+        size: tuple[str, float, float] = ("", 0.0, 0.0)  # a text, its half width and height
+        for text, x, y, z, base in _tries(first, others, camera):  # noqa: B007 (kept)
+            at = project(x, y, z)  # box(camera, x, y, z, text), its text's size once
+            if at is None:
                 continue
-            if any(_overlaps(at, other) for other in drawn):
+            if size[0] is not text:
+                lines = text.split("\n")
+                size = (text, max(map(len, lines)) * CHAR_PX / 2 + MARGIN_PX,
+                        len(lines) * LINE_PX / 2 + MARGIN_PX)
+            half, tall = size[1], size[2]
+            left, top, right, bottom = at[0] - half, at[1] - tall, at[0] + half, at[1] + tall
+            if not (-half_w <= left and right <= half_w and -half_h <= top
+                    and bottom <= half_h):  # camera.on_panel
                 continue
-            if any((b.x - x) ** 2 + (b.y - y) ** 2 < PLACE_M ** 2 for b in blocks):
-                continue
-            break
+            for o in drawn:  # _overlaps
+                if left < o[2] and o[0] < right and top < o[3] and o[1] < bottom:
+                    break
+            else:
+                for b in blocks:
+                    if (b.x - x) ** 2 + (b.y - y) ** 2 < limit:
+                        break
+                else:
+                    break
         else:
             continue
-        drawn.append(at)
-        moved = (x, y) != (first.x, first.y) or z != lifted(camera, x, y, first.z, text)
+        drawn.append((left, top, right, bottom))
+        # where its text would stand unmoved: lifted() of its text at its anchor (which does
+        # not depend on y), as _tries computed it
+        moved = (x, y) != (first.x, first.y) or z != base
         own = (first.x, first.y, first.z)
         blocks.append(Block(first.owner, x, y, z, text, tuple(o.owner for o in others),
                             (own, _edge(camera, own, (x, y, z), text)) if moved else None))

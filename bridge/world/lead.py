@@ -74,10 +74,14 @@ def are_twins(a: ObjectObservation, b: ObjectObservation) -> bool:
     return a.vx is None or b.vx is None or abs(a.vx - b.vx) <= TWIN_SPEED_MPS
 
 
+def _x(o: ObjectObservation) -> float:
+    return o.x
+
+
 def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]]:
     """Object id -> the sorted ids of its set of twins (itself included), for every object of
     one group that has a twin (transitively: a chain of twins is one set)."""
-    found = sorted(objects, key=lambda o: o.x)
+    found = sorted(objects, key=_x)
     parent = {o.object_id: o.object_id for o in found}
 
     def root(i: int) -> int:
@@ -86,12 +90,17 @@ def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]
             i = parent[i]
         return i
 
+    count = len(found)
     for n, a in enumerate(found):  # sorted by x: only neighbours within the distance compare
-        for b in found[n + 1:]:
-            if b.x - a.x > TWIN_DISTANCE_M:
+        ax = a.x
+        for m in range(n + 1, count):
+            b = found[m]
+            if b.x - ax > TWIN_DISTANCE_M:
                 break
             if are_twins(a, b):
                 parent[root(a.object_id)] = root(b.object_id)
+    if all(parent[i] == i for i in parent):
+        return {}  # no twins (the common case)
     sets: dict[int, list[int]] = {}
     for i in parent:
         sets.setdefault(root(i), []).append(i)

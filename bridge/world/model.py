@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 from bridge.frame import NS
 from bridge.profile.model import LaneSpec, Profile, Sensor
-from bridge.world.lead import LeadKeeper, SteadyLead, key
+from bridge.world.lead import Key, LeadKeeper, SteadyLead, key
 from bridge.world.observe import (
     LEAD_GROUP,
     EgoObservation,
@@ -120,8 +120,9 @@ class LaneCurve:
 
     def finite(self) -> bool:
         """Whether every point and coefficient is a finite number (drawable)."""
-        return (all(math.isfinite(c) for c in self.coefficients)
-                and all(math.isfinite(y) for _, y in self.points))
+        isfinite = math.isfinite
+        return (all(map(isfinite, self.coefficients))
+                and all([isfinite(y) for _, y in self.points]))
 
 
 @dataclass(frozen=True)
@@ -135,8 +136,13 @@ class LaneModel:
     def line(self, name: str) -> LaneCurve | None:
         return next((line for line in self.lines if line.name == name), None)
 
+    @cached_property
+    def ego_lines(self) -> tuple[LaneCurve | None, LaneCurve | None]:
+        """The ego lane's left and right lines (None where missing), looked up once."""
+        return self.line("left"), self.line("right")
+
     def in_ego_lane(self, x: float, y: float) -> bool:
-        left, right = self.line("left"), self.line("right")
+        left, right = self.ego_lines
         if left is None or right is None or x < 0:
             return False
         return right.lateral_at(x) < y < left.lateral_at(x)
@@ -144,7 +150,7 @@ class LaneModel:
     def outside_by(self, x: float, y: float) -> float | None:
         """How far (m) the point lies outside the ego lane's lines (0 inside); None where there
         is no ego lane (no lines, or behind the vehicle)."""
-        left, right = self.line("left"), self.line("right")
+        left, right = self.ego_lines
         if left is None or right is None or x < 0:
             return None
         return max(0.0, right.lateral_at(x) - y, y - left.lateral_at(x))
@@ -162,12 +168,15 @@ def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -
     mount = sensor.mount
     cos, sin = sensor.rotation
     xs = lane_xs(c2, c3, length)
-    ys = [(c0 + x * (c1 + x * (c2 + x * c3))) * sign for x in xs]
     if mount.yaw_deg:
+        ys = [(c0 + x * (c1 + x * (c2 + x * c3))) * sign for x in xs]
         points = tuple((cos * x - sin * y + mount.x, sin * x + cos * y + mount.y)
                        for x, y in zip(xs, ys, strict=True))
-    else:
-        points = tuple((x + mount.x, y + mount.y) for x, y in zip(xs, ys, strict=True))
+    else:  # (x + mount.x, y + mount.y), the same sums, each coordinate in one pass
+        mx, my = mount.x, mount.y
+        points = tuple(zip([x + mx for x in xs],
+                           [(c0 + x * (c1 + x * (c2 + x * c3))) * sign + my for x in xs],
+                           strict=True))
     return LaneCurve(name, points, lane_to_vehicle(sensor, c))
 
 
@@ -250,6 +259,22 @@ class World:
                 ego.yaw_rate = observation.yaw_rate
             if observation.steering_wheel_angle is not None:
                 ego.steering_wheel_angle = observation.steering_wheel_angle
+
+    def apply_all(self, observations: Iterable[Observation]) -> None:
+        """:meth:`apply` each of ``observations``, in order (an object's without a rule error
+        inline: most of a tick's)."""
+        objects, apply = self.objects, self.apply
+        for observation in observations:
+            if observation.__class__ is ObjectObservation and not observation.rule_error:
+                group = objects.get(observation.group)
+                if group is None:
+                    group = objects.setdefault(observation.group, {})
+                if observation.valid:
+                    group[observation.object_id] = observation
+                else:
+                    group.pop(observation.object_id, None)
+            else:
+                apply(observation)
 
     def _rule_error(self, group: str, why: str) -> None:
         self.rule_errors[group] += 1
@@ -343,9 +368,19 @@ class World:
         if spec.source == "tracks":
             tracks = {key(o): o for name in self.track_groups()
                       for o in self.objects[name].values()}
-            outside = {k: d for k, o in tracks.items()
-                       if (d := lanes.outside_by(o.x, o.y)) is not None}
-            in_lane = [k for k, o in tracks.items() if lanes.in_ego_lane(o.x, o.y)]
+            # lanes.outside_by and lanes.in_ego_lane of each track, its lines' places once
+            outside: dict[Key, float] = {}
+            in_lane: list[Key] = []
+            left, right = lanes.ego_lines
+            if left is not None and right is not None:
+                for k, o in tracks.items():
+                    x, y = o.x, o.y
+                    if x < 0:
+                        continue
+                    low, high = right.lateral_at(x), left.lateral_at(x)
+                    outside[k] = max(0.0, low - y, y - high)
+                    if low < y < high:
+                        in_lane.append(k)
             return self.keeper.update(tracks, in_lane, outside, t_ns)
         objects = self.objects.get(LEAD_GROUP, {})
         reported = min(objects.values(), key=lambda o: o.x, default=None)

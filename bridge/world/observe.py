@@ -158,6 +158,7 @@ def _read(latest: Mapping[str, Mapping[str, Any]], ref: Field | None) -> float |
 
 #: In an object's key: a message of its family not come yet, or a signal not in a message.
 _ABSENT = object()
+_ABSENT_KEY = (_ABSENT,)
 
 
 class _Part:
@@ -191,12 +192,43 @@ def _nothing(values: Mapping[str, Any]) -> tuple[()]:
     return ()
 
 
+def _part_getter(part: _Part) -> Callable[[Mapping[str, Any]], tuple[Any, ...]]:
+    """:meth:`_Part.key` where its getter reads the message: raises KeyError where it does not
+    (a signal of the first message missing, one of the others there)."""
+    getter, absent, single = part.getter, part.absent, part.single
+    if absent:
+        def checked(values: Mapping[str, Any]) -> tuple[Any, ...]:
+            if not absent.isdisjoint(values):
+                raise KeyError("a signal the first message lacked")
+            found = getter(values)
+            return (found,) if single else found
+
+        return checked
+    if single:
+        return lambda values: (getter(values),)
+    return getter
+
+
+def _key_function(parts: list[tuple[str, _Part]]
+                  ) -> Callable[[Mapping[str, Mapping[str, Any]]], tuple[tuple[Any, ...], ...]]:
+    """:meth:`_Object.read_key` where every message of the family is there and each getter
+    reads it (KeyError where not): one call per message, no loop for one or two."""
+    getters = [(message, _part_getter(part)) for message, part in parts]
+    if len(getters) == 1:
+        (m1, g1), = getters
+        return lambda latest: (g1(latest[m1]),)
+    if len(getters) == 2:
+        (m1, g1), (m2, g2) = getters
+        return lambda latest: (g1(latest[m1]), g2(latest[m2]))
+    return lambda latest: tuple([get(latest[message]) for message, get in getters])
+
+
 class _Object:
     """One object of a group: where each of its fields is, and its latest messages."""
 
-    __slots__ = ("azimuth", "class_signal", "id", "index", "key", "latest", "made", "names",
-                 "parts", "position_ns", "probability", "range", "reads", "rule", "rule_sources",
-                 "vx", "vy", "x", "y")
+    __slots__ = ("azimuth", "class_signal", "fast_key", "id", "index", "key", "latest", "made",
+                 "names", "parts", "position_ns", "probability", "range", "reads", "rule",
+                 "rule_sources", "vx", "vy", "x", "y")
 
     def __init__(self, group: ObjectGroup, index: int | None) -> None:
         def ref(found: Field | None) -> Field | None:
@@ -239,20 +271,41 @@ class _Object:
         #: the key of the latest observation (the values it read), and what it made
         self.key: tuple[tuple[Any, ...], ...] | None = None
         self.made: ObjectObservation | None = None
+        #: read_key's common case (every message of the family there, each with the signals
+        #: its first had), once each message has its _Part: raises KeyError where it is not
+        self.fast_key: Callable[[Mapping[str, Mapping[str, Any]]],
+                                tuple[tuple[Any, ...], ...]] | None = None
 
     def read_key(self) -> tuple[tuple[Any, ...], ...]:
         """The values of every signal the observation reads, from the latest messages."""
         latest, parts = self.latest, self.parts
+        fast = self.fast_key
+        if fast is not None:
+            try:
+                return fast(latest)
+            except KeyError:
+                pass  # a message not come yet, or not as its first: read as below
+        elif len(parts) == len(self.reads) and self.reads:
+            self.fast_key = _key_function([(message, parts[message])
+                                           for message, _ in self.reads])
         key: list[tuple[Any, ...]] = []
         for message, names in self.reads:
             values = latest.get(message)
             if values is None:
-                key.append((_ABSENT,))
+                key.append(_ABSENT_KEY)
                 continue
             part = parts.get(message)
             if part is None:
                 part = parts[message] = _Part(names, values)
-            key.append(part.key(values))
+            if part.absent:
+                key.append(part.key(values))
+                continue
+            try:  # _Part.key's common case, inline
+                found = part.getter(values)
+            except KeyError:
+                key.append(part.key(values))
+            else:
+                key.append((found,) if part.single else found)
         return tuple(key)
 
     def valid(self) -> tuple[bool, str]:
@@ -346,16 +399,25 @@ class _GroupReader:
         x, y = to_vehicle(sensor, xs, ys)
         if not (math.isfinite(x) and math.isfinite(y)):
             return None
-        vx, vy = velocity(sensor, _read(latest, obj.vx), _read(latest, obj.vy), scale)
-        ident = _read(latest, obj.id)
-        raw_class = _read(latest, obj.class_signal)
+        # _read of each field, inline
+        ref = obj.vx
+        vx_raw = ref.value(latest) if ref is not None else None
+        ref = obj.vy
+        vy_raw = ref.value(latest) if ref is not None else None
+        vx, vy = velocity(sensor, vx_raw, vy_raw, scale)
+        ref = obj.id
+        ident = ref.value(latest) if ref is not None else None
+        ref = obj.class_signal
+        raw_class = ref.value(latest) if ref is not None else None
         object_class = (g.classes.get(int(raw_class), ObjectClass.UNKNOWN)
                         if raw_class is not None else ObjectClass.UNKNOWN)
         object_id = (int(ident) if ident is not None and 0 <= ident < _ID_LIMIT
                      else (index or 0))  # an id /perception cannot carry: the slot
         valid, rule_error = obj.valid()
-        return ObjectObservation(g.name, object_id, t_ns, x, y, valid, vx, vy,
-                                 _read(latest, obj.probability), object_class, rule_error)
+        ref = obj.probability
+        probability = ref.value(latest) if ref is not None else None
+        return ObjectObservation(g.name, object_id, t_ns, x, y, valid, vx, vy, probability,
+                                 object_class, rule_error)
 
 
 class Observer:
@@ -370,6 +432,11 @@ class Observer:
         for reader in readers:
             for name, member in reader.group.members.items():
                 self._objects.setdefault(name, []).append((reader, member))
+        #: per message: each object reader it is for, the object's index and whether it is the
+        #: family's first message (its time is the object's position's)
+        self._routes = {name: [(reader, member.index, member.template == reader.primary)
+                               for reader, member in pairs]
+                        for name, pairs in self._objects.items()}
         self._lanes: dict[str, list[LaneLine]] = {}
         if profile.lanes is not None:
             for line in profile.lanes.lines.values():
@@ -419,18 +486,36 @@ class Observer:
         observe one by one."""
         out: list[Observation] = []
         touched: dict[_Object, _GroupReader] = {}
-        objects, others = self._objects, self._lanes_and_ego
+        routes, others = self._routes, self._lanes_and_ego
         for message, (values, t_ns) in latest.items():
-            pairs = objects.get(message)
-            if pairs is not None:
-                for reader, member in pairs:
-                    touched[reader.note(member, message, values, t_ns)] = reader
+            found = routes.get(message)
+            if found is not None:
+                for reader, index, primary in found:  # _GroupReader.note, inline
+                    obj = reader.objects.get(index)
+                    if obj is None:
+                        obj = reader.objects[index] = _Object(reader.group, index)
+                    obj.latest[message] = values
+                    if primary:
+                        obj.position_ns = t_ns
+                    touched[obj] = reader
             if message in others:
                 self._observe_lanes_and_ego(message, values, t_ns, out)
-        for obj, reader in touched.items():
-            obs = reader.observation(obj.index, obj)
-            if obs is not None:
-                out.append(obs)
+        for obj, reader in touched.items():  # _GroupReader.observation, inline
+            t_ns = obj.position_ns
+            if t_ns < 0:
+                continue  # no position of this object yet
+            key = obj.read_key()
+            if key == obj.key:
+                made = obj.made
+                if made is not None:
+                    out.append(ObjectObservation(
+                        made.group, made.object_id, t_ns, made.x, made.y, made.valid, made.vx,
+                        made.vy, made.probability, made.object_class, made.rule_error))
+                continue
+            obj.key = key
+            made = obj.made = reader.evaluate(obj.index, obj, t_ns)
+            if made is not None:
+                out.append(made)
         return out
 
     def _observe_lanes_and_ego(self, message: str, values: Mapping[str, Any], t_ns: int,
