@@ -9,9 +9,12 @@ process, interleaved, best of ``--repeat`` (default 3):
     :class:`bridge.decode.proto_schema.MessageSchema`) built from keyword arguments and
     ``SerializeToString()``;
 (b) tankviz's :class:`bridge.decode.decoder.Decoder` (a new one per round, so its caches start
-    cold);
+    cold; with ``--warm``, it has prepared every message before the clock starts);
 (c) optionally, each ``--compare NAME=PATH``: another decoder module (e.g. an old version taken
     with ``git show HEAD:bridge/decode/decoder.py``) timed the same way as (b);
+(d) with ``--block N``: tankviz's column decode, :meth:`Decoder.decode_block` on the same frames
+    as :class:`bridge.block.FrameBlock` s of N frames (made before the clock starts: they are
+    what the read-ahead hands over), also printed as a ratio to (b);
 
 and prints µs/frame of each (CPU time of this process, which a loaded machine disturbs less than
 wall time; the garbage collector off, as in ``tankviz convert``) and the ratios to (a) (lower is
@@ -32,6 +35,7 @@ Logs:
     python tools/bench_decode.py
     python tools/bench_decode.py --log real-like
     python tools/bench_decode.py --compare old=/tmp/me/old_decoder.py
+    python tools/bench_decode.py --block 4096 --block 16384 [--warm]
 """
 
 from __future__ import annotations
@@ -57,6 +61,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_convert import ECOCAR_DBC, generate_frames
 
+from bridge.block import FrameBlock
 from bridge.decode import decoder as tankviz_decoder
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame, to_ns
@@ -68,7 +73,7 @@ REAL_LIKE_DBC = SHARED_DBC / "ford_fusion_2018_pt.dbc"
 def synthetic_frames(n: int, seed: int) -> list[Frame]:
     db = cantools.database.load_file(str(ECOCAR_DBC), strict=False)
     assert isinstance(db, Database)
-    out = []
+    out: list[Frame] = []
     for msg in generate_frames(db, seed):
         if len(out) >= n:
             break
@@ -137,18 +142,58 @@ class Naive:
         return out
 
 
-def decoder_runner(module: ModuleType, path: Path) -> Callable[[list[Frame]], list[bytes | None]]:
-    database = module.load_database(path)
+class Fresh:
+    """A new decoder of ``module`` for each round, made before the clock starts by
+    :meth:`setup`; with ``warm``, it has also decoded one frame of every ``(bus, id)``, so that
+    preparing each message (its protobuf type, compiled decoder and encoder: about 1 ms each, 1.3
+    µs/frame of 100k frames of the simulated drive) is not timed."""
 
-    def run(frames: list[Frame]) -> list[bytes | None]:
-        decode = module.Decoder({None: [database]}).decode
+    def __init__(self, module: ModuleType, path: Path, warm: bool) -> None:
+        self.module, self.warm = module, warm
+        self.database = module.load_database(path)
+        self.decoder: Any = None
+
+    def setup(self, frames: list[Frame]) -> None:
+        self.decoder = self.module.Decoder({None: [self.database]})
+        if self.warm:
+            first: dict[tuple[str, int, bool], Frame] = {}
+            for f in frames:
+                first.setdefault((f.bus, f.arbitration_id, f.is_extended), f)
+            for f in first.values():
+                self.decoder.decode(f)
+
+    def __call__(self, frames: list[Frame]) -> list[bytes | None]:
+        decode = self.decoder.decode
         out: list[bytes | None] = []
         for f in frames:
             d = decode(f)
             out.append(None if d is None else d.payload)
         return out
 
-    return run
+
+def decoder_runner(module: ModuleType, path: Path, warm: bool = False) -> Fresh:
+    return Fresh(module, path, warm)
+
+
+class FreshBlocks(Fresh):
+    """(d): Decoder.decode_block on blocks of ``size`` frames (made once per list of frames,
+    outside the timing), with a new decoder per round as :class:`Fresh` makes it."""
+
+    def __init__(self, path: Path, size: int, warm: bool) -> None:
+        super().__init__(tankviz_decoder, path, warm)
+        self.size = size
+        self.made: dict[int, list[FrameBlock]] = {}
+
+    def __call__(self, frames: list[Frame]) -> list[bytes | None]:
+        blocks = self.made.get(id(frames))
+        if blocks is None:
+            blocks = self.made[id(frames)] = [FrameBlock.from_frames(frames[i:i + self.size])
+                                              for i in range(0, len(frames), self.size)]
+        decode = self.decoder.decode_block
+        out: list[bytes | None] = []
+        for block in blocks:
+            out += [None if d is None else d.payload for d in decode(block)]
+        return out
 
 
 def load_module(name: str, path: Path) -> ModuleType:
@@ -194,17 +239,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--compare", action="append", default=[], metavar="NAME=PATH",
                         help="another decoder module to time like (b)")
+    parser.add_argument("--block", action="append", type=int, default=[], metavar="N",
+                        help="also time Decoder.decode_block on blocks of N frames (d)")
+    parser.add_argument("--warm", action="store_true",
+                        help="tankviz's decoders have prepared every message before the clock "
+                        "starts (one frame of each id decoded): the steady state")
     args = parser.parse_args(argv)
 
     frames, dbc = frames_of(args.log, args.frames, args.seed)
     runners: dict[str, Callable[[list[Frame]], list[bytes | None]]] = {
-        "a naive": Naive(dbc).run, "b tankviz": decoder_runner(tankviz_decoder, dbc)}
+        "a naive": Naive(dbc).run, "b tankviz": decoder_runner(tankviz_decoder, dbc, args.warm)}
     for spec in args.compare:
         name, _, path = spec.partition("=")
-        runners[f"c {name}"] = decoder_runner(load_module(name, Path(path)), dbc)
+        runners[f"c {name}"] = decoder_runner(load_module(name, Path(path)), dbc, args.warm)
+    for size in args.block:
+        runners[f"d blocks of {size}"] = FreshBlocks(dbc, size, args.warm)
 
     reference = runners["a naive"](frames)
     for name, run in runners.items():
+        setup = getattr(run, "setup", None)
+        if setup is not None:
+            setup(frames)
         got = run(frames)
         differ = sum(1 for x, y in zip(reference, got, strict=True) if x != y)
         if differ:
@@ -213,6 +268,9 @@ def main(argv: list[str] | None = None) -> int:
     best = dict.fromkeys(runners, float("inf"))
     for _ in range(args.repeat):
         for name, run in runners.items():
+            setup = getattr(run, "setup", None)
+            if setup is not None:
+                setup(frames)
             gc.collect()
             gc.disable()  # as tankviz convert runs
             started = time.process_time()
@@ -225,8 +283,10 @@ def main(argv: list[str] | None = None) -> int:
           f"best of {args.repeat}, interleaved")
     base = best["a naive"]
     for name, seconds in best.items():
+        to_b = (f"   ratio to (b) {seconds / best['b tankviz']:.3f}"
+                if name.startswith("d ") else "")
         print(f"  ({name}): {seconds / len(frames) * 1e6:6.2f} µs/frame   "
-              f"ratio to (a) {seconds / base:.3f}")
+              f"ratio to (a) {seconds / base:.3f}{to_b}")
     total, busiest = repeats(frames)
     print(f"(id, payload) seen before: {total:.1%} of frames; busiest ids:")
     for key, n, rate in busiest:

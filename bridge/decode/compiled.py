@@ -17,11 +17,14 @@ multiplexed message, a short or long payload, a conversion of another kind, cant
 not as expected, a message whose formats cannot unpack a payload because its signals overlap) is
 cantools' own ``decode``: :func:`compile_decoder` returns None for a message
 it cannot compile, and the function it returns hands any payload of another length to cantools.
+
+:func:`compile_column_decoder` gives the same decoding for a column of payloads of the message's
+length in one call (:meth:`bridge.decode.decoder.MessageCodec.decode_many`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from cantools.database.can.message import Message as DbcMessage
@@ -33,6 +36,7 @@ from cantools.database.conversion import (
 )
 
 Decode = Callable[[bytes], dict[str, Any]]
+DecodeColumn = Callable[[Sequence[bytes]], list[dict[str, Any]]]
 
 
 def _conversion(signal: Any) -> Any:
@@ -48,6 +52,21 @@ def _conversion(signal: Any) -> Any:
 def compile_decoder(message: DbcMessage) -> Decode | None:
     """``data -> signals`` for ``message``, equal to cantools' ``decode(data,
     decode_choices=False, allow_truncated=True)``; None where only cantools can decode it."""
+    made = compile_decoders(message)
+    return None if made is None else made[0]
+
+
+def compile_column_decoder(message: DbcMessage) -> DecodeColumn | None:
+    """``payloads -> [signals, ...]`` for ``message``: :func:`compile_decoder`'s result for each
+    payload, in one call (one loop in one generated function), for payloads that all have the
+    message's length (which the plain case never fails to decode); None where
+    :func:`compile_decoder` gives None."""
+    made = compile_decoders(message)
+    return None if made is None else made[1]
+
+
+def compile_decoders(message: DbcMessage) -> tuple[Decode, DecodeColumn] | None:
+    """:func:`compile_decoder` and :func:`compile_column_decoder` of ``message``, made at once."""
     codecs = getattr(message, "_codecs", None)
     if (message.is_container or message.is_multiplexed() or not isinstance(codecs, dict)
             or codecs.get("multiplexers") or "formats" not in codecs):
@@ -74,12 +93,19 @@ def compile_decoder(message: DbcMessage) -> Decode | None:
     has_little = any(s.byte_order == "little_endian" for s in signals)
     unpack = ("{**BE(data), **LE(data[::-1])}" if has_big and has_little
               else "BE(data)" if has_big else "LE(data[::-1])" if has_little else "{}")
+    result = "{" + ", ".join(values) + "}"
     source = "\n".join([
         "def decode(data):",
         f"    if len(data) != {message.length}:",
         "        return SLOW(data, decode_choices=False, allow_truncated=True)",
         f"    u = {unpack}",
-        "    return {" + ", ".join(values) + "}",
+        f"    return {result}",
+        "",
+        "def decode_column(datas):",
+        (f"    return [{result} for u in map(BE, datas)]" if unpack == "BE(data)" else
+         f"    return [{result} for u in map(LE, [data[::-1] for data in datas])]"
+         if unpack == "LE(data[::-1])" else
+         f"    return [{result} for u in [{unpack} for data in datas]]"),
     ])
     exec(source, names)
     decode: Decode = names["decode"]
@@ -87,4 +113,4 @@ def compile_decoder(message: DbcMessage) -> Decode | None:
         decode(bytes(message.length))
     except Exception:
         return None  # cantools' own decode says why, frame by frame
-    return decode
+    return decode, names["decode_column"]

@@ -15,6 +15,14 @@ one (:func:`bridge.decode.compiled.compile_decoder`: cantools' own formats and c
 very result), else by cantools, and encoded by the message's precompiled encoder
 (:func:`bridge.decode.proto_schema.compile_encoder`), byte for byte protobuf's own encoding.
 
+Offline, frames come in blocks (:class:`bridge.block.FrameBlock`): :meth:`Decoder.decode_block`
+decodes a block a column per ``(bus, key)`` (:meth:`Decoder.decode_column`,
+:meth:`MessageCodec.decode_many`): each distinct payload of a column once, the payloads of the
+message's length in one call of its precompiled column decoder
+(:func:`bridge.decode.compiled.compile_column_decoder`), and every count the same as decoding the
+block's frames one by one in order (what it returns too, row for row; tests/test_decode_block.py
+checks it). Only what the payload cache remembers may differ, never a result.
+
 A float signal (IEEE, ``SIG_VALTYPE_``) that decodes to +inf, -inf or NaN is kept in the decoded
 message as it came, named in :attr:`Decoded.non_finite` and counted per bus, message and signal
 (``non_finite`` in the statistics); the world never takes such a value
@@ -31,13 +39,13 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-from collections import Counter
-from collections.abc import Callable, Iterable, Mapping
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from functools import cached_property, partial
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cantools
 from cantools.database.can.database import Database
@@ -45,7 +53,8 @@ from cantools.database.can.message import Message as DbcMessage
 from cantools.database.errors import Error as CantoolsError
 from google.protobuf import descriptor_pool
 
-from bridge.decode.compiled import compile_decoder
+from bridge.block import ERROR, EXTENDED, REMOTE, FrameBlock
+from bridge.decode.compiled import DecodeColumn, compile_decoders
 from bridge.decode.proto_schema import MessageSchema, identifier
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
@@ -61,6 +70,9 @@ _CACHE_SIZE = 256
 _TRIAL_MISSES = 512
 #: ... stops caching that message for this many frames, then it is tried again.
 _REST_FRAMES = 16 * _TRIAL_MISSES
+
+#: bytes.translate table of block flags: 1 where the frame is extended, else 0
+_EXTENDED_ONLY = bytes(1 if f & EXTENDED else 0 for f in range(256))
 
 _BUS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
 
@@ -140,6 +152,11 @@ class Decoded(NamedTuple):
     non_finite: tuple[str, ...] = ()
 
 
+#: ``Decoded`` of a tuple of its fields: the very object ``Decoded(*fields)`` makes, without
+#: its Python-level ``__new__`` (the column decode's per-payload path)
+_new_decoded = partial(tuple.__new__, Decoded)
+
+
 class MessageCodec:
     """One DBC message as seen on one bus: cantools decoding, the protobuf type, the topic.
 
@@ -158,11 +175,16 @@ class MessageCodec:
 
     def __init__(self, message: DbcMessage, database: DatabaseFile,
                  schema: Callable[[], MessageSchema], bus: str,
-                 decoder: Callable[[], Callable[[bytes], Any]]) -> None:
+                 decoder: Callable[[], Callable[[bytes], Any]],
+                 column_decoder: Callable[[], DecodeColumn | None] | None = None) -> None:
         self.message = message
         self.database = database
         self._schema = schema
         self._decoder = decoder
+        self._column_decoder = column_decoder
+        #: the column decoder once made (None: there is none, every payload is decoded alone)
+        self._decode_column: DecodeColumn | None = None
+        self._column_made = column_decoder is None
         self.bus = bus
         self.topic = message_topic(bus, message.name)
         self.length = message.length
@@ -227,6 +249,97 @@ class MessageCodec:
         elif self.decoded >= self._since:
             self.caching, self._misses, self._since = True, 0, self.decoded
         return result
+
+    def decode_many(self, datas: Sequence[bytes]) -> list[Decoded | Exception]:
+        """Decode a column of payloads in one step: what :meth:`decode` on each, in order, returns,
+        with the same counts afterwards (``decoded``, ``truncated``, ``longer``, ``longest``,
+        ``non_finite``); a payload it cannot decode has in its place the exception :meth:`decode`
+        would raise (not counted as decoded, as :meth:`decode` does not).
+
+        Each distinct payload of the column is decoded once (or taken from the cache), so equal
+        payloads share one :class:`Decoded`; the cache learns the new ones as :meth:`decode`
+        would, its trials counted per distinct payload (which only changes what is remembered,
+        never a result)."""
+        return self._decode_many(datas)[0]
+
+    def _decode_many(self, datas: Sequence[bytes]) -> tuple[list[Decoded | Exception], bool]:
+        """:meth:`decode_many`, and whether a payload failed."""
+        n = len(datas)
+        if not n:
+            return [], False
+        length = self.length
+        if len(set(map(len, datas))) > 1 or len(datas[0]) != length:
+            for size, count in Counter(map(len, datas)).items():
+                if size < length:
+                    self.truncated += count
+                elif size > length:
+                    self.longer += count
+                    self.longest = max(self.longest, size)
+        cache = self._cache
+        results: dict[bytes, Decoded | Exception | None] = dict.fromkeys(datas)
+        failed = counted = False  # a payload that failed; one with non-finite values counted
+        half_counted: dict[bytes, tuple[str, ...]] = {}  # failed after counting non-finite ones
+        new: list[bytes] = []
+        for data in results:
+            hit = cache.get(data)
+            if hit is None:
+                new.append(data)
+            else:
+                results[data] = hit
+                counted = counted or bool(hit.non_finite)
+        if not self._column_made:
+            self._decode_column, self._column_made = self._column_decoder(), True  # type: ignore[misc]
+        column = self._decode_column
+        decoded: list[tuple[bytes, dict[str, Any] | None]] = []
+        if column is not None and new:
+            exact = [d for d in new if len(d) == length]
+            decoded += zip(exact, column(exact), strict=True)
+            if len(exact) != len(new):
+                decoded += ((d, None) for d in new if len(d) != length)
+        else:
+            decoded += ((d, None) for d in new)
+        floats, encode, decode = self.floats, self._encode, self._decode
+        caching = self.caching
+        for data, signals in decoded:
+            bad: tuple[str, ...] = ()
+            try:
+                if signals is None:
+                    signals = cast("dict[str, Any]", decode(data))
+                bad = (tuple(n for n in floats if not math.isfinite(signals.get(n, 0.0)))
+                       if floats else ())
+                result = _new_decoded((self, signals, encode(signals), bad))
+            except Exception as exc:  # decode() raises it: the caller counts it
+                results[data] = exc
+                failed = True
+                if bad:
+                    half_counted[data] = bad
+                continue
+            results[data] = result
+            counted = counted or bool(bad)
+            if caching:
+                if len(cache) >= _CACHE_SIZE:
+                    cache.clear()
+                cache[data] = result
+                self._misses += 1
+        out = cast("list[Decoded | Exception]", list(map(results.__getitem__, datas)))
+        if not failed:
+            self.decoded += n
+        else:
+            self.decoded += sum(1 for r in out if type(r) is Decoded)
+        if counted or half_counted:
+            occurrences = Counter(datas) if len(results) < n else None
+            for data, done in results.items():
+                bad = done.non_finite if type(done) is Decoded else half_counted.get(data, ())
+                if bad:
+                    times = occurrences[data] if occurrences is not None else 1
+                    for name in bad:
+                        self.non_finite[name] += times
+        if caching:
+            if self._misses >= _TRIAL_MISSES:
+                self._trial_ends()
+        elif self.decoded >= self._since:
+            self.caching, self._misses, self._since = True, 0, self.decoded
+        return out, failed
 
     def _trial_ends(self) -> None:
         hits = self.decoded - self._since - self._misses
@@ -313,7 +426,7 @@ class Decoder:
         self._pool = descriptor_pool.DescriptorPool()
         self._schemas: dict[tuple[str, str], MessageSchema] = {}
         #: compiled decoders by id of the DBC message (the databases keep the messages alive)
-        self._decoders: dict[int, Callable[[bytes], Any]] = {}
+        self._decoders: dict[int, tuple[Callable[[bytes], Any], DecodeColumn | None]] = {}
         self._tables: dict[str, dict[int, MessageCodec]] = {}
         self._database_names: dict[str, str] = {}
         self.stats = DecodeStats()
@@ -411,12 +524,19 @@ class Decoder:
             schema = self._schemas[key] = MessageSchema(message, name, self._pool)
         return schema
 
+    def _decoders_of(self, message: DbcMessage
+                     ) -> tuple[Callable[[bytes], Any], DecodeColumn | None]:
+        made = self._decoders.get(id(message))
+        if made is None:
+            made = self._decoders[id(message)] = compile_decoders(message) or (partial(
+                message.decode, decode_choices=False, allow_truncated=True), None)
+        return made
+
     def _decoder(self, message: DbcMessage) -> Callable[[bytes], Any]:
-        decode = self._decoders.get(id(message))
-        if decode is None:
-            decode = self._decoders[id(message)] = compile_decoder(message) or partial(
-                message.decode, decode_choices=False, allow_truncated=True)
-        return decode
+        return self._decoders_of(message)[0]
+
+    def _column_decoder(self, message: DbcMessage) -> DecodeColumn | None:
+        return self._decoders_of(message)[1]
 
     def _table(self, bus: str) -> dict[int, MessageCodec]:
         table: dict[int, MessageCodec] = {}
@@ -426,7 +546,8 @@ class Decoder:
                 key = frame_key(message.frame_id, message.is_extended_frame)
                 if key not in table:
                     table[key] = MessageCodec(message, f, partial(self._schema, f, message), bus,
-                                              partial(self._decoder, message))
+                                              partial(self._decoder, message),
+                                              partial(self._column_decoder, message))
         self._tables[bus] = table
         return table
 
@@ -461,6 +582,127 @@ class Decoder:
             why = _UNKNOWN_ID
         self.undecoded, self.why = frame, why
         return None
+
+    def decode_column(self, bus: str, key: int, datas: Sequence[bytes],
+                      flags: bytes | None = None) -> list[Decoded | None]:
+        """Decode a column of frames of one ``bus`` and frame ``key``
+        (:func:`~bridge.frame.frame_key`) in one step: their payloads ``datas`` and, one byte
+        per frame, their ``flags`` as a :class:`~bridge.block.FrameBlock` has them (None: none
+        set, and the key alone tells whether an id is extended). What :meth:`decode` on each of
+        those frames, in order, returns, and the same statistics (:attr:`stats`, every codec's
+        counts) afterwards. Unlike :meth:`decode`, it leaves :attr:`undecoded` and :attr:`why`
+        as they were: there is no frame to name (:meth:`outcome` sorts frames fed by hand)."""
+        results, errors = self._column(bus, key, datas, flags, flags is None)
+        for stats_key, (_, text) in errors.items():
+            self.stats.last_error[stats_key] = text
+        return results
+
+    def decode_block(self, block: FrameBlock) -> list[Decoded | None]:
+        """Decode every frame of ``block``, a column per ``(bus, key)``
+        (:meth:`decode_column`): one entry per row, in row order, what :meth:`decode` of the
+        row's frame returns, with the same statistics afterwards as decoding the frames one by
+        one in order. Like :meth:`decode_column`, it leaves :attr:`undecoded` and :attr:`why`."""
+        n = len(block)
+        out: list[Decoded | None] = [None] * n
+        if not n:
+            return out
+        payloads = block.payloads()
+        # (an FD or BRS bit alone changes nothing in decoding)
+        flags = block.flags if block.all_flags() & (ERROR | REMOTE | EXTENDED) else None
+        buses = block.buses
+        last: dict[tuple[str, int], tuple[int, str]] = {}
+        for (bus_index, key), rows in block.groups().items():
+            if len(rows) == n:
+                datas, these = payloads, flags
+            else:
+                datas = list(map(payloads.__getitem__, rows))
+                these = None if flags is None else bytes(map(flags.__getitem__, rows))
+            results, errors = self._column(buses[bus_index], key, datas, these, False)
+            if len(rows) == n:
+                out = results
+            else:
+                deque(map(out.__setitem__, rows, results), 0)  # out[rows] = results, in C
+            for stats_key, (at, text) in errors.items():
+                row = rows[at]
+                if stats_key not in last or last[stats_key][0] < row:
+                    last[stats_key] = (row, text)
+        for stats_key, (_, text) in last.items():
+            self.stats.last_error[stats_key] = text
+        return out
+
+    def _column(self, bus: str, key: int, datas: Sequence[bytes], flags: bytes | None,
+                keyed: bool) -> tuple[list[Decoded | None],
+                                      dict[tuple[str, int], tuple[int, str]]]:
+        """:meth:`decode_column`'s results, and per ``(bus, id)`` of a decode error the
+        position of the last one in the column and its text (for the caller to store).
+        ``flags`` None: no flag set, and the key tells whether the id is extended if ``keyed``,
+        else it is not."""
+        table = self._tables.get(bus)
+        if table is None:
+            table = self._table(bus)
+        n = len(datas)
+        stats = self.stats
+        stats.frames[bus] += n
+        codec = table.get(key)
+        errors: dict[tuple[str, int], tuple[int, str]] = {}
+        every = 0
+        if flags is not None:
+            for f in set(flags):
+                every |= f
+        if not every & (ERROR | REMOTE) and (
+                not every & EXTENDED or flags is None or _EXTENDED_ONLY[0] not in
+                flags.translate(_EXTENDED_ONLY)):
+            # No error or remote frame, and all extended or none: one id (without flags, the
+            # key alone tells whether it is extended)
+            ident = key & ~EXTENDED_KEY if (keyed and flags is None) or every & EXTENDED else key
+            if codec is None:
+                stats.unknown[(bus, ident)] += n
+                return [None] * n, errors
+            return self._decode_codec(codec, bus, datas, None, ident, errors), errors
+        # Row by row what decode() sorts by the flags; the rest decoded in one step.
+        rows: list[int] = []
+        results: list[Decoded | None] = [None] * n
+        assert flags is not None
+        for i, f in enumerate(flags):
+            ident = key ^ EXTENDED_KEY if f & EXTENDED else key
+            if codec is not None and not f & (ERROR | REMOTE):
+                rows.append(i)
+            elif f & ERROR:
+                stats.error_frames[bus] += 1
+            elif f & REMOTE:
+                stats.remote_frames[bus] += 1
+            else:
+                stats.unknown[(bus, ident)] += 1
+        if rows and codec is not None:
+            ids = [key ^ EXTENDED_KEY if flags[i] & EXTENDED else key for i in rows]
+            decoded = self._decode_codec(codec, bus, list(map(datas.__getitem__, rows)), ids,
+                                         0, errors)
+            for i, result in zip(rows, decoded, strict=True):
+                results[i] = result
+            # positions of errors are within ``rows``: make them the column's
+            for stats_key, (at, text) in list(errors.items()):
+                errors[stats_key] = (rows[at], text)
+        return results, errors
+
+    def _decode_codec(self, codec: MessageCodec, bus: str, datas: Sequence[bytes],
+                      ids: list[int] | None, ident: int,
+                      errors: dict[tuple[str, int], tuple[int, str]]) -> list[Decoded | None]:
+        """``datas`` decoded by ``codec``; a decode error counted per ``(bus, id)`` (``ids``
+        per row, else ``ident`` for all) and its last position and text put in ``errors``."""
+        results, failed = codec._decode_many(datas)
+        if not failed:
+            return results  # type: ignore[return-value]  # no exception in it
+        out: list[Decoded | None] = []
+        stats = self.stats
+        for at, result in enumerate(results):
+            if type(result) is Decoded:
+                out.append(result)
+                continue
+            stats_key = (bus, ident if ids is None else ids[at])
+            stats.errors[stats_key] += 1
+            errors[stats_key] = (at, f"{codec.message.name}: {type(result).__name__}: {result}")
+            out.append(None)
+        return out
 
     def outcome(self, frame: Frame, decoded: Decoded | None) -> Outcome:
         """What :meth:`decode` made of ``frame``, given what it returned: for the latest frame
