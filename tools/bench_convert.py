@@ -17,9 +17,9 @@ as ASC (the same frames, python-can's ``ASCWriter``):
 - the naive converter, raw + decoded: LogReader → cantools ``decode_message`` →
   ``mcap_protobuf.writer.Writer`` (zstd), writing raw frames on the same topics
   (``/can/<bus>/frames``, one :class:`bridge.pb.can_frame_pb2.CanFrame` a frame, as tankviz did
-  before it wrote them in blocks, :mod:`bridge.sinks.raw`) and decoded (``/can/<bus>/<Message>``, the very
-  protobuf types tankviz generates, from :class:`bridge.decode.proto_schema.MessageSchema`)
-  topics;
+  before it wrote them in blocks, :mod:`bridge.sinks.raw`) and decoded messages
+  (``/can/<bus>/<Message>``, the very protobuf types tankviz generates, from
+  :class:`bridge.decode.proto_schema.MessageSchema`);
 - the naive converter with the scene: the same, plus :func:`naive_scene` at 20 Hz of log time,
   the ecocar categories drawn the straightforward way into ``foxglove.SceneUpdate`` on tankviz's
   topics ``/scene/{ego,lanes,radar,camera,tracks,lead}`` (ego box; each valid camera lane as a

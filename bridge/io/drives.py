@@ -2,11 +2,12 @@
 
 A drive that ``tankviz convert``, ``live`` or ``simulate`` recorded keeps every raw frame on
 ``/can/<bus>/frames`` (in blocks, ``tankviz.CanFrameBlock``: :mod:`bridge.sinks.raw`; drives
-recorded before blocks, one ``tankviz.CanFrame`` a message), its databases and profile as attachments at the
-start of the file, and the ``tankviz`` metadata record at its end. With them the whole pipeline
-can run again on the drive (``tankviz convert DRIVE.mcap``, ``tankviz replay DRIVE.mcap
---profile P``). This module only reads: it gives frames, raw attachment bytes and the metadata
-values; loading databases and a profile from them is the pipeline's and the apps' business.
+recorded before blocks, one ``tankviz.CanFrame`` a message), its databases and profile as
+attachments at the start of the file, and the ``tankviz`` metadata record at its end. With them
+the whole pipeline can run again on the drive (``tankviz convert DRIVE.mcap``, ``tankviz replay
+DRIVE.mcap --profile P``). This module only reads: it gives frames, raw attachment bytes and the
+metadata values; loading databases and a profile from them is the pipeline's and the apps'
+business.
 
 - :func:`is_drive`: a path with the ``.mcap`` suffix is read as a drive, not as a CAN log.
 - :func:`read_drive`: the drive's attachments (name → bytes, in file order), its ``tankviz``

@@ -178,7 +178,8 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
         done, total = reading.progress()
         progress(frames, done / total if total else None)
 
-    frames = drive.run(reading, progress=report_progress if progress else None, every=every)
+    frames = drive.run_blocks(reading.blocks(), progress=report_progress if progress else None,
+                              every=every)
     if progress is not None:
         progress(frames, 1.0)
     issues = [i for s in sources for i in s.issues]

@@ -8,8 +8,9 @@ layout checks collect what a profile produces. None of them wires stages by hand
   databases) and the profile, every name in the profile checked against the databases.
 - :class:`Drive`: the health monitor and the :class:`~bridge.pipeline.pipeline.Pipeline` of one
   drive, its sinks in the order they are added (add the live server first: viewers wait for a
-  scene, the recorder does not), :meth:`Drive.run` for frames, and :meth:`Drive.finish`, which
-  emits what is still due and finishes every sink.
+  scene, the recorder does not), :meth:`Drive.run` for frames (:meth:`Drive.run_blocks` for
+  frames in blocks, as convert reads them), and :meth:`Drive.finish`, which emits what is still
+  due and finishes every sink.
 - :meth:`Drive.attach` and :meth:`Drive.describe`: what makes a recorded drive self-contained:
   every database and the profile as attachments, and the ``tankviz`` metadata record (version,
   profile, databases with their SHA-256, bus → database map, the decoder's warnings
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from bridge import __version__
+from bridge.block import FrameBlock
 from bridge.decode.decoder import DatabaseFile, Decoder, load_database, parse_dbc_option
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
@@ -156,6 +158,24 @@ class Drive:
                 process(frame)
                 count += 1
                 if progress is not None and count % every == 0:
+                    progress(count)
+        finally:
+            if collecting:
+                gc.enable()
+        return count
+
+    def run_blocks(self, blocks: Iterable[FrameBlock], *,
+                   progress: Callable[[int], None] | None = None, every: int = 16384) -> int:
+        """:meth:`run` for frames in blocks (offline: :meth:`Pipeline.process_block`)."""
+        process = self.pipeline.process_block
+        count = 0
+        collecting = gc.isenabled()
+        gc.disable()  # as in run
+        try:
+            for block in blocks:
+                process(block)
+                before, count = count, count + len(block)
+                if progress is not None and count // every != before // every:
                     progress(count)
         finally:
             if collecting:

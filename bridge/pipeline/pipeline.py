@@ -25,6 +25,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from bridge.block import FrameBlock
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec
 from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
@@ -80,6 +81,19 @@ class Pipeline:
 
     def process(self, frame: Frame) -> None:
         """One frame through every stage."""
+        self._process(frame, self.decoder.decode(frame))
+
+    def process_block(self, block: FrameBlock) -> None:
+        """A block of frames through every stage, as :meth:`process` of each in turn (the same
+        messages to the sinks): each (bus, id) column of the block decoded in one step
+        (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
+        the decoder's counts are read only when a drive is described), the rest frame by frame
+        (ticks, clock steps and health fall between any two frames)."""
+        for frame, decoded in zip(block, self.decoder.decode_block(block), strict=True):
+            self._process(frame, decoded)
+
+    def _process(self, frame: Frame, decoded: Decoded | None) -> None:
+        """One frame, decoded, through the other stages."""
         t = frame.timestamp_ns
         step = self.clock.check(t)
         if step is not None:
@@ -88,7 +102,6 @@ class Pipeline:
             self.advance(t)
         if self.sinks:
             self._blocker.add(frame)
-        decoded = self.decoder.decode(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
         if decoded is not None:
