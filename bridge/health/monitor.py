@@ -49,15 +49,19 @@ verdict for the drive's metadata.
 
 What it counts per bus and per family, and the figures of ``/health`` made of the counts, are
 :mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
-:mod:`bridge.health.sight` (:func:`in_fov` and :func:`associate` are importable from here too).
+:mod:`bridge.health.sight`.
 
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations,
 and the frame's bits counted exactly only for a sample); it takes a frame that did not decode as
 the decoder sorted it (:meth:`bridge.decode.decoder.Decoder.outcome`: an unknown id, a decode
-error, an error frame or a remote frame), without sorting it again. Object checks run at scene ticks
-(:meth:`HealthMonitor.on_world`).
+error, an error frame or a remote frame), without sorting it again (frames decoded in blocks,
+which the decoder did not just decode, it sorts from its tables: the same outcome). Counting a
+block's frames in bulk was measured no cheaper (a kind's bits depend on each exact count before
+them, :class:`~bridge.health.wire.FrameKind`). Object checks run at scene ticks
+(:meth:`HealthMonitor.on_world`): who sees a moving object in whose field of view is asked once
+per object and sensor while the object stays in the world (observations are values).
 :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene overlay
-(:mod:`bridge.health.overlay`).
+(:mod:`bridge.health.overlay`), made once per check (only a check or a clock step changes them).
 """
 
 from __future__ import annotations
@@ -87,7 +91,7 @@ from bridge.health.counts import (
     seconds,
 )
 from bridge.health.receive import ReceiveWatch
-from bridge.health.sight import associate, has_fov, in_fov
+from bridge.health.sight import FieldOfView, associate, has_fov
 from bridge.health.wire import MAX_KINDS, FrameKind
 from bridge.io.buses import ReceiveCounts
 from bridge.pb import health_pb2
@@ -95,6 +99,7 @@ from bridge.profile.model import ObjectClass, Profile
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
+from bridge.world.observe import ObjectObservation
 
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
 # what the decoder made of a frame that did not decode (module globals: the per-frame path)
@@ -146,6 +151,22 @@ class HealthMonitor:
             for name in family.messages:
                 self._by_message.setdefault(name, []).append(family)
         self._pairs = self._make_pairs()
+        #: the families whose blindness is checked (detections of a sensor with a field of view)
+        self._blind = {id(f) for f in self.families if self._blind_checked(f)}
+        #: per blindness-checked family: its sensor's field of view, the groups of the other
+        #: sensors' detections (in the order of the families), and whether each object of
+        #: theirs it was last asked about is a moving one in its view (by id, with the object:
+        #: observations are values, so one is never asked twice while it stays in the world)
+        self._witnesses: list[tuple[FamilyCounts, FieldOfView, list[str],
+                                    dict[int, tuple[ObjectObservation, bool]]]] = [
+            (family, FieldOfView(family.sensor),
+             [other.group for other in self.families if self._detections(other)
+              and other.sensor is not None and other.sensor.name != family.sensor.name
+              and other.group is not None], {})
+            for family in self.families
+            if family.sensor is not None and self._detections(family) and has_fov(family.sensor)]
+        #: the active alarms' infos, oldest first, until the next check (None: to be made)
+        self._active: list[AlarmInfo] | None = None
         self._bias: dict[str, deque[tuple[int, float, float]]] = {
             p.name: deque() for p in self._pairs}
         self._bias_means: dict[str, tuple[int, float, float]] = {
@@ -203,6 +224,7 @@ class HealthMonitor:
         return group is not None and not group.is_tracks
 
     def _blind_checked(self, family: FamilyCounts) -> bool:
+        """A detection family of a sensor with a field of view (its ``no_objects`` alarm)."""
         return (self._detections(family) and family.sensor is not None
                 and has_fov(family.sensor))
 
@@ -296,8 +318,6 @@ class HealthMonitor:
             family.last_ns = t
             family.frames += 1
 
-    # --- scene ticks ----------------------------------------------------------------------
-
     def on_world(self, t_ns: int, world: World, lanes: LaneModel | None = None) -> None:
         """Look at the world of a scene tick (after :meth:`World.expire`): valid objects, who
         sees what in whose field of view, radar-camera offsets, camera lanes. Without ``lanes``
@@ -329,19 +349,27 @@ class HealthMonitor:
             for family in self.families:
                 if family.kind == "lanes":
                     family.valid_objects = count
-        seers = [f for f in self.families if self._detections(f)]
-        for family in seers:
-            sensor = family.sensor
-            if sensor is None or not has_fov(sensor):
-                continue
-            for other in seers:
-                if other.sensor is None or other.sensor.name == sensor.name:
+        stationary = ObjectClass.STATIONARY
+        for family, view, groups, asked in self._witnesses:
+            contains = view.contains
+            now: dict[int, tuple[ObjectObservation, bool]] = {}
+            for group in groups:
+                for o in objects.get(group, {}).values():
+                    known = asked.get(id(o))
+                    if known is not None and known[0] is o:
+                        moving_in_view = known[1]
+                    else:
+                        moving_in_view = (o.object_class is not stationary
+                                          and contains(o.x, o.y))
+                    now[id(o)] = (o, moving_in_view)
+                    if moving_in_view:
+                        family.witnessed_ns = t_ns
+                        break
+                else:
                     continue
-                assert other.group is not None
-                if any(o.object_class is not ObjectClass.STATIONARY and in_fov(sensor, o.x, o.y)
-                       for o in objects.get(other.group, {}).values()):
-                    family.witnessed_ns = t_ns
-                    break
+                break
+            asked.clear()
+            asked.update(now)
         for pair in self._pairs:
             assert pair.a.group is not None and pair.b.group is not None
             matches = self._bias[pair.name]
@@ -390,6 +418,7 @@ class HealthMonitor:
         def moved(t: int) -> int:
             return t if t == NEVER else t + shift_ns
 
+        self._active = None
         if self.next_tick_ns != NEVER_NS:
             self.next_tick_ns = t_ns // self.period_ns * self.period_ns  # (made at once)
         if self._next_publish_ns is not None:
@@ -422,6 +451,7 @@ class HealthMonitor:
         if self.first_ns is None:
             self.first_ns = t_ns
         self.last_tick_ns = t_ns
+        self._active = None
         self._snapshot(t_ns)
         self._learn(t_ns)
         out: list[TopicMessage] = []
@@ -485,9 +515,12 @@ class HealthMonitor:
                 for alarm, event, t, message in self.events]
 
     def active_alarms(self) -> list[AlarmInfo]:
-        """Every active alarm, oldest first."""
-        active = [a for a in self._alarms.values() if a.active]
-        return [a.info() for a in sorted(active, key=lambda a: (a.since_ns or 0, a.id))]
+        """Every active alarm, oldest first (made once per check: only a check changes them)."""
+        if self._active is None:
+            active = [a for a in self._alarms.values() if a.active]
+            self._active = [a.info() for a in sorted(active, key=lambda a: (a.since_ns or 0,
+                                                                              a.id))]
+        return list(self._active)
 
     def alarm_ids(self) -> list[str]:
         """Every alarm the monitor checks (so far: bus alarms appear with their bus)."""
@@ -600,7 +633,7 @@ class HealthMonitor:
                            f"{rate / family.expected_hz:.0%} of the expected "
                            f"{family.expected_hz:.0f}/s")
             nothing_since = max(family.last_valid_ns, family.resumed_ns)
-            if (self._blind_checked(family) and self._world_ns is not None
+            if (id(family) in self._blind and self._world_ns is not None
                     and t_ns - nothing_since > family.gap_ns
                     and t_ns - family.witnessed_ns < self.window_ns):
                 yield (alarm_id(AlarmKind.NO_OBJECTS, subject),

@@ -10,19 +10,22 @@ Both take the active alarms as :class:`~bridge.health.alarms.AlarmInfo` (what
   range and an azimuth) as an outline on the ground (entity ``fov-<sensor>``): thin and dim grey
   when healthy, thick, red and labelled with the alarm ids when an active alarm concerns the
   sensor (:attr:`~bridge.health.alarms.AlarmInfo.sensors`). An outline is made once per sensor,
-  state and number of arc points: the scene draws it at every tick.
+  state and number of arc points, and a profile's entities once per set of alarmed sensors
+  (with their alarm ids), lifetime and number of arc points: the scene draws them at every
+  tick, each a copy stamped with the tick's time.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.Point3_pb2 import Point3
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
+from bridge.frame import timestamp
 from bridge.health.alarms import AlarmInfo
 from bridge.profile.model import Profile, Sensor
 from bridge.scene.entities import RGBA, color, entity, pose, text
@@ -78,12 +81,39 @@ def fov_entities(profile: Profile, alarms: Sequence[AlarmInfo], t_ns: int, *,
     for a in alarms:
         for name in a.sensors:
             alarmed.setdefault(name, []).append(a.id)
+    key = (id(profile), tuple((name, tuple(ids)) for name, ids in alarmed.items()), lifetime_s,
+           arc_points)
+    made = _outlines.get(key)
+    if made is None or made[0] is not profile:
+        if len(_outlines) >= _OUTLINE_SETS:
+            _outlines.clear()
+        made = _outlines[key] = (profile, _fov_templates(profile, alarmed, lifetime_s,
+                                                         arc_points))
+    stamp = timestamp(t_ns)
+    out = []
+    for template in made[1]:
+        e = SceneEntity()
+        e.CopyFrom(template)
+        e.timestamp.CopyFrom(stamp)
+        out.append(e)
+    return out
+
+
+#: the outlines of every profile and state seen lately: (the profile, its entities without a
+#: time) by (the profile's id, the alarm ids of each alarmed sensor, lifetime, arc points)
+_outlines: dict[tuple[object, ...], tuple[Profile, list[SceneEntity]]] = {}
+_OUTLINE_SETS = 64  # then all are forgotten at once
+
+
+def _fov_templates(profile: Profile, alarmed: Mapping[str, Sequence[str]], lifetime_s: float,
+                   arc_points: int) -> list[SceneEntity]:
+    """The entities of :func:`fov_entities` at time 0 (the timestamp set, empty)."""
     out = []
     for sensor in profile.sensors.values():
         if sensor.fov_range is None or sensor.fov_azimuth_deg is None:
             continue
         ids = alarmed.get(sensor.name)
-        e = entity(t_ns, f"fov-{sensor.name}", lifetime_s)
+        e = entity(0, f"fov-{sensor.name}", lifetime_s)
         e.lines.add().CopyFrom(_fov_outline(sensor, bool(ids), arc_points))
         if ids:
             yaw = math.radians(sensor.mount.yaw_deg)

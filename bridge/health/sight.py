@@ -1,6 +1,7 @@
-"""Who sees what: a sensor's field of view (:func:`in_fov`), and the objects two sensors both see
-(:func:`associate`), the evidence of the health monitor's misalignment and blindness checks
-(:mod:`bridge.health.monitor`). Points are in the vehicle frame (x forward, y left, metres)."""
+"""Who sees what: a sensor's field of view (:func:`in_fov`; :class:`FieldOfView` asks it of many
+points), and the objects two sensors both see (:func:`associate`), the evidence of the health
+monitor's misalignment and blindness checks (:mod:`bridge.health.monitor`). Points are in the
+vehicle frame (x forward, y left, metres)."""
 
 from __future__ import annotations
 
@@ -12,17 +13,36 @@ from bridge.profile.model import Sensor
 from bridge.world.observe import ObjectObservation
 
 
+class FieldOfView:
+    """A sensor's field of view, its mount's turn worked out once: :meth:`contains` is
+    :func:`in_fov` (the same arithmetic, so the same answer to the last bit) for the many points
+    a scene tick asks about."""
+
+    __slots__ = ("azimuth_deg", "c", "mx", "my", "range", "s", "turned")
+
+    def __init__(self, sensor: Sensor) -> None:
+        self.mx, self.my = sensor.mount.x, sensor.mount.y
+        self.turned = bool(sensor.mount.yaw_deg)
+        yaw = math.radians(sensor.mount.yaw_deg) if self.turned else 0.0
+        self.c, self.s = math.cos(yaw), math.sin(yaw)
+        self.range = sensor.fov_range
+        self.azimuth_deg = sensor.fov_azimuth_deg
+
+    def contains(self, x: float, y: float) -> bool:
+        """Whether a vehicle-frame point is inside the field of view (True if unknown)."""
+        dx, dy = x - self.mx, y - self.my
+        if self.turned:
+            c, s = self.c, self.s
+            dx, dy = c * dx + s * dy, -s * dx + c * dy
+        if self.range is not None and math.hypot(dx, dy) > self.range:
+            return False
+        return not (self.azimuth_deg is not None
+                    and abs(math.degrees(math.atan2(dy, dx))) > self.azimuth_deg)
+
+
 def in_fov(sensor: Sensor, x: float, y: float) -> bool:
     """Whether a vehicle-frame point is inside the sensor's field of view (True if unknown)."""
-    dx, dy = x - sensor.mount.x, y - sensor.mount.y
-    if sensor.mount.yaw_deg:
-        yaw = math.radians(sensor.mount.yaw_deg)
-        c, s = math.cos(yaw), math.sin(yaw)
-        dx, dy = c * dx + s * dy, -s * dx + c * dy
-    if sensor.fov_range is not None and math.hypot(dx, dy) > sensor.fov_range:
-        return False
-    return not (sensor.fov_azimuth_deg is not None
-                and abs(math.degrees(math.atan2(dy, dx))) > sensor.fov_azimuth_deg)
+    return FieldOfView(sensor).contains(x, y)
 
 
 def has_fov(sensor: Sensor) -> bool:
@@ -41,13 +61,16 @@ def associate(a_objects: Iterable[ObjectObservation], b_objects: Iterable[Object
     a's mount, left positive.
     """
 
+    a_view = FieldOfView(a_sensor) if a_sensor is not None else None
+    b_view = FieldOfView(b_sensor) if b_sensor is not None else None
+
     def usable(objects: Iterable[ObjectObservation]) -> list[tuple[float, float]]:
         out = []
         for o in objects:
             dt = (t_ns - o.t_ns) / NS
             x, y = o.x + (o.vx or 0.0) * dt, o.y + (o.vy or 0.0) * dt
-            if ((a_sensor is None or in_fov(a_sensor, x, y))
-                    and (b_sensor is None or in_fov(b_sensor, x, y))
+            if ((a_view is None or a_view.contains(x, y))
+                    and (b_view is None or b_view.contains(x, y))
                     and math.hypot(x - mx, y - my) >= min_range_m):
                 out.append((x, y))
         return out
