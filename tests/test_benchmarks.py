@@ -192,3 +192,25 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
     # opcode (1) + record length (8) + channel id (2) + array length (4), then (time, offset)s
     assert tool("bench_convert").index_bytes(drive) == 15 * len(indexes) + 16 * report.messages
     assert sum(len(r.records) for r in indexes) == report.messages
+
+
+def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
+                                                                shared_dbc: Path) -> None:
+    """``--before REV``: the same tools measure a worktree of REV too; the table gets a before
+    column (here REV is this commit: its figures are ratios of the same kind)."""
+    report = tmp_path / "report.md"
+    run = subprocess.run(
+        [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report), "--before", "HEAD",
+         "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
+         "--workdir", str(tmp_path / "bench"),
+         "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
+        capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    text = report.read_text()
+    assert "| measure (same run, same machine) | before | now | goal | ok |" in text
+    rows = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
+            if line.startswith("| convert raw + decoded, tankviz / naive (BLF")]
+    (row,) = rows
+    assert re.fullmatch(r"\d+\.\d\dx.*", row[1]) and re.fullmatch(r"\d+\.\d\dx.*", row[2]), row
+    assert "- **before:** HEAD" in text
+    assert "## Details: tools/bench_convert.py on the code before" in text

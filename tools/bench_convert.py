@@ -1081,19 +1081,25 @@ def startup_seconds() -> float:
 
 
 def topic_counts(path: Path) -> dict[str, int]:
-    """Messages per topic, but frames on the raw-frame topics (tankviz writes them in blocks)."""
+    """Messages per topic, but frames on the raw-frame topics (tankviz writes them in blocks;
+    a tankviz from before blocks, measured by ``bench_report.py --before``, one a message)."""
     from mcap.reader import make_reader
 
-    from bridge.io.drives import raw_frame_counts
     from bridge.topics import frames_topic
 
+    try:
+        from bridge.io.drives import raw_frame_counts
+        blocks = True
+    except ImportError:  # before blocks: a message per frame
+        blocks = False
     with path.open("rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None, f"{path}: no summary"
         counts = {summary.channels[cid].topic: n
                   for cid, n in summary.statistics.channel_message_counts.items()}
-        counts.update({frames_topic(bus): n for bus, n in raw_frame_counts(reader).items()})
+        if blocks:
+            counts.update({frames_topic(bus): n for bus, n in raw_frame_counts(reader).items()})
     return counts
 
 

@@ -392,16 +392,30 @@ class DriveAnalysis:
 
 
 def summary_frame_counts(files: Sequence[Path]) -> dict[str, int]:
+    """Frames per bus the drive's parts hold (a tankviz from before raw frames were written in
+    blocks, as ``bench_report.py --before`` measures it: one frame a message)."""
     from mcap.reader import make_reader
 
-    from bridge.io.drives import raw_frame_counts
-
+    try:
+        from bridge.io.drives import raw_frame_counts
+    except ImportError:
+        raw_frame_counts = _message_counts
     counts: dict[str, int] = {}
     for path in files:
         with path.open("rb") as f:
             for bus, n in raw_frame_counts(make_reader(f)).items():
                 counts[bus] = counts.get(bus, 0) + n
     return counts
+
+
+def _message_counts(reader: Any) -> dict[str, int]:
+    summary = reader.get_summary()
+    out: dict[str, int] = {}
+    for channel_id, n in summary.statistics.channel_message_counts.items():
+        topic = summary.channels[channel_id].topic
+        if topic.startswith("/can/") and topic.endswith("/frames"):
+            out[topic.split("/")[2]] = out.get(topic.split("/")[2], 0) + n
+    return out
 
 
 def analyse(files: Sequence[Path], received: list[dict[int, tuple[int, int]]],

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Issue #15's table as Markdown: run the benchmarks, write one report a reader can compare.
+"""Issues #15 and #26's table as Markdown: run the benchmarks, write one comparable report.
 
 Runs ``tools/bench_convert.py`` (in a subprocess, with every argument this script does not know
 passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs) and, with
@@ -15,23 +15,34 @@ passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs
   bench_live row that has a target plus its CPU references and garbage-collection pauses;
 - bench_live's whole table (with ``--live``) and bench_convert's details, verbatim.
 
+With ``--before REV`` the same benchmarks also measure the code at git revision REV, checked out
+into a temporary worktree (these tools, their fixed references, measure both: the worktree's
+``bridge`` comes first on ``PYTHONPATH``), and the table gets a ``before`` column; with
+``--scene``, ``tools/bench_scene.py --ref REV`` adds the scene tick of both (issue #26's table:
+``--before a6fe390``, the code before it).
+
 The figures are ratios measured in one run (on CPU time unless bench_convert's ``--clock wall``
 is passed on); the load average says how noisy that run was.
 
     python tools/bench_report.py --out before.md --quick
     python tools/bench_report.py --out after.md --live
+    python tools/bench_report.py --out issue26.md --before a6fe390 --scene --live --quick \\
+        --clock cpu
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -89,23 +100,45 @@ def _cell(text: str) -> str:
 
 
 def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | None,
-             live_text: str | None, header: dict[str, str]) -> str:
-    """The report: header, the table, the live table and the details."""
-    out = ["# tankviz speed and size (issue #15)", ""]
+             live_text: str | None, header: dict[str, str],
+             before: dict[str, Any] | None = None,
+             live_before: list[tuple[str, str, str, str]] | None = None,
+             scene: list[tuple[str, str, str, str]] | None = None) -> str:
+    """The report: header, the table (with a ``before`` column when the code at ``--before``
+    was measured too), the live table and the details."""
+    out = ["# tankviz speed and size", ""]
     out += [f"- **{k}:** {v}" for k, v in header.items()]
     out += ["", "Every figure is a ratio against reference code run in the same run, "
-            "interleaved, best of the runs.", "",
-            "| measure (same run, same machine) | now | goal | ok |", "|---|---|---|---|"]
+            "interleaved, best of the runs.", ""]
+    was: dict[str, str] = {}
+    if before is not None:
+        was = {r["measure"]: r["now"] for r in before["rows"]}
+        for metric, value, _, _ in live_before or []:
+            was[f"live (bench_live --quick): {metric.strip()}"] = value
+        out += ["| measure (same run, same machine) | before | now | goal | ok |",
+                "|---|---|---|---|---|"]
+    else:
+        out += ["| measure (same run, same machine) | now | goal | ok |", "|---|---|---|---|"]
+
+    def line(measure: str, now: str, goal: str, ok: str) -> str:
+        cells = [measure, *([was.get(measure, "")] if before is not None else []), now, goal]
+        return "| " + " | ".join(_cell(c) for c in cells) + f" | {ok} |"
+
     for r in convert["rows"]:
         ok = "" if r["ok"] is None else "ok" if r["ok"] else "**missed**"
-        out.append(f"| {_cell(r['measure'])} | {_cell(r['now'])} | {_cell(r['goal'])} | {ok} |")
+        out.append(line(r["measure"], r["now"], r["goal"], ok))
+    for measure, now, goal, ok in scene or []:
+        out.append(line(measure, now, goal, ok))
     if live is not None:
         for metric, value, target, ok in live:
             name = metric.strip()
             if target or any(name.startswith(e) for e in LIVE_EXTRA):
                 ok_cell = "ok" if ok == "ok" else "**missed**" if ok else ""
-                out.append(f"| live (bench_live --quick): {_cell(name)} | {_cell(value)} | "
-                           f"{_cell(target)} | {ok_cell} |")
+                out.append(line(f"live (bench_live --quick): {name}", value, target, ok_cell))
+        cpu = _live_ratio(live_before, live) if live_before is not None else None
+        if cpu is not None:
+            out.append(line("live bridge CPU, now / before", f"{cpu:.2f}x", "≤ 0.7x",
+                            "ok" if cpu <= 0.7 else "**missed**"))
     if live is not None:
         out += ["", "## Live: tools/bench_live.py --quick", "",
                 "| metric | value | target | ok? |", "|---|---|---|---|"]
@@ -115,7 +148,84 @@ def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | No
                     live_text.rstrip(), "```"]
     out += ["", "## Details: tools/bench_convert.py", "", "```text",
             *convert["details"], "```", ""]
+    if before is not None:
+        out += ["## Details: tools/bench_convert.py on the code before", "", "```text",
+                *before["details"], "```", ""]
     return "\n".join(out)
+
+
+#: bench_live's row of the bridge's own CPU
+LIVE_CPU = "bridge CPU (process - senders - harness)"
+
+
+def _live_ratio(before: list[tuple[str, str, str, str]],
+                now: list[tuple[str, str, str, str]]) -> float | None:
+    """The bridge's CPU now / before, from two bench_live tables."""
+    def percent(rows: list[tuple[str, str, str, str]]) -> float | None:
+        for metric, value, _, _ in rows:
+            if metric.strip() == LIVE_CPU:
+                try:
+                    return float(value.split("%")[0])
+                except ValueError:
+                    return None
+        return None
+
+    a, b = percent(before), percent(now)
+    return b / a if a and b is not None else None
+
+
+def run_convert(convert_args: list[str], env: dict[str, str] | None = None
+                ) -> dict[str, Any] | None:
+    """bench_convert's JSON result (None when it failed)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        result = Path(tmp) / "convert.json"
+        command = [sys.executable, str(TOOLS / "bench_convert.py"), *convert_args,
+                   "--json", str(result)]
+        proc = subprocess.run(command, env=env)
+        if proc.returncode != 0 or not result.is_file():
+            return None
+        data: dict[str, Any] = json.loads(result.read_text())
+        return data
+
+
+def run_live(env: dict[str, str] | None = None) -> tuple[list[tuple[str, str, str, str]], str]:
+    live_proc = subprocess.run([sys.executable, str(TOOLS / "bench_live.py"), "--quick"],
+                               capture_output=True, text=True, env=env)
+    print(live_proc.stdout, end="")
+    if live_proc.returncode != 0:
+        print(live_proc.stderr, file=sys.stderr, end="")
+    return live_table(live_proc.stdout), live_proc.stdout
+
+
+def run_scene(rev: str) -> list[tuple[str, str, str, str]]:
+    """bench_scene's ms per tick before (``rev``) and now, as table rows."""
+    proc = subprocess.run([sys.executable, str(TOOLS / "bench_scene.py"), "--ref", rev,
+                           "--clock", "cpu", "--repeat", "3", "--duration", "30"],
+                          capture_output=True, text=True)
+    print(proc.stdout, end="")
+    rows = []
+    for found in re.finditer(r"^(\w+)\s+\d+ ticks: reference ([\d.]+) ms/tick, current "
+                             r"([\d.]+) ms/tick, ratio [\d.]+; (.*)$", proc.stdout, re.M):
+        drive, old, new, same = found.groups()
+        share = float(new) / float(old)
+        rows.append((f"scene tick, {drive} (bench_scene, ms a tick; {same})",
+                     f"{new} ({share:.2f}x)", "≤ 0.5x",
+                     "ok" if share <= 0.5 and same == "same bytes" else "**missed**"))
+    return rows
+
+
+@contextlib.contextmanager
+def checkout(rev: str) -> Iterator[Path]:
+    """The code at ``rev`` in a temporary git worktree (removed after)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "before"
+        subprocess.run(["git", "-C", str(TOOLS.parent), "worktree", "add", "--detach", "-q",
+                        str(path), rev], check=True)
+        try:
+            yield path
+        finally:
+            subprocess.run(["git", "-C", str(TOOLS.parent), "worktree", "remove", "--force",
+                            str(path)], check=False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,37 +236,48 @@ def main(argv: list[str] | None = None) -> int:
                         help="the Markdown file to write (bench-report.md)")
     parser.add_argument("--live", action="store_true",
                         help="also run tools/bench_live.py --quick (about a minute)")
+    parser.add_argument("--before", metavar="REV",
+                        help="also measure the code at git revision REV: a before column")
+    parser.add_argument("--scene", action="store_true",
+                        help="with --before: tools/bench_scene.py --ref REV too")
     args, convert_args = parser.parse_known_args(argv)
     load_before = os.getloadavg()[0]
     started = datetime.datetime.now(datetime.timezone.utc)
-    with tempfile.TemporaryDirectory() as tmp:
-        result = Path(tmp) / "convert.json"
-        command = [sys.executable, str(TOOLS / "bench_convert.py"), *convert_args,
-                   "--json", str(result)]
-        proc = subprocess.run(command)
-        if proc.returncode != 0 or not result.is_file():
-            print(f"error: tools/bench_convert.py failed (status {proc.returncode})",
-                  file=sys.stderr)
+    before: dict[str, Any] | None = None
+    live_before: list[tuple[str, str, str, str]] | None = None
+    scene: list[tuple[str, str, str, str]] | None = None
+    with contextlib.ExitStack() as stack:
+        env: dict[str, str] | None = None
+        if args.before is not None:
+            old = stack.enter_context(checkout(args.before))
+            env = {**os.environ, "PYTHONPATH": str(old)}
+            before = run_convert(convert_args, env)
+            if before is None:
+                print(f"error: tools/bench_convert.py failed on {args.before}", file=sys.stderr)
+                return 1
+        convert = run_convert(convert_args)
+        if convert is None:
+            print("error: tools/bench_convert.py failed", file=sys.stderr)
             return 1
-        convert = json.loads(result.read_text())
-    live: list[tuple[str, str, str, str]] | None = None
-    live_text: str | None = None
-    commands = ["tools/bench_convert.py " + " ".join(convert_args)]
-    if args.live:
-        live_proc = subprocess.run([sys.executable, str(TOOLS / "bench_live.py"), "--quick"],
-                                   capture_output=True, text=True)
-        live_text = live_proc.stdout
-        print(live_text, end="")
-        if live_proc.returncode != 0:
-            print(live_proc.stderr, file=sys.stderr, end="")
-        live = live_table(live_text)
-        commands.append("tools/bench_live.py --quick")
+        live: list[tuple[str, str, str, str]] | None = None
+        live_text: str | None = None
+        commands = ["tools/bench_convert.py " + " ".join(convert_args)]
+        if args.live:
+            if env is not None:
+                live_before, _ = run_live(env)
+            live, live_text = run_live()
+            commands.append("tools/bench_live.py --quick")
+        if args.scene and args.before is not None:
+            scene = run_scene(args.before)
+            commands.append(f"tools/bench_scene.py --ref {args.before} --clock cpu")
     lo, hi = convert["load"]
     header = {
         "date": started.strftime("%Y-%m-%d %H:%M UTC"),
         "machine": f"{platform.node()}, {cpu_model()}, {os.cpu_count()} cores, "
                    f"Python {platform.python_version()} ({platform.machine()})",
         "git commit": git_commit(TOOLS.parent),
+        **({"before": f"{args.before} (measured in the same run, by the same tools)"}
+           if args.before else {}),
         "load average (1 min)": f"{load_before:.2f} before, {lo:.2f}..{hi:.2f} during the "
                                 f"convert runs, {os.getloadavg()[0]:.2f} after "
                                 f"({os.cpu_count()} cores)",
@@ -166,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{convert['frames'][2]:,} (real-format log)",
         "commands": "; ".join(f"`{c.strip()}`" for c in commands),
     }
-    args.out.write_text(markdown(convert, live, live_text, header))
+    args.out.write_text(markdown(convert, live, live_text, header, before, live_before, scene))
     print(f"wrote {args.out}")
     return 0
 
