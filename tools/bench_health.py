@@ -140,11 +140,17 @@ def reference_modules(ref: str, tag: str) -> tuple[types.ModuleType, types.Modul
     every module of its ``bridge/health`` package (the reference monitor counts with the
     reference's own counters and wire module, however the package was split then; each ``tag``
     is a copy of its own, so that no two reference monitors share the wire module's caches)."""
+    modules = reference_package(ref, f"_ref_health_{tag}")
+    return modules["wire"], modules["monitor"]
+
+
+def reference_package(ref: str, package: str) -> dict[str, types.ModuleType]:
+    """Every module of ``bridge/health`` at git revision ``ref``, imported as the package
+    ``package`` (rewritten to import each other), by module name."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
                               text=True).stdout
 
-    package = f"_ref_health_{tag}"
     names = [Path(p).stem for p in git("ls-tree", "--name-only", ref, "bridge/health/").split()
              if p.endswith(".py") and not p.endswith("__init__.py")]
     sys.modules[package] = types.ModuleType(package)
@@ -167,7 +173,9 @@ def reference_modules(ref: str, tag: str) -> tuple[types.ModuleType, types.Modul
         exec(compile(text, m.__file__, "exec"), m.__dict__)
         return m
 
-    return load("wire"), load("monitor")
+    for name in names:
+        load(name)
+    return modules
 
 
 @dataclass

@@ -45,6 +45,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench_health import reference_package  # noqa: E402
+
 from bridge.health import monitor as current_monitor  # noqa: E402
 from bridge.health import overlay as current_overlay  # noqa: E402
 from bridge.pipeline import perception as perception_module  # noqa: E402
@@ -58,37 +60,8 @@ DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
 
 def reference_health(ref: str) -> dict[str, types.ModuleType]:
     """Every module of ``bridge/health`` at git revision ``ref``, imported under other names
-    (rewritten to import each other), by module name."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
-                              text=True).stdout
-
-    package = "_ref_health_tick"
-    names = [Path(p).stem for p in git("ls-tree", "--name-only", ref, "bridge/health/").split()
-             if p.endswith(".py") and not p.endswith("__init__.py")]
-    sys.modules[package] = types.ModuleType(package)
-    sys.modules[package].__path__ = []  # a package: its modules are put in sys.modules below
-    modules: dict[str, types.ModuleType] = {}
-
-    def load(name: str) -> types.ModuleType:
-        if name in modules:
-            return modules[name]
-        text = git("show", f"{ref}:bridge/health/{name}.py")
-        for other in names:  # the package's own imports: the reference's modules, loaded first
-            if f"bridge.health.{other} import" in text or f"bridge.health import {other}" in text:
-                load(other)
-        text = text.replace("from bridge.health.", f"from {package}.").replace(
-            "from bridge.health import", f"from {package} import")
-        m = modules[name] = types.ModuleType(f"{package}.{name}")
-        m.__file__ = f"<{ref}:bridge/health/{name}.py>"
-        sys.modules[m.__name__] = m
-        setattr(sys.modules[package], name, m)
-        exec(compile(text, m.__file__, "exec"), m.__dict__)
-        return m
-
-    for name in names:
-        load(name)
-    return modules
+    (``tools/bench_health.py``'s loader), by module name."""
+    return reference_package(ref, "_ref_health_tick")
 
 
 def record(log: Path, profile: str, folder: Path) -> tuple[list[Call], dict[str, Any]]:
