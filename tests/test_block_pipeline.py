@@ -53,7 +53,8 @@ def in_blocks(frames: list[Frame], size: int) -> list[FrameBlock]:
 def assert_same_drive(stages: Callable[[], Stages], frames: list[Frame]) -> Topics:
     one_by_one = recorded(stages, lambda d: d.run(frames))
     for size in (1, 97, 4096):
-        assert recorded(stages, lambda d: d.run_blocks(in_blocks(frames, size))) == one_by_one, (
+        cut = in_blocks(frames, size)
+        assert recorded(stages, lambda d, cut=cut: d.run_blocks(cut)) == one_by_one, (
             f"blocks of {size}")
     return one_by_one[0]
 

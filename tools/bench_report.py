@@ -17,9 +17,9 @@ passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs
 
 With ``--before REV`` the same benchmarks also measure the code at git revision REV, checked out
 into a temporary worktree (these tools, their fixed references, measure both: the worktree's
-``bridge`` comes first on ``PYTHONPATH``), and the table gets a ``before`` column; with
-``--scene``, ``tools/bench_scene.py --ref REV`` adds the scene tick of both (issue #26's table:
-``--before a6fe390``, the code before it).
+``bridge`` comes first, on ``PYTHONPATH`` and as the working folder), and the table gets a
+``before`` column; with ``--scene``, ``tools/bench_scene.py --ref REV`` adds the scene tick of
+both (issue #26's table: ``--before a6fe390``, the code before it).
 
 The figures are ratios measured in one run (on CPU time unless bench_convert's ``--clock wall``
 is passed on); the load average says how noisy that run was.
@@ -174,23 +174,25 @@ def _live_ratio(before: list[tuple[str, str, str, str]],
     return b / a if a and b is not None else None
 
 
-def run_convert(convert_args: list[str], env: dict[str, str] | None = None
-                ) -> dict[str, Any] | None:
-    """bench_convert's JSON result (None when it failed)."""
+def run_convert(convert_args: list[str], env: dict[str, str] | None = None,
+                cwd: Path | None = None) -> dict[str, Any] | None:
+    """bench_convert's JSON result (None when it failed). ``env`` and ``cwd``: those of the
+    code measured (``python -m bridge`` takes the package of the working folder first)."""
     with tempfile.TemporaryDirectory() as tmp:
         result = Path(tmp) / "convert.json"
         command = [sys.executable, str(TOOLS / "bench_convert.py"), *convert_args,
                    "--json", str(result)]
-        proc = subprocess.run(command, env=env)
+        proc = subprocess.run(command, env=env, cwd=cwd)
         if proc.returncode != 0 or not result.is_file():
             return None
         data: dict[str, Any] = json.loads(result.read_text())
         return data
 
 
-def run_live(env: dict[str, str] | None = None) -> tuple[list[tuple[str, str, str, str]], str]:
+def run_live(env: dict[str, str] | None = None, cwd: Path | None = None
+             ) -> tuple[list[tuple[str, str, str, str]], str]:
     live_proc = subprocess.run([sys.executable, str(TOOLS / "bench_live.py"), "--quick"],
-                               capture_output=True, text=True, env=env)
+                               capture_output=True, text=True, env=env, cwd=cwd)
     print(live_proc.stdout, end="")
     if live_proc.returncode != 0:
         print(live_proc.stderr, file=sys.stderr, end="")
@@ -251,11 +253,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.before is not None:
             old = stack.enter_context(checkout(args.before))
             env = {**os.environ, "PYTHONPATH": str(old)}
-            before = run_convert(convert_args, env)
+            before = run_convert(convert_args, env, old)
             if before is None:
                 print(f"error: tools/bench_convert.py failed on {args.before}", file=sys.stderr)
                 return 1
-        convert = run_convert(convert_args)
+        convert = run_convert(convert_args, cwd=TOOLS.parent)
         if convert is None:
             print("error: tools/bench_convert.py failed", file=sys.stderr)
             return 1
@@ -263,9 +265,9 @@ def main(argv: list[str] | None = None) -> int:
         live_text: str | None = None
         commands = ["tools/bench_convert.py " + " ".join(convert_args)]
         if args.live:
-            if env is not None:
-                live_before, _ = run_live(env)
-            live, live_text = run_live()
+            if args.before is not None:
+                live_before, _ = run_live(env, old)
+            live, live_text = run_live(cwd=TOOLS.parent)
             commands.append("tools/bench_live.py --quick")
         if args.scene and args.before is not None:
             scene = run_scene(args.before)
