@@ -777,7 +777,7 @@ def run(args: argparse.Namespace) -> None:
     lo, hi = window
     parts: list[list[float]] = [[], [], [], []]
     for received_at in analysis.complete:
-        for tick, (start, computed, emitted) in stages.items():
+        for tick, (start, computed, emitted, _) in stages.items():
             at = received_at.get(tick)
             if at is None or not emitted or not lo <= tick < hi:
                 continue

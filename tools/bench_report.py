@@ -103,7 +103,7 @@ def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | No
              live_text: str | None, header: dict[str, str],
              before: dict[str, Any] | None = None,
              live_before: list[tuple[str, str, str, str]] | None = None,
-             scene: list[tuple[str, str, str, str]] | None = None) -> str:
+             scene: list[tuple[str, str, str, str, str]] | None = None) -> str:
     """The report: header, the table (with a ``before`` column when the code at ``--before``
     was measured too), the live table and the details."""
     out = ["# tankviz speed and size", ""]
@@ -127,7 +127,8 @@ def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | No
     for r in convert["rows"]:
         ok = "" if r["ok"] is None else "ok" if r["ok"] else "**missed**"
         out.append(line(r["measure"], r["now"], r["goal"], ok))
-    for measure, now, goal, ok in scene or []:
+    for measure, old, now, goal, ok in scene or []:
+        was[measure] = old
         out.append(line(measure, now, goal, ok))
     if live is not None:
         for metric, value, target, ok in live:
@@ -199,8 +200,9 @@ def run_live(env: dict[str, str] | None = None, cwd: Path | None = None
     return live_table(live_proc.stdout), live_proc.stdout
 
 
-def run_scene(rev: str) -> list[tuple[str, str, str, str]]:
-    """bench_scene's ms per tick before (``rev``) and now, as table rows."""
+def run_scene(rev: str) -> list[tuple[str, str, str, str, str]]:
+    """bench_scene's ms per tick before (``rev``) and now, as table rows (measure, before, now,
+    goal, ok)."""
     proc = subprocess.run([sys.executable, str(TOOLS / "bench_scene.py"), "--ref", rev,
                            "--clock", "cpu", "--repeat", "3", "--duration", "30"],
                           capture_output=True, text=True)
@@ -210,7 +212,7 @@ def run_scene(rev: str) -> list[tuple[str, str, str, str]]:
                              r"([\d.]+) ms/tick, ratio [\d.]+; (.*)$", proc.stdout, re.M):
         drive, old, new, same = found.groups()
         share = float(new) / float(old)
-        rows.append((f"scene tick, {drive} (bench_scene, ms a tick; {same})",
+        rows.append((f"scene tick, {drive} (bench_scene, ms a tick; {same})", old,
                      f"{new} ({share:.2f}x)", "≤ 0.5x",
                      "ok" if share <= 0.5 and same == "same bytes" else "**missed**"))
     return rows
@@ -247,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     started = datetime.datetime.now(datetime.timezone.utc)
     before: dict[str, Any] | None = None
     live_before: list[tuple[str, str, str, str]] | None = None
-    scene: list[tuple[str, str, str, str]] | None = None
+    scene: list[tuple[str, str, str, str, str]] | None = None
     with contextlib.ExitStack() as stack:
         env: dict[str, str] | None = None
         if args.before is not None:

@@ -2,14 +2,14 @@
 
 A drive's raw frames are archived as ``tankviz.CanFrameBlock`` messages (schemas/can_frame.proto):
 the frames of one bus in one window of at most :data:`WINDOW_NS` (20 ms), one row each (id,
-data, ``offset_ns`` after the window's start, flags, a DLC only where it is not the data's
+data, ``offset_ns`` after the block's first frame, flags, a DLC only where it is not the data's
 length), in the order they were seen. One message per frame (``tankviz.CanFrame``, drives made
 before blocks) cost 16 bytes of message index a frame and a record header each: 2.45x the BLF of
 the same frames; blocks cost about 0.5x (``tools/bench_size.py``).
 
 Rows, not packed columns: in Foxglove a row keeps its fields together, so the frames of one id
 are found with a message-path filter (``/can/can0/frames.frames[:]{id==528}``) in the Raw
-Messages panel; columns were measured 8 % smaller (20 ms windows) and would lose that.
+Messages panel; packed columns were measured 12 % smaller (0.45x the BLF) and would lose that.
 
 How blocks are cut (:class:`Blocker`, fed every frame the pipeline sees, in its order): a bus's
 block opens at its first frame that falls in no open block of the bus, whose time is the block's
@@ -51,7 +51,7 @@ class RawBlock(NamedTuple):
     """One bus's frames in one window, as recorded: the serialized ``tankviz.CanFrameBlock``."""
 
     bus: str
-    #: the window's start: the block's log time
+    #: the block's first frame's time: its log time
     t_ns: int
     payload: bytes
     #: how many frames it holds
