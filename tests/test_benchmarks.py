@@ -210,7 +210,7 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     report = tmp_path / "report.md"
     run = subprocess.run(
         [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
-         "--before", BEFORE_BLOCKS,
+         "--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1",
          "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
          "--workdir", str(tmp_path / "bench"),
          "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
@@ -227,4 +227,7 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     before, now = (float(cell.rstrip("x")) for cell in raw[1:3])
     assert before > 2 * now, raw  # the before column measured the old code
     assert f"- **before:** {BEFORE_BLOCKS}" in text
+    (ab,) = [line for line in text.splitlines()
+             if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
+    assert re.search(r"\| \d+\.\d\d, \d+\.\d\d \| \d+\.\d\d, \d+\.\d\d \(\d+\.\d\dx cpu", ab), ab
     assert "## Details: tools/bench_convert.py on the code before" in text

@@ -18,7 +18,8 @@ passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs
 With ``--before REV`` the same benchmarks also measure the code at git revision REV, checked out
 into a temporary worktree (these tools, their fixed references, measure both: the worktree's
 ``bridge`` comes first, on ``PYTHONPATH`` and as the working folder), and the table gets a
-``before`` column; with ``--scene``, ``tools/bench_scene.py --ref REV`` adds the scene tick of
+``before`` column, and ``tankviz convert`` of both runs on the same log, interleaved (the most
+direct before/after); with ``--scene``, ``tools/bench_scene.py --ref REV`` adds the scene tick of
 both (issue #26's table: ``--before a6fe390``, the code before it).
 
 The figures are ratios measured in one run (on CPU time unless bench_convert's ``--clock wall``
@@ -42,6 +43,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -218,6 +220,43 @@ def run_scene(rev: str) -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
+def run_ab(old: Path, env: dict[str, str], seconds: float = 60.0,
+           runs: int = 3) -> list[tuple[str, str, str, str, str]]:
+    """``tankviz convert`` of the code before (its worktree ``old``) and now on the same log
+    (``seconds`` of the simulated ecocar drive, BLF), interleaved, best of ``runs``: CPU (user +
+    system of the convert and its read-ahead) and wall seconds, as rows (measure, before, now,
+    goal, ok). The most direct before/after there is: no reference between them."""
+    import resource
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        log, out = Path(tmp) / "drive.blf", Path(tmp) / "out.mcap"
+        subprocess.run([sys.executable, "-m", "bridge", "simulate", "-o", str(log),
+                        "--duration", f"{seconds:g}"], cwd=TOOLS.parent, check=True,
+                       stdout=subprocess.DEVNULL)
+        for kind, extra in (("raw + decoded", ["--dbc", "ecocar"]),
+                            ("with the scene", ["--profile", "ecocar"])):
+            best = {"before": [float("inf")] * 2, "now": [float("inf")] * 2}
+            for _ in range(runs):
+                for name, tree, tree_env in (("before", old, env), ("now", TOOLS.parent, None)):
+                    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    started = time.perf_counter()
+                    subprocess.run([sys.executable, "-m", "bridge", "convert", str(log), "-o",
+                                    str(out), "--force", "--quiet", *extra], cwd=tree,
+                                   env=tree_env, check=True, stderr=subprocess.DEVNULL)
+                    wall = time.perf_counter() - started
+                    done = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    cpu = done.ru_utime + done.ru_stime - used.ru_utime - used.ru_stime
+                    best[name] = [min(best[name][0], cpu), min(best[name][1], wall)]
+            (cpu_old, wall_old), (cpu_new, wall_new) = best["before"], best["now"]
+            rows.append((f"tankviz convert {kind}, {seconds:g} s simulated (s, best of {runs}; "
+                         "cpu, wall)",
+                         f"{cpu_old:.2f}, {wall_old:.2f}",
+                         f"{cpu_new:.2f}, {wall_new:.2f} ({cpu_old / cpu_new:.2f}x cpu, "
+                         f"{wall_old / wall_new:.2f}x wall faster)", "", ""))
+    return rows
+
+
 @contextlib.contextmanager
 def checkout(rev: str) -> Iterator[Path]:
     """The code at ``rev`` in a temporary git worktree (removed after)."""
@@ -242,6 +281,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="also run tools/bench_live.py --quick (about a minute)")
     parser.add_argument("--before", metavar="REV",
                         help="also measure the code at git revision REV: a before column")
+    parser.add_argument("--ab-seconds", type=float, default=60.0,
+                        help="with --before: seconds of the log both convert (60)")
+    parser.add_argument("--ab-runs", type=int, default=3,
+                        help="with --before: rounds of those converts, best of (3)")
     parser.add_argument("--scene", action="store_true",
                         help="with --before: tools/bench_scene.py --ref REV too")
     args, convert_args = parser.parse_known_args(argv)
@@ -271,8 +314,10 @@ def main(argv: list[str] | None = None) -> int:
                 live_before, _ = run_live(env, old)
             live, live_text = run_live(cwd=TOOLS.parent)
             commands.append("tools/bench_live.py --quick")
+        if args.before is not None:
+            scene = run_ab(old, env or {}, args.ab_seconds, args.ab_runs)
         if args.scene and args.before is not None:
-            scene = run_scene(args.before)
+            scene = (scene or []) + run_scene(args.before)
             commands.append(f"tools/bench_scene.py --ref {args.before} --clock cpu")
     lo, hi = convert["load"]
     header = {
