@@ -17,6 +17,7 @@ from mcap.reader import make_reader
 from test_disk import complete, frame, tmpfs
 
 from bridge.apps.inspect import format_summary, summarize_file
+from bridge.io.drives import ArchiveSource
 from bridge.sinks.drives import PartsRecorder
 from bridge.sinks.raw import cut
 
@@ -153,3 +154,24 @@ def test_frames_the_drive_ends_without_room_for_are_told(tmp_path: Path) -> None
     assert recorder.take_notices() == [
         "recorder.disk_full: 7 frames received while the disk was full are not recorded (no "
         "room for them when the drive ended)"]
+
+
+def test_the_backlog_keeps_whole_blocks_and_counts_frames(tmp_path: Path) -> None:
+    """Blocks of several frames while the disk is full: the newest blocks that fit in
+    ``backlog_limit`` frames are kept, the older ones dropped whole, and both counted in
+    frames."""
+    disk = Disk(500 * MB)
+    recorder = disk.recorder(tmp_path, min_free=100 * MB, backlog_limit=10)
+    send(recorder, 0, 3)
+    disk.free = 10 * MB
+    disk.tick(recorder)
+    for first in range(3, 23, 4):  # five blocks of 4 frames (1 ms apart: one block each)
+        recorder.on_raw(cut([frame(i) for i in range(first, first + 4)]))
+    disk.free = 500 * MB
+    disk.tick(recorder)
+    recorder.finish()
+    _, second = recorder.files
+    (gap,) = json.loads(metadata(second)["recording_gaps"])
+    assert (gap["frames_kept"], gap["frames_not_recorded"]) == (8, 12)
+    assert [f.timestamp_ns for f in ArchiveSource(second)] == [
+        frame(i).timestamp_ns for i in range(15, 23)]
