@@ -171,3 +171,28 @@ def test_a_damaged_block_is_skipped_and_said(tmp_path: Path) -> None:
     assert list(source) == [frames[0], frames[2]]
     assert len(source.issues) == 1
     assert "not a tankviz.CanFrameBlock" in source.issues[0].reason
+
+
+def test_a_frame_no_bus_could_carry_is_skipped_and_said(tmp_path: Path) -> None:
+    """A damaged or hand-made drive: an id beyond 29 bits, a time past 2262. Each is one issue
+    naming it; the others are converted (the read-ahead could not hand them over)."""
+    from bridge.pipeline.convert import convert
+
+    frames = [frame(0), frame(1, arbitration_id=(1 << 31) + 5), frame(2)]
+    blocks = blocks_of(frames)
+    late = CanFrameBlock(bus="can0")
+    late.frames.add(id=0x123, data=b"\x01", offset_ns=5)
+    blocks.append(RawBlock("can0", (1 << 64) - 1, late.SerializeToString(), 1))
+    path = tmp_path / "odd.mcap"
+    with path.open("wb") as f:
+        recorder = Recorder(f)
+        recorder.on_raw(blocks)
+        recorder.finish()
+    source = ArchiveSource(path)
+    assert list(source) == [frames[0], frames[2]]
+    assert [i.reason for i in source.issues] == [
+        "skipped a frame with id 0x80000005, which no CAN bus carries",
+        "skipped a frame stamped 18446744073709551620 ns, after 2262 (the latest time a drive "
+        "can hold)"]
+    report = convert([path], tmp_path / "out.mcap", [], read_ahead=True)
+    assert report.frames == 2 and len(report.issues) == 2

@@ -20,8 +20,9 @@ business.
   :class:`BlockMerger`, exact for each bus). The file is streamed record by record, so a drive
   cut short (a power loss) gives every frame of its complete chunks; where reading stops is one
   :class:`~bridge.io.logs.SourceIssue` that points to ``tankviz recover``. A block (or frame)
-  whose bytes are not a ``tankviz.CanFrameBlock`` (``tankviz.CanFrame``) is skipped and
-  reported; the others go on.
+  whose bytes are not a ``tankviz.CanFrameBlock`` (``tankviz.CanFrame``), and a frame no bus
+  carries (an id of more than 29 bits, a time before 1970 or after 2262, as a log's are
+  skipped), is skipped and reported; the others go on.
 - :func:`raw_frame_counts`: frames per bus a finished drive holds, counted from its blocks.
 """
 
@@ -198,6 +199,10 @@ class ArchiveSource:
             nonlocal last_ns
             for frame in frames:
                 t = frame.timestamp_ns
+                if not (0 <= t < _LAST_NS and 0 <= frame.arbitration_id < _ID_LIMIT):
+                    self._problem(f"frame {self.frames + 1}", _uncarried(frame), "skip",
+                                  "a frame no bus carries")
+                    continue
                 if last_ns is not None and t < last_ns:
                     self.backwards += 1
                 last_ns = t
@@ -255,6 +260,21 @@ class ArchiveSource:
                           "skip", "not a tankviz.CanFrameBlock")
             return None
         return block
+
+
+#: A frame stamped at or after this (2262, 2^63 ns) or before 1970 cannot be held, nor an id of
+#: more than 29 bits (as :class:`~bridge.io.logs.LogSource` skips them in logs).
+_LAST_NS = 1 << 63
+_ID_LIMIT = 1 << 29
+
+
+def _uncarried(frame: Frame) -> str:
+    """Why a frame of a drive is skipped: its id or its time."""
+    if not 0 <= frame.arbitration_id < _ID_LIMIT:
+        return f"skipped a frame with id {frame.arbitration_id:#x}, which no CAN bus carries"
+    return (f"skipped a frame stamped {frame.timestamp_ns} ns, "
+            + ("after 2262 (the latest time a drive can hold)" if frame.timestamp_ns > 0
+               else "before 1970"))
 
 
 def block_frames(t_ns: int, block: CanFrameBlock) -> list[Frame]:
