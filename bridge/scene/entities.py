@@ -45,9 +45,9 @@ from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 
 from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
+from bridge.protowire import varint
 from bridge.scene.camera import ViewCamera, camera_for, view_range
 from bridge.scene.labels import Block, Label, lay_out
-from bridge.scene.protowire import varint
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
 from bridge.world.observe import ObjectObservation

@@ -19,7 +19,7 @@ from bridge.pb.perception_pb2 import (
 )
 from bridge.profile.model import ObjectClass as Kind
 from bridge.profile.model import Profile
-from bridge.scene.protowire import varint
+from bridge.protowire import varint
 from bridge.topics import VEHICLE_FRAME
 from bridge.world.lead import SteadyLead
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature

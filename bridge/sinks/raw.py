@@ -41,7 +41,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
 from bridge.frame import END_NS, Frame
-from bridge.scene.protowire import varint
+from bridge.protowire import varint
 
 #: The longest window of one block (20 ms: measured smallest with zstd, ``tools/bench_size.py``).
 WINDOW_NS = 20_000_000

@@ -1,7 +1,8 @@
-"""Protobuf's wire format, the little the scene writes by hand: a varint.
+"""Protobuf's wire format, the little tankviz writes by hand: a varint.
 
-The scene's hot paths build some messages from their wire bytes and parse them in one call
-(:mod:`bridge.scene.entities`, :mod:`bridge.scene.semantic`): the bytes of a field are its tag
+Hot paths build some messages from their wire bytes (the scene's, parsed in one call:
+:mod:`bridge.scene.entities`, :mod:`bridge.scene.semantic`; the raw frames' blocks,
+:mod:`bridge.sinks.raw`): the bytes of a field are its tag
 (``number << 3 | wire type``, a varint), then a varint, a length-delimited payload or 8 bytes
 of a double.
 """
