@@ -23,7 +23,9 @@ A :class:`FrameBlock` holds N frames of any buses, in their order, as one column
 as one buffer (a header, the bus names, then each column's raw bytes, in this machine's byte
 order: a hand-over, not a file format), no per-frame object pickled.
 :meth:`~FrameBlock.groups` gives, per ``(bus index, key)``, its rows in order: the columns the
-decoder decodes in one step (:meth:`bridge.decode.decoder.Decoder.decode_block`).
+decoder decodes in one step (:meth:`bridge.decode.decoder.Decoder.decode_block`) and the health
+monitor counts (:meth:`bridge.health.monitor.HealthMonitor.count_block`). A block is not changed
+once made: its groups and payloads are made once, for every stage.
 
 Bounds: a frame's time must fit 64 signed bits, its arbitration id 32 bits (31 bits for an
 extended one: above that its key could not tell the id), its flags ``bool`` (any value is taken
@@ -71,7 +73,8 @@ _NAME_LENGTH = struct.Struct("<H")
 class FrameBlock:
     """N frames of any buses as columns, in their order (see the module's description)."""
 
-    __slots__ = ("_all_flags", "bus", "buses", "data", "dlc", "ends", "flags", "key", "t")
+    __slots__ = ("_all_flags", "_groups", "_payloads", "bus", "buses", "data", "dlc", "ends",
+                 "flags", "key", "t")
 
     def __init__(self, buses: tuple[str, ...], t: array[int], bus: bytes, key: array[int],
                  flags: bytes, dlc: bytes | array[int], data: bytes, ends: array[int]) -> None:
@@ -91,6 +94,8 @@ class FrameBlock:
         self.data = data
         self.ends = ends
         self._all_flags: int | None = None
+        self._payloads: list[bytes] | None = None
+        self._groups: dict[tuple[int, int], array[int]] | None = None
 
     @classmethod
     def from_frames(cls, frames: Sequence[Frame]) -> FrameBlock:
@@ -191,10 +196,12 @@ class FrameBlock:
                      bool(flags & BRS), bool(flags & ESI), self.dlc[i])
 
     def payloads(self) -> list[bytes]:
-        """Every frame's payload, in row order."""
-        data, ends = self.data, self.ends
-        starts = chain((0,), ends)  # one longer than ends: zip stops at the last end
-        return [data[start:end] for start, end in zip(starts, ends)]  # noqa: B905
+        """Every frame's payload, in row order (made once: do not change the list)."""
+        if self._payloads is None:
+            data, ends = self.data, self.ends
+            starts = chain((0,), ends)  # one longer than ends: zip stops at the last end
+            self._payloads = [data[start:end] for start, end in zip(starts, ends)]  # noqa: B905
+        return self._payloads
 
     def flag(self, bit: int) -> Iterator[bool]:
         """Whether each frame has flag ``bit`` (one of :data:`FD` ... :data:`EXTENDED`)."""
@@ -228,7 +235,12 @@ class FrameBlock:
 
     def groups(self) -> dict[tuple[int, int], array[int]]:
         """The rows of each ``(bus index, key)``, in row order; the groups in the order of their
-        first row."""
+        first row (made once: do not change them)."""
+        if self._groups is None:
+            self._groups = self._make_groups()
+        return self._groups
+
+    def _make_groups(self) -> dict[tuple[int, int], array[int]]:
         rows: dict[int, array[int]] = {}
         get = rows.get
         if len(self.buses) <= 1:

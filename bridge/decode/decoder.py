@@ -704,6 +704,14 @@ class Decoder:
             out.append(None)
         return out
 
+    def knows(self, bus: str, key: int) -> bool:
+        """Whether a database of ``bus`` defines the message of frame key ``key``
+        (:func:`~bridge.frame.frame_key`)."""
+        table = self._tables.get(bus)
+        if table is None:
+            table = self._table(bus)
+        return key in table
+
     def outcome(self, frame: Frame, decoded: Decoded | None) -> Outcome:
         """What :meth:`decode` made of ``frame``, given what it returned: for the latest frame
         it returned None for, the outcome it found (:attr:`undecoded`, :attr:`why`). A frame it

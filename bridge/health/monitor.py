@@ -54,10 +54,14 @@ What it counts per bus and per family, and the figures of ``/health`` made of th
 The per-frame hook :meth:`HealthMonitor.on_frame` is made for the hot path (a few dict operations,
 and the frame's bits counted exactly only for a sample); it takes a frame that did not decode as
 the decoder sorted it (:meth:`bridge.decode.decoder.Decoder.outcome`: an unknown id, a decode
-error, an error frame or a remote frame), without sorting it again (frames decoded in blocks,
-which the decoder did not just decode, it sorts from its tables: the same outcome). Counting a
-block's frames in bulk was measured no cheaper (a kind's bits depend on each exact count before
-them, :class:`~bridge.health.wire.FrameKind`). Object checks run at scene ticks
+error, an error frame or a remote frame), without sorting it again (a frame it did not just
+decode, it sorts from the decoder's tables: the same outcome). Offline, a block of frames is
+counted in bulk with the same result, count for count (:meth:`HealthMonitor.count_block`, then
+:meth:`HealthMonitor.count_rows` for each run of rows between two ticks): each ``(bus, key)``
+column's bits in one pass (a kind's exact counts and estimates follow its own frames only), each
+bus's ids, bits and gaps and each family's times from their rows in order; a run ends right
+after a message's first frame, whose cycle time may shorten its bus's gap time (tests/
+test_health_block.py). Object checks run at scene ticks
 (:meth:`HealthMonitor.on_world`): who sees a moving object in whose field of view is asked once
 per object and sensor while the object stays in the world (observations are values).
 :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene overlay
@@ -66,13 +70,18 @@ per object and sensor while the object stays in the world (observations are valu
 
 from __future__ import annotations
 
+from array import array
+from bisect import bisect_left
 from collections import deque
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from functools import reduce
 from itertools import chain
-from typing import Any
+from operator import add, itemgetter
+from typing import Any, NamedTuple
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
+from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
 from bridge.decode.decoder import Decoded, Decoder, MessageCodec, Outcome
 from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame, frame_key, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings, alarm_id
@@ -92,7 +101,7 @@ from bridge.health.counts import (
 )
 from bridge.health.receive import ReceiveWatch
 from bridge.health.sight import FieldOfView, associate, has_fov
-from bridge.health.wire import MAX_KINDS, FrameKind
+from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 from bridge.io.buses import ReceiveCounts
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile
@@ -105,6 +114,43 @@ _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same ba
 # what the decoder made of a frame that did not decode (module globals: the per-frame path)
 _ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR = (Outcome.ERROR_FRAME, Outcome.UNKNOWN_ID,
                                             Outcome.DECODE_ERROR)
+
+
+class BusRows(NamedTuple):
+    """One bus's rows of a block, in row order, with their times, keys and bits."""
+
+    rows: Sequence[int]
+    times: Sequence[int]
+    keys: Sequence[int]
+    arbitration: list[float]
+    #: None: no frame of the block switches its bit rate
+    data_phase: list[float] | None
+
+
+class BlockCount(NamedTuple):
+    """A block's frames made ready to count (:meth:`HealthMonitor.count_block`)."""
+
+    block: FrameBlock
+    decoded: Sequence[Decoded | None]
+    #: the kinds of frame of each bus, the block's counted in
+    kinds: dict[str, dict[KindKey, FrameKind]]
+    #: each bus index's rows, in the order of their first row
+    buses: dict[int, BusRows]
+    #: (row, bus index, outcome) of every row that did not decode and is counted, in row order
+    undecoded: list[tuple[int, int, Outcome]]
+    #: rows with non-finite values
+    bad: list[int]
+    #: each family's rows and their times, in row order
+    families: dict[FamilyCounts, tuple[Sequence[int], list[int]]]
+    #: (row, codec) of the first row of each message the monitor had not seen, in row order
+    firsts: list[tuple[int, MessageCodec]]
+
+    @property
+    def cuts(self) -> list[int]:
+        """Where a run of rows must end for :meth:`HealthMonitor.count_rows` to count them as
+        frame by frame: right after the first row of each message not seen before (its
+        database's cycle time may shorten its bus's gap time)."""
+        return [r + 1 for r, _ in self.firsts]
 
 
 class HealthMonitor:
@@ -317,6 +363,180 @@ class HealthMonitor:
                     family.first_ns = t
             family.last_ns = t
             family.frames += 1
+
+    def count_block(self, block: FrameBlock,
+                    decoded: Sequence[Decoded | None]) -> BlockCount | None:
+        """Get a block's frames ready to be counted, a run of rows at a time
+        (:meth:`count_rows`), as :meth:`on_frame` of each in order counts them; ``decoded``:
+        what the decoder made of each row. None where the block must be counted frame by frame
+        (a bus with so many kinds of frame that the block could make it forget them).
+
+        The bits of every frame are counted here, a ``(bus, key)`` column at a time (a kind's
+        exact counts and estimates follow its own frames only, whatever comes between them:
+        :meth:`FrameKind.bits_of`), and each bus's and family's rows are gathered; the rest is
+        counted at :meth:`count_rows`, in row order where order matters (gaps, the sum of the
+        bits, ids and non-finite values first seen, families). A block is counted exactly as
+        frame by frame if every run ends right after each row of a message the monitor had not
+        seen (:attr:`BlockCount.cuts`: the bus's gap time may change there)."""
+        n = len(block)
+        names = block.buses
+        for name in names:
+            bus = self._buses.get(name)
+            if (len(bus.kinds) if bus is not None else 0) + n > MAX_KINDS:
+                return None
+        payloads, flags, dlcs, ts = block.payloads(), block.flags, block.dlc, block.t
+        plain = not block.all_flags()
+        groups = block.groups()
+        bits: list[tuple[float, float]] = [(0.0, 0.0)] * n
+        kinds = {name: (self._buses[name].kinds if name in self._buses else {})
+                 for name in names}
+        undecoded: list[tuple[int, int, Outcome]] = []
+        bad: list[int] = []
+        family_rows: dict[FamilyCounts, list[Sequence[int]]] = {}
+        firsts: list[tuple[int, MessageCodec]] = []
+        for (k, key), rows in groups.items():
+            whole = len(rows) == n
+            datas = payloads if whole else list(map(payloads.__getitem__, rows))
+            # runs of rows of one kind of frame: (flags, length or a remote frame's DLC)
+            if plain and len(set(map(len, datas))) == 1:
+                runs = [(0, len(datas[0]), 0, len(datas))]
+            else:
+                runs = []
+                for at, (r, data) in enumerate(zip(rows, datas, strict=True)):
+                    f = flags[r]
+                    m = dlcs[r] if f & REMOTE else len(data)
+                    if not runs or runs[-1][:2] != (f, m):
+                        runs.append((f, m, at, at + 1))
+                    else:
+                        runs[-1] = (f, m, runs[-1][2], at + 1)
+            bus_kinds = kinds[names[k]]
+            ident = key ^ EXTENDED_KEY if key & EXTENDED_KEY else key
+            column: list[tuple[float, float]] = []
+            for f, m, start, end in runs:
+                kind_key = (ident, bool(f & EXTENDED), bool(f & FD), bool(f & ERROR),
+                            bool(f & REMOTE), bool(f & BRS), bool(f & ESI), m)
+                kind = bus_kinds.get(kind_key)
+                if kind is None:
+                    kind = bus_kinds[kind_key] = FrameKind(kind_key)
+                column += kind.bits_of(datas[start:end])
+            if whole:
+                bits = column
+            else:
+                deque(map(bits.__setitem__, rows, column), 0)  # bits[rows] = column, in C
+            results = decoded if whole else list(map(decoded.__getitem__, rows))
+            fed: Sequence[int] = rows
+            if None in results:
+                fed = []
+                known: bool | None = None  # (whether the bus's databases define the id)
+                for r, d in zip(rows, results, strict=True):
+                    if d is not None:
+                        fed.append(r)
+                    elif flags[r] & ERROR:
+                        undecoded.append((r, k, _ERROR_FRAME))
+                    elif not flags[r] & REMOTE:
+                        if known is None:
+                            known = self.decoder.knows(names[k], key)
+                        undecoded.append((r, k, _DECODE_ERROR if known else _UNKNOWN_ID))
+                if not fed:
+                    continue
+            # a (bus, key)'s frames are of one message (the decoder's table)
+            first = decoded[fed[0]]
+            assert first is not None
+            codec = first.codec
+            bad += [r for r, d in zip(rows, results, strict=True)
+                    if d is not None and d.non_finite]
+            families = self._families_of.get(codec)
+            if families is None:
+                families = tuple(self._by_message.get(codec.message.name, ()))
+                firsts.append((fed[0], codec))
+            for family in families:
+                family_rows.setdefault(family, []).append(fed)
+        by_row = itemgetter(0)
+        undecoded.sort(key=by_row)
+        bad.sort()
+        firsts.sort(key=by_row)
+        arbitration = [b[0] for b in bits]
+        data_phase = [b[1] for b in bits] if block.all_flags() & BRS else None
+        buses: dict[int, BusRows] = {}
+        if len(names) == 1:
+            buses[0] = BusRows(range(n), ts, block.key, arbitration, data_phase)
+        else:
+            of_bus: dict[int, list[array[int]]] = {}
+            for (k, _), rows in groups.items():
+                of_bus.setdefault(k, []).append(rows)
+            for k, columns in of_bus.items():
+                merged = sorted(chain.from_iterable(columns))
+                buses[k] = BusRows(
+                    merged, list(map(ts.__getitem__, merged)),
+                    list(map(block.key.__getitem__, merged)),
+                    list(map(arbitration.__getitem__, merged)),
+                    None if data_phase is None else list(map(data_phase.__getitem__, merged)))
+        families_of: dict[FamilyCounts, tuple[Sequence[int], list[int]]] = {}
+        for family, fed_columns in family_rows.items():
+            fed_rows = (fed_columns[0] if len(fed_columns) == 1
+                        else sorted(chain.from_iterable(fed_columns)))
+            families_of[family] = (fed_rows, list(map(ts.__getitem__, fed_rows)))
+        return BlockCount(block, decoded, kinds, buses, undecoded, bad, families_of, firsts)
+
+    def count_rows(self, c: BlockCount, i: int, j: int) -> None:
+        """Count rows ``i`` to ``j`` (excluded) of a block made ready by :meth:`count_block`,
+        which no run counted yet, as :meth:`on_frame` of each in turn (a run that holds a row
+        of :attr:`BlockCount.cuts` but its last is counted as if that row came last)."""
+        block = c.block
+        names = block.buses
+        for k, (rows, times, keys, arbitration, data_phase) in c.buses.items():
+            a, b = (i, j) if isinstance(rows, range) else (bisect_left(rows, i),
+                                                         bisect_left(rows, j))
+            if a == b:
+                continue
+            name = names[k]
+            bus = self._buses.get(name)
+            if bus is None:
+                bus = self._add_bus(name, times[a])
+                bus.kinds = c.kinds[name]
+            last, gap, gaps = bus.last_ns, bus.gap_ns, 0
+            for t in times[a:b]:
+                if t - last > gap:
+                    gaps += 1  # a gap just ended
+                last = t
+            bus.gaps += gaps
+            bus.last_ns = last
+            bus.frames += b - a
+            bus.ids.update(keys[a:b])
+            bus.bits = reduce(add, arbitration[a:b], bus.bits)
+            if data_phase is not None:
+                bus.brs_bits = reduce(add, data_phase[a:b], bus.brs_bits)
+        undecoded = c.undecoded
+        for _, k, why in undecoded[bisect_left(undecoded, (i,)):bisect_left(undecoded, (j,))]:
+            bus = self._buses[names[k]]
+            if why is _UNKNOWN_ID:
+                bus.unknown += 1
+            elif why is _DECODE_ERROR:
+                bus.decode_errors += 1
+            else:
+                bus.error_frames += 1
+        decoded = c.decoded
+        for r in c.bad[bisect_left(c.bad, i):bisect_left(c.bad, j)]:
+            d = decoded[r]
+            assert d is not None
+            self._non_finite(self._buses[names[block.bus[r]]], d)
+        for r, codec in c.firsts[bisect_left(c.firsts, (i,)):bisect_left(c.firsts, (j,))]:
+            if codec not in self._families_of:
+                self._resolve(self._buses[names[block.bus[r]]], codec)
+        for family, (rows, times) in c.families.items():
+            a, b = bisect_left(rows, i), bisect_left(rows, j)
+            if a == b:
+                continue
+            last, gap, resumed, first = (family.last_ns, family.gap_ns, family.resumed_ns,
+                                         family.first_ns)
+            for t in times[a:b]:
+                if t - last > gap:
+                    resumed = t
+                    if first == NEVER:
+                        first = t
+                last = t
+            family.last_ns, family.resumed_ns, family.first_ns = last, resumed, first
+            family.frames += b - a
 
     def on_world(self, t_ns: int, world: World, lanes: LaneModel | None = None) -> None:
         """Look at the world of a scene tick (after :meth:`World.expire`): valid objects, who

@@ -34,6 +34,8 @@ one-second window stays within 1 % of the exact one, and the same frames always 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from bridge.frame import Frame
 
 #: An error frame: error flag (6), the other nodes' error flags (up to 6), delimiter (8), IFS (3).
@@ -266,8 +268,10 @@ class FrameKind:
 
     __slots__ = ("_counts", "_gaps", "estimates", "exact", "frames", "header", "next_exact")
 
-    def __init__(self, frame: Frame) -> None:
-        arbitration_id, extended, fd, error, remote, brs, esi, n = kind_key(frame)
+    def __init__(self, frame: Frame | KindKey) -> None:
+        """The kind of ``frame`` (or of the frames with this :func:`kind_key`)."""
+        arbitration_id, extended, fd, error, remote, brs, esi, n = (
+            kind_key(frame) if isinstance(frame, Frame) else frame)
         #: how its frames are counted (None for an error frame: fixed bits)
         self.header = None if error else _Header(arbitration_id, extended, fd, remote, brs,
                                                  esi, n)
@@ -288,11 +292,38 @@ class FrameKind:
                 return estimate
         return self.count(frame)
 
+    def bits_of(self, payloads: Iterable[bytes]) -> list[tuple[float, float]]:
+        """:meth:`bits` of frames of this kind with these payloads, in turn."""
+        out: list[tuple[float, float]] = []
+        append = out.append
+        estimates = self.estimates
+        recent = self.header.recent if self.header is not None else None
+        for data in payloads:
+            frames = self.frames = self.frames + 1
+            if frames < self.next_exact:
+                bits = estimates.get(data.count(0))
+                if bits is not None:
+                    append(bits)
+                    continue
+            elif frames < _LEARN_FROM and recent is not None:
+                # (count_data's path for a payload it counted lately, before learning)
+                bits = recent.get(data)
+                if bits is not None:
+                    self.exact += 1
+                    self.next_exact = frames + 1
+                    append(bits)
+                    continue
+            append(self.count_data(data))
+        return out
+
     def count(self, frame: Frame) -> tuple[float, float]:
         """The exact bits of this frame (as :func:`frame_bits`), taken into the estimate; after
         a frame of the sample, the frame number of the next one."""
+        return self.count_data(frame.data)
+
+    def count_data(self, data: bytes) -> tuple[float, float]:
+        """:meth:`count` of a frame of this kind with payload ``data``."""
         header = self.header
-        data = frame.data
         bits: tuple[float, float] | None
         if header is None:
             bits = (float(ERROR_FRAME_BITS), 0.0)

@@ -17,7 +17,7 @@ subscribed to them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from functools import partial
 from typing import Any
 
@@ -85,12 +85,81 @@ class Pipeline:
 
     def process_block(self, block: FrameBlock) -> None:
         """A block of frames through every stage, as :meth:`process` of each in turn (the same
-        messages to the sinks): each (bus, id) column of the block decoded in one step
-        (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
-        the decoder's counts are read only when a drive is described), the rest frame by frame
-        (ticks, clock steps and health fall between any two frames)."""
-        for frame, decoded in zip(block, self.decoder.decode_block(block), strict=True):
-            self._process(frame, decoded)
+        messages on every topic; topics interleave otherwise in the file): each (bus, id)
+        column of the block decoded in one step (:meth:`~bridge.decode.decoder.Decoder.
+        decode_block`: decoding depends on no time, and the decoder's counts are read only when
+        a drive is described), the health counts of every run of rows between two scene or
+        health ticks (or clock steps) in bulk (:meth:`~bridge.health.monitor.HealthMonitor.
+        count_rows`), the rest frame by frame."""
+        decoded = self.decoder.decode_block(block)
+        health = self.health
+        counting = health.count_block(block, decoded) if health is not None else None
+        if health is not None and counting is None:
+            for frame, d in zip(block, decoded, strict=True):
+                self._process(frame, d)
+            return
+        ts = block.t
+        n = len(ts)
+        cuts = iter([*counting.cuts, n] if counting is not None else [n])
+        cut = next(cuts)
+        clock = self.clock
+        back, forward = clock.back_ns, clock.forward_ns
+        frames = list(block)
+        i = 0
+        while i < n:
+            # the first frame of a run: a clock step or a tick may come before it
+            t = ts[i]
+            step = clock.check(t)
+            if step is not None:
+                self.rebase(step)
+            if t >= self._next_tick:
+                self.advance(t)
+            # the run: the frames up to the next that steps the clock or makes a tick
+            while cut <= i:
+                cut = next(cuts)
+            due, now = self._next_tick, clock.now_ns
+            assert now is not None
+            j = i + 1
+            while j < cut:
+                t = ts[j]
+                if t >= due:
+                    break
+                if t > now:
+                    if t - now > forward:
+                        break
+                    now = t
+                elif now - t > back:
+                    break
+                j += 1
+            clock.now_ns = now
+            if counting is not None:
+                assert health is not None
+                health.count_rows(counting, i, j)
+            self._run(frames, decoded, ts, i, j)
+            i = j
+
+    def _run(self, frames: list[Frame], decoded: list[Decoded | None], ts: Sequence[int],
+             i: int, j: int) -> None:
+        """Rows ``i`` to ``j`` of a block, health counted, through the other stages."""
+        if self.sinks:
+            add = self._blocker.add
+            for frame in frames[i:j]:
+                add(frame)
+        run = [(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None]
+        for sink in self.sinks:
+            sink.on_decoded_many(run)
+        perception = self.perception
+        if perception is not None:
+            fed_of, wanted = self._fed, self._wanted
+            for t, d in run:
+                codec = d.codec
+                fed = fed_of.get(codec)
+                if fed is None:
+                    fed = fed_of[codec] = codec.message.name in wanted
+                if fed:
+                    perception.feed(codec.message.name, d.signals, t)
+        self.frames += j - i
+        self.last_ns = ts[j - 1]
 
     def _process(self, frame: Frame, decoded: Decoded | None) -> None:
         """One frame, decoded, through the other stages."""

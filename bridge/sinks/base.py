@@ -57,6 +57,12 @@ class Sink(Protocol):
         """A decoded message at log time ``t_ns``."""
         return None
 
+    def on_decoded_many(self, messages: Sequence[tuple[int, Decoded]], /) -> None:
+        """Decoded messages ``(log time, decoded)``, in order: :meth:`on_decoded` of each
+        (offline, the pipeline hands over a run of a block's frames at once)."""
+        for t_ns, decoded in messages:
+            self.on_decoded(t_ns, decoded)
+
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
         """The messages made at one log time (scene, perception, health, log), in order."""
         return None

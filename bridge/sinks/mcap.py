@@ -23,7 +23,7 @@ import struct
 import sys
 import time
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import IO, Any
 
 from mcap.opcode import Opcode
@@ -174,6 +174,40 @@ class FastWriter(McapWriter):
             self._settle_and_finalize()
 
 
+    def add_many(self, messages: Iterable[tuple[int, int, bytes]]) -> None:
+        """:meth:`add_message` of each ``(channel id, log time, data)`` in turn (the log time
+        is the publish time too), the records of a run written at once."""
+        if not self._fast:
+            for channel_id, log_time, data in messages:
+                super().add_message(channel_id, log_time, data, log_time)
+            return
+        chunk = self._chunk
+        indices = chunk.message_indices
+        buffer = chunk.record_writer._buffer
+        offset = buffer.tell()
+        limit, pack, header, message = (self._chunk_size, _MESSAGE_HEADER.pack,
+                                        _MESSAGE_HEADER.size, Opcode.MESSAGE)
+        parts: list[bytes] = []
+        for channel_id, log_time, data in messages:
+            index = indices.get(channel_id)
+            if index is None:
+                index = indices[channel_id] = _MessageIndex(channel_id)
+            entries = index.entries
+            entries.append(log_time)
+            entries.append(offset)
+            n = len(data)
+            parts.append(pack(message, 22 + n, channel_id, 0, log_time, log_time))
+            parts.append(data)
+            offset += header + n
+            if offset > limit:
+                buffer.write(b"".join(parts))
+                parts.clear()
+                self._settle_and_finalize()
+                indices = chunk.message_indices
+                buffer = chunk.record_writer._buffer
+                offset = buffer.tell()
+        buffer.write(b"".join(parts))
+
 #: Called with a recorder: when it starts, to attach what its drive is decoded with (databases,
 #: profile), so that a file cut before its end still has them; and just before it is finished, to
 #: note what describes its drive (the metadata record).
@@ -276,6 +310,21 @@ class Recorder(Sink):
 
     # the Sink interface, for the pipeline
     on_decoded = write_decoded
+
+    def on_decoded_many(self, messages: Sequence[tuple[int, Decoded]], /) -> None:
+        channels = self._codec_channels
+        run: list[tuple[int, int, bytes]] = []
+        for t_ns, decoded in messages:
+            channel_id = channels.get(decoded.codec)
+            if channel_id is None:
+                self._writer.add_many(run)  # (what came before the new channel, first)
+                run = []
+                codec = decoded.codec
+                channel_id = channels[codec] = self.channel(
+                    codec.topic, codec.schema.full_name, codec.schema.file_descriptor_set())
+            run.append((channel_id, t_ns, decoded.payload))
+        self._writer.add_many(run)
+        self.messages += len(messages)
 
     def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
         for block in blocks:
