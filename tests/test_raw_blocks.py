@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from mcap_protobuf.writer import Writer as ProtobufWriter
 
+from bridge.block import FrameBlock
 from bridge.frame import Frame
 from bridge.io.drives import ArchiveSource, BlockMerger, block_frames
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
@@ -62,6 +63,41 @@ def test_rows_are_written_as_protobuf_writes_them(frames: list[Frame]) -> None:
         if f.dlc != len(f.data):
             row.dlc = f.dlc
     assert encode_block(frames[0].bus, t0, frames) == expected.SerializeToString()
+
+
+
+def cut_in_rows(frames: list[Frame], size: int) -> list[RawBlock]:
+    """The blocks of ``frames`` fed as rows of FrameBlocks of ``size`` (offline convert)."""
+    blocks: list[RawBlock] = []
+    blocker = Blocker(blocks.extend)
+    for i in range(0, len(frames), size):
+        rows = FrameBlock.from_frames(frames[i:i + size])
+        for j in range(0, len(rows), 2):  # in runs, as the pipeline feeds them
+            blocker.add_rows(rows, j, min(j + 2, len(rows)))
+    blocker.flush()
+    return blocks
+
+
+@given(st.lists(st.tuples(st.integers(0, 3 * WINDOW_NS), st.sampled_from(["can0", "radar"]),
+                          st.binary(max_size=12), st.booleans(), st.booleans(),
+                          st.integers(0, 15)), min_size=1, max_size=40),
+       st.integers(1, 7))
+def test_rows_of_frame_blocks_make_the_blocks_frames_make(
+        rows: list[tuple[int, str, bytes, bool, bool, int]], size: int) -> None:
+    # stamps out of order across buses and within one, frames right at a window's end, short
+    # and long DLCs, extended ids and CAN FD frames
+    frames = [Frame(T0 + t, bus, 0x18DAF100 + i % 3 if extended else 0x100 + i % 3, data,
+                    is_extended=extended, is_fd=fd, bitrate_switch=fd, dlc=dlc)
+              for i, (t, bus, data, extended, fd, dlc) in enumerate(rows)]
+    frames.append(frames[0]._replace(timestamp_ns=frames[0].timestamp_ns + WINDOW_NS))
+    assert cut_in_rows(frames, size) == cut(frames)
+
+
+
+def test_a_frame_at_a_windows_end_opens_the_next_block_in_rows_too() -> None:
+    frames = [frame(0), frame(19.999), frame(20), frame(20, "radar")]
+    assert [b.frames for b in cut_in_rows(frames, 4)] == [2, 1, 1] == [
+        b.frames for b in cut(frames)]
 
 
 def test_a_block_holds_20_ms_of_one_bus_from_its_first_frame() -> None:

@@ -17,7 +17,7 @@ subscribed to them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from functools import partial
 from typing import Any
 
@@ -104,7 +104,6 @@ class Pipeline:
         cut = next(cuts)
         clock = self.clock
         back, forward = clock.back_ns, clock.forward_ns
-        frames = list(block)
         i = 0
         while i < n:
             # the first frame of a run: a clock step or a tick may come before it
@@ -135,16 +134,14 @@ class Pipeline:
             if counting is not None:
                 assert health is not None
                 health.count_rows(counting, i, j)
-            self._run(frames, decoded, ts, i, j)
+            self._run(block, decoded, i, j)
             i = j
 
-    def _run(self, frames: list[Frame], decoded: list[Decoded | None], ts: Sequence[int],
-             i: int, j: int) -> None:
+    def _run(self, block: FrameBlock, decoded: list[Decoded | None], i: int, j: int) -> None:
         """Rows ``i`` to ``j`` of a block, health counted, through the other stages."""
         if self.sinks:
-            add = self._blocker.add
-            for frame in frames[i:j]:
-                add(frame)
+            self._blocker.add_rows(block, i, j)
+        ts = block.t
         run = [(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None]
         for sink in self.sinks:
             sink.on_decoded_many(run)

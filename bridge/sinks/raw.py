@@ -40,7 +40,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
-from bridge.frame import END_NS, Frame
+from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
+from bridge.frame import END_NS, EXTENDED_KEY, Frame
 from bridge.protowire import varint
 
 #: The longest window of one block (20 ms: measured smallest with zstd, ``tools/bench_size.py``).
@@ -96,41 +97,74 @@ def _offset(offset_ns: int) -> bytes:
     return field
 
 
+def _name(bus: str) -> bytes:
+    """A block's ``bus`` field."""
+    name = bus.encode()
+    return b"\x0a" + varint(len(name)) + name if name else b""
+
+
+def _row(frame: Frame, t_ns: int) -> bytes:
+    """The row of ``frame`` in a block whose log time is ``t_ns``."""
+    data = frame.data
+    k = frame[2:3] + frame[4:] + (len(data),)
+    starts, tail = _KINDS.get(k) or _kind(k)
+    offset = _OFFSETS.get(frame.timestamp_ns - t_ns)
+    if offset is None:
+        offset = _offset(frame.timestamp_ns - t_ns)
+    return starts[len(offset)] + data + offset + tail
+
+
+#: (frame key, flags, DLC, data length) of a row of a FrameBlock -> its kind's fixed parts
+_BLOCK_KINDS: dict[tuple[int, int, int, int], tuple[tuple[bytes, ...], bytes]] = {}
+
+
+def _block_kind(key: int, flags: int, dlc: int, n: int) -> tuple[tuple[bytes, ...], bytes]:
+    """The fixed parts of the rows of a kind of frame, from a FrameBlock's columns."""
+    extended = bool(flags & EXTENDED)
+    kind = _kind((key ^ EXTENDED_KEY if extended else key, extended, bool(flags & FD),
+                  bool(flags & ERROR), bool(flags & REMOTE), bool(flags & BRS), bool(flags & ESI),
+                  dlc, n))
+    if len(_BLOCK_KINDS) > 65536:
+        _BLOCK_KINDS.clear()
+    _BLOCK_KINDS[key, flags, dlc, n] = kind
+    return kind
+
+
 def encode_block(bus: str, t_ns: int, frames: Iterable[Frame]) -> bytes:
     """A ``tankviz.CanFrameBlock`` of ``bus`` whose log time is ``t_ns``: a row per frame, in
     order (none stamped before ``t_ns``)."""
-    name = bus.encode()
-    out = [b"\x0a" + varint(len(name)) + name] if name else []
-    kinds, offsets = _KINDS, _OFFSETS
-    for frame in frames:
-        data = frame.data
-        k = frame[2:3] + frame[4:] + (len(data),)
-        starts, tail = kinds.get(k) or _kind(k)
-        offset = offsets.get(frame.timestamp_ns - t_ns)
-        if offset is None:
-            offset = _offset(frame.timestamp_ns - t_ns)
-        out.append(starts[len(offset)] + data + offset + tail)
-    return b"".join(out)
+    return _name(bus) + b"".join(_row(frame, t_ns) for frame in frames)
 
 
 class Blocker:
     """Cuts a drive's frames into blocks, and hands closed blocks to ``emit``.
 
-    Feed every frame in the pipeline's order (:meth:`add`). A bus's block opens at its first
+    Feed every frame in the pipeline's order (:meth:`add`, or :meth:`add_rows` for rows of a
+    :class:`~bridge.block.FrameBlock`: the same blocks). A bus's block opens at its first
     frame that falls in no open block of the bus, and closes at the bus's first frame outside
     ``[start, start + window)``, or when the pipeline's time passes its end (checked at every
     frame, and by :meth:`due` / :meth:`flush_due` for live's clock), or at :meth:`flush` (a clock
     step, a part of a drive that ends, the end). Blocks closed together are emitted in the order
-    of their starts."""
+    of their starts. A frame's row is encoded as it comes (:func:`encode_block`'s rows)."""
 
     def __init__(self, emit: Callable[[list[RawBlock]], None], *,
                  window_ns: int = WINDOW_NS) -> None:
         self.emit = emit
         self.window_ns = window_ns
-        #: bus -> [start, end, frames] of its open block (encoded when it closes)
+        #: bus -> [start, end, rows] of its open block
         self._open: dict[str, list[Any]] = {}
         #: the earliest end of an open block (none open: never)
         self._next_end = END_NS
+
+    def _open_block(self, bus: str, t_ns: int) -> list[Any]:
+        """A new block of ``bus`` from ``t_ns`` (its open one closed first)."""
+        if bus in self._open:
+            self._close([bus])
+        end = t_ns + self.window_ns
+        block = self._open[bus] = [t_ns, end, []]
+        if end < self._next_end:
+            self._next_end = end
+        return block
 
     def add(self, frame: Frame) -> None:
         """One frame into its bus's open block (closing what it falls outside of first)."""
@@ -139,13 +173,29 @@ class Blocker:
             self.flush_due(t)
         block = self._open.get(frame.bus)
         if block is None or not block[0] <= t < block[1]:
-            if block is not None:
-                self._close([frame.bus])
-            end = t + self.window_ns
-            block = self._open[frame.bus] = [t, end, []]
-            if end < self._next_end:
-                self._next_end = end
-        block[2].append(frame)
+            block = self._open_block(frame.bus, t)
+        block[2].append(_row(frame, block[0]))
+
+    def add_rows(self, frames: FrameBlock, i: int, j: int) -> None:
+        """Rows ``i`` to ``j`` (excluded) of a block of frames, as :meth:`add` of each."""
+        ts, bus_of, names = frames.t, frames.bus, frames.buses
+        payloads, keys, flags, dlcs = frames.payloads(), frames.key, frames.flags, frames.dlc
+        open_blocks, kinds, offsets = self._open, _BLOCK_KINDS, _OFFSETS
+        for r in range(i, j):
+            t = ts[r]
+            if t >= self._next_end:
+                self.flush_due(t)
+            name = names[bus_of[r]]
+            block = open_blocks.get(name)
+            if block is None or not block[0] <= t < block[1]:
+                block = self._open_block(name, t)
+            data = payloads[r]
+            k = (keys[r], flags[r], dlcs[r], len(data))
+            starts, tail = kinds.get(k) or _block_kind(*k)
+            offset = offsets.get(t - block[0])
+            if offset is None:
+                offset = _offset(t - block[0])
+            block[2].append(starts[len(offset)] + data + offset + tail)
 
     def due(self, t_ns: int) -> bool:
         """Whether log time ``t_ns`` is past the end of an open block."""
@@ -164,8 +214,8 @@ class Blocker:
             return
         closed = sorted(((bus, self._open.pop(bus)) for bus in buses), key=lambda b: b[1][0])
         self._next_end = min((block[1] for block in self._open.values()), default=END_NS)
-        self.emit([RawBlock(bus, start, encode_block(bus, start, frames), len(frames))
-                   for bus, (start, _, frames) in closed])
+        self.emit([RawBlock(bus, start, _name(bus) + b"".join(rows), len(rows))
+                   for bus, (start, _, rows) in closed])
 
 
 def cut(frames: Iterable[Frame], *, window_ns: int = WINDOW_NS) -> list[RawBlock]:
