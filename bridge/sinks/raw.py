@@ -174,7 +174,14 @@ class Blocker:
         block = self._open.get(frame.bus)
         if block is None or not block[0] <= t < block[1]:
             block = self._open_block(frame.bus, t)
-        block[2].append(_row(frame, block[0]))
+        # _row, inlined (live's per-frame path)
+        data = frame.data
+        k = frame[2:3] + frame[4:] + (len(data),)
+        starts, tail = _KINDS.get(k) or _kind(k)
+        offset = _OFFSETS.get(t - block[0])
+        if offset is None:
+            offset = _offset(t - block[0])
+        block[2].append(starts[len(offset)] + data + offset + tail)
 
     def add_rows(self, frames: FrameBlock, i: int, j: int) -> None:
         """Rows ``i`` to ``j`` (excluded) of a block of frames, as :meth:`add` of each."""
