@@ -88,12 +88,19 @@ class Pipeline:
 
     def process_block(self, block: FrameBlock) -> None:
         """A block of frames through every stage, as :meth:`process` of each in turn (the same
-        messages on every topic; topics interleave otherwise in the file): each (bus, id)
-        column of the block decoded in one step (:meth:`~bridge.decode.decoder.Decoder.
-        decode_block`: decoding depends on no time, and the decoder's counts are read only when
-        a drive is described), the health counts of every run of rows between two scene or
-        health ticks (or clock steps) in bulk (:meth:`~bridge.health.monitor.HealthMonitor.
-        count_rows`), the rest frame by frame."""
+        messages on every topic, and the same statistics; topics interleave otherwise in the
+        file). Each (bus, id) column of the block is decoded in one step
+        (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
+        the decoder's counts are read only when a drive is described). Then the block goes
+        through the other stages a run of rows at a time: a run ends where a frame steps the
+        clock or comes at or after the next scene or health tick (which are made before it), or
+        where the health monitor needs it to (:attr:`~bridge.health.monitor.BlockCount.cuts`).
+        A run's frames are counted by health in bulk
+        (:meth:`~bridge.health.monitor.HealthMonitor.count_rows`), go into their raw blocks
+        from the columns (:meth:`~bridge.sinks.raw.Blocker.add_rows`), and their decoded
+        messages to the sinks at once (:meth:`~bridge.sinks.base.Sink.on_decoded_many`) and to
+        perception in order. A block whose health must be counted frame by frame (a bus with
+        too many kinds of frame) goes through :meth:`process`'s stages frame by frame."""
         decoded = self.decoder.decode_block(block)
         health = self.health
         counting = health.count_block(block, decoded) if health is not None else None
