@@ -188,20 +188,24 @@ class Blocker:
         ts, bus_of, names = frames.t, frames.bus, frames.buses
         payloads, keys, flags, dlcs = frames.payloads(), frames.key, frames.flags, frames.dlc
         open_blocks, kinds, offsets = self._open, _BLOCK_KINDS, _OFFSETS
+        next_end = self._next_end
         for r in range(i, j):
             t = ts[r]
-            if t >= self._next_end:
+            if t >= next_end:
                 self.flush_due(t)
+                next_end = self._next_end
             name = names[bus_of[r]]
             block = open_blocks.get(name)
             if block is None or not block[0] <= t < block[1]:
                 block = self._open_block(name, t)
+                next_end = self._next_end
             data = payloads[r]
             k = (keys[r], flags[r], dlcs[r], len(data))
             starts, tail = kinds.get(k) or _block_kind(*k)
-            offset = offsets.get(t - block[0])
+            since = t - block[0]
+            offset = offsets.get(since)
             if offset is None:
-                offset = _offset(t - block[0])
+                offset = _offset(since)
             block[2].append(starts[len(offset)] + data + offset + tail)
 
     def due(self, t_ns: int) -> bool:
