@@ -398,8 +398,10 @@ class HealthMonitor:
             whole = len(rows) == n
             datas = payloads if whole else list(map(payloads.__getitem__, rows))
             # runs of rows of one kind of frame: (flags, length or a remote frame's DLC)
-            if plain and len(set(map(len, datas))) == 1:
-                runs = [(0, len(datas[0]), 0, len(datas))]
+            lengths = set(map(len, datas))
+            these = {0} if plain else set(map(flags.__getitem__, rows))
+            if len(lengths) == 1 and len(these) == 1 and not min(these) & REMOTE:
+                runs = [(min(these), len(datas[0]), 0, len(datas))]
             else:
                 runs = []
                 for at, (r, data) in enumerate(zip(rows, datas, strict=True)):
@@ -443,8 +445,9 @@ class HealthMonitor:
             first = decoded[fed[0]]
             assert first is not None
             codec = first.codec
-            bad += [r for r, d in zip(rows, results, strict=True)
-                    if d is not None and d.non_finite]
+            if codec.floats:  # (only a float signal can be non-finite)
+                bad += [r for r, d in zip(rows, results, strict=True)
+                        if d is not None and d.non_finite]
             families = self._families_of.get(codec)
             if families is None:
                 families = tuple(self._by_message.get(codec.message.name, ()))
@@ -455,8 +458,8 @@ class HealthMonitor:
         undecoded.sort(key=by_row)
         bad.sort()
         firsts.sort(key=by_row)
-        arbitration = [b[0] for b in bits]
-        data_phase = [b[1] for b in bits] if block.all_flags() & BRS else None
+        arbitration = list(map(itemgetter(0), bits))
+        data_phase = list(map(itemgetter(1), bits)) if block.all_flags() & BRS else None
         buses: dict[int, BusRows] = {}
         if len(names) == 1:
             buses[0] = BusRows(range(n), ts, block.key, arbitration, data_phase)
