@@ -49,6 +49,38 @@ def test_the_fallback_path_writes_the_same() -> None:
     assert write_with(FastWriter, fast=False) == write_with(McapWriter)
 
 
+
+def write_runs(cls: type[McapWriter], fast: bool = True) -> bytes:
+    """Runs of messages (offline convert's decoded messages), a run at once where the writer
+    can (FastWriter.add_many), else one by one."""
+    rng = random.Random(11)
+    out = io.BytesIO()
+    writer = cls(out, chunk_size=4096)
+    if not fast:
+        writer._fast = False
+    writer.start(profile="", library="test")
+    schema = writer.register_schema("s", "protobuf", b"schema")
+    channels = [writer.register_channel(f"/t{i}", "protobuf", schema) for i in range(3)]
+    t = 1_000_000
+    for size in [rng.randint(0, 300) for _ in range(40)]:  # runs across several chunks
+        run = []
+        for _ in range(size):
+            t += rng.randint(-2000, 3000)
+            run.append((rng.choice(channels), t, rng.randbytes(rng.randint(0, 80))))
+        if isinstance(writer, FastWriter):
+            writer.add_many(run)
+        else:
+            for channel_id, log_time, data in run:
+                writer.add_message(channel_id, log_time, data, log_time)
+    writer.finish()
+    return out.getvalue()
+
+
+def test_runs_of_messages_are_written_as_mcap_writes_them_one_by_one() -> None:
+    assert write_runs(FastWriter) == write_runs(McapWriter)
+    assert write_runs(FastWriter, fast=False) == write_runs(McapWriter)
+
+
 def test_without_message_indexes_the_fast_writer_writes_what_mcap_writes() -> None:
     """Chunk indexes and the summary without the per-message MessageIndex records."""
     chunks_only = IndexType.ALL & ~IndexType.MESSAGE

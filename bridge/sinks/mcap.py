@@ -182,31 +182,40 @@ class FastWriter(McapWriter):
                 super().add_message(channel_id, log_time, data, log_time)
             return
         chunk = self._chunk
-        indices = chunk.message_indices
         buffer = chunk.record_writer._buffer
         offset = buffer.tell()
         limit, pack, header, message = (self._chunk_size, _MESSAGE_HEADER.pack,
-                                        _MESSAGE_HEADER.size, Opcode.MESSAGE)
+                                        _MESSAGE_HEADER.size, int(Opcode.MESSAGE))
         parts: list[bytes] = []
+        #: channel id -> its (log time, offset) pairs, flat, until they go into the chunk's index
+        pending: dict[int, list[int]] = {}
         for channel_id, log_time, data in messages:
+            entries = pending.get(channel_id)
+            if entries is None:
+                entries = pending[channel_id] = []
+            entries += (log_time, offset)
+            n = len(data)
+            parts += (pack(message, 22 + n, channel_id, 0, log_time, log_time), data)
+            offset += header + n
+            if offset > limit:
+                self._write_run(buffer, parts, pending)
+                self._settle_and_finalize()
+                buffer = chunk.record_writer._buffer
+                offset = buffer.tell()
+        self._write_run(buffer, parts, pending)
+
+    def _write_run(self, buffer: Any, parts: list[bytes], pending: dict[int, list[int]]) -> None:
+        """A run's records into the chunk, and their (log time, offset) pairs into its index."""
+        buffer.write(b"".join(parts))
+        parts.clear()
+        indices = self._chunk.message_indices
+        for channel_id, entries in pending.items():
             index = indices.get(channel_id)
             if index is None:
                 index = indices[channel_id] = _MessageIndex(channel_id)
-            entries = index.entries
-            entries.append(log_time)
-            entries.append(offset)
-            n = len(data)
-            parts.append(pack(message, 22 + n, channel_id, 0, log_time, log_time))
-            parts.append(data)
-            offset += header + n
-            if offset > limit:
-                buffer.write(b"".join(parts))
-                parts.clear()
-                self._settle_and_finalize()
-                indices = chunk.message_indices
-                buffer = chunk.record_writer._buffer
-                offset = buffer.tell()
-        buffer.write(b"".join(parts))
+            index.entries.extend(entries)
+        pending.clear()
+
 
 #: Called with a recorder: when it starts, to attach what its drive is decoded with (databases,
 #: profile), so that a file cut before its end still has them; and just before it is finished, to
