@@ -17,14 +17,15 @@ The pipeline's thread reads every bus itself, without waiting, a few times per s
 merged in time order (:func:`merge_batches`). A read takes what python-can has received as
 ``recv(0)`` would, with less work per frame (:func:`_received`): python-can's virtual bus (the
 demo's) gives its whole queue at once, any other bus whose ``recv`` is python-can's own is read
-through ``_recv_internal``, the method ``recv`` calls, with the same filters. A frame whose stamp is not a time (NaN, infinite,
-before 1970 or after 2262) is not a failure of the bus: it is stamped with the time it was read
-(on the bus's own clock, as its last frames tell it), kept, and counted; something that is not a
-frame at all is skipped and counted (:class:`ReceiveCounts`, which :mod:`bridge.health.receive`
-tells on ``/log`` and ``/health``). Where python-can exposes the socket (socketcan, udp_multicast),
-its receive buffer is raised to :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows:
-:func:`raise_receive_buffer`) and the kernel's count of the frames it dropped for want of room is
-read at each read (:func:`kernel_drops`).
+through ``_recv_internal``, the method ``recv`` calls, with the same filters. A frame whose
+stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a failure of the bus: it is
+stamped with the time it was read (on the bus's own clock, as its last frames tell it), kept, and
+counted; something that is not a frame at all is skipped and counted (:class:`ReceiveCounts`,
+which :mod:`bridge.health.receive` tells on ``/log`` and ``/health``). Where python-can exposes
+the socket (socketcan, udp_multicast), its receive buffer is raised to
+:data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows: :func:`raise_receive_buffer`) and the
+kernel's count of the frames it dropped for want of room is read at each read
+(:func:`kernel_drops`).
 
 python-can's own log lines (a warning per connection attempt: hundreds of thousands a second
 from socketcand) go through :class:`CanLogLimiter`: each cause is said once, then at most every
@@ -44,7 +45,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -473,18 +474,23 @@ def _stamp_text(seconds: Any) -> str:
     return str(seconds) if isinstance(seconds, float) else repr(seconds)
 
 
-def _received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
+def _received(bus: can.BusABC, limit: int) -> Iterable[can.Message]:
     """What ``bus`` has received by now, at most ``limit`` messages, never waiting: what
     ``bus.recv(0)`` returns until it returns None.
 
-    A bus that keeps python-can's own ``recv`` is read through the method ``recv`` calls,
+    python-can's virtual bus gives its whole queue at once (:func:`_virtual_received`). A bus
+    that keeps python-can's own ``recv`` is read through the method ``recv`` calls,
     ``_recv_internal`` (every interface implements it), with the same filtering: ``recv``'s
     clock readings and its log call cost more than taking the frame (1.5 µs of 3.4 a frame on
     the virtual bus). One difference: ``recv(0)`` ends a read at a message its filters refuse,
     this goes on to the next."""
     if type(bus) is VirtualBus and isinstance(getattr(bus, "queue", None), queue.Queue):
-        yield from _virtual_received(bus, limit)
-        return
+        return _virtual_received(bus, limit)
+    return _recv_received(bus, limit)
+
+
+def _recv_received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
+    """:func:`_received` of any bus but python-can's virtual one."""
     if type(bus).recv is not _BUS_RECV:  # an interface with a recv of its own
         recv = bus.recv
         for _ in range(limit):
