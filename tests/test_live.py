@@ -496,3 +496,70 @@ def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> No
     now[0] += 0.06  # no scene for 1.11 s: flush anyway
     assert on_disk() > written
     drive.finish()
+
+
+def test_a_virtual_bus_is_read_whole_from_its_queue_in_order_and_filtered() -> None:
+    """python-can's virtual bus (the demo's) is read by taking its queue at once, not a recv
+    per frame: the same frames, in order, its filters applied, at most ``limit``."""
+    import queue
+
+    from bridge.io.buses import BusLink
+
+    channel = f"test-read-whole-{os.getpid()}"
+    car = can.Bus(interface="virtual", channel=channel)
+    link = BusLink(BusSpec("can0", "virtual", channel), queue.SimpleQueue(),
+                   open_bus=lambda spec: can.Bus(interface="virtual", channel=channel,
+                                                 can_filters=[{"can_id": 0x100,
+                                                               "can_mask": 0x700}]))
+    link.start()
+    try:
+        assert link.opened.wait(10)
+        bus = link._bus
+        assert bus is not None
+
+        def no_recv(timeout: float | None = None) -> can.Message | None:
+            raise AssertionError("read frame by frame")
+
+        bus.recv = no_recv  # type: ignore[method-assign]
+        for i in range(10):
+            car.send(can.Message(arbitration_id=0x100 + i % 2 * 0x100, data=bytes([i])))
+        assert [f.data for f in link.poll(limit=3)] == [b"\0", b"\2"]  # 0x200 filtered out
+        assert [f.data for f in link.poll()] == [b"\4", b"\6", b"\x08"]
+        assert link.poll() == []
+    finally:
+        link.stop()
+        link.close()
+        car.shutdown()
+
+
+class QueueBus(can.BusABC):
+    """A bus with python-can's own recv (a socketcan, a pcan...): frames from a list."""
+
+    def __init__(self, messages: list[can.Message], **kwargs: Any) -> None:
+        super().__init__(channel="queue", **kwargs)
+        self.messages = messages
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return (self.messages.pop(0) if self.messages else None), False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise NotImplementedError
+
+
+def test_a_bus_is_read_through_its_recv_internal_its_filters_applied() -> None:
+    """A bus with python-can's own recv is read through _recv_internal (without recv's clock
+    readings and log call), filtered as recv filters; a refused frame does not end the read
+    (recv(0) returns None at it)."""
+    import queue
+
+    from bridge.io.buses import BusLink
+
+    stamp = time.time()
+    messages = [can.Message(timestamp=stamp + i, arbitration_id=0x100 + i % 2 * 0x100,
+                            data=bytes([i])) for i in range(6)]
+    bus = QueueBus(messages, can_filters=[{"can_id": 0x100, "can_mask": 0x700}])
+    link = BusLink(BusSpec("can0", "fake", "x"), queue.SimpleQueue())
+    link._bus = bus
+    assert [f.data for f in link.poll()] == [b"\0", b"\2", b"\4"]
+    assert link.poll() == [] and not messages
+    bus.shutdown()

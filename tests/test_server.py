@@ -21,9 +21,11 @@ import websockets
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from waiting import wait_for
+from websockets.frames import Frame, Opcode
+from websockets.streams import StreamReader
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.sinks.server import SEND_BUFFER_BYTES, ClientStats, LiveServer, ServerError
+from bridge.sinks.server import SEND_BUFFER_BYTES, ClientStats, LiveServer, ServerError, internals
 from bridge.sinks.server.client import ClientQueue
 
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
@@ -257,20 +259,63 @@ def test_a_full_queue_drops_its_oldest_and_counts_them() -> None:
     viewer.put([(3, t, b"c") for t in range(2, 6)])
     assert [t for _, t, _ in viewer.queue] == [3, 4, 5]  # the newest three
     assert viewer.stats.dropped == 3 and viewer.ready.is_set()
+    assert viewer.stats.channels == {3: 3}
 
 
 def test_a_message_queued_before_an_unsubscribe_is_not_sent() -> None:
     """A viewer that unsubscribed gets nothing more of that channel, even what was queued."""
-    state = SimpleNamespace(subscriptions_by_channel={3: 1, 4: 2})
+    state = SimpleNamespace(subscriptions_by_channel={3: 1, 4: 2},
+                            connection=SimpleNamespace(extensions=[]))
     queued = ClientQueue(state, ClientStats("viewer"), limit=10)
     for t in range(3):
         queued.put([(3, t, b"radar"), (4, t, b"lanes")])
     # foxglove-websocket swaps in a new mapping at every (un)subscribe
     state.subscriptions_by_channel = {4: 2}
-    frames = queued._next_frames(limit=64)
+    chunks, count = queued._next_frames(limit=64)
+    frames = websocket_frames(b"".join(chunks))
+    assert count == len(frames) == 3
     headers = [struct.unpack_from("<BIQ", f.data) for f in frames]
     assert headers == [(1, 2, 0), (1, 2, 1), (1, 2, 2)]  # subscription 2 only, in order
     assert all(f.data.endswith(b"lanes") for f in frames) and not queued.queue
+
+
+def websocket_frames(data: bytes) -> list[Frame]:
+    """The WebSocket frames a server wrote, as websockets' own parser reads them."""
+    reader = StreamReader()
+    reader.feed_data(data)
+    frames = []
+    while reader.buffer:  # (every byte is there: each parse ends without asking for more)
+        with pytest.raises(StopIteration) as done:
+            next(Frame.parse(reader.read_exact, mask=False))
+        frames.append(done.value.value)
+    return frames
+
+
+@pytest.mark.parametrize("length", [0, 1, 125, 126, 127, 65535, 65536, 70000])
+def test_a_binary_message_is_framed_as_websockets_frames_it(length: int) -> None:
+    """The server frames its binary messages itself (internals.binary_header): the bytes
+    websockets' Frame.serialize writes, which its parser reads back."""
+    payload = bytes(range(256)) * (length // 256) + bytes(length % 256)
+    framed = internals.binary_header(length) + payload
+    assert framed == Frame(Opcode.BINARY, payload).serialize(mask=False, extensions=[])
+    assert websocket_frames(framed)[0].data == payload
+
+
+def test_messages_on_a_connection_with_an_extension_are_framed_by_websockets() -> None:
+    """Only a plain connection's messages are framed by hand; with an extension (never
+    offered, but the code does not assume it) websockets frames them."""
+    class Mark:
+        def encode(self, frame: Frame) -> Frame:
+            return dataclasses.replace(frame, data=b"!" + frame.data)
+
+    state = SimpleNamespace(subscriptions_by_channel={3: 1},
+                            connection=SimpleNamespace(extensions=[Mark()]))
+    queued = ClientQueue(state, ClientStats("viewer"), limit=10)
+    queued.put([(3, 7, b"radar")])
+    chunks, count = queued._next_frames(limit=64)
+    assert count == 1
+    assert websocket_frames(b"".join(chunks))[0].data == (
+        b"!" + struct.pack("<BIQ", 1, 1, 7) + b"radar")
 
 
 def test_an_idle_viewer_gets_its_messages_at_once_unless_its_socket_is_full() -> None:
@@ -412,3 +457,38 @@ def test_the_message_headers_are_the_librarys() -> None:
 
     assert MessageDataHeader.format == "<BIQ" and TimeDataHeader.format == "<BQ"
     assert (BinaryOpcode.MESSAGE_DATA, BinaryOpcode.TIME) == (1, 2)
+
+
+def test_what_is_published_between_scenes_waits_for_the_next_flush_but_not_long(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Live's raw frames and signals go with the next scene (flush_batched wakes the loop only
+    if it was not woken within BATCH_S), and still leave at most BATCH_S after the last wake;
+    a scene (flush) wakes it at once."""
+    from bridge.sinks.server import live
+    from bridge.sinks.server.live import BATCH_S
+
+    now = [1000.0]
+    monkeypatch.setattr(live, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    with LiveServer(port=0) as server:
+        channel = server.channel("/can/can0/frames", CanFrame)
+        server._wanted.add(channel)  # (as a subscriber would)
+        wakes: list[float] = []
+        wake = server._wake
+
+        def counted() -> None:
+            wakes.append(now[0])
+            wake()
+
+        monkeypatch.setattr(server, "_wake", counted)
+        server.flush_batched()
+        assert wakes == []  # nothing published: nothing to send
+        server.publish(channel, 1, b"frames")
+        server.flush()  # a scene: at once
+        assert len(wakes) == 1
+        now[0] += BATCH_S / 2
+        server.publish(channel, 2, b"frames")
+        server.flush_batched()  # just after a scene: with the next one
+        assert len(wakes) == 1
+        now[0] += BATCH_S  # no scene for BATCH_S: now
+        server.flush_batched()
+        assert len(wakes) == 2

@@ -216,7 +216,8 @@ class Live:
                 if log_now is not None:
                     pipeline.advance(log_now)
                 if self.server is not None:
-                    self.server.flush()  # raw frames and signals for who subscribed to them
+                    # raw frames and signals for who subscribed to them, with the next scene
+                    self.server.flush_batched()
                 if self.recorder is not None:
                     self.recorder.tick()
                     self._recorder_state()

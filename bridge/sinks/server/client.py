@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import itertools
+import operator
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,6 +32,8 @@ HANDSHAKE_S = 1.0
 
 _MESSAGE_DATA = BinaryOpcode.MESSAGE_DATA
 _pack_header = MessageDataHeader.pack
+_HEADER_SIZE = MessageDataHeader.size
+_channel_of = operator.itemgetter(0)
 
 
 @dataclass
@@ -46,11 +49,10 @@ class ClientStats:
     #: messages lost per channel id
     channels: collections.Counter[int] = field(default_factory=collections.Counter)
 
-    def lost(self, items: Iterable[tuple[Any, ...]]) -> None:
-        """Queued ``(channel, time, payload)`` items that were dropped."""
-        for item in items:
-            self.channels[item[0]] += 1
-            self.dropped += 1
+    def lost(self, items: Iterable[tuple[Any, ...]], count: int) -> None:
+        """``count`` queued ``(channel, time, payload)`` items that were dropped."""
+        self.channels.update(map(_channel_of, items))  # (counted in C)
+        self.dropped += count
 
 
 @dataclass
@@ -82,7 +84,7 @@ class ClientQueue:
         excess = before + len(items) - self.limit
         if excess > 0:
             self.stats.lost(itertools.chain(itertools.islice(queue, min(excess, before)),
-                                            items[:max(0, excess - before)]))
+                                            items[:max(0, excess - before)]), excess)
         queue.extend(items)
         self.ready.set()
 
@@ -136,26 +138,41 @@ class ClientQueue:
         if not self.control and not self.queue:
             self.ready.clear()  # nothing left for the sender task
 
-    def _write(self, frames: list[Frame]) -> None:
-        if frames:
-            internals.write_frames(self.state.connection, frames)
-            self.stats.sent += len(frames)
+    def _write(self, messages: tuple[list[bytes], int]) -> None:
+        chunks, count = messages
+        if chunks:
+            internals.write_serialized(self.state.connection, chunks)
+            self.stats.sent += count
 
-    def _next_frames(self, limit: int) -> list[Frame]:
-        """Up to ``limit`` queued messages as WebSocket frames, control messages first."""
-        frames: list[Frame] = []
+    def _next_frames(self, limit: int) -> tuple[list[bytes], int]:
+        """Up to ``limit`` queued messages as WebSocket frames, control messages first: their
+        bytes (a message may be several chunks) and how many messages."""
+        chunks: list[bytes] = []
+        count = 0
         control, queue = self.control, self.queue
+        connection = self.state.connection
+        plain = internals.plain(connection)
         # (a new mapping at every (un)subscribe: read it now)
         subscriptions = self.state.subscriptions_by_channel
-        while len(frames) < limit and (control or queue):
+        add, header, frame_header = chunks.append, _pack_header, internals.binary_header
+        while count < limit and (control or queue):
             if control:
                 data = control.popleft()
-                frames.append(Frame(Opcode.TEXT, data.encode()) if isinstance(data, str)
-                              else Frame(Opcode.BINARY, data))
+                chunks.append(internals.serialized(connection, Frame(Opcode.TEXT, data.encode())
+                                                   if isinstance(data, str)
+                                                   else Frame(Opcode.BINARY, data)))
+                count += 1
                 continue
             channel_id, t_ns, payload = queue.popleft()
             subscription = subscriptions.get(channel_id)
-            if subscription is not None:  # else unsubscribed since
-                frames.append(Frame(Opcode.BINARY, _pack_header(
-                    _MESSAGE_DATA, subscription, t_ns) + payload))
-        return frames
+            if subscription is None:  # unsubscribed since
+                continue
+            if plain:  # framed here, as websockets would (and without copying the payload)
+                add(frame_header(_HEADER_SIZE + len(payload)))
+                add(header(_MESSAGE_DATA, subscription, t_ns))
+                add(payload)
+            else:
+                add(internals.serialized(connection, Frame(
+                    Opcode.BINARY, header(_MESSAGE_DATA, subscription, t_ns) + payload)))
+            count += 1
+        return chunks, count

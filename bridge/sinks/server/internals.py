@@ -20,8 +20,10 @@ What is used, and why:
   to): the server sends advertisements itself, through each client's own queue.
 - :class:`Connection` subclasses websockets' legacy ``WebSocketServerProtocol``: it overrides
   ``write_close_frame`` (reading ``close_rcvd``) and ``pong`` (with ``write_frame_sync`` and
-  ``prepare_ctrl``). :func:`write_frames`, :func:`ensure_open` and :func:`drain` write to a
-  connection's transport and wait for it the way the legacy protocol does itself.
+  ``prepare_ctrl``). :func:`write_frames`, :func:`write_serialized`, :func:`ensure_open` and
+  :func:`drain` write to a connection's transport and wait for it the way the legacy protocol
+  does itself. A binary message on a connection without extensions is framed here
+  (:func:`binary_header`: websockets' own bytes, which tests/test_server.py compares).
 
 Refusals: a viewer that sends what the server does not take gets the protocol's ``status``
 message (level error) saying what was wrong, the console one line (logger ``tankviz.server``,
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import json
 import logging
+import struct
 import weakref
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -143,6 +146,41 @@ def write_frames(connection: Any, frames: Sequence[Frame] | Iterable[Frame]) -> 
     extensions = connection.extensions
     connection.transport.write(b"".join(frame.serialize(mask=False, extensions=extensions)
                                         for frame in frames))
+
+
+def serialized(connection: Any, frame: Frame) -> bytes:
+    """One message as websockets writes it to this connection (server side: unmasked)."""
+    return bytes(frame.serialize(mask=False, extensions=connection.extensions))
+
+
+def plain(connection: Any) -> bool:
+    """Whether the connection's messages go out as bare RFC 6455 frames (no extension: the
+    server offers no compression), so that :func:`binary_header` frames them as websockets
+    would."""
+    return not connection.extensions
+
+
+_BINARY = 0x80 | Opcode.BINARY  # FIN, and the binary opcode
+_SHORT = struct.Struct("!BB")
+_MEDIUM = struct.Struct("!BBH")
+_LONG = struct.Struct("!BBQ")
+
+
+def binary_header(length: int) -> bytes:
+    """The header websockets' ``Frame.serialize`` writes before a whole binary message of
+    ``length`` bytes from a server (unmasked) on a :func:`plain` connection: the same bytes,
+    without a ``Frame`` and a buffer per message (1.7 µs a message there, 0.2 here)."""
+    if length < 126:
+        return _SHORT.pack(_BINARY, length)
+    if length < 65536:
+        return _MEDIUM.pack(_BINARY, 126, length)
+    return _LONG.pack(_BINARY, 127, length)
+
+
+def write_serialized(connection: Any, chunks: list[bytes]) -> None:
+    """Messages already framed (:func:`serialized`, :func:`binary_header`), one write to the
+    connection's transport. Never waits."""
+    connection.transport.write(b"".join(chunks))
 
 
 async def ensure_open(connection: Any) -> None:
