@@ -498,40 +498,6 @@ def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> No
     drive.finish()
 
 
-def test_a_virtual_bus_is_read_whole_from_its_queue_in_order_and_filtered() -> None:
-    """python-can's virtual bus (the demo's) is read by taking its queue at once, not a recv
-    per frame: the same frames, in order, its filters applied, at most ``limit``."""
-    import queue
-
-    from bridge.io.buses import BusLink
-
-    channel = f"test-read-whole-{os.getpid()}"
-    car = can.Bus(interface="virtual", channel=channel)
-    link = BusLink(BusSpec("can0", "virtual", channel), queue.SimpleQueue(),
-                   open_bus=lambda spec: can.Bus(interface="virtual", channel=channel,
-                                                 can_filters=[{"can_id": 0x100,
-                                                               "can_mask": 0x700}]))
-    link.start()
-    try:
-        assert link.opened.wait(10)
-        bus = link._bus
-        assert bus is not None
-
-        def no_recv(timeout: float | None = None) -> can.Message | None:
-            raise AssertionError("read frame by frame")
-
-        bus.recv = no_recv  # type: ignore[method-assign]
-        for i in range(10):
-            car.send(can.Message(arbitration_id=0x100 + i % 2 * 0x100, data=bytes([i])))
-        assert [f.data for f in link.poll(limit=3)] == [b"\0", b"\2"]  # 0x200 filtered out
-        assert [f.data for f in link.poll()] == [b"\4", b"\6", b"\x08"]
-        assert link.poll() == []
-    finally:
-        link.stop()
-        link.close()
-        car.shutdown()
-
-
 class QueueBus(can.BusABC):
     """A bus with python-can's own recv (a socketcan, a pcan...): frames from a list."""
 

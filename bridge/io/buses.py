@@ -15,14 +15,13 @@ type and the first line of its message, never a traceback).
 The pipeline's thread reads every bus itself, without waiting, a few times per scene period
 (:class:`ReadSchedule`): just after each scene tick and between; the frames of several buses are
 merged in time order (:func:`merge_batches`). A read takes what python-can has received as
-``recv(0)`` would, with less work per frame (:func:`_received`): python-can's virtual bus (the
-demo's) gives its whole queue at once, any other bus whose ``recv`` is python-can's own is read
-through ``_recv_internal``, the method ``recv`` calls, with the same filters. A frame whose
-stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a failure of the bus: it is
-stamped with the time it was read (on the bus's own clock, as its last frames tell it), kept, and
-counted; something that is not a frame at all is skipped and counted (:class:`ReceiveCounts`,
-which :mod:`bridge.health.receive` tells on ``/log`` and ``/health``). Where python-can exposes
-the socket (socketcan, udp_multicast), its receive buffer is raised to
+``recv(0)`` would, with less work per frame (:func:`_received`): a bus whose ``recv`` is python-
+can's own is read through ``_recv_internal``, the method ``recv`` calls, with the same filters. A
+frame whose stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a failure of the
+bus: it is stamped with the time it was read (on the bus's own clock, as its last frames tell it),
+kept, and counted; something that is not a frame at all is skipped and counted
+(:class:`ReceiveCounts`, which :mod:`bridge.health.receive` tells on ``/log`` and ``/health``).
+Where python-can exposes the socket (socketcan, udp_multicast), its receive buffer is raised to
 :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows: :func:`raise_receive_buffer`) and the
 kernel's count of the frames it dropped for want of room is read at each read
 (:func:`kernel_drops`).
@@ -45,12 +44,11 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
-from can.interfaces.virtual import VirtualBus
 
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame
@@ -474,23 +472,15 @@ def _stamp_text(seconds: Any) -> str:
     return str(seconds) if isinstance(seconds, float) else repr(seconds)
 
 
-def _received(bus: can.BusABC, limit: int) -> Iterable[can.Message]:
+def _received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
     """What ``bus`` has received by now, at most ``limit`` messages, never waiting: what
     ``bus.recv(0)`` returns until it returns None.
 
-    python-can's virtual bus gives its whole queue at once (:func:`_virtual_received`). A bus
-    that keeps python-can's own ``recv`` is read through the method ``recv`` calls,
+    A bus that keeps python-can's own ``recv`` is read through the method ``recv`` calls,
     ``_recv_internal`` (every interface implements it), with the same filtering: ``recv``'s
     clock readings and its log call cost more than taking the frame (1.5 µs of 3.4 a frame on
     the virtual bus). One difference: ``recv(0)`` ends a read at a message its filters refuse,
     this goes on to the next."""
-    if type(bus) is VirtualBus and isinstance(getattr(bus, "queue", None), queue.Queue):
-        return _virtual_received(bus, limit)
-    return _recv_received(bus, limit)
-
-
-def _recv_received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
-    """:func:`_received` of any bus but python-can's virtual one."""
     if type(bus).recv is not _BUS_RECV:  # an interface with a recv of its own
         recv = bus.recv
         for _ in range(limit):
@@ -508,23 +498,6 @@ def _recv_received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
         if filtered or matches(message):
             taken += 1
             yield message
-
-
-def _virtual_received(bus: VirtualBus, limit: int) -> list[can.Message]:
-    """What python-can's virtual bus has received by now (at most ``limit``), taken from its
-    queue at once: the senders put every message into each receiver's ``queue.Queue``, and
-    ``recv`` takes them one by one, each under the queue's lock (which the senders' threads
-    contend for: 3.2 µs a frame, live, against 1.5 taken at once)."""
-    if not bus._open:
-        raise can.CanOperationError("Cannot operate on a closed bus")
-    waiting = bus.queue
-    with waiting.mutex:
-        take = waiting.queue.popleft
-        messages = [take() for _ in range(min(limit, len(waiting.queue)))]
-        if messages:
-            waiting.not_full.notify(len(messages))
-    matches = bus._matches_filters
-    return [m for m in messages if matches(m)]
 
 
 _BUS_RECV = can.BusABC.recv
