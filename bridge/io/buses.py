@@ -15,11 +15,11 @@ type and the first line of its message, never a traceback).
 The pipeline's thread reads every bus itself, without waiting, a few times per scene period
 (:class:`ReadSchedule`): just after each scene tick and between; the frames of several buses are
 merged in time order (:func:`merge_batches`). A read takes what python-can has received as
-``recv(0)`` would, with less work per frame (:func:`_received`): a bus whose ``recv`` is python-
-can's own is read through ``_recv_internal``, the method ``recv`` calls, with the same filters. A
-frame whose stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a failure of the
-bus: it is stamped with the time it was read (on the bus's own clock, as its last frames tell it),
-kept, and counted; something that is not a frame at all is skipped and counted
+``recv(0)`` would, with less work per frame (:func:`_received`): a bus whose ``recv`` is
+python-can's own is read through ``_recv_internal``, the method ``recv`` calls, with the same
+filters. A frame whose stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a
+failure of the bus: it is stamped with the time it was read (on the bus's own clock, as its last
+frames tell it), kept, and counted; something that is not a frame at all is skipped and counted
 (:class:`ReceiveCounts`, which :mod:`bridge.health.receive` tells on ``/log`` and ``/health``).
 Where python-can exposes the socket (socketcan, udp_multicast), its receive buffer is raised to
 :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows: :func:`raise_receive_buffer`) and the
