@@ -1,7 +1,8 @@
-"""Frames in blocks (offline convert: ``Pipeline.process_block``) make the same drive as frames
-one by one (live: ``Pipeline.process``): every message of every topic, byte for byte, and the
-same statistics, on ecocar and on two cars unlike it, with damaged frames and clock steps, and
-with blocks that cut across scene ticks, health checks and steps."""
+"""Frames in blocks (offline convert: ``Pipeline.process_block``) and in reads (live:
+``Pipeline.process_many``) make the same drive as frames one by one (``Pipeline.process``): every
+message of every topic, byte for byte, and the same statistics, on ecocar and on two cars unlike
+it, with damaged frames and clock steps, and with blocks that cut across scene ticks, health
+checks and steps."""
 
 from __future__ import annotations
 
@@ -50,12 +51,22 @@ def in_blocks(frames: list[Frame], size: int) -> list[FrameBlock]:
     return [FrameBlock.from_frames(frames[i:i + size]) for i in range(0, len(frames), size)]
 
 
+def in_reads(drive: Drive, frames: list[Frame], size: int) -> int:
+    """Frames as live reads them: ``size`` at a time (``Pipeline.process_many``)."""
+    for i in range(0, len(frames), size):
+        drive.pipeline.process_many(frames[i:i + size])
+    return len(frames)
+
+
 def assert_same_drive(stages: Callable[[], Stages], frames: list[Frame]) -> Topics:
     one_by_one = recorded(stages, lambda d: d.run(frames))
     for size in (1, 97, 4096):
         cut = in_blocks(frames, size)
         assert recorded(stages, lambda d, cut=cut: d.run_blocks(cut)) == one_by_one, (
             f"blocks of {size}")
+    for size in (1, 83):
+        assert recorded(stages, lambda d, size=size: in_reads(d, frames, size)) == one_by_one, (
+            f"reads of {size}")
     return one_by_one[0]
 
 

@@ -190,7 +190,7 @@ class Live:
         # frozen out of the collector's way; full collections only at quiet moments.
         collector = steady_stream()
         pipeline, events = self.pipeline, self.events
-        process = pipeline.process
+        process = pipeline.process_many
         schedule = ReadSchedule(round(NS / self.scene_rate))
         try:
             while not self.stopping.is_set():
@@ -206,8 +206,7 @@ class Live:
                     read_ns = time.time_ns()
                     schedule.saw(frames[-1].timestamp_ns, read_ns)
                     steps = len(pipeline.steps)
-                    for frame in frames:
-                        process(frame)
+                    process(frames)
                     if len(pipeline.steps) != steps:  # the clock stepped: log time with it
                         schedule.restart(frames[-1].timestamp_ns, read_ns)
                 # Every frame stamped before this was read: the scenes due go out now, whether
@@ -229,8 +228,7 @@ class Live:
             # runs dry).
             until = time.monotonic() + 0.25
             while time.monotonic() < until and (frames := self._poll()):
-                for frame in frames:
-                    process(frame)
+                process(frames)
             for link in self.links:
                 link.close()
             self._receive_state()

@@ -86,6 +86,50 @@ class Pipeline:
         """One frame through every stage."""
         self._process(frame, self.decoder.decode(frame))
 
+    def process_many(self, frames: Iterable[Frame]) -> None:
+        """:meth:`process` of each frame in turn (live: a read of the buses), the decoded
+        messages handed to the sinks a run at a time (:meth:`~bridge.sinks.base.Sink.
+        on_decoded_many`): those of the frames up to the next clock step or tick go before
+        it, so each sink gets every message in the order :meth:`process` gives it, but for
+        raw blocks, which may come before the decoded messages of the frames before them."""
+        decode, blocker, health, perception = (self.decoder.decode, self._blocker, self.health,
+                                               self.perception)
+        check, sinks, fed_of, wanted = self.clock.check, self.sinks, self._fed, self._wanted
+        run: list[tuple[int, Decoded]] = []
+        t = None
+        for frame in frames:
+            t = frame.timestamp_ns
+            step = check(t)
+            if step is not None or t >= self._next_tick:
+                if run:
+                    for sink in sinks:
+                        sink.on_decoded_many(run)
+                    run = []
+                if step is not None:
+                    self.rebase(step)
+                if t >= self._next_tick:
+                    self.advance(t)
+            if sinks:
+                blocker.add(frame)
+            decoded = decode(frame)
+            if health is not None:
+                health.on_frame(frame, decoded)
+            self.frames += 1
+            if decoded is None:
+                continue
+            run.append((t, decoded))
+            codec = decoded.codec
+            fed = fed_of.get(codec)
+            if fed is None:
+                fed = fed_of[codec] = codec.message.name in wanted
+            if fed and perception is not None:
+                perception.feed(codec.message.name, decoded.signals, t)
+        if run:
+            for sink in sinks:
+                sink.on_decoded_many(run)
+        if t is not None:
+            self.last_ns = t
+
     def process_block(self, block: FrameBlock) -> None:
         """A block of frames through every stage, as :meth:`process` of each in turn (the same
         messages on every topic, and the same statistics; topics interleave otherwise in the

@@ -475,6 +475,17 @@ class PartsRecorder(Sink):
         except OSError as exc:
             self._failed(exc)
 
+    def on_decoded_many(self, messages: Sequence[tuple[int, Decoded]], /) -> None:
+        recorder = self._recorder or self._part()
+        if recorder is None:
+            if self._gap is not None:
+                self._gap["messages_not_recorded"] += len(messages)
+            return
+        try:
+            recorder.on_decoded_many(messages)
+        except OSError as exc:
+            self._failed(exc)
+
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
         recorder = self._recorder or self._part()
         if recorder is None:
