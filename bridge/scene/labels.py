@@ -145,9 +145,13 @@ def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterato
     x, y = first.x, first.y
     full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)]) if others \
         else first.text
-    z = lifted(camera, x, y, first.z, full)
+    # lifted(camera, x, y, first.z, text) of each text, its camera's terms once
+    cos, sin = camera._sight
+    ahead = (x - camera.eye_x) * cos - (first.z - camera.eye_z) * sin
+    vertical = camera.focal_px / max(ahead, 0.1) * cos
+    z = first.z + ((full.count("\n") + 1) * LINE_PX / 2 + MARGIN_PX) / vertical
     yield full, x, y, z, z
-    z = lifted(camera, x, y, first.z, first.compact)
+    z = first.z + ((first.compact.count("\n") + 1) * LINE_PX / 2 + MARGIN_PX) / vertical
     yield first.compact, x, y, z, z
     metre = camera.px_per_m(x, y, z)
     aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
@@ -163,22 +167,27 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
     drawn: list[Box] = []
     blocks: list[Block] = []
     limit = PLACE_M ** 2
-    project = camera.project
+    # camera.project's terms
+    cos, sin = camera._sight
+    eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
     # camera.on_panel's bounds
     half_h, half_w = camera.height_px / 2, camera.height_px * camera.aspect / 2
     for place in places(labels):
         first, others = place[0], place[1:]
         size: tuple[str, float, float] = ("", 0.0, 0.0)  # a text, its half width and height
         for text, x, y, z, base in _tries(first, others, camera):  # noqa: B007 (kept)
-            at = project(x, y, z)  # box(camera, x, y, z, text), its text's size once
-            if at is None:
+            # box(camera, x, y, z, text), camera.project inline and its text's size once
+            d = (x - eye_x) * cos - (z - eye_z) * sin
+            if d <= 0.1:
                 continue
+            across = -y * focal / d
+            down = -((x - eye_x) * sin + (z - eye_z) * cos) * focal / d
             if size[0] is not text:
                 lines = text.split("\n")
                 size = (text, max(map(len, lines)) * CHAR_PX / 2 + MARGIN_PX,
                         len(lines) * LINE_PX / 2 + MARGIN_PX)
             half, tall = size[1], size[2]
-            left, top, right, bottom = at[0] - half, at[1] - tall, at[0] + half, at[1] + tall
+            left, top, right, bottom = across - half, down - tall, across + half, down + tall
             if not (-half_w <= left and right <= half_w and -half_h <= top
                     and bottom <= half_h):  # camera.on_panel
                 continue

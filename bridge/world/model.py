@@ -88,19 +88,36 @@ def lane_xs(c2: float, c3: float, length: float) -> tuple[float, ...]:
         return tuple(float(x) for x in range(int(length)))
     budget = 8.0 * LANE_TOLERANCE_M
     pieces = LANE_PIECES if c3 else 1
-    knots = [end * i / pieces for i in range(pieces + 1)]
+    knots = _knots(end, pieces)
     bends = [abs(2.0 * c2 + 6.0 * c3 * x) for x in knots]
     if end * end * max(bends) <= budget:
         return (0.0, end)
-    xs: tuple[float, ...] = (0.0,)
+    sqrt, ceil = math.sqrt, math.ceil
+    steps = []
     for i in range(pieces):
         span = knots[i + 1] - knots[i]
-        steps = math.ceil(span * math.sqrt(max(bends[i], bends[i + 1]) / budget))
-        xs += _evenly(knots[i], knots[i + 1], max(1, min(steps, int(span / LANE_MIN_STEP_M))))
-    return xs
+        wanted = ceil(span * sqrt(max(bends[i], bends[i + 1]) / budget))
+        steps.append(max(1, min(wanted, int(span / LANE_MIN_STEP_M))))
+    return _spaced(end, pieces, tuple(steps))
+
+
+@lru_cache(maxsize=64)
+def _knots(end: float, pieces: int) -> tuple[float, ...]:
+    """The ends of ``pieces`` equal pieces of [0, ``end``]."""
+    return tuple(end * i / pieces for i in range(pieces + 1))
 
 
 @lru_cache(maxsize=1024)
+def _spaced(end: float, pieces: int, steps: tuple[int, ...]) -> tuple[float, ...]:
+    """The points of :func:`lane_xs` that cut [0, ``end``] into ``pieces`` equal pieces, each
+    in its number of ``steps``: the same places whatever the line, held once."""
+    knots = _knots(end, pieces)
+    xs: tuple[float, ...] = (0.0,)
+    for i in range(pieces):
+        xs += _evenly(knots[i], knots[i + 1], steps[i])
+    return xs
+
+
 def _evenly(start: float, stop: float, steps: int) -> tuple[float, ...]:
     """``steps`` even steps from ``start`` (left out) to ``stop``."""
     return (*(start + (stop - start) * k / steps for k in range(1, steps)), stop)

@@ -340,22 +340,37 @@ class _GroupReader:
         self.polar = group.range is not None
         self.angle_unit = sensor.angle_unit
         self.scale = sensor.distance_scale
+        #: the other groups that read the same fields of the same messages as this one (e.g.
+        #: one radar's slots as detections and as tracks): each of its observations is theirs
+        #: too, under their name (:func:`_reading`)
+        self.aliases: list[str] = []
 
     def note(self, member: FamilyMember, message: str, values: Mapping[str, Any],
              t_ns: int) -> _Object:
         """Take one message of an object's family; returns the object."""
-        index = member.index
-        obj = self.objects.get(index)
-        if obj is None:
-            obj = self.objects[index] = _Object(self.group, index)
+        obj = self.object(member.index)
         obj.latest[message] = values
         if member.template == self.primary:
             obj.position_ns = t_ns
         return obj
 
+    def object(self, index: int | None) -> _Object:
+        """Object ``index`` (made when first asked for)."""
+        obj = self.objects.get(index)
+        if obj is None:
+            obj = self.objects[index] = _Object(self.group, index)
+        return obj
+
     def observe(self, member: FamilyMember, message: str, values: Mapping[str, Any],
                 t_ns: int) -> ObjectObservation | None:
         return self.observation(member.index, self.note(member, message, values, t_ns))
+
+    def also(self, made: ObjectObservation, out: list[Observation]) -> None:
+        """``made`` as each alias group's observation too (:attr:`aliases`), into ``out``."""
+        for alias in self.aliases:
+            out.append(ObjectObservation(alias, made.object_id, made.t_ns, made.x, made.y,
+                                         made.valid, made.vx, made.vy, made.probability,
+                                         made.object_class, made.rule_error))
 
     def observation(self, index: int | None, obj: _Object) -> ObjectObservation | None:
         """Object ``index`` as its latest messages describe it.
@@ -420,22 +435,39 @@ class _GroupReader:
                                  object_class, rule_error)
 
 
+def _reading(group: ObjectGroup) -> ObjectGroup:
+    """What of ``group`` its observations depend on: all but its name, lifetime and role (two
+    groups equal in this observe the same objects, e.g. a radar's slots as detections and as
+    tracks)."""
+    return replace(group, name="", lifetime_s=0.0, role=None)
+
+
 class Observer:
-    """Routes decoded messages (by DBC message name) to observations, as the profile says."""
+    """Routes decoded messages (by DBC message name) to observations, as the profile says.
+
+    Groups that read the same fields of the same messages (:func:`_reading`) are observed once:
+    each observation of the first is made again under the other's name, just after it (the
+    order in which observing them apart would make them)."""
 
     def __init__(self, profile: Profile) -> None:
         self.profile = profile
         self._objects: dict[str, list[tuple[_GroupReader, FamilyMember]]] = {}
-        readers = [_GroupReader(g) for g in profile.groups.values()]
+        readers: list[_GroupReader] = []
+        for group in profile.groups.values():
+            same = next((r for r in readers if _reading(r.group) == _reading(group)), None)
+            if same is not None:  # its observations are the other's, under its own name
+                same.aliases.append(group.name)
+            else:
+                readers.append(_GroupReader(group))
         if profile.lead is not None and profile.lead.group is not None:
             readers.append(_GroupReader(replace(profile.lead.group, name=LEAD_GROUP)))
         for reader in readers:
             for name, member in reader.group.members.items():
                 self._objects.setdefault(name, []).append((reader, member))
-        #: per message: each object reader it is for, the object's index and whether it is the
-        #: family's first message (its time is the object's position's)
-        self._routes = {name: [(reader, member.index, member.template == reader.primary)
-                               for reader, member in pairs]
+        #: per message: each object it is for (made here, once), the object's reader and
+        #: whether it is the family's first message (its time is the object's position's)
+        self._routes = {name: [(reader.object(member.index), reader,
+                                member.template == reader.primary) for reader, member in pairs]
                         for name, pairs in self._objects.items()}
         self._lanes: dict[str, list[LaneLine]] = {}
         if profile.lanes is not None:
@@ -475,6 +507,8 @@ class Observer:
             obs = reader.observe(member, message, values, t_ns)
             if obs is not None:
                 out.append(obs)
+                if reader.aliases:
+                    reader.also(obs, out)
         self._observe_lanes_and_ego(message, values, t_ns, out)
         return out
 
@@ -490,10 +524,7 @@ class Observer:
         for message, (values, t_ns) in latest.items():
             found = routes.get(message)
             if found is not None:
-                for reader, index, primary in found:  # _GroupReader.note, inline
-                    obj = reader.objects.get(index)
-                    if obj is None:
-                        obj = reader.objects[index] = _Object(reader.group, index)
+                for obj, reader, primary in found:  # _GroupReader.note, inline
                     obj.latest[message] = values
                     if primary:
                         obj.position_ns = t_ns
@@ -507,15 +538,19 @@ class Observer:
             key = obj.read_key()
             if key == obj.key:
                 made = obj.made
-                if made is not None:
-                    out.append(ObjectObservation(
-                        made.group, made.object_id, t_ns, made.x, made.y, made.valid, made.vx,
-                        made.vy, made.probability, made.object_class, made.rule_error))
-                continue
-            obj.key = key
-            made = obj.made = reader.evaluate(obj.index, obj, t_ns)
-            if made is not None:
-                out.append(made)
+                if made is None:
+                    continue
+                made = ObjectObservation(
+                    made.group, made.object_id, t_ns, made.x, made.y, made.valid, made.vx,
+                    made.vy, made.probability, made.object_class, made.rule_error)
+            else:
+                obj.key = key
+                made = obj.made = reader.evaluate(obj.index, obj, t_ns)
+                if made is None:
+                    continue
+            out.append(made)
+            if reader.aliases:
+                reader.also(made, out)
         return out
 
     def _observe_lanes_and_ego(self, message: str, values: Mapping[str, Any], t_ns: int,
