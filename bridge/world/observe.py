@@ -340,6 +340,9 @@ class _GroupReader:
         self.polar = group.range is not None
         self.angle_unit = sensor.angle_unit
         self.scale = sensor.distance_scale
+        #: a sensor mounted without yaw: its lateral sign and mount (to_vehicle and velocity
+        #: spelled out in evaluate); (0.0, mount) for one with a yaw
+        self.unturned = (0.0 if sensor.mount.yaw_deg else sensor.lateral_sign, sensor.mount)
         #: the other groups that read the same fields of the same messages as this one (e.g.
         #: one radar's slots as detections and as tracks): each of its observations is theirs
         #: too, under their name (:func:`_reading`)
@@ -405,21 +408,40 @@ class _GroupReader:
                 return None
             xs, ys = polar_to_cartesian(distance * scale, azimuth, self.angle_unit)
         else:
-            xr, yr = _read(latest, obj.x), _read(latest, obj.y)
-            if xr is None or yr is None:
+            ref = obj.x  # _read of each field, inline
+            xr = ref.value(latest) if ref is not None else None
+            if xr is None:
+                return None
+            ref = obj.y
+            yr = ref.value(latest) if ref is not None else None
+            if yr is None:
                 return None
             xs, ys = xr * scale, yr * scale
         g = self.group
         sensor = g.sensor
-        x, y = to_vehicle(sensor, xs, ys)
-        if not (math.isfinite(x) and math.isfinite(y)):
+        sign, mount = self.unturned
+        if sign:  # to_vehicle of a sensor mounted without yaw, inline
+            x, y = xs + mount.x, ys * sign + mount.y
+        else:
+            x, y = to_vehicle(sensor, xs, ys)
+        isfinite = math.isfinite
+        if not (isfinite(x) and isfinite(y)):
             return None
-        # _read of each field, inline
         ref = obj.vx
         vx_raw = ref.value(latest) if ref is not None else None
         ref = obj.vy
         vy_raw = ref.value(latest) if ref is not None else None
-        vx, vy = velocity(sensor, vx_raw, vy_raw, scale)
+        if vx_raw is None and vy_raw is None:
+            vx = vy = None
+        elif sign:  # velocity() of a sensor mounted without yaw, inline
+            vx = (vx_raw or 0.0) * scale
+            vy = (vy_raw or 0.0) * scale * sign
+            if vx_raw is None or not isfinite(vx):
+                vx = None
+            if vy_raw is None or not isfinite(vy):
+                vy = None
+        else:
+            vx, vy = velocity(sensor, vx_raw, vy_raw, scale)
         ref = obj.id
         ident = ref.value(latest) if ref is not None else None
         ref = obj.class_signal
