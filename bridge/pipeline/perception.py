@@ -47,7 +47,7 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
-from bridge.world.lead import twin_sets
+from bridge.world.lead import same_twins, twin_sets
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import Observer
 
@@ -195,7 +195,14 @@ class Perception:
         world, profile = self.world, self.profile
         steady = world.lead(lanes, t_ns)
         check = world.mio_check(lanes, steady.lead)
-        twins = {name: twin_sets(world.objects[name].values()) for name in profile.groups}
+        twins: dict[str, dict[int, tuple[int, ...]]] = {}
+        aliases = self.observer.aliases
+        for name in profile.groups:  # a group observed with another: often the same twins
+            objects = world.objects[name]
+            same = aliases.get(name)
+            twins[name] = (twins[same] if same is not None and same_twins(world.objects[same],
+                                                                         objects)
+                           else twin_sets(objects.values()))
         from_tracks = profile.lead is not None and profile.lead.source == "tracks"
         out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state,

@@ -91,11 +91,12 @@ def places(labels: Sequence[Label]) -> list[list[Label]]:
 
     limit = PLACE_M ** 2
     spots = [(label.x, label.y) for label in order]
-    for i, (ax, ay) in enumerate(spots):
-        for j in range(i + 1, n):
-            bx, by = spots[j]
-            if (ax - bx) ** 2 + (ay - by) ** 2 < limit:
-                parent[root(j)] = root(i)
+    near = [(i, j) for i, (ax, ay) in enumerate(spots) for j in range(i + 1, n)
+            if (ax - spots[j][0]) ** 2 + (ay - spots[j][1]) ** 2 < limit]
+    if not near:  # every label a place of its own (the common case), in order of priority
+        return [[label] for label in order]
+    for i, j in near:
+        parent[root(j)] = root(i)
     grouped: dict[int, list[Label]] = {}
     for i, label in enumerate(order):
         grouped.setdefault(root(i), []).append(label)

@@ -6,6 +6,7 @@ import math
 import struct
 from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
+from operator import attrgetter
 
 from bridge.frame import NS, timestamp
 from bridge.pb.perception_pb2 import (
@@ -106,13 +107,16 @@ def _stamp_field(t_ns: int) -> bytes:
     return b"\x0a" + varint(len(data)) + data
 
 
+_ID = attrgetter("object_id")
+
+
 def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: int,
             twins: Mapping[int, Sequence[int]] | None = None) -> PerceivedObjects:
     """Every object of a group, each with its twins (id -> its set, :func:`twin_sets`): each
     object as :func:`perceived` makes it."""
     twins = twins or {}
     items = [_object_bytes(o, t_ns, twins.get(o.object_id, ()))
-             for o in sorted(found, key=lambda o: o.object_id)]
+             for o in sorted(found, key=_ID)]
     msg: PerceivedObjects = PerceivedObjects.FromString(b"".join([
         _stamp_field(t_ns), _objects_head(group, sensor), b"\x28", varint(len(items)),
         *items]))

@@ -108,6 +108,18 @@ def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]
             for i in members}
 
 
+def same_twins(a: Mapping[int, ObjectObservation], b: Mapping[int, ObjectObservation]) -> bool:
+    """Whether two groups' objects (by id) make the same :func:`twin_sets`: the same ids, each
+    at the same place with the same vx (what twins are judged by)."""
+    if a.keys() != b.keys():
+        return False
+    for i, o in a.items():
+        p = b[i]
+        if o.x != p.x or o.y != p.y or o.vx != p.vx:
+            return False
+    return True
+
+
 def nearer_margin(lead_x: float) -> float:
     """How much nearer (m) than a lead at ``lead_x`` another object must be to take the lead."""
     return max(NEARER_MARGIN_M, NEARER_SHARE * lead_x)

@@ -488,6 +488,9 @@ class Observer:
                 self._objects.setdefault(name, []).append((reader, member))
         #: per message: each object it is for (made here, once), the object's reader and
         #: whether it is the family's first message (its time is the object's position's)
+        #: each group observed with another (:func:`_reading`) -> that group
+        self.aliases = {alias: reader.group.name for reader in readers
+                        for alias in reader.aliases}
         self._routes = {name: [(reader.object(member.index), reader,
                                 member.template == reader.primary) for reader, member in pairs]
                         for name, pairs in self._objects.items()}
