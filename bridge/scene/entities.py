@@ -256,7 +256,8 @@ def _field(tag: bytes, data: bytes) -> bytes:
     """A length-delimited field (string, bytes, message) as wire bytes: ``tag``, the length
     and ``data``."""
     n = len(data)
-    return tag + (_BYTES[n] if n < 0x80 else varint(n)) + data
+    return tag + (_BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7)) if n < 0x4000
+                  else varint(n)) + data  # varint(n), its one or two bytes inline
 
 
 #: The one-byte varints (a short field's length).
@@ -307,7 +308,8 @@ def scene_update(entities: Iterable[WireEntity]) -> SceneUpdate:
     for e in entities:
         data = b"".join(e.parts)
         n = len(data)
-        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else varint(n), data)
+        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7))
+                  if n < 0x4000 else varint(n), data)  # varint(n), its one or two bytes inline
     update: SceneUpdate = SceneUpdate.FromString(b"".join(items))
     return update
 

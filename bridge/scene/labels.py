@@ -167,6 +167,7 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
     """The blocks to draw for one tick's ``labels`` (see the module's rules)."""
     drawn: list[Box] = []
     blocks: list[Block] = []
+    spots: list[tuple[float, float]] = []  # where each block stands (x, y)
     limit = PLACE_M ** 2
     # camera.project's terms
     cos, sin = camera._sight
@@ -196,14 +197,15 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
                 if left < o[2] and o[0] < right and top < o[3] and o[1] < bottom:
                     break
             else:
-                for b in blocks:
-                    if (b.x - x) ** 2 + (b.y - y) ** 2 < limit:
+                for bx, by in spots:
+                    if (bx - x) ** 2 + (by - y) ** 2 < limit:
                         break
                 else:
                     break
         else:
             continue
         drawn.append((left, top, right, bottom))
+        spots.append((x, y))
         # where its text would stand unmoved: lifted() of its text at its anchor (which does
         # not depend on y), as _tries computed it
         moved = (x, y) != (first.x, first.y) or z != base

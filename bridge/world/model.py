@@ -366,14 +366,30 @@ class World:
         self._curves[name] = (key, curve, drawable)
         return curve, drawable
 
-    def track_groups(self) -> list[str]:
-        return [name for name, g in self.profile.groups.items() if g.is_tracks]
+    def track_groups(self) -> tuple[str, ...]:
+        return self._track_groups
+
+    @cached_property
+    def _track_groups(self) -> tuple[str, ...]:
+        return tuple(name for name, g in self.profile.groups.items() if g.is_tracks)
 
     def closest_in_lane(self, lanes: LaneModel) -> ObjectObservation | None:
-        """The closest valid track ahead inside the ego lane."""
-        candidates = [o for name in self.track_groups() for o in self.objects[name].values()
-                      if lanes.in_ego_lane(o.x, o.y)]
-        return min(candidates, key=lambda o: o.x, default=None)
+        """The closest valid track ahead inside the ego lane (the first of the closest)."""
+        left, right = lanes.ego_lines
+        if left is None or right is None:
+            return None
+        # lanes.in_ego_lane of each track, its lines' coefficients once
+        l0, l1, l2, l3 = left.coefficients
+        r0, r1, r2, r3 = right.coefficients
+        closest = None
+        for name in self._track_groups:
+            for o in self.objects[name].values():
+                x = o.x
+                if (x >= 0 and r0 + x * (r1 + x * (r2 + x * r3)) < o.y
+                        < l0 + x * (l1 + x * (l2 + x * l3))
+                        and (closest is None or x < closest.x)):
+                    closest = o
+        return closest
 
     def lead(self, lanes: LaneModel, t_ns: int) -> SteadyLead:
         """The lead vehicle at the tick at log time ``t_ns`` (call once per tick): chosen from
