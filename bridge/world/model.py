@@ -88,30 +88,33 @@ def lane_xs(c2: float, c3: float, length: float) -> tuple[float, ...]:
         return tuple(float(x) for x in range(int(length)))
     budget = 8.0 * LANE_TOLERANCE_M
     pieces = LANE_PIECES if c3 else 1
-    knots = _knots(end, pieces)
+    knots, spans = _knots(end, pieces)
     bends = [abs(2.0 * c2 + 6.0 * c3 * x) for x in knots]
     if end * end * max(bends) <= budget:
         return (0.0, end)
     sqrt, ceil = math.sqrt, math.ceil
-    steps = []
-    for i in range(pieces):
-        span = knots[i + 1] - knots[i]
-        wanted = ceil(span * sqrt(max(bends[i], bends[i + 1]) / budget))
-        steps.append(max(1, min(wanted, int(span / LANE_MIN_STEP_M))))
+    steps = []  # each piece's: max(1, min(ceil(span * sqrt(max(a, b) / budget)), allowed))
+    for (span, allowed), a, b in zip(spans, bends, bends[1:]):
+        wanted = ceil(span * sqrt((b if b > a else a) / budget))
+        taken = allowed if allowed < wanted else wanted
+        steps.append(taken if taken > 1 else 1)
     return _spaced(end, pieces, tuple(steps))
 
 
 @lru_cache(maxsize=64)
-def _knots(end: float, pieces: int) -> tuple[float, ...]:
-    """The ends of ``pieces`` equal pieces of [0, ``end``]."""
-    return tuple(end * i / pieces for i in range(pieces + 1))
+def _knots(end: float, pieces: int) -> tuple[tuple[float, ...], tuple[tuple[float, int], ...]]:
+    """The ends of ``pieces`` equal pieces of [0, ``end``], and each piece's span with the
+    most steps :data:`LANE_MIN_STEP_M` allows on it."""
+    knots = tuple(end * i / pieces for i in range(pieces + 1))
+    spans = [knots[i + 1] - knots[i] for i in range(pieces)]
+    return knots, tuple((span, int(span / LANE_MIN_STEP_M)) for span in spans)
 
 
 @lru_cache(maxsize=1024)
 def _spaced(end: float, pieces: int, steps: tuple[int, ...]) -> tuple[float, ...]:
     """The points of :func:`lane_xs` that cut [0, ``end``] into ``pieces`` equal pieces, each
     in its number of ``steps``: the same places whatever the line, held once."""
-    knots = _knots(end, pieces)
+    knots, _ = _knots(end, pieces)
     xs: tuple[float, ...] = (0.0,)
     for i in range(pieces):
         xs += _evenly(knots[i], knots[i + 1], steps[i])

@@ -542,7 +542,8 @@ class Observer:
         """The observations of several messages at once (message -> (values, time), each the
         newest of its name, in the order they came): one per object however many of its
         family's messages came, from the newest of them all. What the last of them would
-        observe one by one."""
+        observe one by one, but for the time of an unchanged invalid observation: it is the
+        last one again, whose time counts nowhere (the world only drops its object)."""
         out: list[Observation] = []
         touched: dict[_Object, _GroupReader] = {}
         routes, others = self._routes, self._lanes_and_ego
@@ -565,9 +566,10 @@ class Observer:
                 made = obj.made
                 if made is None:
                     continue
-                made = ObjectObservation(
-                    made.group, made.object_id, t_ns, made.x, made.y, made.valid, made.vx,
-                    made.vy, made.probability, made.object_class, made.rule_error)
+                if made.valid:  # an invalid one is the last again: its time counts nowhere
+                    made = ObjectObservation(
+                        made.group, made.object_id, t_ns, made.x, made.y, True, made.vx,
+                        made.vy, made.probability, made.object_class, made.rule_error)
             else:
                 obj.key = key
                 made = obj.made = reader.evaluate(obj.index, obj, t_ns)
