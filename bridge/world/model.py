@@ -94,7 +94,7 @@ def lane_xs(c2: float, c3: float, length: float) -> tuple[float, ...]:
         return (0.0, end)
     sqrt, ceil = math.sqrt, math.ceil
     steps = []  # each piece's: max(1, min(ceil(span * sqrt(max(a, b) / budget)), allowed))
-    for (span, allowed), a, b in zip(spans, bends, bends[1:]):
+    for (span, allowed), a, b in zip(spans, bends[:-1], bends[1:], strict=True):
         wanted = ceil(span * sqrt((b if b > a else a) / budget))
         taken = allowed if allowed < wanted else wanted
         steps.append(taken if taken > 1 else 1)
