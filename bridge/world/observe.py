@@ -226,9 +226,9 @@ def _key_function(parts: list[tuple[str, _Part]]
 class _Object:
     """One object of a group: where each of its fields is, and its latest messages."""
 
-    __slots__ = ("azimuth", "class_signal", "fast_key", "id", "index", "key", "latest", "made",
-                 "names", "parts", "position_ns", "probability", "range", "reads", "rule",
-                 "rule_sources", "vx", "vy", "x", "y")
+    __slots__ = ("azimuth", "class_signal", "fast_key", "id", "index", "judged", "key", "latest",
+                 "made", "names", "parts", "position_ns", "probability", "range", "reads",
+                 "rule", "rule_sources", "vx", "vy", "x", "y")
 
     def __init__(self, group: ObjectGroup, index: int | None) -> None:
         def ref(found: Field | None) -> Field | None:
@@ -271,6 +271,8 @@ class _Object:
         #: the key of the latest observation (the values it read), and what it made
         self.key: tuple[tuple[Any, ...], ...] | None = None
         self.made: ObjectObservation | None = None
+        #: the values the rule last judged (name, value) and its verdict (:meth:`valid`)
+        self.judged: tuple[tuple[tuple[str, Any], ...], tuple[bool, str]] | None = None
         #: read_key's common case (every message of the family there, each with the signals
         #: its first had), once each message has its _Part: raises KeyError where it is not
         self.fast_key: Callable[[Mapping[str, Mapping[str, Any]]],
@@ -322,7 +324,16 @@ class _Object:
                 if found is not None and name in found:
                     merged[name] = found[name]
                     break
-        return rule.judge(merged, latest)
+        if rule.qualified:
+            return rule.judge(merged, latest)
+        # a rule of plain names alone judges the same values (by ==) the same: judged once
+        inputs = tuple(merged.items())
+        judged = self.judged
+        if judged is not None and judged[0] == inputs:
+            return judged[1]
+        verdict = rule.judge(merged)
+        self.judged = (inputs, verdict)
+        return verdict
 
 
 class _GroupReader:
