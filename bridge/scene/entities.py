@@ -504,6 +504,22 @@ def _name(group: str, ids: tuple[int, ...]) -> _Named:
     return named
 
 
+#: Numbers written with two decimals (a place, a velocity), by value: a sensor's resolution
+#: makes most of them again and again. Zero (0.0 and -0.0, which == cannot tell apart, and
+#: which are written apart: "0.00", "-0.00") is never held.
+_HUNDREDTHS: dict[float, str] = {}
+
+
+def _hundredths(value: float) -> str:
+    """``f"{value:.2f}"``, held in :data:`_HUNDREDTHS` (but zero)."""
+    text = f"{value:.2f}"
+    if value:
+        if len(_HUNDREDTHS) >= 8192:
+            _HUNDREDTHS.clear()
+        _HUNDREDTHS[value] = text
+    return text
+
+
 def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: SensorKind,
                     t_ns: int, lifetime_s: float, camera: ViewCamera, *, track: bool,
                     lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
@@ -522,6 +538,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
     stamp = _stamp_field(t_ns)
     pack = _VECTOR.pack
     metadata = _metadata
+    hundredths = _HUNDREDTHS
     # camera.scale(x, y, DETECTION_SIZE)'s terms
     cos, sin = camera._sight
     eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
@@ -544,14 +561,21 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
         if named is None:
             named = _name(o.group, o.ids)
         entity_id, id_text, id_field, ids_field = named
-        x2, y2 = f"{x:.2f}", f"{y:.2f}"
+        x2 = hundredths.get(x) if x else None  # f"{x:.2f}", f"{y:.2f}"
+        if x2 is None:
+            x2 = _hundredths(x)
+        y2 = hundredths.get(y) if y else None
+        if y2 is None:
+            y2 = _hundredths(y)
         e = WireEntity(entity_id, [
             parts.template, stamp, id_field,
             parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
             pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
             ids_field, metadata(_PLACE_KEY, f"x {x2} m, y {y2} m")])
-        if first.vx is not None:
-            e.parts.append(metadata(_VX_KEY, f"{first.vx:.2f} m/s"))
+        vx = first.vx
+        if vx is not None:
+            vx2 = hundredths.get(vx) if vx else None
+            e.parts.append(metadata(_VX_KEY, f"{vx2 or _hundredths(vx)} m/s"))
         if object_class is ObjectClass.PEDESTRIAN:
             e.parts.append(_pedestrian(x, y))
         into.append(e)
