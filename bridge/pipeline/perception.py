@@ -49,7 +49,7 @@ from bridge.topics import (
 )
 from bridge.world.lead import same_twins, twin_sets
 from bridge.world.model import LaneModel, World
-from bridge.world.observe import Observer
+from bridge.world.observe import Observer, copies
 
 DEFAULT_SCENE_RATE = 20.0
 MAX_SCENE_RATE = 50.0
@@ -209,10 +209,16 @@ class Perception:
                                       lead_track=steady.lead if from_tracks else None,
                                       twins=twins, camera=self.camera).items()]
         out.append(TopicMessage(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
+        perceived: dict[str, PerceivedObjects] = {}
         for name, group in profile.groups.items():
-            out.append(TopicMessage(objects_topic(name), semantic.objects(
-                name, group.sensor.name, world.objects[name].values(), t_ns, twins[name]),
-                t_ns))
+            objects = world.objects[name]
+            same = aliases.get(name)
+            perceived[name] = message = (  # a group observed with another: often the same
+                semantic.regrouped(perceived[same], name, group.sensor.name)
+                if same is not None and copies(world.objects[same], objects)
+                else semantic.objects(name, group.sensor.name, objects.values(), t_ns,
+                                      twins[name]))
+            out.append(TopicMessage(objects_topic(name), message, t_ns))
         if profile.lead is not None:
             out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns, steady), t_ns))
         if profile.lanes is not None:

@@ -137,6 +137,15 @@ _FRAME = _text(b"\x12", VEHICLE_FRAME)
 _PRESENT, _EXPECTED_PRESENT, _MIO_OK = b"\x18\x01", b"\x28\x01", b"\x38\x01"
 
 
+def regrouped(message: PerceivedObjects, group: str, sensor: str) -> PerceivedObjects:
+    """Another group's ``message`` (:func:`objects`) as the objects of ``group`` and ``sensor``:
+    what :func:`objects` makes of the same observations under that group's name."""
+    msg = PerceivedObjects()
+    msg.CopyFrom(message)
+    msg.group, msg.sensor = group, sensor
+    return msg
+
+
 def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVehicle:
     """The lead and its MIO check; ``steady`` gives its serial number and why it changed."""
     parts = [_stamp_field(t_ns), _FRAME]

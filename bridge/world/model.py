@@ -409,11 +409,15 @@ class World:
             in_lane: list[Key] = []
             left, right = lanes.ego_lines
             if left is not None and right is not None:
+                l0, l1, l2, l3 = left.coefficients
+                r0, r1, r2, r3 = right.coefficients
                 for k, o in tracks.items():
                     x, y = o.x, o.y
                     if x < 0:
                         continue
-                    low, high = right.lateral_at(x), left.lateral_at(x)
+                    # right.lateral_at(x), left.lateral_at(x)
+                    low = r0 + x * (r1 + x * (r2 + x * r3))
+                    high = l0 + x * (l1 + x * (l2 + x * l3))
                     outside[k] = max(0.0, low - y, y - high)
                     if low < y < high:
                         in_lane.append(k)

@@ -468,6 +468,22 @@ class _GroupReader:
                                  object_class, rule_error)
 
 
+def copies(a: Mapping[int, ObjectObservation], b: Mapping[int, ObjectObservation]) -> bool:
+    """Whether two groups' objects (by id) are the same observations under two names: each
+    field the very same value (``is``: what :meth:`_GroupReader.also` makes, and nothing that
+    only compares equal, such as -0.0 and 0.0), the same times and ids."""
+    if a.keys() != b.keys():
+        return False
+    for i, o in a.items():
+        p = b[i]
+        if not (o.t_ns == p.t_ns and o.x is p.x and o.y is p.y and o.vx is p.vx
+                and o.vy is p.vy and o.probability is p.probability
+                and o.object_class is p.object_class and o.valid is p.valid
+                and o.object_id == p.object_id):
+            return False
+    return True
+
+
 def _reading(group: ObjectGroup) -> ObjectGroup:
     """What of ``group`` its observations depend on: all but its name, lifetime and role (two
     groups equal in this observe the same objects, e.g. a radar's slots as detections and as
