@@ -26,6 +26,7 @@ counts and decoding stay per frame.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 from typing import Any
 
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
@@ -57,6 +58,10 @@ MAX_SCENE_RATE = 50.0
 MAX_FILL_NS = 60 * NS
 
 
+#: ``TopicMessage`` of a tuple of its fields, without its Python-level ``__new__`` (a dozen a tick)
+_topic_message = partial(tuple.__new__, TopicMessage)
+
+
 def check_scene_rate(rate: float) -> float:
     if not 0 < rate <= MAX_SCENE_RATE:
         raise UsageError(f"--scene-rate {rate:g}: must be above 0 and at most "
@@ -86,6 +91,10 @@ class Perception:
         self._pending: dict[str, tuple[Mapping[str, Any], int]] = {}
         #: every frame of a list message (one object per frame) fed since the last tick
         self._every_frame = self.observer.every_frame
+        #: each scene category's topic, each group's /perception topic
+        self._topics = {category: scene_topic(category) for category in
+                        ("ego", "lanes", "lead", "mio", *profile.groups)}
+        self._objects_topics = {name: objects_topic(name) for name in profile.groups}
         self._pending_frames: list[tuple[str, Mapping[str, Any], int]] = []
 
     def topics(self) -> list[tuple[str, Any]]:
@@ -204,11 +213,12 @@ class Perception:
                                                                          objects)
                            else twin_sets(objects.values()))
         from_tracks = profile.lead is not None and profile.lead.source == "tracks"
-        out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
+        topics = self._topics
+        out = [_topic_message((topics[category], update, t_ns)) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state,
                                       lead_track=steady.lead if from_tracks else None,
                                       twins=twins, camera=self.camera).items()]
-        out.append(TopicMessage(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
+        out.append(_topic_message((TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns)))
         perceived: dict[str, PerceivedObjects] = {}
         for name, group in profile.groups.items():
             objects = world.objects[name]
@@ -218,7 +228,7 @@ class Perception:
                 if same is not None and copies(world.objects[same], objects)
                 else semantic.objects(name, group.sensor.name, objects.values(), t_ns,
                                       twins[name]))
-            out.append(TopicMessage(objects_topic(name), message, t_ns))
+            out.append(_topic_message((self._objects_topics[name], message, t_ns)))
         if profile.lead is not None:
             out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns, steady), t_ns))
         if profile.lanes is not None:

@@ -828,6 +828,9 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
                                 lead_drawn, lead_notes)
         labels += mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
     draw_labels(lay_out(labels, camera))
-    return {name: _delete(scene_topic(name), scene_update(entities),
+    return {name: _delete(_scene_topic(name), scene_update(entities),
                           {e.id for e in entities}, t_ns, state)
             for name, entities in out.items()}
+
+
+_scene_topic = lru_cache(maxsize=256)(scene_topic)

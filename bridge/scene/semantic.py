@@ -118,7 +118,8 @@ def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: i
     items = [_object_bytes(o, t_ns, twins.get(o.object_id, ()))
              for o in sorted(found, key=_ID)]
     msg: PerceivedObjects = PerceivedObjects.FromString(b"".join([
-        _stamp_field(t_ns), _objects_head(group, sensor), b"\x28", varint(len(items)),
+        _stamp_field(t_ns), _objects_head(group, sensor), b"\x28",
+        _SMALL[len(items)] if len(items) < 0x80 else varint(len(items)),
         *items]))
     return msg
 

@@ -82,6 +82,8 @@ def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]
     """Object id -> the sorted ids of its set of twins (itself included), for every object of
     one group that has a twin (transitively: a chain of twins is one set)."""
     found = sorted(objects, key=_x)
+    if len(found) < 2:
+        return {}  # no twins without two objects
     parent = {o.object_id: o.object_id for o in found}
 
     def root(i: int) -> int:

@@ -302,8 +302,11 @@ class World:
 
     def expire(self, now_ns: int) -> None:
         """Forget objects older than their group's lifetime."""
+        lifetimes = self.lifetimes_ns
         for name, objects in self.objects.items():
-            oldest = now_ns - self.lifetimes_ns.get(name, 0)
+            if not objects:
+                continue
+            oldest = now_ns - lifetimes.get(name, 0)
             stale = [i for i, o in objects.items() if o.t_ns < oldest]
             for i in stale:
                 del objects[i]
