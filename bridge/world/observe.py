@@ -196,6 +196,24 @@ def _part_getter(part: _Part) -> Callable[[Mapping[str, Any]], tuple[Any, ...]]:
     """:meth:`_Part.key` where its getter reads the message: raises KeyError where it does not
     (a signal of the first message missing, one of the others there)."""
     getter, absent, single = part.getter, part.absent, part.single
+    if 0 < len(absent) <= 2:  # one or two names looked up, not the message's names walked
+        lacked = sorted(absent)
+        first, second = lacked[0], lacked[-1]  # the same when one
+        if single:
+            def checked_single(values: Mapping[str, Any]) -> tuple[Any, ...]:
+                if first in values or second in values:
+                    raise KeyError("a signal the first message lacked")
+                return (getter(values),)
+
+            return checked_single
+
+        def checked_few(values: Mapping[str, Any]) -> tuple[Any, ...]:
+            if first in values or second in values:
+                raise KeyError("a signal the first message lacked")
+            found: tuple[Any, ...] = getter(values)
+            return found
+
+        return checked_few
     if absent:
         def checked(values: Mapping[str, Any]) -> tuple[Any, ...]:
             if not absent.isdisjoint(values):
@@ -537,6 +555,8 @@ class Observer:
         #: every message name this observer uses, to skip the rest cheaply
         self._lanes_and_ego = frozenset(self._lanes) | frozenset(self._ego)
         self.messages = frozenset(self._objects) | self._lanes_and_ego
+        #: whether a message of objects is read by a lane line or an ego value too
+        self._objects_and_more = not self._lanes_and_ego.isdisjoint(self._objects)
         #: messages of object groups without an index range: each frame may be another object
         #: (its id signal says which), so every frame counts, not only the newest of its name
         self.every_frame = frozenset(
@@ -573,7 +593,7 @@ class Observer:
         last one again, whose time counts nowhere (the world only drops its object)."""
         out: list[Observation] = []
         touched: dict[_Object, _GroupReader] = {}
-        routes, others = self._routes, self._lanes_and_ego
+        routes, others, both = self._routes, self._lanes_and_ego, self._objects_and_more
         for message, (values, t_ns) in latest.items():
             found = routes.get(message)
             if found is not None:
@@ -582,7 +602,9 @@ class Observer:
                     if primary:
                         obj.position_ns = t_ns
                     touched[obj] = reader
-            if message in others:
+                if both and message in others:
+                    self._observe_lanes_and_ego(message, values, t_ns, out)
+            elif message in others:
                 self._observe_lanes_and_ego(message, values, t_ns, out)
         for obj, reader in touched.items():  # _GroupReader.observation, inline
             t_ns = obj.position_ns
