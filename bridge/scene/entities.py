@@ -424,7 +424,10 @@ def shared_places(tracks: Sequence[ObjectObservation],
         nearest = tracks[0]  # the first of the nearest, as min() picks it
         best = math.inf
         for tx, ty, t in places:
-            gap = (tx - dx) ** 2 + (ty - dy) ** 2
+            across = (tx - dx) ** 2
+            if across >= limit:
+                continue  # its gap is no less: beyond the place, whether nearest or not
+            gap = across + (ty - dy) ** 2
             if gap < best:
                 best, nearest = gap, t
         if best >= limit:

@@ -194,7 +194,8 @@ def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -
                        for x, y in zip(xs, ys, strict=True))
     else:  # (x + mount.x, y + mount.y), the same sums, each coordinate in one pass
         mx, my = mount.x, mount.y
-        points = tuple(zip([x + mx for x in xs],
+        # x + 0.0 (or -0.0) is x for each x of lane_xs (0.0 and positive): no pass for it
+        points = tuple(zip(xs if mx == 0.0 else [x + mx for x in xs],
                            [(c0 + x * (c1 + x * (c2 + x * c3))) * sign + my for x in xs],
                            strict=True))
     return LaneCurve(name, points, lane_to_vehicle(sensor, c))
