@@ -21,6 +21,13 @@ time moves on (:mod:`bridge.world.observe`). The messages of a group without an 
 the exception: each frame may be another object (an object list sent one object per frame, its
 id signal says which), so every one of their frames is observed at the tick, in order. Health
 counts and decoding stay per frame.
+
+Two groups that read the same fields of the same messages (one radar's slots as detections and
+as tracks) are observed once (:class:`bridge.world.observe.Observer`); at the tick the second
+takes the first's twins while its objects stand where the first's do
+(:func:`bridge.world.lead.same_twins`), and the first's /perception message, under its own
+name, while they are the very same observations (:func:`bridge.world.observe.copies`): its
+other lifetime can keep an object the first no longer has.
 """
 
 from __future__ import annotations
