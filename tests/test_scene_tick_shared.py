@@ -87,9 +87,15 @@ def test_the_scene_tick_s_shortcuts_make_the_scene_the_long_way_makes(
         entities._HUNDREDTHS.clear()
         return f"{value:.2f}"
 
+    def speed(vx: float) -> bytes:
+        entities._SPEEDS.clear()
+        return entities._metadata(entities._VX_KEY, f"{vx:.2f} m/s")
+
     with mock.patch.object(_Object, "read_key", lambda self: object()), \
-            mock.patch.object(entities, "_hundredths", hundredths):
+            mock.patch.object(entities, "_hundredths", hundredths), \
+            mock.patch.object(entities, "_speed", speed):
         entities._HUNDREDTHS.clear()
+        entities._SPEEDS.clear()
         long = _scenes(highway, drive)
     assert short == long
 

@@ -523,6 +523,20 @@ def _hundredths(value: float) -> str:
     return text
 
 
+#: An object's "vx" metadata item as wire bytes, by the value (as :data:`_HUNDREDTHS`).
+_SPEEDS: dict[float, bytes] = {}
+
+
+def _speed(vx: float) -> bytes:
+    """The "vx" metadata item of ``vx``, held in :data:`_SPEEDS` (but zero)."""
+    item = _metadata(_VX_KEY, f"{vx:.2f} m/s")
+    if vx:
+        if len(_SPEEDS) >= 8192:
+            _SPEEDS.clear()
+        _SPEEDS[vx] = item
+    return item
+
+
 def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: SensorKind,
                     t_ns: int, lifetime_s: float, camera: ViewCamera, *, track: bool,
                     lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
@@ -541,7 +555,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
     stamp = _stamp_field(t_ns)
     pack = _VECTOR.pack
     metadata = _metadata
-    hundredths = _HUNDREDTHS
+    hundredths, speeds = _HUNDREDTHS, _SPEEDS
     # camera.scale(x, y, DETECTION_SIZE)'s terms
     cos, sin = camera._sight
     eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
@@ -570,17 +584,18 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
         y2 = hundredths.get(y) if y else None
         if y2 is None:
             y2 = _hundredths(y)
-        e = WireEntity(entity_id, [
+        fields = [
             parts.template, stamp, id_field,
             parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
             pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
-            ids_field, metadata(_PLACE_KEY, f"x {x2} m, y {y2} m")])
+            ids_field, metadata(_PLACE_KEY, f"x {x2} m, y {y2} m")]
         vx = first.vx
         if vx is not None:
-            vx2 = hundredths.get(vx) if vx else None
-            e.parts.append(metadata(_VX_KEY, f"{vx2 or _hundredths(vx)} m/s"))
+            speed = speeds.get(vx) if vx else None
+            fields.append(speed or _speed(vx))
         if object_class is ObjectClass.PEDESTRIAN:
-            e.parts.append(_pedestrian(x, y))
+            fields.append(_pedestrian(x, y))
+        e = WireEntity(entity_id, fields)
         into.append(e)
         if track:
             if o is lead:

@@ -41,7 +41,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from operator import itemgetter
-from typing import Any
+from typing import Any, cast
 
 from bridge.profile.model import (
     FamilyMember,
@@ -636,7 +636,7 @@ class Observer:
         for line in lines:
             c = [ref.value(latest) if ref is not None else 0.0
                  for ref in (line.c0, line.c1, line.c2, line.c3)]
-            if any(v is None or not math.isfinite(v) for v in c):
+            if None in c or not all(map(math.isfinite, cast("list[float]", c))):
                 continue  # not observed: a non-finite value never reaches the world
             coefficients = (float(c[0] or 0.0), float(c[1] or 0.0), float(c[2] or 0.0),
                             float(c[3] or 0.0))
