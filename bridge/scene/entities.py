@@ -557,7 +557,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
     metadata = _metadata
     hundredths, speeds = _HUNDREDTHS, _SPEEDS
     # camera.scale(x, y, DETECTION_SIZE)'s terms
-    cos, sin = camera._sight
+    cos, sin = camera.sight
     eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
     covered, notes = places.covered, places.notes
     labels = []

@@ -147,7 +147,7 @@ def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterato
     full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)]) if others \
         else first.text
     # lifted(camera, x, y, first.z, text) of each text, its camera's terms once
-    cos, sin = camera._sight
+    cos, sin = camera.sight
     ahead = (x - camera.eye_x) * cos - (first.z - camera.eye_z) * sin
     vertical = camera.focal_px / max(ahead, 0.1) * cos
     z = first.z + ((full.count("\n") + 1) * LINE_PX / 2 + MARGIN_PX) / vertical
@@ -170,7 +170,7 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
     spots: list[tuple[float, float]] = []  # where each block stands (x, y)
     limit = PLACE_M ** 2
     # camera.project's terms
-    cos, sin = camera._sight
+    cos, sin = camera.sight
     eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
     # camera.on_panel's bounds
     half_h, half_w = camera.height_px / 2, camera.height_px * camera.aspect / 2
