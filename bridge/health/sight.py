@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from functools import lru_cache
 
 from bridge.frame import NS
 from bridge.profile.model import Sensor
@@ -40,6 +41,12 @@ class FieldOfView:
                     and abs(math.degrees(math.atan2(dy, dx))) > self.azimuth_deg)
 
 
+@lru_cache(maxsize=64)
+def _view(sensor: Sensor) -> FieldOfView:
+    """The field of view of ``sensor``, worked out once (:func:`associate` asks every tick)."""
+    return FieldOfView(sensor)
+
+
 def in_fov(sensor: Sensor, x: float, y: float) -> bool:
     """Whether a vehicle-frame point is inside the sensor's field of view (True if unknown)."""
     return FieldOfView(sensor).contains(x, y)
@@ -61,8 +68,8 @@ def associate(a_objects: Iterable[ObjectObservation], b_objects: Iterable[Object
     a's mount, left positive.
     """
 
-    a_view = FieldOfView(a_sensor) if a_sensor is not None else None
-    b_view = FieldOfView(b_sensor) if b_sensor is not None else None
+    a_view = _view(a_sensor) if a_sensor is not None else None
+    b_view = _view(b_sensor) if b_sensor is not None else None
 
     def usable(objects: Iterable[ObjectObservation]) -> list[tuple[float, float]]:
         out = []

@@ -21,11 +21,19 @@ time moves on (:mod:`bridge.world.observe`). The messages of a group without an 
 the exception: each frame may be another object (an object list sent one object per frame, its
 id signal says which), so every one of their frames is observed at the tick, in order. Health
 counts and decoding stay per frame.
+
+Two groups that read the same fields of the same messages (one radar's slots as detections and
+as tracks) are observed once (:class:`bridge.world.observe.Observer`); at the tick the second
+takes the first's twins while its objects stand where the first's do
+(:func:`bridge.world.lead.same_twins`), and the first's /perception message, under its own
+name, while they are the very same observations (:func:`bridge.world.observe.copies`): its
+other lifetime can keep an object the first no longer has.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 from typing import Any
 
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
@@ -47,14 +55,18 @@ from bridge.topics import (
     objects_topic,
     scene_topic,
 )
-from bridge.world.lead import twin_sets
+from bridge.world.lead import same_twins, twin_sets
 from bridge.world.model import LaneModel, World
-from bridge.world.observe import Observer
+from bridge.world.observe import Observer, copies
 
 DEFAULT_SCENE_RATE = 20.0
 MAX_SCENE_RATE = 50.0
 #: The ticks of a gap longer than this are not all made: its first minute, then the latest.
 MAX_FILL_NS = 60 * NS
+
+
+#: ``TopicMessage`` of a tuple of its fields, without its Python-level ``__new__`` (a dozen a tick)
+_topic_message = partial(tuple.__new__, TopicMessage)
 
 
 def check_scene_rate(rate: float) -> float:
@@ -86,6 +98,10 @@ class Perception:
         self._pending: dict[str, tuple[Mapping[str, Any], int]] = {}
         #: every frame of a list message (one object per frame) fed since the last tick
         self._every_frame = self.observer.every_frame
+        #: each scene category's topic, each group's /perception topic
+        self._topics = {category: scene_topic(category) for category in
+                        ("ego", "lanes", "lead", "mio", *profile.groups)}
+        self._objects_topics = {name: objects_topic(name) for name in profile.groups}
         self._pending_frames: list[tuple[str, Mapping[str, Any], int]] = []
 
     def topics(self) -> list[tuple[str, Any]]:
@@ -195,17 +211,31 @@ class Perception:
         world, profile = self.world, self.profile
         steady = world.lead(lanes, t_ns)
         check = world.mio_check(lanes, steady.lead)
-        twins = {name: twin_sets(world.objects[name].values()) for name in profile.groups}
+        twins: dict[str, dict[int, tuple[int, ...]]] = {}
+        aliases = self.observer.aliases
+        for name in profile.groups:  # a group observed with another: often the same twins
+            objects = world.objects[name]
+            same = aliases.get(name)
+            twins[name] = (twins[same] if same is not None and same_twins(world.objects[same],
+                                                                         objects)
+                           else twin_sets(objects.values()))
         from_tracks = profile.lead is not None and profile.lead.source == "tracks"
-        out = [TopicMessage(scene_topic(category), update, t_ns) for category, update
+        topics = self._topics
+        out = [_topic_message((topics[category], update, t_ns)) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state,
                                       lead_track=steady.lead if from_tracks else None,
                                       twins=twins, camera=self.camera).items()]
-        out.append(TopicMessage(TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns))
+        out.append(_topic_message((TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns)))
+        perceived: dict[str, PerceivedObjects] = {}
         for name, group in profile.groups.items():
-            out.append(TopicMessage(objects_topic(name), semantic.objects(
-                name, group.sensor.name, world.objects[name].values(), t_ns, twins[name]),
-                t_ns))
+            objects = world.objects[name]
+            same = aliases.get(name)
+            perceived[name] = message = (  # a group observed with another: often the same
+                semantic.regrouped(perceived[same], name, group.sensor.name)
+                if same is not None and copies(world.objects[same], objects)
+                else semantic.objects(name, group.sensor.name, objects.values(), t_ns,
+                                      twins[name]))
+            out.append(_topic_message((self._objects_topics[name], message, t_ns)))
         if profile.lead is not None:
             out.append(TopicMessage(LEAD_TOPIC, semantic.lead(check, t_ns, steady), t_ns))
         if profile.lanes is not None:

@@ -76,6 +76,13 @@ class ViewCamera:
         return math.cos(a), math.sin(a)
 
     @property
+    def sight(self) -> tuple[float, float]:
+        """Cosine and sine of the line of sight's angle below the horizon: the terms of
+        :meth:`project`, :meth:`px_per_m` and :meth:`scale`, for a caller that spells them out
+        over many points (the scene's marks and labels)."""
+        return self._sight
+
+    @property
     def vertical(self) -> float:
         """How much of a vertical metre shows on the panel (a share of a metre across)."""
         return self._sight[0]

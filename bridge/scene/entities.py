@@ -24,7 +24,7 @@ import math
 import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any, NamedTuple, TypeAlias
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
@@ -46,7 +46,7 @@ from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.protowire import varint
-from bridge.scene.camera import ViewCamera, camera_for, view_range
+from bridge.scene.camera import MIN_MARK_PX, ViewCamera, camera_for, view_range
 from bridge.scene.labels import Block, Label, lay_out
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
@@ -256,7 +256,8 @@ def _field(tag: bytes, data: bytes) -> bytes:
     """A length-delimited field (string, bytes, message) as wire bytes: ``tag``, the length
     and ``data``."""
     n = len(data)
-    return tag + (_BYTES[n] if n < 0x80 else varint(n)) + data
+    return tag + (_BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7)) if n < 0x4000
+                  else varint(n)) + data  # varint(n), its one or two bytes inline
 
 
 #: The one-byte varints (a short field's length).
@@ -270,7 +271,18 @@ def _key(key: str) -> bytes:
 
 def _pair(key: str, value: str) -> bytes:
     """A SceneEntity's metadata item (a KeyValuePair: key 1, value 2) as wire bytes."""
-    return _field(_METADATA_TAG, _key(key) + _field(b"\x12", value.encode()))
+    return _metadata(_key(key), value)
+
+
+def _metadata(key: bytes, value: str) -> bytes:
+    """:func:`_pair` of the key's field as wire bytes (``key``) and ``value``."""
+    data = value.encode()
+    n = len(data)
+    if n < 0x80:  # the common case: the item's and the value's lengths each one byte
+        m = len(key) + 2 + n
+        if m < 0x80:
+            return b"".join((_METADATA_TAG, _BYTES[m], key, b"\x12", _BYTES[n], data))
+    return _field(_METADATA_TAG, key + _field(b"\x12", data))
 
 
 @lru_cache(maxsize=4)
@@ -296,7 +308,8 @@ def scene_update(entities: Iterable[WireEntity]) -> SceneUpdate:
     for e in entities:
         data = b"".join(e.parts)
         n = len(data)
-        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else varint(n), data)
+        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7))
+                  if n < 0x4000 else varint(n), data)  # varint(n), its one or two bytes inline
     update: SceneUpdate = SceneUpdate.FromString(b"".join(items))
     return update
 
@@ -411,7 +424,10 @@ def shared_places(tracks: Sequence[ObjectObservation],
         nearest = tracks[0]  # the first of the nearest, as min() picks it
         best = math.inf
         for tx, ty, t in places:
-            gap = (tx - dx) ** 2 + (ty - dy) ** 2
+            across = (tx - dx) ** 2
+            if across >= limit:
+                continue  # its gap is no less: beyond the place, whether nearest or not
+            gap = across + (ty - dy) ** 2
             if gap < best:
                 best, nearest = gap, t
         if best >= limit:
@@ -445,6 +461,12 @@ class Drawn(NamedTuple):
         return str(ids[0]) if len(ids) == 1 else "/".join(str(i) for i in ids)
 
 
+#: ``Drawn`` and ``Label`` of a tuple of their fields: the very objects ``Drawn(*fields)`` and
+#: ``Label(*fields)`` make, without their Python-level ``__new__`` (a few dozen a tick)
+_drawn = partial(tuple.__new__, Drawn)
+_label = partial(tuple.__new__, Label)
+
+
 def drawn_objects(objects: Mapping[int, ObjectObservation],
                   twins: Mapping[int, tuple[int, ...]]) -> list[Drawn]:
     """The objects of one group as drawn: each set of ``twins`` (id -> the ids of its set) as
@@ -454,7 +476,7 @@ def drawn_objects(objects: Mapping[int, ObjectObservation],
         o = objects[i]
         ids = twins.get(i)
         if ids is None:  # alone: the mean of one place (0 + x, so -0.0 is 0.0 as in a sum)
-            out.append(Drawn(o.group, (i,), o.x + 0.0, o.y + 0.0, o))
+            out.append(_drawn((o.group, (i,), o.x + 0.0, o.y + 0.0, o)))
             continue
         if ids[0] != i:
             continue  # drawn with the set's lowest id
@@ -485,6 +507,36 @@ def _name(group: str, ids: tuple[int, ...]) -> _Named:
     return named
 
 
+#: Numbers written with two decimals (a place, a velocity), by value: a sensor's resolution
+#: makes most of them again and again. Zero (0.0 and -0.0, which == cannot tell apart, and
+#: which are written apart: "0.00", "-0.00") is never held.
+_HUNDREDTHS: dict[float, str] = {}
+
+
+def _hundredths(value: float) -> str:
+    """``f"{value:.2f}"``, held in :data:`_HUNDREDTHS` (but zero)."""
+    text = f"{value:.2f}"
+    if value:
+        if len(_HUNDREDTHS) >= 8192:
+            _HUNDREDTHS.clear()
+        _HUNDREDTHS[value] = text
+    return text
+
+
+#: An object's "vx" metadata item as wire bytes, by the value (as :data:`_HUNDREDTHS`).
+_SPEEDS: dict[float, bytes] = {}
+
+
+def _speed(vx: float) -> bytes:
+    """The "vx" metadata item of ``vx``, held in :data:`_SPEEDS` (but zero)."""
+    item = _metadata(_VX_KEY, f"{vx:.2f} m/s")
+    if vx:
+        if len(_SPEEDS) >= 8192:
+            _SPEEDS.clear()
+        _SPEEDS[vx] = item
+    return item
+
+
 def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: SensorKind,
                     t_ns: int, lifetime_s: float, camera: ViewCamera, *, track: bool,
                     lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
@@ -502,8 +554,11 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
     velocity."""
     stamp = _stamp_field(t_ns)
     pack = _VECTOR.pack
-    field_ = _field
-    scale = camera.scale
+    metadata = _metadata
+    hundredths, speeds = _HUNDREDTHS, _SPEEDS
+    # camera.scale(x, y, DETECTION_SIZE)'s terms
+    cos, sin = camera.sight
+    eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
     covered, notes = places.covered, places.notes
     labels = []
     kinds: dict[str, _ObjectParts] = {}  # by class value (an Enum hashes slowly)
@@ -516,25 +571,31 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
             parts = kinds[value] = _object_parts(kind, lifetime_s, object_class, track)
         name = _LABELS.get(value)  # the class's label, where it has one
         x, y = o.x, o.y
-        f = scale(x, y, DETECTION_SIZE)
+        f = max(1.0, MIN_MARK_PX / (DETECTION_SIZE * (  # camera.scale, inline
+            focal / max((x - eye_x) * cos - (0.0 - eye_z) * sin, 0.1))))
         size = parts.size * f
         named = _NAMES.get((o.group, o.ids))
         if named is None:
             named = _name(o.group, o.ids)
         entity_id, id_text, id_field, ids_field = named
-        x2, y2 = f"{x:.2f}", f"{y:.2f}"
-        e = WireEntity(entity_id, [
+        x2 = hundredths.get(x) if x else None  # f"{x:.2f}", f"{y:.2f}"
+        if x2 is None:
+            x2 = _hundredths(x)
+        y2 = hundredths.get(y) if y else None
+        if y2 is None:
+            y2 = _hundredths(y)
+        fields = [
             parts.template, stamp, id_field,
             parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
             pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
-            ids_field,
-            field_(_METADATA_TAG, _PLACE_KEY + field_(b"\x12",
-                                                      f"x {x2} m, y {y2} m".encode()))])
-        if first.vx is not None:
-            e.parts.append(field_(_METADATA_TAG, _VX_KEY + field_(
-                b"\x12", f"{first.vx:.2f} m/s".encode())))
+            ids_field, metadata(_PLACE_KEY, f"x {x2} m, y {y2} m")]
+        vx = first.vx
+        if vx is not None:
+            speed = speeds.get(vx) if vx else None
+            fields.append(speed or _speed(vx))
         if object_class is ObjectClass.PEDESTRIAN:
-            e.parts.append(_pedestrian(x, y))
+            fields.append(_pedestrian(x, y))
+        e = WireEntity(entity_id, fields)
         into.append(e)
         if track:
             if o is lead:
@@ -545,11 +606,11 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
             if notes:
                 full = "\n".join([full, *place_notes(places, o)])
             compact = f"TrackID: {id_text} \u00b7 {math.hypot(x, y):.0f} m"
-            labels.append(Label(e, x, y, 1.6 * f, full, compact, compact,
-                                (TRACKS_NEXT, x)))
+            labels.append(_label((e, x, y, 1.6 * f, full, compact, compact,
+                                  (TRACKS_NEXT, x))))
         elif name is not None and (o.group, o.ids[0]) not in covered:
-            labels.append(Label(e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
-                                (DETECTIONS_LAST, x)))
+            labels.append(_label((e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
+                                  (DETECTIONS_LAST, x))))
     return labels
 
 
@@ -785,6 +846,9 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
                                 lead_drawn, lead_notes)
         labels += mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
     draw_labels(lay_out(labels, camera))
-    return {name: _delete(scene_topic(name), scene_update(entities),
+    return {name: _delete(_scene_topic(name), scene_update(entities),
                           {e.id for e in entities}, t_ns, state)
             for name, entities in out.items()}
+
+
+_scene_topic = lru_cache(maxsize=256)(scene_topic)

@@ -91,11 +91,12 @@ def places(labels: Sequence[Label]) -> list[list[Label]]:
 
     limit = PLACE_M ** 2
     spots = [(label.x, label.y) for label in order]
-    for i, (ax, ay) in enumerate(spots):
-        for j in range(i + 1, n):
-            bx, by = spots[j]
-            if (ax - bx) ** 2 + (ay - by) ** 2 < limit:
-                parent[root(j)] = root(i)
+    near = [(i, j) for i, (ax, ay) in enumerate(spots) for j in range(i + 1, n)
+            if (ax - spots[j][0]) ** 2 + (ay - spots[j][1]) ** 2 < limit]
+    if not near:  # every label a place of its own (the common case), in order of priority
+        return [[label] for label in order]
+    for i, j in near:
+        parent[root(j)] = root(i)
     grouped: dict[int, list[Label]] = {}
     for i, label in enumerate(order):
         grouped.setdefault(root(i), []).append(label)
@@ -145,9 +146,13 @@ def _tries(first: Label, others: Sequence[Label], camera: ViewCamera) -> Iterato
     x, y = first.x, first.y
     full = "\n".join([first.text, *dict.fromkeys(o.line for o in others)]) if others \
         else first.text
-    z = lifted(camera, x, y, first.z, full)
+    # lifted(camera, x, y, first.z, text) of each text, its camera's terms once
+    cos, sin = camera.sight
+    ahead = (x - camera.eye_x) * cos - (first.z - camera.eye_z) * sin
+    vertical = camera.focal_px / max(ahead, 0.1) * cos
+    z = first.z + ((full.count("\n") + 1) * LINE_PX / 2 + MARGIN_PX) / vertical
     yield full, x, y, z, z
-    z = lifted(camera, x, y, first.z, first.compact)
+    z = first.z + ((first.compact.count("\n") + 1) * LINE_PX / 2 + MARGIN_PX) / vertical
     yield first.compact, x, y, z, z
     metre = camera.px_per_m(x, y, z)
     aside = (len(first.compact) * CHAR_PX + 2 * MARGIN_PX) / metre  # one block width, m
@@ -162,23 +167,29 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
     """The blocks to draw for one tick's ``labels`` (see the module's rules)."""
     drawn: list[Box] = []
     blocks: list[Block] = []
+    spots: list[tuple[float, float]] = []  # where each block stands (x, y)
     limit = PLACE_M ** 2
-    project = camera.project
+    # camera.project's terms
+    cos, sin = camera.sight
+    eye_x, eye_z, focal = camera.eye_x, camera.eye_z, camera.focal_px
     # camera.on_panel's bounds
     half_h, half_w = camera.height_px / 2, camera.height_px * camera.aspect / 2
     for place in places(labels):
         first, others = place[0], place[1:]
         size: tuple[str, float, float] = ("", 0.0, 0.0)  # a text, its half width and height
         for text, x, y, z, base in _tries(first, others, camera):  # noqa: B007 (kept)
-            at = project(x, y, z)  # box(camera, x, y, z, text), its text's size once
-            if at is None:
+            # box(camera, x, y, z, text), camera.project inline and its text's size once
+            d = (x - eye_x) * cos - (z - eye_z) * sin
+            if d <= 0.1:
                 continue
+            across = -y * focal / d
+            down = -((x - eye_x) * sin + (z - eye_z) * cos) * focal / d
             if size[0] is not text:
                 lines = text.split("\n")
                 size = (text, max(map(len, lines)) * CHAR_PX / 2 + MARGIN_PX,
                         len(lines) * LINE_PX / 2 + MARGIN_PX)
             half, tall = size[1], size[2]
-            left, top, right, bottom = at[0] - half, at[1] - tall, at[0] + half, at[1] + tall
+            left, top, right, bottom = across - half, down - tall, across + half, down + tall
             if not (-half_w <= left and right <= half_w and -half_h <= top
                     and bottom <= half_h):  # camera.on_panel
                 continue
@@ -186,14 +197,15 @@ def lay_out(labels: Sequence[Label], camera: ViewCamera) -> list[Block]:
                 if left < o[2] and o[0] < right and top < o[3] and o[1] < bottom:
                     break
             else:
-                for b in blocks:
-                    if (b.x - x) ** 2 + (b.y - y) ** 2 < limit:
+                for bx, by in spots:
+                    if (bx - x) ** 2 + (by - y) ** 2 < limit:
                         break
                 else:
                     break
         else:
             continue
         drawn.append((left, top, right, bottom))
+        spots.append((x, y))
         # where its text would stand unmoved: lifted() of its text at its anchor (which does
         # not depend on y), as _tries computed it
         moved = (x, y) != (first.x, first.y) or z != base

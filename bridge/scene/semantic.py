@@ -6,11 +6,11 @@ import math
 import struct
 from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
+from operator import attrgetter
 
 from bridge.frame import NS, timestamp
 from bridge.pb.perception_pb2 import (
     EgoState,
-    LaneLine,
     Lanes,
     LeadVehicle,
     ObjectClass,
@@ -107,50 +107,91 @@ def _stamp_field(t_ns: int) -> bytes:
     return b"\x0a" + varint(len(data)) + data
 
 
+_ID = attrgetter("object_id")
+
+
 def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: int,
             twins: Mapping[int, Sequence[int]] | None = None) -> PerceivedObjects:
     """Every object of a group, each with its twins (id -> its set, :func:`twin_sets`): each
     object as :func:`perceived` makes it."""
     twins = twins or {}
     items = [_object_bytes(o, t_ns, twins.get(o.object_id, ()))
-             for o in sorted(found, key=lambda o: o.object_id)]
+             for o in sorted(found, key=_ID)]
     msg: PerceivedObjects = PerceivedObjects.FromString(b"".join([
-        _stamp_field(t_ns), _objects_head(group, sensor), b"\x28", varint(len(items)),
+        _stamp_field(t_ns), _objects_head(group, sensor), b"\x28",
+        _SMALL[len(items)] if len(items) < 0x80 else varint(len(items)),
         *items]))
+    return msg
+
+
+# LeadVehicle, Lanes and EgoState are parsed from their wire bytes too, as the objects are:
+# what setting their fields makes (tests/test_semantic_wire.py). A string field as wire bytes:
+def _text(tag: bytes, words: str) -> bytes:
+    data = words.encode()
+    n = len(data)
+    return tag + (_SMALL[n] if n < 0x80 else varint(n)) + data
+
+
+#: LeadVehicle's frame (field 2), Lanes' (field 2): the vehicle frame.
+_FRAME = _text(b"\x12", VEHICLE_FRAME)
+#: LeadVehicle's bools: present 3, expected_present 5, mio_ok 7 (a varint 1 when true).
+_PRESENT, _EXPECTED_PRESENT, _MIO_OK = b"\x18\x01", b"\x28\x01", b"\x38\x01"
+
+
+def regrouped(message: PerceivedObjects, group: str, sensor: str) -> PerceivedObjects:
+    """Another group's ``message`` (:func:`objects`) as the objects of ``group`` and ``sensor``:
+    what :func:`objects` makes of the same observations under that group's name."""
+    msg = PerceivedObjects()
+    msg.CopyFrom(message)
+    msg.group, msg.sensor = group, sensor
     return msg
 
 
 def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVehicle:
     """The lead and its MIO check; ``steady`` gives its serial number and why it changed."""
-    msg = LeadVehicle(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME,
-                      present=check.lead is not None, expected_present=check.expected is not None,
-                      mio_ok=check.ok, mio_reason=check.reason)
-    if steady is not None:
-        msg.lead_number, msg.change = steady.serial, steady.change
+    parts = [_stamp_field(t_ns), _FRAME]
     # each object as perceived() makes it, from its wire bytes (:func:`_object_bytes`, the
     # field of PerceivedObjects: 6, as LeadVehicle's expected; its object is field 4)
     if check.lead is not None:
-        msg.MergeFromString(b"\x22" + _object_bytes(check.lead, t_ns, ())[1:])
+        parts += (_PRESENT, b"\x22", _object_bytes(check.lead, t_ns, ())[1:])
     if check.expected is not None:
-        msg.MergeFromString(_object_bytes(check.expected, t_ns, ()))
+        parts += (_EXPECTED_PRESENT, _object_bytes(check.expected, t_ns, ()))
+    if check.ok:
+        parts.append(_MIO_OK)
+    parts.append(_text(b"\x42", check.reason))  # mio_reason 8
+    if steady is not None:  # lead_number 9 (a varint), change 10
+        parts += (b"\x48", varint(steady.serial), _text(b"\x52", steady.change))
+    msg: LeadVehicle = LeadVehicle.FromString(b"".join(parts))
     return msg
 
 
+#: A LaneLine's coefficients c0 to c3 (fields 2 to 5, doubles) as wire bytes.
+_COEFFICIENTS = struct.Struct("<BdBdBdBd")
+
+
 def lanes(model: LaneModel, t_ns: int) -> Lanes:
-    return Lanes(timestamp=timestamp(t_ns), frame_id=VEHICLE_FRAME, source=model.source,
-                 camera_age=model.camera_age_s,
-                 lines=[LaneLine(name=line.name, c0=line.coefficients[0],
-                                 c1=line.coefficients[1], c2=line.coefficients[2],
-                                 c3=line.coefficients[3]) for line in model.lines])
+    parts = [_stamp_field(t_ns), _FRAME, _text(b"\x1a", model.source)]  # source 3
+    pack = _COEFFICIENTS.pack
+    for line in model.lines:  # lines 4: each a LaneLine (name 1, c0 to c3)
+        c0, c1, c2, c3 = line.coefficients
+        data = _text(b"\x0a", line.name) + pack(0x11, c0, 0x19, c1, 0x21, c2, 0x29, c3)
+        parts += (b"\x22", _SMALL[len(data)] if len(data) < 0x80 else varint(len(data)), data)
+    parts.append(_DOUBLE.pack(0x29, model.camera_age_s))  # camera_age 5
+    msg: Lanes = Lanes.FromString(b"".join(parts))
+    return msg
+
+
+#: EgoState's speed, yaw rate and steering wheel angle (fields 2, 3, 4: doubles).
+_EGO = struct.Struct("<BdBdBd")
 
 
 def ego(world: World, profile: Profile, t_ns: int) -> EgoState:
     state = world.ego
-    msg = EgoState(timestamp=timestamp(t_ns), speed=state.speed or 0.0,
-                   yaw_rate=state.yaw_rate or 0.0,
-                   steering_wheel_angle=state.steering_wheel_angle or 0.0)
-    if state.steering_wheel_angle is not None:
-        msg.curvature = steering_curvature(state.steering_wheel_angle,
-                                           profile.vehicle.wheelbase_m,
-                                           profile.vehicle.steering_ratio)
+    parts = [_stamp_field(t_ns), _EGO.pack(0x11, state.speed or 0.0, 0x19, state.yaw_rate or 0.0,
+                                           0x21, state.steering_wheel_angle or 0.0)]
+    if state.steering_wheel_angle is not None:  # curvature 5
+        parts.append(_DOUBLE.pack(0x29, steering_curvature(
+            state.steering_wheel_angle, profile.vehicle.wheelbase_m,
+            profile.vehicle.steering_ratio)))
+    msg: EgoState = EgoState.FromString(b"".join(parts))
     return msg

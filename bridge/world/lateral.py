@@ -272,18 +272,29 @@ class LateralSignCheck:
                    and abs(omega) >= s.min_yaw_rate)
         held = self._held
         seen: dict[tuple[str, int], _Held] = {}
+        max_gap, baseline = self._max_gap_ns, self._baseline_ns
+        # an observation already looked at (its time that of the last): its baseline as then,
+        # where a baseline is longer than no time and a gap of none is no gap
+        again = baseline > 0 and max_gap >= 0
+        objects = world.objects
         for group, sensor in self._sensor_of.items():
             counts = self._counts[sensor]
             classified = group in self._classified
-            for obs in world.objects.get(group, {}).values():
+            found_group = objects.get(group)
+            if not found_group:
+                continue
+            for obs in found_group.values():
                 key = (group, obs.object_id)
                 t = obs.t_ns
                 found = held.get(key)
-                if found is None or not 0 <= t - found[3] <= self._max_gap_ns:
+                if found is None or not 0 <= t - found[3] <= max_gap:
                     seen[key] = (t, obs.x, obs.y, t)  # new, lost for a while, or a clock step
                     continue
+                if again and t == found[3]:
+                    seen[key] = found
+                    continue
                 anchor_t, anchor_x, anchor_y, _ = found
-                if t - anchor_t < self._baseline_ns:
+                if t - anchor_t < baseline:
                     seen[key] = (anchor_t, anchor_x, anchor_y, t)
                     continue
                 seen[key] = (t, obs.x, obs.y, t)  # the next baseline starts here

@@ -82,6 +82,8 @@ def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]
     """Object id -> the sorted ids of its set of twins (itself included), for every object of
     one group that has a twin (transitively: a chain of twins is one set)."""
     found = sorted(objects, key=_x)
+    if len(found) < 2:
+        return {}  # no twins without two objects
     parent = {o.object_id: o.object_id for o in found}
 
     def root(i: int) -> int:
@@ -106,6 +108,18 @@ def twin_sets(objects: Iterable[ObjectObservation]) -> dict[int, tuple[int, ...]
         sets.setdefault(root(i), []).append(i)
     return {i: tuple(sorted(members)) for members in sets.values() if len(members) > 1
             for i in members}
+
+
+def same_twins(a: Mapping[int, ObjectObservation], b: Mapping[int, ObjectObservation]) -> bool:
+    """Whether two groups' objects (by id) make the same :func:`twin_sets`: the same ids, each
+    at the same place with the same vx (what twins are judged by)."""
+    if a.keys() != b.keys():
+        return False
+    for i, o in a.items():
+        p = b[i]
+        if o.x != p.x or o.y != p.y or o.vx != p.vx:
+            return False
+    return True
 
 
 def nearer_margin(lead_x: float) -> float:

@@ -88,19 +88,39 @@ def lane_xs(c2: float, c3: float, length: float) -> tuple[float, ...]:
         return tuple(float(x) for x in range(int(length)))
     budget = 8.0 * LANE_TOLERANCE_M
     pieces = LANE_PIECES if c3 else 1
-    knots = [end * i / pieces for i in range(pieces + 1)]
+    knots, spans = _knots(end, pieces)
     bends = [abs(2.0 * c2 + 6.0 * c3 * x) for x in knots]
     if end * end * max(bends) <= budget:
         return (0.0, end)
-    xs: tuple[float, ...] = (0.0,)
-    for i in range(pieces):
-        span = knots[i + 1] - knots[i]
-        steps = math.ceil(span * math.sqrt(max(bends[i], bends[i + 1]) / budget))
-        xs += _evenly(knots[i], knots[i + 1], max(1, min(steps, int(span / LANE_MIN_STEP_M))))
-    return xs
+    sqrt, ceil = math.sqrt, math.ceil
+    steps = []  # each piece's: max(1, min(ceil(span * sqrt(max(a, b) / budget)), allowed))
+    for (span, allowed), a, b in zip(spans, bends[:-1], bends[1:], strict=True):
+        wanted = ceil(span * sqrt((b if b > a else a) / budget))
+        taken = allowed if allowed < wanted else wanted
+        steps.append(taken if taken > 1 else 1)
+    return _spaced(end, pieces, tuple(steps))
+
+
+@lru_cache(maxsize=64)
+def _knots(end: float, pieces: int) -> tuple[tuple[float, ...], tuple[tuple[float, int], ...]]:
+    """The ends of ``pieces`` equal pieces of [0, ``end``], and each piece's span with the
+    most steps :data:`LANE_MIN_STEP_M` allows on it."""
+    knots = tuple(end * i / pieces for i in range(pieces + 1))
+    spans = [knots[i + 1] - knots[i] for i in range(pieces)]
+    return knots, tuple((span, int(span / LANE_MIN_STEP_M)) for span in spans)
 
 
 @lru_cache(maxsize=1024)
+def _spaced(end: float, pieces: int, steps: tuple[int, ...]) -> tuple[float, ...]:
+    """The points of :func:`lane_xs` that cut [0, ``end``] into ``pieces`` equal pieces, each
+    in its number of ``steps``: the same places whatever the line, held once."""
+    knots, _ = _knots(end, pieces)
+    xs: tuple[float, ...] = (0.0,)
+    for i in range(pieces):
+        xs += _evenly(knots[i], knots[i + 1], steps[i])
+    return xs
+
+
 def _evenly(start: float, stop: float, steps: int) -> tuple[float, ...]:
     """``steps`` even steps from ``start`` (left out) to ``stop``."""
     return (*(start + (stop - start) * k / steps for k in range(1, steps)), stop)
@@ -174,7 +194,8 @@ def camera_curve(name: str, sensor: Sensor, c: Sequence[float], length: float) -
                        for x, y in zip(xs, ys, strict=True))
     else:  # (x + mount.x, y + mount.y), the same sums, each coordinate in one pass
         mx, my = mount.x, mount.y
-        points = tuple(zip([x + mx for x in xs],
+        # x + 0.0 (or -0.0) is x for each x of lane_xs (0.0 and positive): no pass for it
+        points = tuple(zip(xs if mx == 0.0 else [x + mx for x in xs],
                            [(c0 + x * (c1 + x * (c2 + x * c3))) * sign + my for x in xs],
                            strict=True))
     return LaneCurve(name, points, lane_to_vehicle(sensor, c))
@@ -282,8 +303,11 @@ class World:
 
     def expire(self, now_ns: int) -> None:
         """Forget objects older than their group's lifetime."""
+        lifetimes = self.lifetimes_ns
         for name, objects in self.objects.items():
-            oldest = now_ns - self.lifetimes_ns.get(name, 0)
+            if not objects:
+                continue
+            oldest = now_ns - lifetimes.get(name, 0)
             stale = [i for i, o in objects.items() if o.t_ns < oldest]
             for i in stale:
                 del objects[i]
@@ -349,14 +373,30 @@ class World:
         self._curves[name] = (key, curve, drawable)
         return curve, drawable
 
-    def track_groups(self) -> list[str]:
-        return [name for name, g in self.profile.groups.items() if g.is_tracks]
+    def track_groups(self) -> tuple[str, ...]:
+        return self._track_groups
+
+    @cached_property
+    def _track_groups(self) -> tuple[str, ...]:
+        return tuple(name for name, g in self.profile.groups.items() if g.is_tracks)
 
     def closest_in_lane(self, lanes: LaneModel) -> ObjectObservation | None:
-        """The closest valid track ahead inside the ego lane."""
-        candidates = [o for name in self.track_groups() for o in self.objects[name].values()
-                      if lanes.in_ego_lane(o.x, o.y)]
-        return min(candidates, key=lambda o: o.x, default=None)
+        """The closest valid track ahead inside the ego lane (the first of the closest)."""
+        left, right = lanes.ego_lines
+        if left is None or right is None:
+            return None
+        # lanes.in_ego_lane of each track, its lines' coefficients once
+        l0, l1, l2, l3 = left.coefficients
+        r0, r1, r2, r3 = right.coefficients
+        closest = None
+        for name in self._track_groups:
+            for o in self.objects[name].values():
+                x = o.x
+                if (x >= 0 and r0 + x * (r1 + x * (r2 + x * r3)) < o.y
+                        < l0 + x * (l1 + x * (l2 + x * l3))
+                        and (closest is None or x < closest.x)):
+                    closest = o
+        return closest
 
     def lead(self, lanes: LaneModel, t_ns: int) -> SteadyLead:
         """The lead vehicle at the tick at log time ``t_ns`` (call once per tick): chosen from
@@ -373,11 +413,15 @@ class World:
             in_lane: list[Key] = []
             left, right = lanes.ego_lines
             if left is not None and right is not None:
+                l0, l1, l2, l3 = left.coefficients
+                r0, r1, r2, r3 = right.coefficients
                 for k, o in tracks.items():
                     x, y = o.x, o.y
                     if x < 0:
                         continue
-                    low, high = right.lateral_at(x), left.lateral_at(x)
+                    # right.lateral_at(x), left.lateral_at(x)
+                    low = r0 + x * (r1 + x * (r2 + x * r3))
+                    high = l0 + x * (l1 + x * (l2 + x * l3))
                     outside[k] = max(0.0, low - y, y - high)
                     if low < y < high:
                         in_lane.append(k)

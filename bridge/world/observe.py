@@ -41,7 +41,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from operator import itemgetter
-from typing import Any
+from typing import Any, cast
 
 from bridge.profile.model import (
     FamilyMember,
@@ -196,6 +196,24 @@ def _part_getter(part: _Part) -> Callable[[Mapping[str, Any]], tuple[Any, ...]]:
     """:meth:`_Part.key` where its getter reads the message: raises KeyError where it does not
     (a signal of the first message missing, one of the others there)."""
     getter, absent, single = part.getter, part.absent, part.single
+    if 0 < len(absent) <= 2:  # one or two names looked up, not the message's names walked
+        lacked = sorted(absent)
+        first, second = lacked[0], lacked[-1]  # the same when one
+        if single:
+            def checked_single(values: Mapping[str, Any]) -> tuple[Any, ...]:
+                if first in values or second in values:
+                    raise KeyError("a signal the first message lacked")
+                return (getter(values),)
+
+            return checked_single
+
+        def checked_few(values: Mapping[str, Any]) -> tuple[Any, ...]:
+            if first in values or second in values:
+                raise KeyError("a signal the first message lacked")
+            found: tuple[Any, ...] = getter(values)
+            return found
+
+        return checked_few
     if absent:
         def checked(values: Mapping[str, Any]) -> tuple[Any, ...]:
             if not absent.isdisjoint(values):
@@ -226,9 +244,9 @@ def _key_function(parts: list[tuple[str, _Part]]
 class _Object:
     """One object of a group: where each of its fields is, and its latest messages."""
 
-    __slots__ = ("azimuth", "class_signal", "fast_key", "id", "index", "key", "latest", "made",
-                 "names", "parts", "position_ns", "probability", "range", "reads", "rule",
-                 "rule_sources", "vx", "vy", "x", "y")
+    __slots__ = ("azimuth", "class_signal", "fast_key", "id", "index", "judged", "key", "latest",
+                 "made", "names", "parts", "position_ns", "probability", "range", "reads",
+                 "rule", "rule_sources", "vx", "vy", "x", "y")
 
     def __init__(self, group: ObjectGroup, index: int | None) -> None:
         def ref(found: Field | None) -> Field | None:
@@ -271,6 +289,8 @@ class _Object:
         #: the key of the latest observation (the values it read), and what it made
         self.key: tuple[tuple[Any, ...], ...] | None = None
         self.made: ObjectObservation | None = None
+        #: the values the rule last judged (name, value) and its verdict (:meth:`valid`)
+        self.judged: tuple[tuple[tuple[str, Any], ...], tuple[bool, str]] | None = None
         #: read_key's common case (every message of the family there, each with the signals
         #: its first had), once each message has its _Part: raises KeyError where it is not
         self.fast_key: Callable[[Mapping[str, Mapping[str, Any]]],
@@ -322,7 +342,16 @@ class _Object:
                 if found is not None and name in found:
                     merged[name] = found[name]
                     break
-        return rule.judge(merged, latest)
+        if rule.qualified:
+            return rule.judge(merged, latest)
+        # a rule of plain names alone judges the same values (by ==) the same: judged once
+        inputs = tuple(merged.items())
+        judged = self.judged
+        if judged is not None and judged[0] == inputs:
+            return judged[1]
+        verdict = rule.judge(merged)
+        self.judged = (inputs, verdict)
+        return verdict
 
 
 class _GroupReader:
@@ -340,22 +369,40 @@ class _GroupReader:
         self.polar = group.range is not None
         self.angle_unit = sensor.angle_unit
         self.scale = sensor.distance_scale
+        #: a sensor mounted without yaw: its lateral sign and mount (to_vehicle and velocity
+        #: spelled out in evaluate); (0.0, mount) for one with a yaw
+        self.unturned = (0.0 if sensor.mount.yaw_deg else sensor.lateral_sign, sensor.mount)
+        #: the other groups that read the same fields of the same messages as this one (e.g.
+        #: one radar's slots as detections and as tracks): each of its observations is theirs
+        #: too, under their name (:func:`_reading`)
+        self.aliases: list[str] = []
 
     def note(self, member: FamilyMember, message: str, values: Mapping[str, Any],
              t_ns: int) -> _Object:
         """Take one message of an object's family; returns the object."""
-        index = member.index
-        obj = self.objects.get(index)
-        if obj is None:
-            obj = self.objects[index] = _Object(self.group, index)
+        obj = self.object(member.index)
         obj.latest[message] = values
         if member.template == self.primary:
             obj.position_ns = t_ns
         return obj
 
+    def object(self, index: int | None) -> _Object:
+        """Object ``index`` (made when first asked for)."""
+        obj = self.objects.get(index)
+        if obj is None:
+            obj = self.objects[index] = _Object(self.group, index)
+        return obj
+
     def observe(self, member: FamilyMember, message: str, values: Mapping[str, Any],
                 t_ns: int) -> ObjectObservation | None:
         return self.observation(member.index, self.note(member, message, values, t_ns))
+
+    def also(self, made: ObjectObservation, out: list[Observation]) -> None:
+        """``made`` as each alias group's observation too (:attr:`aliases`), into ``out``."""
+        for alias in self.aliases:
+            out.append(ObjectObservation(alias, made.object_id, made.t_ns, made.x, made.y,
+                                         made.valid, made.vx, made.vy, made.probability,
+                                         made.object_class, made.rule_error))
 
     def observation(self, index: int | None, obj: _Object) -> ObjectObservation | None:
         """Object ``index`` as its latest messages describe it.
@@ -390,21 +437,40 @@ class _GroupReader:
                 return None
             xs, ys = polar_to_cartesian(distance * scale, azimuth, self.angle_unit)
         else:
-            xr, yr = _read(latest, obj.x), _read(latest, obj.y)
-            if xr is None or yr is None:
+            ref = obj.x  # _read of each field, inline
+            xr = ref.value(latest) if ref is not None else None
+            if xr is None:
+                return None
+            ref = obj.y
+            yr = ref.value(latest) if ref is not None else None
+            if yr is None:
                 return None
             xs, ys = xr * scale, yr * scale
         g = self.group
         sensor = g.sensor
-        x, y = to_vehicle(sensor, xs, ys)
-        if not (math.isfinite(x) and math.isfinite(y)):
+        sign, mount = self.unturned
+        if sign:  # to_vehicle of a sensor mounted without yaw, inline
+            x, y = xs + mount.x, ys * sign + mount.y
+        else:
+            x, y = to_vehicle(sensor, xs, ys)
+        isfinite = math.isfinite
+        if not (isfinite(x) and isfinite(y)):
             return None
-        # _read of each field, inline
         ref = obj.vx
         vx_raw = ref.value(latest) if ref is not None else None
         ref = obj.vy
         vy_raw = ref.value(latest) if ref is not None else None
-        vx, vy = velocity(sensor, vx_raw, vy_raw, scale)
+        if vx_raw is None and vy_raw is None:
+            vx = vy = None
+        elif sign:  # velocity() of a sensor mounted without yaw, inline
+            vx = (vx_raw or 0.0) * scale
+            vy = (vy_raw or 0.0) * scale * sign
+            if vx_raw is None or not isfinite(vx):
+                vx = None
+            if vy_raw is None or not isfinite(vy):
+                vy = None
+        else:
+            vx, vy = velocity(sensor, vx_raw, vy_raw, scale)
         ref = obj.id
         ident = ref.value(latest) if ref is not None else None
         ref = obj.class_signal
@@ -420,22 +486,58 @@ class _GroupReader:
                                  object_class, rule_error)
 
 
+def copies(a: Mapping[int, ObjectObservation], b: Mapping[int, ObjectObservation]) -> bool:
+    """Whether two groups' objects (by id) are the same observations under two names: each
+    field the very same value (``is``: what :meth:`_GroupReader.also` makes, and nothing that
+    only compares equal, such as -0.0 and 0.0), the same times and ids."""
+    if a.keys() != b.keys():
+        return False
+    for i, o in a.items():
+        p = b[i]
+        if not (o.t_ns == p.t_ns and o.x is p.x and o.y is p.y and o.vx is p.vx
+                and o.vy is p.vy and o.probability is p.probability
+                and o.object_class is p.object_class and o.valid is p.valid
+                and o.object_id == p.object_id):
+            return False
+    return True
+
+
+def _reading(group: ObjectGroup) -> ObjectGroup:
+    """What of ``group`` its observations depend on: all but its name, lifetime and role (two
+    groups equal in this observe the same objects, e.g. a radar's slots as detections and as
+    tracks)."""
+    return replace(group, name="", lifetime_s=0.0, role=None)
+
+
 class Observer:
-    """Routes decoded messages (by DBC message name) to observations, as the profile says."""
+    """Routes decoded messages (by DBC message name) to observations, as the profile says.
+
+    Groups that read the same fields of the same messages (:func:`_reading`) are observed once:
+    each observation of the first is made again under the other's name, just after it (the
+    order in which observing them apart would make them)."""
 
     def __init__(self, profile: Profile) -> None:
         self.profile = profile
         self._objects: dict[str, list[tuple[_GroupReader, FamilyMember]]] = {}
-        readers = [_GroupReader(g) for g in profile.groups.values()]
+        readers: list[_GroupReader] = []
+        for group in profile.groups.values():
+            same = next((r for r in readers if _reading(r.group) == _reading(group)), None)
+            if same is not None:  # its observations are the other's, under its own name
+                same.aliases.append(group.name)
+            else:
+                readers.append(_GroupReader(group))
         if profile.lead is not None and profile.lead.group is not None:
             readers.append(_GroupReader(replace(profile.lead.group, name=LEAD_GROUP)))
         for reader in readers:
             for name, member in reader.group.members.items():
                 self._objects.setdefault(name, []).append((reader, member))
-        #: per message: each object reader it is for, the object's index and whether it is the
-        #: family's first message (its time is the object's position's)
-        self._routes = {name: [(reader, member.index, member.template == reader.primary)
-                               for reader, member in pairs]
+        #: per message: each object it is for (made here, once), the object's reader and
+        #: whether it is the family's first message (its time is the object's position's)
+        #: each group observed with another (:func:`_reading`) -> that group
+        self.aliases = {alias: reader.group.name for reader in readers
+                        for alias in reader.aliases}
+        self._routes = {name: [(reader.object(member.index), reader,
+                                member.template == reader.primary) for reader, member in pairs]
                         for name, pairs in self._objects.items()}
         self._lanes: dict[str, list[LaneLine]] = {}
         if profile.lanes is not None:
@@ -453,6 +555,8 @@ class Observer:
         #: every message name this observer uses, to skip the rest cheaply
         self._lanes_and_ego = frozenset(self._lanes) | frozenset(self._ego)
         self.messages = frozenset(self._objects) | self._lanes_and_ego
+        #: whether a message of objects is read by a lane line or an ego value too
+        self._objects_and_more = not self._lanes_and_ego.isdisjoint(self._objects)
         #: messages of object groups without an index range: each frame may be another object
         #: (its id signal says which), so every frame counts, not only the newest of its name
         self.every_frame = frozenset(
@@ -475,6 +579,8 @@ class Observer:
             obs = reader.observe(member, message, values, t_ns)
             if obs is not None:
                 out.append(obs)
+                if reader.aliases:
+                    reader.also(obs, out)
         self._observe_lanes_and_ego(message, values, t_ns, out)
         return out
 
@@ -483,22 +589,22 @@ class Observer:
         """The observations of several messages at once (message -> (values, time), each the
         newest of its name, in the order they came): one per object however many of its
         family's messages came, from the newest of them all. What the last of them would
-        observe one by one."""
+        observe one by one, but for the time of an unchanged invalid observation: it is the
+        last one again, whose time counts nowhere (the world only drops its object)."""
         out: list[Observation] = []
         touched: dict[_Object, _GroupReader] = {}
-        routes, others = self._routes, self._lanes_and_ego
+        routes, others, both = self._routes, self._lanes_and_ego, self._objects_and_more
         for message, (values, t_ns) in latest.items():
             found = routes.get(message)
             if found is not None:
-                for reader, index, primary in found:  # _GroupReader.note, inline
-                    obj = reader.objects.get(index)
-                    if obj is None:
-                        obj = reader.objects[index] = _Object(reader.group, index)
+                for obj, reader, primary in found:  # _GroupReader.note, inline
                     obj.latest[message] = values
                     if primary:
                         obj.position_ns = t_ns
                     touched[obj] = reader
-            if message in others:
+                if both and message in others:
+                    self._observe_lanes_and_ego(message, values, t_ns, out)
+            elif message in others:
                 self._observe_lanes_and_ego(message, values, t_ns, out)
         for obj, reader in touched.items():  # _GroupReader.observation, inline
             t_ns = obj.position_ns
@@ -507,15 +613,20 @@ class Observer:
             key = obj.read_key()
             if key == obj.key:
                 made = obj.made
-                if made is not None:
-                    out.append(ObjectObservation(
-                        made.group, made.object_id, t_ns, made.x, made.y, made.valid, made.vx,
-                        made.vy, made.probability, made.object_class, made.rule_error))
-                continue
-            obj.key = key
-            made = obj.made = reader.evaluate(obj.index, obj, t_ns)
-            if made is not None:
-                out.append(made)
+                if made is None:
+                    continue
+                if made.valid:  # an invalid one is the last again: its time counts nowhere
+                    made = ObjectObservation(
+                        made.group, made.object_id, t_ns, made.x, made.y, True, made.vx,
+                        made.vy, made.probability, made.object_class, made.rule_error)
+            else:
+                obj.key = key
+                made = obj.made = reader.evaluate(obj.index, obj, t_ns)
+                if made is None:
+                    continue
+            out.append(made)
+            if reader.aliases:
+                reader.also(made, out)
         return out
 
     def _observe_lanes_and_ego(self, message: str, values: Mapping[str, Any], t_ns: int,
@@ -525,7 +636,7 @@ class Observer:
         for line in lines:
             c = [ref.value(latest) if ref is not None else 0.0
                  for ref in (line.c0, line.c1, line.c2, line.c3)]
-            if any(v is None or not math.isfinite(v) for v in c):
+            if None in c or not all(map(math.isfinite, cast("list[float]", c))):
                 continue  # not observed: a non-finite value never reaches the world
             coefficients = (float(c[0] or 0.0), float(c[1] or 0.0), float(c[2] or 0.0),
                             float(c[3] or 0.0))
