@@ -24,7 +24,7 @@ as one buffer (a header, the bus names, then each column's raw bytes, in this ma
 order: a hand-over, not a file format), no per-frame object pickled.
 :meth:`~FrameBlock.groups` gives, per ``(bus index, key)``, its rows in order: the columns the
 decoder decodes in one step (:meth:`bridge.decode.decoder.Decoder.decode_block`) and the health
-monitor counts (:meth:`bridge.health.monitor.HealthMonitor.count_block`). A block is not changed
+monitor counts (:meth:`bridge.health.traffic.TrafficCounting.count_block`). A block is not changed
 once made: its groups and payloads are made once, for every stage.
 
 Bounds: a frame's time must fit 64 signed bits, its arbitration id 32 bits (31 bits for an

@@ -14,7 +14,7 @@ import pytest
 from test_block_pipeline import damaged, in_blocks
 
 from bridge.frame import NS, Frame
-from bridge.health import monitor as monitor_module
+from bridge.health import traffic
 from bridge.health.monitor import HealthMonitor
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.resources import data_dir
@@ -88,7 +88,7 @@ def test_a_block_is_counted_as_its_frames_one_by_one(size: int) -> None:
 
 def test_a_bus_with_more_kinds_than_kept_is_counted_frame_by_frame(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(monitor_module, "MAX_KINDS", 40)
+    monkeypatch.setattr(traffic, "MAX_KINDS", 40)
     frames = troubled_drive()
     one_by_one = counted(frames, None)
     assert counted(frames, 4096) == one_by_one

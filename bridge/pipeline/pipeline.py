@@ -138,9 +138,9 @@ class Pipeline:
         the decoder's counts are read only when a drive is described). Then the block goes
         through the other stages a run of rows at a time: a run ends where a frame steps the
         clock or comes at or after the next scene or health tick (which are made before it), or
-        where the health monitor needs it to (:attr:`~bridge.health.monitor.BlockCount.cuts`).
+        where the health monitor needs it to (:attr:`~bridge.health.traffic.BlockCount.cuts`).
         A run's frames are counted by health in bulk
-        (:meth:`~bridge.health.monitor.HealthMonitor.count_rows`), go into their raw blocks
+        (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), go into their raw blocks
         from the columns (:meth:`~bridge.sinks.raw.Blocker.add_rows`), and their decoded
         messages to the sinks at once (:meth:`~bridge.sinks.base.Sink.on_decoded_many`) and to
         perception in order. A block whose health must be counted frame by frame (a bus with
