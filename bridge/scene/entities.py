@@ -12,7 +12,7 @@ is a flat red disc (a squashed sphere, wider than a detection's ball) at the hei
 centres, so a detection at its place stands out of it in its own colour; and a place has one
 label block: the track's (its id, position and class, then "group: class" for a detection of
 another class there; the lead box's when the track is the lead). A detection within
-SHARED_PLACE_M of a track has no label of its own.
+SHARED_PLACE_M of a track has no label of its own (:mod:`bridge.scene.places`).
 
 Foxglove decodes protobuf with defaults, and a default is invisible (alpha 0, font size 0,
 thickness 0, a zero quaternion): every visible field is set here explicitly.
@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache, partial
-from typing import Any, NamedTuple, TypeAlias
+from typing import Any, TypeAlias
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -48,6 +48,16 @@ from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.protowire import varint
 from bridge.scene.camera import MIN_MARK_PX, ViewCamera, camera_for, view_range
 from bridge.scene.labels import Block, Label, lay_out
+from bridge.scene.places import (
+    CLASS_LABELS,
+    LABEL_OF_VALUE,
+    NO_SHARED_PLACES,
+    Drawn,
+    SharedPlaces,
+    drawn_objects,
+    place_notes,
+    shared_places,
+)
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
 from bridge.world.observe import ObjectObservation
@@ -73,21 +83,10 @@ OBJECT_Z = 0.5  # m, height of the centre of every object's marker
 # same place (a ball of DETECTION_SIZE) stands out of it above and below, in its own colour.
 TRACK_SIZE = 1.1  # m, disc diameter
 TRACK_HEIGHT = 0.15  # m, disc thickness
-# A detection this close to a track (m, in the ground plane) is at the track's place: its label
-# would be drawn over the track's, so the track's one label block speaks for it.
-SHARED_PLACE_M = 2.0
 LEAD_BOX = (4.5, 1.9, 1.5)  # m
 LANE_THICKNESS = 0.15  # m
 FONT_SIZE = 14.0  # px (scale invariant)
 
-CLASS_LABELS = {
-    ObjectClass.CAR: "car",
-    ObjectClass.TWO_WHEELER: "two-wheeler",
-    ObjectClass.PEDESTRIAN: "PEDESTRIAN",
-    ObjectClass.STATIONARY: "stationary",
-}
-#: CLASS_LABELS by the class's value (a str hashes faster than an Enum member)
-_LABELS = {kind._value_: label for kind, label in CLASS_LABELS.items()}
 
 
 def duration(seconds: float) -> Duration:
@@ -396,94 +395,12 @@ def _pedestrian(x: float, y: float) -> bytes:
         top_scale=1.0, color=_color(PEDESTRIAN_COLOR)).SerializeToString())
 
 
-@dataclass(frozen=True)
-class SharedPlaces:
-    """Detections at a track's place (within SHARED_PLACE_M): one label block for the place."""
-
-    #: (group, id) of the detections whose label the track's block carries
-    covered: frozenset[tuple[str, int]] = frozenset()
-    #: (group, id) of a track -> lines its block adds: the other classes seen at its place
-    notes: Mapping[tuple[str, int], tuple[str, ...]] = field(default_factory=dict)
-
-
-def shared_places(tracks: Sequence[ObjectObservation],
-                  detections: Iterable[ObjectObservation]) -> SharedPlaces:
-    """Which labelled detections sit at a track's place (the nearest track within
-    SHARED_PLACE_M): their label is left to the track's block, which adds "group: class" for
-    a class other than its own."""
-    covered: set[tuple[str, int]] = set()
-    notes: dict[tuple[str, int], set[str]] = {}
-    if not tracks:
-        return _NOWHERE
-    limit = SHARED_PLACE_M ** 2
-    places = [(t.x, t.y, t) for t in tracks]
-    for d in detections:
-        if d.object_class._value_ not in _LABELS:
-            continue
-        dx, dy = d.x, d.y
-        nearest = tracks[0]  # the first of the nearest, as min() picks it
-        best = math.inf
-        for tx, ty, t in places:
-            across = (tx - dx) ** 2
-            if across >= limit:
-                continue  # its gap is no less: beyond the place, whether nearest or not
-            gap = across + (ty - dy) ** 2
-            if gap < best:
-                best, nearest = gap, t
-        if best >= limit:
-            continue
-        covered.add((d.group, d.object_id))
-        if d.object_class is not nearest.object_class:
-            notes.setdefault((nearest.group, nearest.object_id), set()).add(
-                f"{d.group}: {CLASS_LABELS[d.object_class]}")
-    return SharedPlaces(frozenset(covered), {k: tuple(sorted(v)) for k, v in notes.items()})
-
-
-_NOWHERE = SharedPlaces()
+#: ``Label`` of a tuple of its fields: the very object ``Label(*fields)`` makes, without its
+#: Python-level ``__new__`` (a few dozen a tick)
+_label = partial(tuple.__new__, Label)
 
 #: Label priorities (lower first), then nearer first: see bridge.scene.labels.
 MIO_FIRST, LEAD_NEXT, TRACKS_NEXT, DETECTIONS_LAST = 0, 1, 2, 3
-
-
-class Drawn(NamedTuple):
-    """One object as drawn: a set of twins (or one object alone) at its mean place."""
-
-    group: str
-    ids: tuple[int, ...]
-    x: float
-    y: float
-    first: ObjectObservation  # the member with the lowest id: class, velocity
-
-    @property
-    def id_text(self) -> str:
-        """The ids, as a label names them: ``2/8`` for twins."""
-        ids = self.ids
-        return str(ids[0]) if len(ids) == 1 else "/".join(str(i) for i in ids)
-
-
-#: ``Drawn`` and ``Label`` of a tuple of their fields: the very objects ``Drawn(*fields)`` and
-#: ``Label(*fields)`` make, without their Python-level ``__new__`` (a few dozen a tick)
-_drawn = partial(tuple.__new__, Drawn)
-_label = partial(tuple.__new__, Label)
-
-
-def drawn_objects(objects: Mapping[int, ObjectObservation],
-                  twins: Mapping[int, tuple[int, ...]]) -> list[Drawn]:
-    """The objects of one group as drawn: each set of ``twins`` (id -> the ids of its set) as
-    one object at the mean of its members' places, by lowest id."""
-    out = []
-    for i in sorted(objects):
-        o = objects[i]
-        ids = twins.get(i)
-        if ids is None:  # alone: the mean of one place (0 + x, so -0.0 is 0.0 as in a sum)
-            out.append(_drawn((o.group, (i,), o.x + 0.0, o.y + 0.0, o)))
-            continue
-        if ids[0] != i:
-            continue  # drawn with the set's lowest id
-        members = [objects[m] for m in ids if m in objects]
-        out.append(Drawn(o.group, ids, sum(m.x for m in members) / len(members),
-                         sum(m.y for m in members) / len(members), o))
-    return out
 
 
 #: The metadata keys of an object's entity as wire bytes (KeyValuePair.key).
@@ -539,7 +456,8 @@ def _speed(vx: float) -> bytes:
 
 def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: SensorKind,
                     t_ns: int, lifetime_s: float, camera: ViewCamera, *, track: bool,
-                    lead: Drawn | None = None, places: SharedPlaces = _NOWHERE) -> list[Label]:
+                    lead: Drawn | None = None,
+                    places: SharedPlaces = NO_SHARED_PLACES) -> list[Label]:
     """Detections (radar blue, camera white balls) or tracks (red discs), each set of twins as
     one object, each mark at least MIN_MARK_PX wide from the generated camera (its size, and
     heights, grow with the distance: :meth:`ViewCamera.scale`); returns their labels to lay out
@@ -569,7 +487,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
         parts = kinds.get(value)
         if parts is None:
             parts = kinds[value] = _object_parts(kind, lifetime_s, object_class, track)
-        name = _LABELS.get(value)  # the class's label, where it has one
+        name = LABEL_OF_VALUE.get(value)  # the class's label, where it has one
         x, y = o.x, o.y
         f = max(1.0, MIN_MARK_PX / (DETECTION_SIZE * (  # camera.scale, inline
             focal / max((x - eye_x) * cos - (0.0 - eye_z) * sin, 0.1))))
@@ -612,11 +530,6 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
             labels.append(_label((e, x, y, 1.1 * f, name, name, f"{o.group}: {name}",
                                   (DETECTIONS_LAST, x))))
     return labels
-
-
-def place_notes(places: SharedPlaces, o: Drawn) -> tuple[str, ...]:
-    """The notes of the places of every twin of ``o``, each once."""
-    return tuple(sorted({n for i in o.ids for n in places.notes.get((o.group, i), ())}))
 
 
 @lru_cache(maxsize=16)
