@@ -465,38 +465,28 @@ class PartsRecorder(Sink):
             self.frames += block.frames
 
     def on_decoded(self, t_ns: int, decoded: Decoded, /) -> None:
-        recorder = self._recorder or self._part()
-        if recorder is None:
-            if self._gap is not None:
-                self._gap["messages_not_recorded"] += 1
-            return
-        try:
-            recorder.write_decoded(t_ns, decoded)
-        except OSError as exc:
-            self._failed(exc)
+        self.on_decoded_many(((t_ns, decoded),))
 
     def on_decoded_many(self, messages: Sequence[tuple[int, Decoded]], /) -> None:
-        recorder = self._recorder or self._part()
-        if recorder is None:
-            if self._gap is not None:
-                self._gap["messages_not_recorded"] += len(messages)
-            return
-        try:
-            recorder.on_decoded_many(messages)
-        except OSError as exc:
-            self._failed(exc)
+        self._record(len(messages), lambda recorder: recorder.on_decoded_many(messages))
 
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
+        if self._record(len(messages), lambda recorder: recorder.on_messages(messages)):
+            self._emitted = True
+
+    def _record(self, count: int, write: Callable[[Recorder], None]) -> bool:
+        """``count`` messages into the part being written (``write``); while stopped, counted
+        as not recorded (False)."""
         recorder = self._recorder or self._part()
         if recorder is None:
             if self._gap is not None:
-                self._gap["messages_not_recorded"] += len(messages)
-            return
+                self._gap["messages_not_recorded"] += count
+            return False
         try:
-            recorder.on_messages(messages)
+            write(recorder)
         except OSError as exc:
             self._failed(exc)
-        self._emitted = True
+        return True
 
     def finish(self) -> None:
         """Describe and finish the current part (after a last try to record the frames kept
