@@ -10,10 +10,10 @@ here) running a non-ecocar profile.
 from __future__ import annotations
 
 import io
+import json
 import os
 import random
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -274,13 +274,6 @@ def test_a_batch_converts_every_drive_as_convert_does_and_a_bad_one_fails_alone(
 
 # --- a real cluster: a scheduler and two workers in their own processes -------------------------
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 def _workers_connected(address: str) -> int:
     from distributed import Client
 
@@ -294,8 +287,10 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
     dask = shutil.which("dask", path=str(VENV_BIN)) or shutil.which("dask")
     if dask is None:
         pytest.skip("the dask command line (tankviz[fleet]) is not installed")
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
+    # The scheduler takes a port the system gives it and writes its address to a file, which
+    # the workers read: a port picked here and freed before the scheduler binds it can be taken
+    # by another process meanwhile ("Address already in use", seen in CI).
+    scheduler_file = tmp_path / "scheduler.json"
     logs = tmp_path / "dask-logs"
     logs.mkdir()
     processes: list[subprocess.Popen[bytes]] = []
@@ -306,19 +301,22 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
                                               cwd=tmp_path))
 
     try:
-        start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", str(port),
-              "--dashboard-address", ":0", "--no-show")
+        start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", "0",
+              "--scheduler-file", str(scheduler_file), "--dashboard-address", ":0")
         for i in range(2):
-            start(f"worker{i}", "worker", address, "--nworkers", "1", "--nthreads", "1",
-                  "--host", "127.0.0.1", "--dashboard-address", ":0", "--name", f"w{i}")
+            start(f"worker{i}", "worker", "--scheduler-file", str(scheduler_file),
+                  "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
+                  "--dashboard-address", ":0", "--name", f"w{i}")
         deadline = time.monotonic() + 60 * timeout_scale()
+        address = ""
         connected = 0
         while time.monotonic() < deadline:
             if any(p.poll() is not None for p in processes):
                 break
             try:
+                address = address or json.loads(scheduler_file.read_text())["address"]
                 connected = _workers_connected(address)
-            except OSError:
+            except (OSError, ValueError, KeyError):
                 connected = 0
             if connected == 2:
                 break
