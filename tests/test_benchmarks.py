@@ -231,3 +231,25 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
              if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
     assert re.search(r"\| \d+\.\d\d, \d+\.\d\d \| \d+\.\d\d, \d+\.\d\d \(\d+\.\d\dx cpu", ab), ab
     assert "## Details: tools/bench_convert.py on the code before" in text
+
+
+def test_bench_health_tick_replays_every_frame_on_both_monitors_with_the_same_bytes() -> None:
+    """tools/bench_health_tick.py in a tiny run: the convert's frames reach the monitors (the
+    block engine counts frames without ``on_frame``: the recording must still see each), and
+    the reference (this checkout's HEAD) makes what the working tree makes."""
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_health_tick.py"), "--duration", "3",
+                          "--repeat", "1"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert run.stdout.count("same bytes (every /health and /log message") == 2, run.stdout
+    assert re.search(r"ecocar \(\d+ scene ticks", run.stdout), run.stdout
+
+
+def test_the_health_tick_reference_takes_the_lateral_check_from_its_revision() -> None:
+    """``also=("world.lateral",)``: the reference monitor's LateralSignCheck is the module of
+    the revision (``git show``), not the working tree's."""
+    modules = tool("bench_health").reference_package("HEAD", "_ref_health_lateral_test",
+                                                     also=("world.lateral",))
+    check = modules["monitor"].LateralSignCheck
+    assert sys.modules[check.__module__].__file__ == "<HEAD:bridge/world/lateral.py>"
+    from bridge.world.lateral import LateralSignCheck
+    assert check is not LateralSignCheck

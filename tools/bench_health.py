@@ -144,9 +144,14 @@ def reference_modules(ref: str, tag: str) -> tuple[types.ModuleType, types.Modul
     return modules["wire"], modules["monitor"]
 
 
-def reference_package(ref: str, package: str) -> dict[str, types.ModuleType]:
+def reference_package(ref: str, package: str,
+                      also: tuple[str, ...] = ()) -> dict[str, types.ModuleType]:
     """Every module of ``bridge/health`` at git revision ``ref``, imported as the package
-    ``package`` (rewritten to import each other), by module name."""
+    ``package`` (rewritten to import each other), by module name.
+
+    ``also``: modules of other packages the health modules import (e.g. ``"world.lateral"``),
+    taken from ``ref`` too (imported first, as ``package._world_lateral``); the rest of
+    ``bridge`` is the working tree's."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
                               text=True).stdout
@@ -156,6 +161,23 @@ def reference_package(ref: str, package: str) -> dict[str, types.ModuleType]:
     sys.modules[package] = types.ModuleType(package)
     sys.modules[package].__path__ = []  # a package: its modules are put in sys.modules below
     modules: dict[str, types.ModuleType] = {}
+    #: each module of ``also``: (its import, the reference's module name in ``package``)
+    renamed = [(f"from bridge.{dotted} import", f"_{dotted.replace('.', '_')}")
+               for dotted in also]
+
+    def run(name: str, path: str, text: str) -> types.ModuleType:
+        for spelled, alias in renamed:
+            text = text.replace(spelled, f"from {package}.{alias} import")
+        m = types.ModuleType(f"{package}.{name}")
+        m.__file__ = f"<{ref}:{path}>"
+        sys.modules[m.__name__] = m
+        setattr(sys.modules[package], name, m)
+        exec(compile(text, m.__file__, "exec"), m.__dict__)
+        return m
+
+    for dotted, (_, alias) in zip(also, renamed, strict=True):
+        path = f"bridge/{dotted.replace('.', '/')}.py"
+        run(alias, path, git("show", f"{ref}:{path}"))
 
     def load(name: str) -> types.ModuleType:
         if name in modules:
@@ -166,11 +188,7 @@ def reference_package(ref: str, package: str) -> dict[str, types.ModuleType]:
                 load(other)
         text = text.replace("from bridge.health.", f"from {package}.").replace(
             "from bridge.health import", f"from {package} import")
-        m = modules[name] = types.ModuleType(f"{package}.{name}")
-        m.__file__ = f"<{ref}:bridge/health/{name}.py>"
-        sys.modules[m.__name__] = m
-        setattr(sys.modules[package], name, m)
-        exec(compile(text, m.__file__, "exec"), m.__dict__)
+        m = modules[name] = run(name, f"bridge/health/{name}.py", text)
         return m
 
     for name in names:

@@ -12,7 +12,8 @@ at random at every timed call):
 
 - ``reference``: every module of ``bridge/health`` as it is at git revision ``--ref`` (default
   ``HEAD``), read with ``git show`` and imported under other names (as ``tools/bench_health.py``
-  does; the world, the scene and the rest of ``bridge`` are the working tree's);
+  does), and ``bridge/world/lateral.py`` with them (the lateral sign check the monitor runs at
+  each tick); the rest of the world, the scene and of ``bridge`` are the working tree's;
 - ``current``: the modules of the working tree.
 
 Timed, per monitor: at each scene tick what the pipeline's health scene does
@@ -51,6 +52,7 @@ from bridge.health import monitor as current_monitor  # noqa: E402
 from bridge.health import overlay as current_overlay  # noqa: E402
 from bridge.pipeline import perception as perception_module  # noqa: E402
 from bridge.pipeline.convert import convert  # noqa: E402
+from bridge.pipeline.pipeline import Pipeline  # noqa: E402
 
 #: One recorded call: ("feed", message, values, t), ("tick", t) of the perception; ("frame",
 #: frame, decoded), ("world", t), ("advance", t), ("finish", t), ("rebase", shift, t) of health.
@@ -59,9 +61,10 @@ DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
 
 
 def reference_health(ref: str) -> dict[str, types.ModuleType]:
-    """Every module of ``bridge/health`` at git revision ``ref``, imported under other names
+    """Every module of ``bridge/health`` at git revision ``ref``, with the lateral sign check
+    it runs at each tick (``bridge/world/lateral.py``), imported under other names
     (``tools/bench_health.py``'s loader), by module name."""
-    return reference_package(ref, "_ref_health_tick")
+    return reference_package(ref, "_ref_health_tick", also=("world.lateral",))
 
 
 def record(log: Path, profile: str, folder: Path) -> tuple[list[Call], dict[str, Any]]:
@@ -105,9 +108,17 @@ def record(log: Path, profile: str, folder: Path) -> tuple[list[Call], dict[str,
         calls.append(("rebase", shift_ns, t_ns))
         originals[H, "rebase"](self, shift_ns, t_ns)
 
+    def frame_by_frame(self: Pipeline, block: Any) -> None:
+        # The block engine counts a block's frames at once (not through on_frame, which the
+        # reference monitor may lack a block counterpart of): the recording takes the per-frame
+        # path, which makes the same drive (tests/test_block_pipeline.py).
+        for frame in block:
+            self.process(frame)
+
     patches = {(P, "feed"): feed, (P, "tick"): tick, (H, "on_frame"): on_frame,
                (H, "on_world"): on_world, (H, "advance"): advance, (H, "finish"): finish,
-               (H, "rebase"): rebase}
+               (H, "rebase"): rebase, (Pipeline, "process_block"): frame_by_frame}
+    originals[Pipeline, "process_block"] = Pipeline.process_block
     for (cls, name), function in patches.items():
         setattr(cls, name, function)
     try:
