@@ -92,9 +92,8 @@ class Pipeline:
         on_decoded_many`): those of the frames up to the next clock step or tick go before
         it, so each sink gets every message in the order :meth:`process` gives it, but for
         raw blocks, which may come before the decoded messages of the frames before them."""
-        decode, blocker, health, perception = (self.decoder.decode, self._blocker, self.health,
-                                               self.perception)
-        check, sinks, fed_of, wanted = self.clock.check, self.sinks, self._fed, self._wanted
+        decode, blocker, health = self.decoder.decode, self._blocker, self.health
+        check, sinks = self.clock.check, self.sinks
         run: list[tuple[int, Decoded]] = []
         t = None
         for frame in frames:
@@ -102,8 +101,7 @@ class Pipeline:
             step = check(t)
             if step is not None or t >= self._next_tick:
                 if run:
-                    for sink in sinks:
-                        sink.on_decoded_many(run)
+                    self._hand(run)
                     run = []
                 if step is not None:
                     self.rebase(step)
@@ -115,18 +113,10 @@ class Pipeline:
             if health is not None:
                 health.on_frame(frame, decoded)
             self.frames += 1
-            if decoded is None:
-                continue
-            run.append((t, decoded))
-            codec = decoded.codec
-            fed = fed_of.get(codec)
-            if fed is None:
-                fed = fed_of[codec] = codec.message.name in wanted
-            if fed and perception is not None:
-                perception.feed(codec.message.name, decoded.signals, t)
+            if decoded is not None:
+                run.append((t, decoded))
         if run:
-            for sink in sinks:
-                sink.on_decoded_many(run)
+            self._hand(run)
         if t is not None:
             self.last_ns = t
 
@@ -203,7 +193,13 @@ class Pipeline:
         if self.sinks:
             self._blocker.add_rows(block, i, j)
         ts = block.t
-        run = [(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None]
+        self._hand([(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None])
+        self.frames += j - i
+        self.last_ns = ts[j - 1]
+
+    def _hand(self, run: list[tuple[int, Decoded]]) -> None:
+        """The decoded messages of a run of frames (between two ticks or clock steps) to the
+        sinks at once, and to perception in order."""
         for sink in self.sinks:
             sink.on_decoded_many(run)
         perception = self.perception
@@ -216,8 +212,6 @@ class Pipeline:
                     fed = fed_of[codec] = codec.message.name in wanted
                 if fed:
                     perception.feed(codec.message.name, d.signals, t)
-        self.frames += j - i
-        self.last_ns = ts[j - 1]
 
     def _process(self, frame: Frame, decoded: Decoded | None) -> None:
         """One frame, decoded, through the other stages."""
