@@ -23,15 +23,19 @@ from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities
 from bridge.sim.highway import CAR_BUS, highway_database, simulate_highway
+from bridge.sim.highway_body import UNKNOWN_IDS
 from bridge.world import observe
 from bridge.world.observe import ObjectObservation, _Object
 
 
 def _decoded(seconds: float) -> Iterator[tuple[int, str, dict[str, Any]]]:
-    """The simulated highway drive's frames decoded: (time, message name, signals)."""
+    """The simulated highway drive's frames decoded: (time, message name, signals); the ids no
+    database defines are not decoded."""
     databases = {CAR_BUS: highway_database("car")}
     radar = highway_database("radar")
     for frame in simulate_highway(duration_s=seconds):
+        if frame.arbitration_id in UNKNOWN_IDS:
+            continue
         db = databases.get(frame.bus, radar)
         message = db.get_message_by_frame_id(frame.arbitration_id)
         yield frame.timestamp_ns, message.name, cast(dict[str, Any], db.decode_message(

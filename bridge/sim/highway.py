@@ -14,6 +14,9 @@ buses, encoded with cantools against the bundled databases:
   ``STEER_ANGLE_SENSOR`` (STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION in 0.1 deg steps)
   every 10 ms, ``WHEEL_SPEEDS`` (four wheels, km/h) every 12 ms, ``SPEED`` (the speedometer,
   km/h, 1.5 % high) every 20 ms.
+- ids the databases do not define, as a real car has (bring-up's work): 0x2C4 (brake switch,
+  speedometer, yaw rate), 0x3B7 and 0x4C8 on ``can0``, 0x2E0 on ``can1``; their layouts and
+  ground truth (the brake pressed at 14 to 17 s and 45 to 48 s) in :mod:`bridge.sim.highway_body`.
 
 Each message family sends at its DBC cycle time: cycle k measures the world at ``k * cycle``
 after the start and is sent at the start + the family's phase (drawn once) + ``k * cycle`` + a
@@ -91,6 +94,7 @@ import cantools
 from bridge.frame import NS, Frame
 from bridge.resources import data_dir
 from bridge.sim.frames import US, Codec, Out, ticks
+from bridge.sim.highway_body import body_families
 from bridge.sim.highway_world import (
     HIGHWAY,
     RADAR_X_M,
@@ -295,6 +299,13 @@ def simulate_highway(*, duration_s: float = 60.0, seed: int = 0,
       1 to 2 deg/s, left and right), ``"straight"``, or ``"weaving"`` (straight, the ego
       changing lanes): the same traffic on another road.
     """
+    return _simulate(duration_s, seed, start_ns, road, unknown=True)
+
+
+def _simulate(duration_s: float, seed: int, start_ns: int, road: str, *,
+              unknown: bool) -> Iterator[Frame]:
+    """:func:`simulate_highway`; ``unknown=False`` leaves out the ids the databases do not
+    define (:mod:`bridge.sim.highway_body`), which change no other frame (tests compare)."""
     if not duration_s > 0 or not math.isfinite(duration_s):
         raise ValueError(f"duration_s must be a positive number of seconds, not {duration_s!r}")
     if road not in ROADS:
@@ -308,4 +319,7 @@ def simulate_highway(*, duration_s: float = 60.0, seed: int = 0,
         _car(run, car, "WHEEL_SPEEDS", 12, _wheel_speeds),
         _car(run, car, "SPEED", 20, _speed, checksum=True),
     ]
+    if unknown:
+        families += body_families(run, car_bus=CAR_BUS, radar_bus=RADAR_BUS,
+                                  speedometer_gain=SPEEDOMETER_GAIN)
     return heapq.merge(*families)
