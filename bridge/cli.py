@@ -28,7 +28,7 @@ EXIT_INTERRUPTED = 130
 
 #: The commands, in the order ``tankviz --help`` lists them: modules of :mod:`bridge.apps`.
 COMMANDS = ("convert", "inspect", "live", "demo", "simulate", "replay", "recover", "layouts",
-            "batch", "catalog", "profile")
+            "batch", "catalog", "profile", "ids", "bits", "find-signal")
 
 #: What ``tankviz --help`` says of each command without importing it: the ``help`` each module
 #: gives its parser (tests/test_startup.py checks that they agree).
@@ -44,7 +44,16 @@ SUMMARIES = {
     "batch": "convert many drives at once, on Dask (local cores or a cluster)",
     "catalog": "index drives into a DuckDB catalogue, or query it",
     "profile": "start a vehicle profile from the databases, or check one",
+    "ids": "list every CAN id of a source: rate, lengths, message, changing bits",
+    "bits": "the bit-change map of one CAN id, or the bits that switch between two windows of "
+            "time",
+    "find-signal": "find the field of unknown ids that follows a known quantity, as DBC lines",
 }
+
+
+def module_of(command: str) -> str:
+    """The module of :mod:`bridge.apps` that holds ``command`` (``find-signal``: find_signal)."""
+    return f"bridge.apps.{command.replace('-', '_')}"
 
 
 def chosen_command(arguments: Sequence[str]) -> str | None:
@@ -71,7 +80,7 @@ def build_parser(command: str | None = None, *, every: bool = False) -> argparse
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         if every or name == command:
-            importlib.import_module(f"bridge.apps.{name}").add_parser(sub)
+            importlib.import_module(module_of(name)).add_parser(sub)
         else:
             sub.add_parser(name, help=SUMMARIES[name])
     return parser

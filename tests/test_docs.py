@@ -233,7 +233,7 @@ _VARYING = re.compile(r"\d[\d,.:TZ-]*")
 def workflow_sessions() -> list[tuple[str, list[str]]]:
     """Each ``$ tankviz …`` command of the front page's workflows with the lines shown after it
     (the lines with an ellipsis are shortened: left out)."""
-    text = README.read_text().split("## Three workflows", 1)[1].split("\n## ", 1)[0]
+    text = README.read_text().split("## Four workflows", 1)[1].split("\n## ", 1)[0]
     sessions: list[tuple[str, list[str]]] = []
     for block in re.findall(r"```\n(.*?)```", text, flags=re.DOTALL):
         for line in block.splitlines():
@@ -261,7 +261,8 @@ def test_the_front_page_workflows_run_as_shown(tmp_path: Path) -> None:
                    "TANKVIZ_PORT": "0"}  # drives into ./drives, the default
     sessions = workflow_sessions()
     assert [command.split()[1] for command, _ in sessions] == [
-        "demo", "simulate", "convert", "inspect", "profile", "profile", "convert"]
+        "demo", "simulate", "convert", "inspect", "profile", "profile", "convert", "ids", "bits",
+        "find-signal"]
     subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", "highway", "--road",
                     "winding", "-o", "highway.blf"], cwd=tmp_path, check=True,
                    capture_output=True)

@@ -19,8 +19,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The packages of bridge/ in data-path order: each may import those before it.
-DATA_PATH = ("io", "decode", "profile", "world", "scene", "health", "sinks", "pipeline", "view",
-             "sim", "fleet", "apps")
+DATA_PATH = ("io", "decode", "profile", "world", "scene", "health", "bringup", "sinks", "pipeline",
+             "view", "sim", "fleet", "apps")
 #: Modules at the top of bridge/ that every stage may use; they import no stage.
 SHARED = ("__init__", "errors", "frame", "block", "protowire", "topics", "resources", "pb")
 
@@ -60,7 +60,8 @@ def graph(root: Path = ROOT) -> dict[str, set[str]]:
     for node in ast.walk(ast.parse(known["bridge.cli"].read_text())):
         if (isinstance(node, ast.Assign) and isinstance(target := node.targets[0], ast.Name)
                 and target.id == "COMMANDS"):
-            edges["bridge.cli"] |= {f"bridge.apps.{name}" for name in ast.literal_eval(node.value)}
+            edges["bridge.cli"] |= {f"bridge.apps.{name.replace('-', '_')}"
+                                    for name in ast.literal_eval(node.value)}
     return edges
 
 

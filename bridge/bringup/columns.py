@@ -1,0 +1,104 @@
+"""A frame block's data frames as numpy columns, grouped per (bus, id).
+
+:func:`data_frames` takes the rows of a :class:`~bridge.block.FrameBlock` (all, or a range) that
+carry data (error and remote frames carry none and are left out) as :class:`Columns`: times,
+bus names, frame keys, and the payloads as one ``uint8`` matrix, a row per frame, zero-padded to
+the longest payload. :func:`by_id` gives each (bus, key)'s rows of it, in their order;
+:func:`concat` makes one of several, in order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from bridge.block import ERROR, REMOTE, FrameBlock
+from bridge.frame import EXTENDED_KEY, key_id
+
+Array = npt.NDArray[np.int64]
+Bytes = npt.NDArray[np.uint8]
+
+
+class Columns(NamedTuple):
+    """Data frames as columns: row ``i`` is one frame."""
+
+    #: log time, ns
+    t: Array
+    #: the bus names; ``bus`` holds an index into them
+    buses: tuple[str, ...]
+    bus: Array
+    #: frame keys (:func:`bridge.frame.frame_key`)
+    key: Array
+    #: payloads, a row per frame, zero-padded to the widest
+    payload: Bytes
+    #: each payload's length in bytes
+    length: Array
+
+
+def id_text(key: int) -> str:
+    """A frame key as people write the id: ``0x1A0``, a 29-bit id with eight digits."""
+    if key & EXTENDED_KEY:
+        return f"0x{key_id(key):08X}"
+    return f"0x{key:03X}"
+
+
+def data_frames(block: FrameBlock, i: int = 0, j: int | None = None) -> Columns:
+    """Rows ``i`` to ``j`` of ``block`` that carry data, as columns."""
+    n = len(block)
+    i, j, _ = slice(i, j).indices(n)
+    j = max(i, j)
+    t = np.frombuffer(block.t, dtype=np.int64, count=n)[i:j]
+    bus = np.frombuffer(block.bus, dtype=np.uint8, count=n)[i:j].astype(np.int64)
+    key = np.frombuffer(block.key, dtype=np.uint32, count=n)[i:j].astype(np.int64)
+    # (the ends of rows i - 1 to j only: a run of a few rows of a large block costs a few)
+    ends = np.frombuffer(block.ends, dtype=np.uint32, count=n)[max(i - 1, 0):j].astype(np.int64)
+    starts = ends[:-1] if i else np.concatenate(([0], ends[:-1]))
+    length = (ends[1:] if i else ends) - starts
+    if block.all_flags() & (ERROR | REMOTE):
+        flags = np.frombuffer(block.flags, dtype=np.uint8, count=n)[i:j]
+        keep = (flags & (ERROR | REMOTE)) == 0
+        t, bus, key, starts, length = t[keep], bus[keep], key[keep], starts[keep], length[keep]
+    data = np.frombuffer(block.data, dtype=np.uint8)
+    width = int(length.max()) if len(length) else 0
+    if width == 0:
+        payload = np.zeros((len(t), 0), dtype=np.uint8)
+    else:
+        at = starts[:, None] + np.arange(width)
+        inside = np.arange(width) < length[:, None]
+        payload = np.where(inside, data[np.minimum(at, len(data) - 1)], 0).astype(np.uint8)
+    return Columns(t, block.buses, bus, key, payload, length)
+
+
+def by_id(columns: Columns) -> Iterator[tuple[str, int, Array]]:
+    """``(bus, key, rows)`` of each id in ``columns``, its rows in their order."""
+    if not len(columns.t):
+        return
+    code = (columns.bus << 32) | columns.key
+    order = np.argsort(code, kind="stable")
+    ordered = code[order]
+    cuts = np.flatnonzero(np.diff(ordered)) + 1
+    for rows in np.split(order, cuts):
+        c = int(code[rows[0]])
+        yield columns.buses[c >> 32], c & 0xFFFFFFFF, rows
+
+
+def concat(pieces: Sequence[Columns]) -> Columns:
+    """Several pieces of columns as one, their rows in order (one bus table, the payloads
+    padded to the widest)."""
+    if len(pieces) == 1:
+        return pieces[0]
+    names = tuple(dict.fromkeys(name for p in pieces for name in p.buses))
+    index = {name: i for i, name in enumerate(names)}
+    width = max((p.payload.shape[1] for p in pieces), default=0)
+    empty = np.zeros(0, dtype=np.int64)
+    return Columns(
+        np.concatenate([p.t for p in pieces]) if pieces else empty, names,
+        np.concatenate([np.array([index[name] for name in p.buses], dtype=np.int64)[p.bus]
+                        if len(p.bus) else empty for p in pieces]) if pieces else empty,
+        np.concatenate([p.key for p in pieces]) if pieces else empty,
+        np.vstack([np.pad(p.payload, ((0, 0), (0, width - p.payload.shape[1])))
+                   for p in pieces]) if pieces else np.zeros((0, 0), dtype=np.uint8),
+        np.concatenate([p.length for p in pieces]) if pieces else empty)
