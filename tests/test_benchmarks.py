@@ -253,3 +253,16 @@ def test_the_health_tick_reference_takes_the_lateral_check_from_its_revision() -
     assert sys.modules[check.__module__].__file__ == "<HEAD:bridge/world/lateral.py>"
     from bridge.world.lateral import LateralSignCheck
     assert check is not LateralSignCheck
+
+
+def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
+    """tools/bench_bringup_cli.py on a few seconds of the RAV4-sized drive: every command runs
+    and gets its row (the find-signal goal line too)."""
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_bringup_cli.py"), "--runs", "1",
+                          "--minutes", "0.1"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    for row in ("python-can reads the log (reference)", "tankviz ids", "tankviz bits --id",
+                "tankviz bits --compare", "tankviz find-signal"):
+        assert re.search(rf"^{re.escape(row)}\s+[\d.]+\s+[\d.]+\s+\d+$", run.stdout, re.M), (
+            row, run.stdout)
+    assert "find-signal goal" in run.stdout

@@ -84,6 +84,8 @@ def peak_of(argv: list[str]) -> float:
     """Run a Python command (``[python, -m|-c, ...]``) in a child: its peak RSS in MB."""
     done = subprocess.run([argv[0], "-c", _PEAK, *argv[1:]], check=False,
                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode:
+        raise SystemExit(f"{' '.join(argv[1:])} failed:\n{done.stderr}")
     return int(done.stderr.strip().splitlines()[-1]) / 1024
 
 
@@ -102,13 +104,15 @@ def main() -> None:
         dbcs = ["--dbc", f"can0={data_dir() / 'highway_car.dbc'}",
                 "--dbc", f"can1={data_dir() / 'highway_radar.dbc'}"]
         tankviz = [sys.executable, "-m", "bridge"]
+        # around the first brake press (14 s), or early in a drive too short for it
+        windows = (["12.5:13.9", "14.1:15.5"] if args.minutes * 60 > 16 else ["1:2", "3:4"])
         commands = {
             "python-can reads the log (reference)": [
                 sys.executable, "-c", f"import can\nfor m in can.LogReader({str(log)!r}): pass"],
             "tankviz ids": [*tankviz, "ids", str(log), *dbcs, "-q"],
             "tankviz bits --id": [*tankviz, "bits", str(log), "--id", "can0/0x2C4", "-q"],
             "tankviz bits --compare": [*tankviz, "bits", str(log), *dbcs, "--compare",
-                                       "12.5:13.9", "14.1:15.5", "-q"],
+                                       *windows, "-q"],
             "tankviz find-signal": [*tankviz, "find-signal", str(log), *dbcs, "--like",
                                     "can0/SPEED.SPEED", "-q"],
         }
