@@ -68,10 +68,14 @@ def rav4_like(minutes: float) -> list[Frame]:
     return list(heapq.merge(*families))
 
 
-#: Runs a Python command line (``-m bridge ...`` or ``-c CODE``) and prints its own peak RSS.
-_PEAK = ("import atexit, resource, runpy, sys\n"
-         "atexit.register(lambda: print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,"
-         " file=sys.stderr))\n"
+#: Runs a Python command line (``-m bridge ...`` or ``-c CODE``) and prints its own peak RSS
+#: (VmHWM: the high-water mark of this program, not of the process it was forked from).
+_PEAK = ("import atexit, runpy, sys\n"
+         "def peak():\n"
+         "    for line in open('/proc/self/status'):\n"
+         "        if line.startswith('VmHWM:'):\n"
+         "            print(int(line.split()[1]), file=sys.stderr)\n"
+         "atexit.register(peak)\n"
          "sys.argv = sys.argv[1:]\n"
          "if sys.argv[0] == '-m':\n"
          "    sys.argv = sys.argv[1:]\n"
