@@ -589,6 +589,7 @@ class LogSource:
         header: list[str] = []
         kwargs = {"relative_timestamp": False} if reader_type is can.ASCReader else {}
         quiet = _QUIET_LINES.get(suffix)
+        candump = reader_type is can.CanutilsLogReader
         checked = 0  # the lines up to this one are accounted for (a fresh reader reads some again)
         warned = self._warnings
 
@@ -639,6 +640,9 @@ class LogSource:
                     if "\0" in lines.text:
                         damage(lines.line, lines.text)
                         continue
+                    if (candump and message.is_extended_id and not message.is_error_frame
+                            and _candump_error(lines.text)):
+                        message = _error_frame(message)
                     yield message
                 lines.done()
                 return
@@ -744,6 +748,29 @@ class LogSource:
                           "not read", "stop", f"stopped at a {what} python-can cannot read")
         finally:
             reader.stop()
+
+
+#: candump's mark of an error frame in its id (SocketCAN's CAN_ERR_FLAG); its class is in the
+#: low bits. python-can's reader makes an error frame of a bus error (0x80) alone.
+CAN_ERR_FLAG = 0x20000000
+
+
+def _candump_error(line: str) -> bool:
+    """Whether a candump line's id has :data:`CAN_ERR_FLAG`: an error frame of any class."""
+    fields = line.split()
+    ident = fields[2].partition("#")[0] if len(fields) >= 3 else ""
+    try:
+        return len(ident) == 8 and bool(int(ident, 16) & CAN_ERR_FLAG)
+    except ValueError:
+        return False
+
+
+def _error_frame(message: can.Message) -> can.Message:
+    """A data frame python-can made of a candump error frame, as the error frame it is (its
+    error class and data kept: the class in the id, the details in the data)."""
+    return can.Message(timestamp=message.timestamp, arbitration_id=message.arbitration_id,
+                       is_extended_id=True, is_error_frame=True, data=message.data,
+                       dlc=message.dlc, channel=message.channel, is_rx=message.is_rx)
 
 
 def _unrecordable(message: can.Message) -> tuple[str, IssueKind, str]:

@@ -399,3 +399,21 @@ def test_trc_lines_python_can_skips_are_reported_in_the_order_of_the_lines(
     assert [(i.where, i.group) for i in source.issues] == [
         ("line 5", "python-can warning"), ("line 6", "line without a frame")]
     assert "Warng" in source.issues[1].reason
+
+
+def test_candump_error_frames_of_every_class_are_error_frames(tmp_path: Path) -> None:
+    """candump marks an error frame by the CAN_ERR_FLAG bit (0x20000000) of its id, with its
+    class in the low bits. python-can's reader makes an error frame only of a bus error
+    (0x80); the other classes (controller 0x04, protocol 0x08, transceiver 0x10, no ack 0x20,
+    bus off 0x40, restarted 0x100, ...) came out as extended data frames with ids 0x4, 0x8, ...
+    Every class is an error frame, and an extended data frame stays data."""
+    path = tmp_path / "errors.log"
+    classes = (0x4, 0x8, 0x10, 0x20, 0x40, 0x80, 0x100)
+    lines = [f"(1700000000.{i:06d}) can0 {0x20000000 | c:08X}#0000000000000000"
+             for i, c in enumerate(classes)]
+    lines += ["(1700000001.000000) can0 123#0102", "(1700000001.000100) can0 18FEF100#0304"]
+    path.write_text("\n".join(lines) + "\n")
+    frames = list(LogSource(path))
+    assert [f.is_error for f in frames] == [True] * len(classes) + [False, False]
+    assert [(f.arbitration_id, f.is_extended, f.data) for f in frames[-2:]] == [
+        (0x123, False, b"\x01\x02"), (0x18FEF100, True, b"\x03\x04")]
