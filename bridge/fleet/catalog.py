@@ -546,12 +546,13 @@ class Answer:
 
 
 def query(catalog: Path | str, sql: str, parameters: Sequence[Any] = ()) -> Answer:
-    """Run ``sql`` on ``catalog`` (read only)."""
+    """Run ``sql`` on ``catalog``, read only: a query writes no file and no database."""
     import duckdb
 
     con = connect(catalog)
     try:
         try:
+            _check_reads_only(con, sql)
             result = con.execute(sql, list(parameters))
         except duckdb.Error as exc:
             raise UsageError(f"{catalog}: {' '.join(str(exc).split())}") from None
@@ -563,6 +564,28 @@ def query(catalog: Path | str, sql: str, parameters: Sequence[Any] = ()) -> Answ
     finally:
         con.close()
     return Answer(columns, rows, starts)
+
+
+#: The statements a query may hold: they read. Every other kind may write a file or a database
+#: (COPY, EXPORT, ATTACH, INSTALL and LOAD, SET, CREATE, ...), even on a read-only catalogue.
+READING_STATEMENTS = ("SELECT", "EXPLAIN")
+
+
+def _check_reads_only(con: Any, sql: str) -> None:
+    """Refuse a query with no statement, or with one that is not a :data:`READING_STATEMENTS`."""
+    statements = con.extract_statements(sql)
+    shown = " ".join(sql.split())
+    if not statements:
+        raise UsageError(f"no statement in the query {shown!r} (e.g. \"SELECT * FROM drives\")")
+    for statement in statements:
+        kind = statement.type.name
+        if kind not in READING_STATEMENTS:
+            raise UsageError(f"catalog query only reads: a {kind} statement is refused (it may "
+                             f"write files or databases): {_shown(shown)}")
+
+
+def _shown(text: str, limit: int = 80) -> str:
+    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def _check_name(catalog: Path | str, what: str, column: str, table: str, name: str) -> None:
