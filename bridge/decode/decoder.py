@@ -36,6 +36,7 @@ frames have been decoded, every ``--dbc BUS=`` whose bus no frame came from.
 
 from __future__ import annotations
 
+import codecs
 import hashlib
 import math
 import re
@@ -121,8 +122,10 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
         raise DatabaseError(path, "no such file") from None
     except OSError as exc:
         raise DatabaseError(path, f"cannot read: {exc.strerror or exc}") from None
+    # a UTF-8 byte-order mark (editors on Windows write one): read as UTF-8 without it
+    encoding = "utf-8-sig" if content.startswith(codecs.BOM_UTF8) else None
     try:
-        db = cantools.database.load_file(str(path), strict=False)
+        db = cantools.database.load_file(str(path), strict=False, encoding=encoding)
     except Exception as exc:  # cantools raises many types; its text is the useful part
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise DatabaseError(path, f"cantools cannot load it: {reason}") from None

@@ -29,6 +29,7 @@ lines (something it needs that the draft could not find) names the first of them
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import re
 import sys
@@ -155,9 +156,11 @@ def _todo_error(path: Path) -> ProfileError | None:
 
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
-        with path.open("rb") as f:
-            doc: dict[str, Any] = tomllib.load(f)
-            return doc
+        content = path.read_bytes()
+        if content.startswith(codecs.BOM_UTF8):  # as editors on Windows save UTF-8
+            content = content[len(codecs.BOM_UTF8):]
+        doc: dict[str, Any] = tomllib.loads(content.decode("utf-8"))
+        return doc
     except tomllib.TOMLDecodeError as exc:
         raise ProfileError(path, "", f"not valid TOML: {exc}") from None
     except UnicodeDecodeError as exc:

@@ -144,3 +144,20 @@ def test_live_warns_at_start_about_a_database_and_a_bus_it_will_never_decode(
         *(f"warning: {text}" for text in load_database(tmp_path / "door.dbc").warnings),
         f"warning: --dbc trailer={tmp_path / 'door.dbc'}: no --bus trailer, so nothing is "
         "decoded with it"]
+
+
+def test_a_database_and_a_profile_saved_with_a_byte_order_mark_load(tmp_path: Path) -> None:
+    """Editors on Windows save UTF-8 with a byte-order mark (EF BB BF): cantools then failed at
+    line 1, column 1, and TOML too, neither naming the mark. Both load as without it."""
+    from bridge.decode.decoder import load_database
+    from bridge.profile.loader import load_profile
+    from bridge.resources import data_dir
+
+    dbc = tmp_path / "ecocar.dbc"
+    dbc.write_bytes(b"\xef\xbb\xbf" + (data_dir() / "ecocar.dbc").read_bytes())
+    loaded = load_database(dbc)
+    assert {m.name for m in loaded.db.messages} == {
+        m.name for m in load_database(data_dir() / "ecocar.dbc").db.messages}
+    profile = tmp_path / "ecocar.toml"
+    profile.write_bytes(b"\xef\xbb\xbf" + (data_dir() / "ecocar.toml").read_bytes())
+    assert load_profile(profile, [loaded.db]).name == "ecocar"
