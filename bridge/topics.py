@@ -65,3 +65,21 @@ LOG_TOPIC = "/log"
 HEALTH_TOPIC = "/health"
 #: The scene category of the alarm overlay and the sensors' fields of view.
 HEALTH_CATEGORY = "health"
+
+
+def ids_topic(bus: str) -> str:
+    """Bring-up: every id of one bus, a row each, about once a second (``tankviz.CanIds``)."""
+    return f"/can/{bus_segment(bus)}/ids"
+
+
+def unknown_topic(bus: str) -> str:
+    """Bring-up: each data frame of an id no database of the bus defines, its bytes and 16-bit
+    words (``tankviz.CanPayload``)."""
+    return f"/can/{bus_segment(bus)}/unknown"
+
+
+#: Bring-up: the bit-change map of every id of every bus, about once a second
+#: (``foxglove.CompressedImage``, PNG).
+BITS_TOPIC = "/can/bits"
+#: Bring-up: the map's row labels and header (``foxglove.ImageAnnotations``, the image's stamp).
+BITS_LABELS_TOPIC = "/can/bits/labels"

@@ -4,7 +4,7 @@ the tests' time budgets (TANKVIZ_TEST_TIMEOUT_SCALE) and hypothesis' CI profile.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import can
@@ -99,3 +99,14 @@ def write_log(tmp_path: Path) -> WriteLog:
         return path
 
     return write
+
+
+@pytest.fixture
+def restore_stop_signals() -> Iterator[None]:
+    """live, demo and replay take SIGINT and SIGTERM to stop cleanly: given back after."""
+    import signal
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, handler in saved.items():
+        signal.signal(s, handler)

@@ -266,3 +266,19 @@ def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
         assert re.search(rf"^{re.escape(row)}\s+[\d.]+\s+[\d.]+\s+\d+$", run.stdout, re.M), (
             row, run.stdout)
     assert "find-signal goal" in run.stdout
+
+
+def test_bench_bringup_measures_size_cpu_and_live_with_and_without_bring_up(
+        shared_dbc: Path) -> None:
+    """tools/bench_bringup.py on a few seconds of the Toyota and the highway car: every row with
+    its ratio, each bring-up topic's share of the archive."""
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_bringup.py"), "--seconds", "4",
+                          "--runs", "1"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    for car in ("toyota", "highway"):
+        for measure in ("archive size", "convert CPU"):
+            assert re.search(rf"^{measure} with / without bring-up, {car}.*  [+-]\d+\.\d%",
+                             run.stdout, re.M), (measure, car, run.stdout)
+    for sinks in ("a viewer and a recorder", "a recorder alone"):
+        assert re.search(rf"^live per frame .*{sinks}\s+[+-]\d+\.\d% \(", run.stdout, re.M)
+    assert "/can/can0/unknown" in run.stdout and "kB of the archive" in run.stdout

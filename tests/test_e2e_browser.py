@@ -795,6 +795,112 @@ def test_layouts_made_for_a_gm_car_show_its_tracks_lanes_and_alarms(
         assert errors == [], f"{name}: {errors}"
 
 
+# --- bring-up: a car's unknown ids (tankviz layouts --dbc ...: bring-up.json) ------------------
+
+#: The highway car's databases by bundled name, as a car in bring-up has them: no profile.
+HIGHWAY_DBCS = ["can0=highway_car", "can1=highway_radar"]
+#: The unknown id the bring-up layout plots (brake switch, speedometer, yaw rate; bytes 0-7).
+BRINGUP_ID = "0x2C4"
+#: What OCR must read of that id: a 0 is often read as O or @.
+BRINGUP_ID_OCR = r"[0O@Q]x2C4"
+#: The two windows the bring-up layout is looked at in: a laptop's and a large one.
+BRINGUP_VIEWPORTS = {"1280": {"width": 1280, "height": 800},
+                     "1920": {"width": 1920, "height": 1080}}
+#: The shot kept as the layout's preview (layouts/bring-up.png).
+BRINGUP_PREVIEW = "bring-up-1920"
+
+
+@pytest.fixture(scope="module")
+def e2e_bringup(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The simulated highway car (ids no database defines on can0 and can1) served by `tankviz
+    replay` of its log with its databases and no profile, looked at through the bring-up layout
+    `tankviz layouts --dbc ... --plot can0/0x2C4` writes, imported through the app's Import
+    layout, at 1280 x 800 and at 1920 x 1080; its own browser session, a replay per shot."""
+    browser = chromium()
+    if browser is None:
+        unavailable("chromium is not installed (apt-get install chromium)")
+    ensure_node_modules()
+    out = Path(os.environ.get("TANKVIZ_E2E_OUT") or tmp_path_factory.mktemp("e2e-bring-up"))
+    out = out / "bring-up"
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "highway.blf"
+    layouts = out / "layouts"
+    dbcs = [word for dbc in HIGHWAY_DBCS for word in ("--dbc", dbc)]
+    for args in (["simulate", "--car", "highway", "-o", str(log), "--duration", "60",
+                  "--force"],
+                 ["layouts", *dbcs, "--plot", f"can0/{BRINGUP_ID}", "--export", str(layouts),
+                  "--force"]):
+        subprocess.run([sys.executable, "-m", "bridge", *args], cwd=ROOT, check=True,
+                       capture_output=True)
+    layout = layouts / "bring-up.json"
+    # At real speed from 2 s in (the ids tables and the map come once a second of log time),
+    # looping: the viewer keeps its server however long OCR takes.
+    sources = {"replay": ["replay", str(log), *dbcs, "--port", "0", "--start", "2", "--loop"]}
+    plan = {
+        "chromium": browser, "dataDir": str(out), "timeoutMs": round(WAIT_S * 1000),
+        "reportMs": round(REPORT_S * 1000), "viewport": BRINGUP_VIEWPORTS["1280"],
+        "shots": [
+            {"name": f"bring-up-{size}", "source": {"serve": "replay"}, "viewport": viewport,
+             "via": "import", "layout": str(layout),
+             # every line of the bytes and the words plots has a value and is drawn
+             "plots": True, "plotExtent": 0.5,
+             "panelText": {"Table!ids-can0": [BRINGUP_ID, "unknown", "KINEMATICS"],
+                           "Table!ids-can1": ["TRACK_A_0"],
+                           "RawMessages!unknown": ["tankviz.CanPayload @", "bytes", "be16",
+                                                   "le16"]},
+             "image": {"panel": "ImageViewPanel!bits", "minBright": 200},
+             "ocrPanels": {"Table!ids-can0": [BRINGUP_ID_OCR, "unknown"],
+                           "ImageViewPanel!bits": [r"[Cc][Aa][NnHh][0O@QG]\s*[0O@QG]x2C4"]},
+             "ocrAttempts": 2,
+             "screenshot": str(out / f"bring-up-{size}.png")}
+            for size, viewport in BRINGUP_VIEWPORTS.items()],
+    }
+    (out / "plan.json").write_text(json.dumps(plan, indent=2), encoding="utf-8")
+    run = run_driver(out / "plan.json", sources, len(plan["shots"]))
+    (out / "driver.log").write_text("\n".join(run.log) + "\n", encoding="utf-8")
+    if os.environ.get("TANKVIZ_UPDATE_PREVIEWS") and run.shots.get(BRINGUP_PREVIEW, {}).get("ok"):
+        shutil.copyfile(out / f"{BRINGUP_PREVIEW}.png", LAYOUTS / "bring-up.png")
+    return {"shots": run.shots, "problem": run.problem, "out": out,
+            "said": {name: "".join(served.output) for name, served in run.served.items()},
+            "layout": json.loads(layout.read_text(encoding="utf-8"))}
+
+
+@pytest.mark.parametrize("size", list(BRINGUP_VIEWPORTS))
+def test_bring_up_layout_on_a_replay_of_a_car_without_profile(
+        e2e_bringup: dict[str, Any], size: str) -> None:
+    """The ids tables (read in the DOM and by OCR), the bit map drawn (bright cells), the plots
+    of the unknown id 0x2C4 chosen by the layout's variable (a value and a line for each of its
+    bytes and words) and its latest frame, at a laptop's window and a large one; and the replay
+    said which layout shows them."""
+    name = f"bring-up-{size}"
+    shot = shot_named(e2e_bringup, name)
+    assert shot["ok"], explain(shot)
+    assert e2e_bringup["layout"]["globalVariables"]["unknown_id"] == BRINGUP_ID
+    assert set(shot["plots"]) == {"Plot!unknown-bytes", "Plot!unknown-words"}
+    for plot in shot["plots"].values():
+        assert plot["missingValues"] == [] and plot["extent"] >= 0.5, shot["plots"]
+    assert shot["image"]["bright"] >= 200, shot["image"]
+    ocr = shot["ocrPanels"]["Table!ids-can0"]
+    if not ocr.get("available"):
+        unavailable("tesseract is not installed (apt-get install tesseract-ocr)")
+    assert ocr["found"] == ocr["wanted"], ocr["text"]
+    said = e2e_bringup["said"][name].splitlines()
+    assert any(line.startswith(f"bring-up: can0 carries ids no database knows (first "
+                               f"{BRINGUP_ID}): import ") for line in said), said
+    errors = [e for e in shot["errors"] if "WebGL" not in e]
+    assert errors == [], errors
+
+
+def test_bring_up_map_rows_are_labelled(e2e_bringup: dict[str, Any]) -> None:
+    """The map's rows name their bus and id, in the image's own pixels (Foxglove Studio 1.48's
+    Image panel draws no text annotation): OCR reads "CAN0 0x2C4" in the Image panel."""
+    shot = shot_named(e2e_bringup, "bring-up-1920")
+    ocr = shot["ocrPanels"]["ImageViewPanel!bits"]
+    if not ocr.get("available"):
+        unavailable("tesseract is not installed (apt-get install tesseract-ocr)")
+    assert ocr["found"] == ocr["wanted"], ocr["text"]
+
+
 # --- conformance with Foxglove's client libraries (tools/conformance.mjs) -------------------------
 
 
@@ -828,7 +934,9 @@ def test_live_demo_with_foxglove_ws_protocol_client() -> None:
     assert set(channels) == set(bundled_produced().topics)
     for topic, channel in channels.items():
         assert channel["encoding"] == "protobuf" and channel["schemaEncoding"] == "protobuf"
-        if topic != "/log":  # /log only carries alarms
+        # /log only carries alarms, /can/<bus>/unknown only ids no database knows (the
+        # demo's ecocar sends none)
+        if topic != "/log" and not re.fullmatch(r"/can/[^/]+/unknown", topic):
             assert channel["messages"] > 0, f"{topic}: no message within 30 s"
             assert not channel.get("decodeErrors"), topic
     assert channels["/scene/lanes"]["schemaName"] == "foxglove.SceneUpdate"

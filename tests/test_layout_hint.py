@@ -18,8 +18,6 @@ from __future__ import annotations
 import os
 import re
 import shlex
-import signal
-from collections.abc import Iterator
 from pathlib import Path
 
 import cantools
@@ -33,16 +31,10 @@ from bridge.resources import layouts_dir
 PROFILE = Path(__file__).resolve().parent / "profiles" / "mazda_radar.toml"
 BUNDLED = layouts_dir() / "tank-viz.json"
 BUNDLED_LINE = f"layout:   import {BUNDLED} (Layouts menu)"
-LAYOUT_FILES = ("can-debug.json", "engineer.json", "tank-viz.json")
+LAYOUT_FILES = ("bring-up.json", "can-debug.json", "engineer.json", "tank-viz.json")
 
 
-@pytest.fixture(autouse=True)
-def _signals() -> Iterator[None]:
-    """live, demo and replay take SIGINT and SIGTERM to stop cleanly: given back after."""
-    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    yield
-    for s, handler in saved.items():
-        signal.signal(s, handler)
+pytestmark = pytest.mark.usefixtures("restore_stop_signals")
 
 
 @pytest.fixture

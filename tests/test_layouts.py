@@ -52,7 +52,7 @@ from bridge.view.paths import resolve_path
 from bridge.view.produced import Produced, produced
 
 LAYOUTS = layouts_dir()
-NAMES = ("tank-viz", "engineer", "can-debug")
+NAMES = ("tank-viz", "engineer", "can-debug", "bring-up")
 PNG = b"\x89PNG\r\n\x1a\n"
 #: The bus of `tankviz demo` and `tankviz simulate`.
 BUS = "can0"
@@ -124,6 +124,8 @@ def test_the_bundled_layouts_with_their_previews() -> None:
     assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, 14 Indicator panels"
     assert (found["can-debug"].summary
             == "9 plots, 2 Indicator panels, 2 Raw Messages panels, Data Source Info")
+    assert (found["bring-up"].summary
+            == "Table, Image, 2 plots, Variable Slider, Raw Messages")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -131,7 +133,10 @@ def test_foxglove_layout_format(name: str) -> None:
     data = json.loads((LAYOUTS / f"{name}.json").read_text(encoding="utf-8"))
     assert list(data) == list(LAYOUT_KEYS) or set(data) == set(LAYOUT_KEYS)
     assert check_format(data) == []
-    assert data["userNodes"] == {} and data["globalVariables"] == {}
+    assert data["userNodes"] == {}
+    # the bring-up layout's variables: the unknown id its plots follow, their words' first byte
+    assert data["globalVariables"] == ({"unknown_id": "", "word": 0} if name == "bring-up"
+                                       else {})
     assert data["playbackConfig"]["speed"] == 1
     for config in data["configById"].values():
         assert config.get("foxglovePanelTitle"), "every panel is titled"
@@ -408,7 +413,7 @@ def test_export(tmp_path: Path) -> None:
     with pytest.raises(BridgeError, match="exists"):
         export_layouts(out)
     assert export_layouts(out, names=["tank-viz"], force=True) == [out / "tank-viz.json"]
-    with pytest.raises(BridgeError, match=r"no bundled layout 'nope'; bundled: can-debug"):
+    with pytest.raises(BridgeError, match=r"no bundled layout 'nope'; bundled: bring-up"):
         export_layouts(out, names=["nope"])
     blocker = tmp_path / "file"
     blocker.write_text("", encoding="utf-8")

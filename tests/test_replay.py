@@ -133,8 +133,8 @@ def test_a_scene_rate_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str
 def test_layouts_list_and_export(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["layouts"]) == 0
     listing = capsys.readouterr().out
-    assert all(name in listing for name in ("tank-viz", "engineer", "can-debug"))
+    assert all(name in listing for name in ("tank-viz", "engineer", "can-debug", "bring-up"))
     assert main(["layouts", "--export", str(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.glob("*.json")) == [
-        "can-debug.json", "engineer.json", "tank-viz.json"]
+        "bring-up.json", "can-debug.json", "engineer.json", "tank-viz.json"]
     assert main(["layouts", "--export", str(tmp_path)]) == 1  # no overwriting without --force

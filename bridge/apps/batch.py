@@ -97,7 +97,7 @@ def _settings(args: argparse.Namespace) -> Settings:
     if profile is not None and Path(profile).exists():
         profile = str(Path(profile).absolute())
     return Settings(tuple(_absolute_dbc(t) for t in args.dbc or []), profile, args.scene_rate,
-                    args.force)
+                    args.force, bring_up=args.bring_up)
 
 
 def _drives(n: int) -> str:

@@ -89,7 +89,10 @@ def run(args: argparse.Namespace) -> int:
     check_mcap_output(args.output)
     refuse_repeated(inputs)
     if not dbcs and profile is None and not any(is_drive(p) for p in inputs):
-        print("warning: no --dbc and no --profile: only raw frames are recorded", file=sys.stderr)
+        print("warning: no --dbc and no --profile: "
+              + ("nothing is decoded: raw frames are recorded, and the bring-up topics with "
+                 "every id unknown" if args.bring_up else "only raw frames are recorded"),
+              file=sys.stderr)
     bar = ProgressBar(sys.stderr) if not args.quiet else None
     try:
         try:
@@ -98,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
                                  scene_rate=args.scene_rate, force=args.force,
                                  strict=args.strict, progress=bar,
                                  warn=lambda text: print(f"warning: {text}", file=sys.stderr),
-                                 read_ahead=args.read_ahead)
+                                 read_ahead=args.read_ahead, bring_up=args.bring_up)
         finally:
             if bar is not None:
                 bar.close()

@@ -124,7 +124,7 @@ def layout_hint(stages: Stages, make: MakeLayouts, *, profile: str | Path | None
     try:
         texts = make(stages, buses)
         if write:
-            kept = _write_layouts(folder, texts)
+            kept = write_layouts(folder, texts)
             if kept:
                 files = ", ".join(str(p) for p in kept)
                 one = len(kept) == 1
@@ -166,7 +166,7 @@ def _read(path: Path) -> str | None:
         return None
 
 
-def _write_layouts(folder: Path, texts: Mapping[str, str]) -> list[Path]:
+def write_layouts(folder: Path, texts: Mapping[str, str]) -> list[Path]:
     """Write each layout (file name -> text) into ``folder`` (created if needed) where no file
     of its name is; returns the files left as they were because they differ."""
     try:
@@ -190,3 +190,112 @@ def _write_layouts(folder: Path, texts: Mapping[str, str]) -> list[Path]:
             if _read(target) != text:
                 kept.append(target)
     return kept
+
+
+# --- bring-up: a bus carries ids no database knows -----------------------------------------------
+
+#: The bring-up layout's file (:mod:`bridge.view.bringup`), as ``tankviz layouts`` writes it.
+BRINGUP_LAYOUT = "bring-up.json"
+#: Where the bring-up command writes it when no folder of layouts is there (no profile).
+BRINGUP_FOLDER = "bring-up-layouts"
+#: The layout variable of the unknown id its plots follow (:data:`bridge.view.bringup.ID_VARIABLE`).
+BRINGUP_VARIABLE = "unknown_id"
+
+#: The bring-up layout made for these buses (:func:`bridge.view.bringup.bringup_layout`), as
+#: its file's text. (Given by the command: this module does not import the view.)
+MakeBringup = Callable[["Sequence[str]"], str]
+
+
+def id_text(key: int) -> str:
+    """A frame key as the bring-up topics write its id: ``0x2C4``, a 29-bit id with eight
+    digits (:func:`bridge.bringup.columns.id_text`, without importing numpy)."""
+    from bridge.frame import EXTENDED_KEY, key_id
+
+    return f"0x{key_id(key):08X}" if key & EXTENDED_KEY else f"0x{key:03X}"
+
+
+def bringup_command(buses: Sequence[str], plot: tuple[str, str], export: Path | str) -> str:
+    """The ``tankviz layouts`` command that writes the bring-up layout for ``buses``, its plots
+    on ``plot`` (bus, id), into ``export``, quoted for a shell. (The layout depends on the buses
+    only: no databases, no profile.)"""
+    return shlex.join(["tankviz", "layouts", *(w for bus in buses for w in ("--bus", bus)),
+                       "--plot", f"{plot[0]}/{plot[1]}", "--export", str(export)])
+
+
+def same_layout(path: Path, text: str) -> bool:
+    """Whether the layout file ``path`` is the layout ``text`` but for its variables' values
+    (the bring-up layout's first id: the user's to change)."""
+    import json
+
+    try:
+        there, made = json.loads(path.read_text(encoding="utf-8")), json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    if not isinstance(there, dict) or not isinstance(there.get("globalVariables"), dict):
+        return False
+    return ({**there, "globalVariables": set(there["globalVariables"])}
+            == {**made, "globalVariables": set(made["globalVariables"])})
+
+
+@dataclass
+class BringupHint:
+    """What live, demo and replay say when a bus first carries an id no database knows
+    (:meth:`tell`, given to the pipeline's bring-up stage): one line, ``bring-up: can0 carries
+    ids no database knows (first 0x2C4): ...``, naming the bring-up layout in ``folder`` when it
+    is there and made for these buses (its variable set to the id, :data:`BRINGUP_VARIABLE`),
+    else the ``tankviz layouts`` command that writes it there, the id in its plots.
+
+    ``buses``: those the drive is known to have (a bus that tells is added); ``make``: the
+    layout for some buses as its file's text; ``bundled``: a layout to name as it is for these
+    buses (the bundled one, for the bundled profile on can0)."""
+
+    folder: Path
+    buses: list[str]
+    make: MakeBringup
+    bundled: Path | None = None
+    told: dict[str, str] = field(default_factory=dict)
+
+    def line(self, bus: str, ident: str) -> str:
+        if bus not in self.buses:
+            self.buses.append(bus)
+        head = f"bring-up: {bus} carries ids no database knows (first {ident}): "
+        target = self.folder / BRINGUP_LAYOUT
+        try:
+            there = self.bundled if self.bundled is not None else (
+                target if same_layout(target, self.make(self.buses)) else None)
+        except Exception:  # a layout is never worth stopping the drive: say the command
+            there = None
+        if there is not None:
+            return (f"{head}import {there} (Layouts menu), then set its variable "
+                    f'{BRINGUP_VARIABLE} to "{ident}" (Variables)')
+        command = bringup_command(self.buses, (bus, ident), self.folder)
+        if target.exists():
+            return f"{head}import {target} (Layouts menu) once {command} --force replaces it"
+        return f"{head}import {target} (Layouts menu) once {command} writes it"
+
+    def tell(self, bus: str, key: int) -> None:
+        """Say the line for ``bus``, whose first unknown id is ``key`` (a frame key), once."""
+        if bus in self.told:
+            return
+        self.tell_text(bus, id_text(key))
+
+    def tell_text(self, bus: str, ident: str) -> None:
+        """:meth:`tell`, the id as the bring-up topics write it (``0x2C4``)."""
+        if bus in self.told:
+            return
+        self.told[bus] = ident
+        # one write, newline included: the line is said from the pipeline's thread, and the
+        # reading thread's lines must not come inside it
+        sys.stdout.write(self.line(bus, ident) + "\n")
+        sys.stdout.flush()
+
+
+def watch_unknown(drive: object, tell: Callable[[str, int], None]) -> bool:
+    """Have ``tell`` told ``(bus, frame key)`` of the first id no database knows on each bus of
+    ``drive`` (a :class:`~bridge.pipeline.drive.Drive`: its bring-up stage's ``on_unknown``);
+    False when the drive has no bring-up stage."""
+    monitor = getattr(drive, "bringup", None)
+    if monitor is None:
+        return False
+    monitor.on_unknown = tell
+    return True

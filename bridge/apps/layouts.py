@@ -1,5 +1,7 @@
-"""Foxglove layouts: the bundled ones (``layouts/*.json``) listed and copied out, and layouts
-made for a profile (``tankviz layouts --profile P [--dbc ...] --export DIR``).
+"""Foxglove layouts: the bundled ones (``layouts/*.json``) listed and copied out, layouts
+made for a profile (``tankviz layouts --profile P [--dbc ...] --export DIR``), and the bring-up
+layout of a car without a profile (``tankviz layouts --dbc ... [--bus NAME] [--plot BUS/ID]
+--export DIR``: :mod:`bridge.view.bringup`).
 
 What ``tankviz layouts`` uses. :func:`bundled_layouts` lists the ``*.json`` files of
 ``layouts/`` by name, each with the preview picture beside it if there is one (``tank-viz.png``
@@ -30,8 +32,9 @@ from bridge.apps.options import Subparsers, dbc_option
 from bridge.errors import BridgeError
 from bridge.pipeline.drive import load_stages
 from bridge.resources import layouts_dir
+from bridge.view.bringup import BRINGUP_NAME, bringup_layout
 from bridge.view.check import PANEL_NAMES, check_format, panel_type
-from bridge.view.generate import LAYOUT_NAMES, generate_layouts, layout_text
+from bridge.view.generate import LAYOUT_NAMES, database_buses, generate_layouts, layout_text
 
 
 class LayoutError(BridgeError):
@@ -131,9 +134,20 @@ def select_generated(layouts: Mapping[str, dict[str, Any]], names: Iterable[str]
     wanted = list(names) or list(layouts)
     unknown = [n for n in wanted if n not in layouts]
     if unknown:
-        raise BridgeError(f"no layout {', '.join(repr(n) for n in unknown)}; "
-                          f"made for a profile: {', '.join(LAYOUT_NAMES)}")
+        made = (f"made for a profile: {', '.join(LAYOUT_NAMES)}" if len(layouts) > 1 else
+                f"made without a profile: {', '.join(layouts)} (--profile makes the others)")
+        raise BridgeError(f"no layout {', '.join(repr(n) for n in unknown)}; {made}")
     return {n: layouts[n] for n in wanted}
+
+
+def plot_option(text: str) -> tuple[str, str]:
+    """``--plot BUS/ID`` (hex ``0x2C4`` or decimal ``708``): the bus and the id as the bring-up
+    topics write it (``0x2C4``)."""
+    from bridge.apps.sources import parse_id
+    from bridge.bringup.columns import id_text
+
+    bus, key = parse_id(text, "--plot")
+    return bus, id_text(key)
 
 
 def export_generated(directory: Path, layouts: Mapping[str, dict[str, Any]], *,
@@ -173,8 +187,11 @@ def add_parser(sub: Subparsers) -> None:
         "engineer: 3D, plots and the lead vehicle; can-debug: decoded signals and raw frames), "
         "or copy them into a folder with --export; import them in Foxglove from the Layouts "
         "menu (Import layout). With --profile, the layouts are made for that profile (its "
-        "object groups, sensor frames, buses, ego signals and alarms): "
-        "tankviz layouts --profile car.toml --dbc radar=radar.dbc --export DIR")
+        "object groups, sensor frames, buses, ego signals and alarms), and the bring-up "
+        "layout beside them: tankviz layouts --profile car.toml --dbc radar=radar.dbc --export "
+        "DIR. Without a profile, --dbc (or --bus, --plot) makes the bring-up layout alone "
+        "(bring-up.json: each bus's ids, the bit-change map, one unknown id's bytes): "
+        "tankviz layouts --dbc can0=car.dbc --plot can0/0x2C4 --export DIR")
     parser.add_argument("names", nargs="*", metavar="NAME",
                         help="only these layouts (default: all)")
     parser.add_argument("--export", type=Path, metavar="DIR",
@@ -185,16 +202,27 @@ def add_parser(sub: Subparsers) -> None:
                         help="make the layouts for this vehicle profile (a bundled name such "
                         "as 'ecocar' works too) instead of the bundled ones")
     parser.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
-                        help="with --profile: signal database for BUS, or for every bus "
-                        "(shown as can0) without BUS=; repeatable; default: the profile's own")
+                        help="signal database for BUS, or for every bus without BUS=; "
+                        "repeatable; with --profile default: the profile's own; without "
+                        "--profile only the bring-up layout is made")
+    parser.add_argument("--bus", action="append", metavar="NAME",
+                        help="a bus the layouts show; repeatable; default: the buses --dbc "
+                        "(or the profile's databases) name, or can0 for a database for every "
+                        "bus (the bus of a log without channels); without --profile only the "
+                        "bring-up layout is made")
+    parser.add_argument("--plot", metavar="BUS/ID",
+                        help="the unknown id the bring-up layout plots at first, e.g. "
+                        "can0/0x2C4 (hex or decimal; its bus is added to the layout's); "
+                        "default: none, set it in Foxglove's Variables (unknown_id); without "
+                        "--profile only the bring-up layout is made")
     parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.profile is None and args.dbc:
-        raise BridgeError("--dbc needs --profile: the layouts are made for a profile")
     if args.profile is not None:
         return _run_generated(args)
+    if args.dbc or args.bus or args.plot:
+        return _run_bringup(args)
     if args.export is None:
         print(format_listing(select_layouts(args.names)))
         return 0
@@ -207,14 +235,32 @@ def run(args: argparse.Namespace) -> int:
 def _run_generated(args: argparse.Namespace) -> int:
     decoder, profile = load_stages([dbc_option(text) for text in args.dbc or []], args.profile)
     assert profile is not None
-    layouts = select_generated(generate_layouts(profile, decoder), args.names)
+    plot_id = plot_option(args.plot) if args.plot else None
+    layouts = select_generated(generate_layouts(profile, decoder, args.bus, plot_id=plot_id),
+                               args.names)
+    return _say_or_export(args, layouts, f"made for profile {profile.name}")
+
+
+def _run_bringup(args: argparse.Namespace) -> int:
+    """The bring-up layout of a car without a profile: its databases only tell the buses."""
+    decoder, _ = load_stages([dbc_option(text) for text in args.dbc or []], None)
+    plot_id = plot_option(args.plot) if args.plot else None
+    buses = list(args.bus or []) or (
+        [plot_id[0]] if plot_id is not None and not decoder.files else database_buses(decoder))
+    layouts = select_generated({BRINGUP_NAME: bringup_layout(buses, plot_id)}, args.names)
+    return _say_or_export(args, layouts, f"made for bus{'es' if len(buses) > 1 else ''} "
+                          f"{', '.join(buses)}")
+
+
+def _say_or_export(args: argparse.Namespace, layouts: Mapping[str, dict[str, Any]],
+                   made: str) -> int:
     if args.export is None:
         rows = [(name, summarize(data)) for name, data in layouts.items()]
         width = max(len(name) for name, _ in rows)
         print("\n".join(f"{name:<{width}}  {summary}" for name, summary in rows))
-        print(f"made for profile {profile.name}; --export DIR writes them")
+        print(f"{made}; --export DIR writes {'them' if len(rows) > 1 else 'it'}")
         return 0
     for path in export_generated(args.export, layouts, force=args.force):
         print(f"wrote {path}")
-    print(f"made for profile {profile.name}; import in Foxglove: Layouts menu > Import layout")
+    print(f"{made}; import in Foxglove: Layouts menu > Import layout")
     return 0

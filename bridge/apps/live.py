@@ -22,12 +22,14 @@ frame says so (and, on a ``virtual`` bus, that only the same process can send on
 At start it names the layout to import (:func:`layout_hint`): the bundled one for the bundled
 ecocar profile; for another profile the layouts made for it and these buses, written into
 ``DRIVES/layouts/<profile>/`` when recording (never over a file, never failing the drive), else
-the ``tankviz layouts`` command that writes them.
+the ``tankviz layouts`` command that writes them. When a bus first carries an id no database
+knows, one line names the bring-up layout (:func:`bringup_hint`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shlex
 import sys
 import threading
@@ -47,7 +49,9 @@ from bridge.errors import UsageError
 from bridge.io.buses import BusSpec, ReceiveCounts, limit_can_logs
 from bridge.pipeline.drive import Stages
 from bridge.pipeline.live import Live
+from bridge.resources import layouts_dir
 from bridge.sinks.server import ClientStats
+from bridge.view.bringup import bringup_layout
 from bridge.view.generate import DEFAULT_BUS, generate_layouts, layout_text
 
 
@@ -154,7 +158,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
                     drives=None if args.no_record else args.drives, server=server,
                     split_size=(round(args.split_size * 1e6) if args.split_size else None),
                     split_duration_s=args.split_duration,
-                    min_free=round(args.min_free * 1e6))
+                    min_free=round(args.min_free * 1e6), bring_up=options.bring_up(args))
 
         def stop() -> None:
             if stop_feed is not None:
@@ -180,6 +184,10 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             hint = hints.LayoutHint([], [f"no layout to name: {exc}"])
         if server is not None or hint.written:
             hint.say()
+        unknown = bringup_hint(args, stages, [b.name for b in buses],
+                               recording=live.recorder is not None)
+        if server is not None or (unknown.folder / hints.BRINGUP_LAYOUT).exists():
+            hints.watch_unknown(live.drive, unknown.tell)
         if live.recorder is not None:
             print(f"recording into {args.drives}/")
         print("Ctrl+C stops and finishes the recording." if live.recorder is not None else
@@ -215,6 +223,34 @@ def layout_hint(args: argparse.Namespace, stages: Stages, buses: Sequence[str], 
     return hints.layout_hint(stages, layout_files, profile=args.profile,
                                dbcs=command_dbcs(args.dbc or [], stages, buses),
                                folder=folder, buses=buses, write=folder is not None)
+
+
+def bringup_hint(args: argparse.Namespace, stages: Stages, buses: Sequence[str], *,
+                 recording: bool) -> hints.BringupHint:
+    """What live says when a bus first carries an id no database knows
+    (:class:`bridge.apps.hints.BringupHint`): the bring-up layout in the drives folder's layouts
+    (``DRIVES/layouts/<profile>/``, where :func:`layout_hint` writes it with the others, or
+    ``DRIVES/layouts/`` without a profile: written here, never over a file, a failure
+    silent: the line then names the command), else the command that writes it (into
+    ``<profile>-layouts`` or ``bring-up-layouts``); the bundled one for the bundled profile on
+    can0 alone."""
+    profile = stages.profile
+    name = hints.layout_folder(profile.name) if profile is not None else None
+    if recording:
+        folder = args.drives / "layouts" / name if name else args.drives / "layouts"
+    else:
+        folder = Path(f"{name}-layouts" if name else hints.BRINGUP_FOLDER)
+    bundled = (layouts_dir() / hints.BRINGUP_LAYOUT
+               if hints.is_bundled(stages) and list(buses) == [DEFAULT_BUS] else None)
+    if recording and profile is None:
+        with contextlib.suppress(Exception):  # the drive goes on; the line names the command
+            hints.write_layouts(folder, {hints.BRINGUP_LAYOUT: bringup_file(buses)})
+    return hints.BringupHint(folder, list(buses), bringup_file, bundled=bundled)
+
+
+def bringup_file(buses: Sequence[str]) -> str:
+    """The bring-up layout for ``buses`` as its file's text."""
+    return layout_text(bringup_layout(buses))
 
 
 def layout_files(stages: Stages, buses: Sequence[str] | None) -> dict[str, str]:

@@ -101,6 +101,18 @@ def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str |
     parser.add_argument("--scene-rate", type=_scene_rate, metavar="HZ",
                         help=f"scene updates per second of log time (default "
                         f"{DEFAULT_SCENE_RATE:g}, or a re-derived drive's own; at most 50)")
+    add_bring_up_option(parser)
+
+
+def add_bring_up_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-bring-up", dest="bring_up", action="store_false",
+                        help="leave out the bring-up topics (/can/<bus>/ids, /can/<bus>/unknown: "
+                        "the frames of ids no database defines, /can/bits: the bit-change map)")
+
+
+def bring_up(args: argparse.Namespace) -> bool:
+    """Whether the drive has the bring-up topics (``--no-bring-up`` leaves them out)."""
+    return bool(getattr(args, "bring_up", True))
 
 
 def _scene_rate(text: str) -> float:

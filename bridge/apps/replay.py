@@ -17,6 +17,8 @@ CAN logs and a drive cut short).
 The layout to import is named as live names it (:func:`bridge.apps.hints.layout_hint`); for a
 drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
 when they are there, else the ``tankviz layouts`` command with what the drive was recorded with.
+When a bus first carries an id no database knows, one line names the bring-up layout
+(:func:`bringup_hint`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import re
 import sys
 import tempfile
 import threading
@@ -53,12 +56,15 @@ from bridge.io.drives import METADATA_NAME, ArchiveContents, ArchiveSource, read
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import why_unreadable
+from bridge.pb.bringup_pb2 import CanPayload
 from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
+from bridge.resources import layouts_dir
 from bridge.sinks.server import LiveServer
-from bridge.view.generate import generate_layouts, layout_text
+from bridge.view.bringup import bringup_layout
+from bridge.view.generate import DEFAULT_BUS, database_buses, generate_layouts, layout_text
 
 #: Server time is published at least this often (ns of log time).
 TIME_EVERY_NS = 50_000_000
@@ -111,8 +117,12 @@ def _past_end(start_s: float, span_ns: int) -> UsageError:
 
 def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: bool = False,
                 start_s: float = 0.0, stopping: threading.Event | None = None,
-                on_loop: Callable[[int], None] | None = None) -> ReplayReport:
-    """Serve every message of an MCAP at its log time (from ``start_s`` into the drive)."""
+                on_loop: Callable[[int], None] | None = None,
+                on_unknown: Callable[[str, str], None] | None = None) -> ReplayReport:
+    """Serve every message of an MCAP at its log time (from ``start_s`` into the drive);
+    ``on_unknown`` is told ``(bus, id)`` of the first message of each bus's
+    ``/can/<bus>/unknown`` (an id no database of the drive knew, ``0x2C4``)."""
+    watched: set[str] = set()
     _check(speed, start_s)
     stopping = stopping or threading.Event()
     sent, loops = 0, 0
@@ -130,6 +140,9 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
                 topic, schema_name, schema, encoding=encoding,
                 schema_encoding="protobuf" if encoding == "protobuf" else "jsonschema")
             server.publish(channel, log_ns, data)
+            if on_unknown is not None and topic not in watched:
+                watched.add(topic)
+                _first_unknown(topic, schema_name, data, on_unknown)
             sent += 1
         server.flush()
         loops += 1
@@ -138,6 +151,21 @@ def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: boo
         if not loop:
             break
     return ReplayReport(sent, loops)
+
+
+#: A bus's ``/can/<bus>/unknown`` topic (:func:`bridge.topics.unknown_topic`).
+_UNKNOWN_TOPIC = re.compile(r"/can/([^/]+)/unknown")
+
+
+def _first_unknown(topic: str, schema_name: str, data: bytes,
+                   on_unknown: Callable[[str, str], None]) -> None:
+    """Tell ``on_unknown`` the bus and id of a ``/can/<bus>/unknown`` message (the first of
+    its topic)."""
+    match = _UNKNOWN_TOPIC.fullmatch(topic)
+    if match is None or schema_name != "tankviz.CanPayload":
+        return
+    with contextlib.suppress(Exception):  # (a message that does not parse: no line)
+        on_unknown(match[1], CanPayload.FromString(data).id)
 
 
 def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, bytes, bytes,
@@ -180,32 +208,44 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
 def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,
                scene_rate: float = DEFAULT_SCENE_RATE,
                speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
-               stopping: threading.Event | None = None) -> ReplayReport:
-    """Run CAN logs through the pipeline in real time and serve what it makes."""
+               stopping: threading.Event | None = None,
+               on_unknown: Callable[[str, int], None] | None = None,
+               bring_up: bool = True) -> ReplayReport:
+    """Run CAN logs through the pipeline in real time and serve what it makes; ``on_unknown``
+    is told ``(bus, frame key)`` of the first id no database knows on each bus; ``bring_up``:
+    the bring-up topics too."""
     return _replay_frames(lambda: [LogSource(p) for p in paths], stages, server,
                           scene_rate=scene_rate, speed=speed, loop=loop, start_s=start_s,
-                          stopping=stopping)
+                          stopping=stopping, on_unknown=on_unknown, bring_up=bring_up)
 
 
 def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
                  scene_rate: float = DEFAULT_SCENE_RATE,
                  speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
-                 stopping: threading.Event | None = None) -> ReplayReport:
-    """Re-derive a recorded drive live: its raw frames through the pipeline in real time."""
+                 stopping: threading.Event | None = None,
+                 on_unknown: Callable[[str, int], None] | None = None,
+                 bring_up: bool = True) -> ReplayReport:
+    """Re-derive a recorded drive live: its raw frames through the pipeline in real time
+    (``on_unknown``, ``bring_up``: as :func:`replay_log`)."""
     return _replay_frames(lambda: [ArchiveSource(path)], stages, server, scene_rate=scene_rate,
-                          speed=speed, loop=loop, start_s=start_s, stopping=stopping)
+                          speed=speed, loop=loop, start_s=start_s, stopping=stopping,
+                          on_unknown=on_unknown, bring_up=bring_up)
 
 
 def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
                    server: LiveServer, *, scene_rate: float, speed: float, loop: bool,
-                   start_s: float, stopping: threading.Event | None) -> ReplayReport:
+                   start_s: float, stopping: threading.Event | None,
+                   on_unknown: Callable[[str, int], None] | None = None,
+                   bring_up: bool = True) -> ReplayReport:
     _check(speed, start_s)
     stopping = stopping or threading.Event()
     skip_ns = round(start_s * NS)
     frames, loops = 0, 0
     while not stopping.is_set():
         sources = make_sources()
-        drive = Drive(stages, [server], scene_rate=scene_rate)
+        drive = Drive(stages, [server], scene_rate=scene_rate, bring_up=bring_up)
+        if on_unknown is not None:
+            hints.watch_unknown(drive, on_unknown)
         process = drive.pipeline.process
         clock = Clock(speed, stopping, server.flush)
         first_ns: int | None = None
@@ -265,10 +305,14 @@ def run(args: argparse.Namespace) -> int:
     if not mcap:
         stages = options.stages(args)
         return _serve(args, mcap, stages, hints.layout_hint(
-            stages, layout_files, profile=args.profile, dbcs=args.dbc or []))
+            stages, layout_files, profile=args.profile, dbcs=args.dbc or []),
+            bringup_hint(stages, None))
     with tempfile.TemporaryDirectory(prefix="tankviz-rederive-") as folder:
         if not (args.rederive or args.profile or args.dbc):
-            return _serve(args, mcap, None, _recorded_hint(mcap[0], Path(folder)))
+            recorded = _recorded_stages(mcap[0], Path(folder))
+            return _serve(args, mcap, None, _recorded_hint(*recorded) if recorded else None,
+                          bringup_hint(*recorded) if recorded else
+                          hints.BringupHint(Path(hints.BRINGUP_FOLDER), [], bringup_file))
         drive = read_drive(mcap[0])
         dbcs = [options.dbc_option(text) for text in args.dbc or []]
         stages = rederive_stages(drive, dbcs, args.profile, Path(folder))
@@ -280,7 +324,7 @@ def run(args: argparse.Namespace) -> int:
                                                                 args.dbc or [])
         except BridgeError:  # (a recorded path that is no path): no hint, the replay goes on
             hint = None
-        return _serve(args, mcap, stages, hint)
+        return _serve(args, mcap, stages, hint, bringup_hint(stages, drive))
 
 
 def drive_layout_hint(drive: ArchiveContents, stages: Stages, profile: str | None,
@@ -323,18 +367,60 @@ def recorded_dbcs(drive: ArchiveContents) -> list[str]:
             for bus in entry.get("buses") or ["*"]]
 
 
-def _recorded_hint(path: Path, folder: Path) -> hints.LayoutHint | None:
-    """The layout hint of a drive served as recorded: its attached profile and databases
-    loaded for it (read through the file's indexes: a drive of hours is not read through);
-    None for a file whose profile cannot be told."""
+def _recorded_stages(path: Path, folder: Path) -> tuple[Stages, ArchiveContents] | None:
+    """The attached profile and databases of a drive served as recorded, loaded for it (read
+    through the file's indexes: a drive of hours is not read through); None for a file whose
+    profile cannot be told."""
     try:
         drive = _attached(path)
         if not (drive.metadata or drive.attachments):
             return None  # not a drive tankviz recorded: nothing tells its profile
-        stages = rederive_stages(drive, [], None, folder)
-        return drive_layout_hint(drive, stages, None, [])
+        return rederive_stages(drive, [], None, folder), drive
     except Exception:  # an MCAP tankviz did not write, a profile of another version: no hint
         return None
+
+
+def _recorded_hint(stages: Stages, drive: ArchiveContents) -> hints.LayoutHint | None:
+    """The layout hint of a drive served as recorded (:func:`_recorded_stages`)."""
+    try:
+        return drive_layout_hint(drive, stages, None, [])
+    except Exception:  # a profile of another version: no hint
+        return None
+
+
+def bringup_hint(stages: Stages, drive: ArchiveContents | None) -> hints.BringupHint:
+    """What replay says when a bus first carries an id no database knows
+    (:class:`bridge.apps.hints.BringupHint`): for a recorded drive, the bring-up layout where
+    ``tankviz live`` writes it beside the drive (``layouts/<profile>/``, ``layouts/`` without
+    a profile) made for the buses it was recorded from; for logs, the one in
+    ``<profile>-layouts`` (or ``bring-up-layouts``) made for the databases' buses; else the
+    command that writes it there. The bundled one for the bundled profile on can0 alone."""
+    profile = stages.profile
+    name = hints.layout_folder(profile.name) if profile is not None else None
+    if drive is not None:
+        folder = drive.path.parent / "layouts"
+        folder = folder / name if name else folder
+    else:
+        folder = Path(f"{name}-layouts" if name else hints.BRINGUP_FOLDER)
+    buses = recorded_buses(drive) if drive is not None else []
+    buses = buses or database_buses(stages.decoder)
+    bundled = (layouts_dir() / hints.BRINGUP_LAYOUT
+               if hints.is_bundled(stages) and buses == [DEFAULT_BUS] else None)
+    return hints.BringupHint(folder, buses, bringup_file, bundled=bundled)
+
+
+def recorded_buses(drive: ArchiveContents) -> list[str]:
+    """The names of the buses a drive was recorded from, as its metadata says (``tankviz
+    live``: ``can0=socketcan:can0``, ``car (python-can config)``); none if it does not."""
+    buses = drive.metadata.get("buses")
+    if not isinstance(buses, list):
+        return []
+    return list(dict.fromkeys(re.split(r"[= ]", str(b), maxsplit=1)[0] for b in buses))
+
+
+def bringup_file(buses: Sequence[str]) -> str:
+    """The bring-up layout for ``buses`` as its file's text."""
+    return layout_text(bringup_layout(buses))
 
 
 def _attached(path: Path) -> ArchiveContents:
@@ -367,7 +453,7 @@ def _attached(path: Path) -> ArchiveContents:
 
 
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
-           hint: hints.LayoutHint | None) -> int:
+           hint: hints.LayoutHint | None, unknown: hints.BringupHint) -> int:
     stopping = threading.Event()
     server = options.start_server(args, server_time=True, mode="replay")
     install_stop_signals(stopping.set)
@@ -382,16 +468,19 @@ def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
     try:
         if stages is None:
             report = replay_mcap(mcap[0], server, speed=args.speed, loop=args.loop,
-                                 start_s=args.start, stopping=stopping)
+                                 start_s=args.start, stopping=stopping,
+                                 on_unknown=unknown.tell_text)
         elif mcap:
             report = replay_drive(mcap[0], stages, server, scene_rate=options.scene_rate(args),
                                   speed=args.speed, loop=args.loop, start_s=args.start,
-                                  stopping=stopping)
+                                  stopping=stopping, on_unknown=unknown.tell,
+                                  bring_up=options.bring_up(args))
         else:
             report = replay_log(list(args.files), stages, server,
                                 scene_rate=options.scene_rate(args),
                                 speed=args.speed, loop=args.loop, start_s=args.start,
-                                stopping=stopping)
+                                stopping=stopping, on_unknown=unknown.tell,
+                                bring_up=options.bring_up(args))
     finally:
         timer.cancel()
         server.stop()

@@ -34,7 +34,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-from bridge.apps.options import Stopped, Subparsers, stopped_by_signals
+from bridge.apps.options import Stopped, Subparsers, add_bring_up_option, stopped_by_signals
 from bridge.apps.progress import ProgressBar
 from bridge.errors import OutputError, UsageError
 from bridge.frame import NS, Frame
@@ -89,6 +89,7 @@ def add_parser(sub: Subparsers) -> None:
                         help="seconds of driving (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+    add_bring_up_option(parser)  # (an .mcap's topics; a log has none)
     parser.set_defaults(run=run)
 
 
@@ -165,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         with stopped_by_signals():
             if suffix is None:
-                drive = Drive(load_stages([], car), extra={"simulated": simulated})
+                drive = Drive(load_stages([], car), extra={"simulated": simulated},
+                              bring_up=args.bring_up)
                 with atomic_output(output, force=args.force) as stream:
                     drive.record(stream)
                     count = drive.run(frames)

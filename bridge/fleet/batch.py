@@ -284,7 +284,8 @@ class ConvertFunction(Protocol):
     def __call__(self, inputs: Sequence[Path | str], output: Path | str,
                  dbc_options: Sequence[str], *, profile: str | Path | None,
                  scene_rate: float | None, force: bool,
-                 progress: Callable[[int, float | None], None] | None) -> Converted: ...
+                 progress: Callable[[int, float | None], None] | None,
+                 bring_up: bool = True) -> Converted: ...
 
 
 @dataclass(frozen=True)
@@ -297,6 +298,8 @@ class Settings:
     force: bool
     #: the Dask event topic each task tells its progress on (:func:`run_batch`), or None
     progress_topic: str | None = None
+    #: whether the drives have the bring-up topics (``--no-bring-up``: not)
+    bring_up: bool = True
 
 #: Seconds between two progress events of one task.
 PROGRESS_EVERY_S = 0.5
@@ -361,7 +364,7 @@ def convert_task(job: ConvertJob, convert: ConvertFunction, settings: Settings) 
     try:
         report = convert(list(job.inputs), job.output, list(settings.dbc_options),
                          profile=settings.profile, scene_rate=settings.scene_rate,
-                         force=settings.force, progress=progress)
+                         force=settings.force, progress=progress, bring_up=settings.bring_up)
     except BridgeError as exc:
         return JobResult(job, error=str(exc), worker=_worker_name())
     except Exception as exc:  # a bug must not stop the other drives: it is reported with them

@@ -3,11 +3,13 @@ of ``tankviz convert`` (:func:`convert`, the command's function, which ``tankviz
 drive) and :func:`record_drive`, the conversion of open sources into an open output.
 
 The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
-(``/can/<bus>/<Message>``), a ``tankviz`` metadata record (version, inputs, databases with their
-SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs) and every
-database file as an attachment, so a drive can be decoded again from the MCAP alone. What silences
-a message (a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input has) is told
-when the databases are loaded (``warn``), kept in the report and in the metadata (``warnings``).
+(``/can/<bus>/<Message>``), the bring-up topics unless ``bring_up=False``
+(:mod:`bridge.bringup.monitor`), a ``tankviz`` metadata record (version, inputs, databases with
+their SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs)
+and every database file as an attachment, so a drive can be decoded again from the MCAP alone.
+What silences a message (a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input
+has) is told when the databases are loaded (``warn``), kept in the report and in the metadata
+(``warnings``).
 
 Re-deriving a drive: an input ending in ``.mcap`` is a drive tankviz recorded
 (:mod:`bridge.io.drives`): its raw frames (``/can/<bus>/frames``, in the order recorded) go through
@@ -159,7 +161,7 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
                  extra: Mapping[str, Any] | None = None,
                  attachment_time_ns: int | None = None,
                  read_ahead: bool = True,
-                 input_warnings: Iterable[str] = ()) -> ConvertReport:
+                 input_warnings: Iterable[str] = (), bring_up: bool = True) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
@@ -167,9 +169,11 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     ``input_warnings`` join the decoder's warnings (in the metadata and the report).
     ``read_ahead``: a second process reads the sources where it can
     (:class:`~bridge.io.readahead.ReadAhead`); the output is the same either way.
+    ``bring_up``: the bring-up topics (:mod:`bridge.bringup.monitor`).
     """
     started = time.perf_counter()
-    drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra)
+    drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra,
+                  bring_up=bring_up)
     recorder = drive.record(output, attachment_time_ns=attachment_time_ns)
     reading = ReadAhead(sources, ahead=read_ahead)
 
@@ -202,10 +206,10 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
             force: bool = False, strict: bool = False,
             progress: Progress | None = None,
             warn: Callable[[str], None] | None = None,
-            read_ahead: bool = True) -> ConvertReport:
+            read_ahead: bool = True, bring_up: bool = True) -> ConvertReport:
     """Convert log files into ``output``; everything is checked before the output is touched.
-    ``warn`` is told the databases' warnings as soon as they are loaded; ``read_ahead``: see
-    :func:`record_drive`."""
+    ``warn`` is told the databases' warnings as soon as they are loaded; ``read_ahead`` and
+    ``bring_up``: see :func:`record_drive`."""
     output = Path(output)
     refuse_inputs(output, inputs)
     check_mcap_output(output)
@@ -217,7 +221,7 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
                              f"({len(inputs)} inputs given)")
         return rederive(drives[0], output, dbc_options, profile=profile, scene_rate=scene_rate,
                         force=force, strict=strict, progress=progress, warn=warn,
-                        read_ahead=read_ahead)
+                        read_ahead=read_ahead, bring_up=bring_up)
     check_output(output, force=force, inputs=inputs)
     decoder, loaded_profile = load_stages(dbc_options, profile)
     if warn is not None:
@@ -232,7 +236,8 @@ def convert(inputs: Sequence[Path | str], output: Path | str, dbc_options: Seque
         report = record_drive(sources, decoder, stream, profile=loaded_profile,
                               scene_rate=DEFAULT_SCENE_RATE if scene_rate is None
                               else scene_rate, progress=progress,
-                              read_ahead=read_ahead, input_warnings=overlaps)
+                              read_ahead=read_ahead, input_warnings=overlaps,
+                              bring_up=bring_up)
     report.output = output
     return report
 
@@ -241,7 +246,7 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
              profile: str | Path | None = None, scene_rate: float | None = None,
              force: bool = False, strict: bool = False, progress: Progress | None = None,
              warn: Callable[[str], None] | None = None,
-             read_ahead: bool = True) -> ConvertReport:
+             read_ahead: bool = True, bring_up: bool = True) -> ConvertReport:
     """Run the raw frames of a recorded drive through the whole pipeline again, into ``output``
     (see the module's description), at ``scene_rate``, else the drive's own."""
     output = Path(output)
@@ -259,7 +264,7 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
             report = record_drive(sources, stages.decoder, stream, profile=stages.profile,
                                   scene_rate=rate, progress=progress,
                                   extra=source_record(drive), attachment_time_ns=0,
-                                  read_ahead=read_ahead)
+                                  read_ahead=read_ahead, bring_up=bring_up)
     report.output = output
     report.rederived = describe_rederive(drive, stages, dbc_options, profile)
     return report

@@ -6,9 +6,11 @@ layout checks collect what a profile produces. None of them wires stages by hand
 
 - :func:`load_stages`: the decoder (``--dbc [BUS=]PATH`` options; without any, the profile's own
   databases) and the profile, every name in the profile checked against the databases.
-- :class:`Drive`: the health monitor and the :class:`~bridge.pipeline.pipeline.Pipeline` of one
-  drive, its sinks in the order they are added (add the live server first: viewers wait for a
-  scene, the recorder does not), :meth:`Drive.run` for frames (:meth:`Drive.run_blocks` for
+- :class:`Drive`: the health monitor, the bring-up stage (:attr:`Drive.bringup`: the
+  ``/can/<bus>/ids``, ``/can/<bus>/unknown`` and ``/can/bits`` topics, on unless
+  ``bring_up=False``) and the :class:`~bridge.pipeline.pipeline.Pipeline` of one drive, its
+  sinks in the order they are added (add the live server first: viewers wait for a scene, the
+  recorder does not), :meth:`Drive.run` for frames (:meth:`Drive.run_blocks` for
   frames in blocks, as convert reads them), and :meth:`Drive.finish`, which emits what is still
   due and finishes every sink.
 - :meth:`Drive.attach` and :meth:`Drive.describe`: what makes a recorded drive self-contained:
@@ -30,7 +32,7 @@ import gc
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 from bridge import __version__
 from bridge.block import FrameBlock
@@ -44,6 +46,9 @@ from bridge.profile.model import Profile
 from bridge.sinks.base import Sink
 from bridge.sinks.drives import PartsRecorder
 from bridge.sinks.mcap import Recorder
+
+if TYPE_CHECKING:
+    from bridge.bringup.monitor import BringUpMonitor
 
 
 class Stages(NamedTuple):
@@ -111,12 +116,19 @@ class Drive:
     def __init__(self, stages: Stages, sinks: Iterable[Sink] = (), *,
                  scene_rate: float = DEFAULT_SCENE_RATE,
                  bitrates: Mapping[str, int] | None = None,
-                 extra: Mapping[str, Any] | None = None) -> None:
+                 extra: Mapping[str, Any] | None = None, bring_up: bool = True) -> None:
         self.decoder, self.profile = stages
         self.scene_rate = scene_rate
         self.health = new_health_monitor(self.decoder, self.profile, bitrates)
+        #: the bring-up stage (None: ``bring_up=False``); its ``on_unknown`` is told the first
+        #: unknown id of each bus
+        self.bringup: BringUpMonitor | None = None
+        if bring_up:  # (imported here: bring-up brings numpy, which a drive without it skips)
+            from bridge.bringup.monitor import BringUpMonitor
+
+            self.bringup = BringUpMonitor(self.decoder)
         self.pipeline = Pipeline(self.decoder, profile=self.profile, scene_rate=scene_rate,
-                                 sinks=sinks, health=self.health)
+                                 sinks=sinks, health=self.health, bringup=self.bringup)
         #: what the command adds to the metadata record (inputs, buses, the simulation)
         self.extra: dict[str, Any] = dict(extra or {})
         #: the decode statistics of the last description

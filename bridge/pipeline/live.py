@@ -97,7 +97,8 @@ _NOTHING = ReceiveCounts()
 
 
 class Live:
-    """The live pipeline: the buses, the pipeline thread's loop, recorder and server."""
+    """The live pipeline: the buses, the pipeline thread's loop, recorder and server
+    (``bring_up``: with the bring-up topics, :mod:`bridge.bringup.monitor`)."""
 
     def __init__(self, buses: Sequence[BusSpec], stages: Stages, *,
                  scene_rate: float = DEFAULT_SCENE_RATE,
@@ -106,7 +107,7 @@ class Live:
                  min_free: int = 0,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
                  open_wait_s: float = OPEN_WAIT_S,
-                 say: Callable[[str], None] = print) -> None:
+                 say: Callable[[str], None] = print, bring_up: bool = True) -> None:
         names = [b.name for b in buses]
         if len(set(names)) != len(names):
             raise UsageError(f"--bus: a bus name is used twice ({', '.join(names)})")
@@ -119,7 +120,7 @@ class Live:
         self.links = [BusLink(spec, self.events, open_bus=open_bus) for spec in buses]
         self.drive = Drive(stages, scene_rate=scene_rate,
                            bitrates={b.name: b.bitrate for b in buses if b.bitrate is not None},
-                           extra={"buses": [str(b) for b in self.buses]})
+                           extra={"buses": [str(b) for b in self.buses]}, bring_up=bring_up)
         #: what each bus's reading mended or lost, as last told (in the metadata: bus_receive)
         self.receive: dict[str, ReceiveCounts] = {}
         self._receive_record: dict[str, dict[str, Any]] = {}

@@ -1,4 +1,4 @@
-"""The data path of one drive: frames → decode → perception and health → sinks.
+"""The data path of one drive: frames → decode → perception, health and bring-up → sinks.
 
 :class:`Pipeline` is what every command runs for every frame (:class:`bridge.pipeline.drive.Drive`
 assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets the raw frames in blocks (a
@@ -12,7 +12,10 @@ only. A clock step (a frame stamped far before or after log time, :mod:`bridge.p
 re-bases scene ticks, health windows and lifetimes at once, is said on ``/log`` and noted in
 :attr:`Pipeline.steps`; frames keep their own stamps. Each message is serialized once for all
 sinks; the live server itself sends raw frames and decoded signals only to viewers that
-subscribed to them.
+subscribed to them. The bring-up stage (:attr:`Pipeline.bringup`,
+:mod:`bridge.bringup.monitor`) is fed every frame like health and ticked with it; the sinks that
+record files (:attr:`~bridge.sinks.base.Sink.records`) get fewer of its messages than the
+others.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from collections.abc import Callable, Iterable
 from functools import partial
 from itertools import islice
 from operator import le, sub
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -42,6 +45,9 @@ from bridge.sinks.base import Channel, Serialized, Sink
 from bridge.sinks.raw import Blocker, RawBlock
 from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
 
+if TYPE_CHECKING:  # (bring-up brings numpy: a drive without it does not import it)
+    from bridge.bringup.monitor import BringUpMonitor
+
 
 class Pipeline:
     """Runs one drive's frames through decoding, perception and health into its sinks."""
@@ -49,7 +55,8 @@ class Pipeline:
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),
                  health: HealthMonitor | None = None,
-                 clock: StepDetector | None = None) -> None:
+                 clock: StepDetector | None = None,
+                 bringup: BringUpMonitor | None = None) -> None:
         self.decoder = decoder
         self.profile = profile
         self.scene_rate = scene_rate
@@ -57,11 +64,15 @@ class Pipeline:
         self.perception = (Perception(profile, scene_rate=scene_rate)
                            if profile is not None else None)
         self.health = health
+        #: the bring-up topics' stage (None: none of them)
+        self.bringup = bringup
+        if bringup is not None:
+            bringup.envelope = Serialized
         self._wanted = self.perception.messages if self.perception is not None else frozenset()
         #: whether perception takes a codec's messages (filled as they come)
         self._fed: dict[MessageCodec, bool] = {}
         self._next_tick = (NEVER_NS if self.perception is not None or health is not None
-                           else END_NS)
+                           or bringup is not None else END_NS)
         self.frames = 0
         self.last_ns: int | None = None
         #: tells clock steps from the frames (and, live, from the wall clock: :meth:`advance`)
@@ -71,6 +82,10 @@ class Pipeline:
         #: sinks that may get fewer scenes (live viewers): not those of a catch-up
         self.viewers: list[Sink] = []
         self._archives: list[Sink] = []
+        #: whether each sink records files (:attr:`~bridge.sinks.base.Sink.records`), and those
+        #: that do not
+        self._records: list[bool] = []
+        self._showing: list[Sink] = []
         self._blocker = Blocker(self._emit_raw)
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
@@ -81,6 +96,11 @@ class Pipeline:
         self.sinks.append(sink)
         self._archives = [s for s in self.sinks if s not in self.viewers]
         self._on_decoded = [s.on_decoded for s in self.sinks]
+        self._records = [getattr(s, "records", False) for s in self.sinks]
+        self._showing = [s for s, records in zip(self.sinks, self._records, strict=True)
+                         if not records]
+        if self.bringup is not None:
+            self.bringup.everyone = not all(self._records)
 
     def process(self, frame: Frame) -> None:
         """One frame through every stage."""
@@ -93,7 +113,8 @@ class Pipeline:
         it, so each sink gets every message in the order :meth:`process` gives it, but for
         raw blocks, which may come before the decoded messages of the frames before them."""
         decode, blocker, health = self.decoder.decode, self._blocker, self.health
-        check, sinks = self.clock.check, self.sinks
+        check, sinks, bringup = self.clock.check, self.sinks, self.bringup
+        keep = (bringup.pending if bringup is not None else []).append
         run: list[tuple[int, Decoded]] = []
         t = None
         for frame in frames:
@@ -103,6 +124,8 @@ class Pipeline:
                 if run:
                     self._hand(run)
                     run = []
+                if bringup is not None and bringup.made:
+                    self._hand_made(bringup)
                 if step is not None:
                     self.rebase(step)
                 if t >= self._next_tick:
@@ -112,11 +135,19 @@ class Pipeline:
             decoded = decode(frame)
             if health is not None:
                 health.on_frame(frame, decoded)
+            if bringup is not None:  # BringUpMonitor.on_frame, inlined
+                keep(frame)
+                if decoded is None:
+                    bringup.on_undecoded(frame)
             self.frames += 1
             if decoded is not None:
                 run.append((t, decoded))
         if run:
             self._hand(run)
+        if bringup is not None:
+            if bringup.made:
+                self._hand_made(bringup)
+            bringup.bound()
         if t is not None:
             self.last_ns = t
 
@@ -127,11 +158,12 @@ class Pipeline:
         (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
         the decoder's counts are read only when a drive is described). Then the block goes
         through the other stages a run of rows at a time: a run ends where a frame steps the
-        clock or comes at or after the next scene or health tick (which are made before it), or
-        where the health monitor needs it to (:attr:`~bridge.health.traffic.BlockCount.cuts`).
-        A run's frames are counted by health in bulk
-        (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), go into their raw blocks
-        from the columns (:meth:`~bridge.sinks.raw.Blocker.add_rows`), and their decoded
+        clock or comes at or after the next scene, health or bring-up tick (which are made
+        before it), or where the health monitor needs it to
+        (:attr:`~bridge.health.traffic.BlockCount.cuts`). A run's frames are counted by health
+        in bulk (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), go into their raw
+        blocks from the columns (:meth:`~bridge.sinks.raw.Blocker.add_rows`) and to bring-up as
+        rows (:meth:`~bridge.bringup.monitor.BringUpMonitor.on_rows`), and their decoded
         messages to the sinks at once (:meth:`~bridge.sinks.base.Sink.on_decoded_many`) and to
         perception in order. A block whose health must be counted frame by frame (a bus with
         too many kinds of frame) goes through :meth:`process`'s stages frame by frame."""
@@ -194,6 +226,11 @@ class Pipeline:
             self._blocker.add_rows(block, i, j)
         ts = block.t
         self._hand([(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None])
+        bringup = self.bringup
+        if bringup is not None:
+            bringup.on_rows(block, i, j)
+            if bringup.made:
+                self._hand_made(bringup)
         self.frames += j - i
         self.last_ns = ts[j - 1]
 
@@ -213,6 +250,17 @@ class Pipeline:
                 if fed:
                     perception.feed(codec.message.name, d.signals, t)
 
+    def _hand_made(self, bringup: BringUpMonitor) -> None:
+        """Bring-up's ``/can/<bus>/unknown`` messages made since the last hand-over: all of them
+        to the sinks that record no file, those files keep to the others."""
+        made, kept = bringup.take_made()
+        files = made if all(kept) else [m for m, k in zip(made, kept, strict=True) if k]
+        for sink, records in zip(self.sinks, self._records, strict=True):
+            if not records:
+                sink.on_messages(made)
+            elif files:
+                sink.on_messages(files)
+
     def _process(self, frame: Frame, decoded: Decoded | None) -> None:
         """One frame, decoded, through the other stages."""
         t = frame.timestamp_ns
@@ -225,6 +273,14 @@ class Pipeline:
             self._blocker.add(frame)
         if self.health is not None:
             self.health.on_frame(frame, decoded)
+        bringup = self.bringup
+        if bringup is not None:
+            bringup.pending.append(frame)
+            if decoded is None:
+                bringup.on_undecoded(frame)
+                if bringup.made:
+                    self._hand_made(bringup)
+            bringup.bound()
         if decoded is not None:
             for on_decoded in self._on_decoded:
                 on_decoded(t, decoded)
@@ -252,6 +308,8 @@ class Pipeline:
             self.perception.rebase(step.shift_ns, step.to_ns)
         if self.health is not None:
             self.health.rebase(step.shift_ns, step.to_ns)
+        if self.bringup is not None:
+            self.bringup.rebase(step.shift_ns, step.to_ns)
         self._next_tick = self._next_due()
         self.emit([step.log()])
 
@@ -275,11 +333,15 @@ class Pipeline:
                     self.emit(health.advance(tick))
         if health is not None:
             self.emit(health.advance(t_ns))
+        if self.bringup is not None:
+            published = self.bringup.advance(t_ns)
+            self.emit(published.messages, files=published.files)
         self._next_tick = self._next_due()
 
     def _next_due(self) -> int:
         return min(self.perception.next_tick_ns if self.perception is not None else END_NS,
-                   self.health.next_tick_ns if self.health is not None else END_NS)
+                   self.health.next_tick_ns if self.health is not None else END_NS,
+                   self.bringup.next_tick_ns if self.bringup is not None else END_NS)
 
     def _health_scene(self, perception: Perception, health: HealthMonitor,
                       t_ns: int) -> TopicMessage:
@@ -304,6 +366,9 @@ class Pipeline:
         perception = self.perception
         if perception is not None and perception.pending:
             self.advance(perception.next_tick_ns)
+        if self.bringup is not None:
+            published = self.bringup.finish(self.last_ns)
+            self.emit(published.messages, files=published.files)
 
     def flush_raw(self) -> None:
         """Close the open window of raw frames now: a part of a drive that ends takes every
@@ -314,23 +379,28 @@ class Pipeline:
         for sink in self.sinks:
             sink.on_raw(blocks)
 
-    def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False) -> None:
+    def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False,
+             files: bool = True) -> None:
         """Scene, perception and other messages to every sink, serialized once (``catching_up``:
-        not to :attr:`viewers`)."""
+        not to :attr:`viewers`; not ``files``: not to the sinks that record files)."""
         serialized = [Serialized(out.topic, type(out.message), out.message.SerializeToString(),
                                  out.t_ns) for out in outputs]
         if serialized:
-            for sink in self._archives if catching_up else self.sinks:
+            for sink in (self._archives if catching_up else self.sinks if files
+                         else self._showing):
                 sink.on_messages(serialized)
 
     def channels(self, buses: Iterable[str]) -> list[Channel]:
         """Every channel this drive can carry on these buses: the scene and perception topics,
-        health, /log, and each bus's raw frames and decoded messages."""
+        health, bring-up, /log, and each bus's raw frames and decoded messages."""
         topics = self.perception.topics() if self.perception is not None else []
         if self.health is not None:
             topics += self.health.topics()
             if self.perception is not None:
                 topics.append((scene_topic(HEALTH_CATEGORY), SceneUpdate))
+        buses = list(buses)
+        if self.bringup is not None:
+            topics += self.bringup.topics(buses)
         out = [Channel(topic, cls.DESCRIPTOR.full_name, partial(_fds, cls))
                for topic, cls in [*topics, (LOG_TOPIC, Log)]]
         for bus in buses:

@@ -22,7 +22,7 @@ The recorder (:class:`bridge.sinks.mcap.Recorder`), a drive split into parts
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple, Protocol
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 from bridge.decode.decoder import Decoded
 from bridge.sinks.raw import RawBlock
@@ -48,6 +48,10 @@ class Channel(NamedTuple):
 
 class Sink(Protocol):
     """Where a drive's frames, decoded messages and made messages go."""
+
+    #: Whether the sink records the drive into files: the pipeline hands it fewer of the
+    #: messages made per frame (bring-up's ``/can/<bus>/unknown``: :mod:`bridge.bringup.monitor`).
+    records: ClassVar[bool] = False
 
     def on_raw(self, blocks: Sequence[RawBlock], /) -> None:
         """The raw frames of one closed window, a block per bus."""

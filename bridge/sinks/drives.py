@@ -55,7 +55,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, ClassVar, cast
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
@@ -195,6 +195,7 @@ class PartsRecorder(Sink):
     it delays no scene.
     """
 
+    records: ClassVar[bool] = True
     folder: Path
     describe: Callable[[Recorder, Mapping[str, Any]], None]
     split_size: int | None = None

@@ -24,7 +24,7 @@ import sys
 import time
 from array import array
 from collections.abc import Callable, Iterable, Sequence
-from typing import IO, Any
+from typing import IO, Any, ClassVar
 
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
@@ -235,6 +235,8 @@ class Recorder(Sink):
     ``index_types``: the indexes written, as mcap's Writer takes them (default all; see the
     module's docstring).
     """
+
+    records: ClassVar[bool] = True
 
     def __init__(self, output: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD,

@@ -14,8 +14,10 @@ the bridge produces for a profile (:mod:`bridge.view.produced`), message paths w
 :func:`~bridge.view.paths.resolve_path`: 3D panels must follow and place frames there are and
 show topics the 3D panel draws (:data:`DRAWABLE`); plots and gauges must read numbers;
 Indicator panels must read one value and have rules that can match it, Log panels must show a
-``foxglove.Log`` topic. In a layout with user scripts, paths on the topics they publish
-(:data:`USER_SCRIPT_PREFIX`) are not checked. :func:`referenced_topics` is every produced topic
+``foxglove.Log`` topic, Image panels an image with annotations over it; a layout variable a
+path names (``$unknown_id``) or a slider sets must be one of the layout's ``globalVariables``.
+In a layout with user scripts, paths on the topics they publish (:data:`USER_SCRIPT_PREFIX`) are
+not checked. :func:`referenced_topics` is every produced topic
 a layout reads.
 """
 
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
 from google.protobuf.descriptor import FieldDescriptor
@@ -48,10 +50,20 @@ PANEL_NAMES = {
     "StateTransitions": "State Transitions",
     "RosOut": "Log",
     "Tab": "Tab",
+    "ImageViewPanel": "Image",
+    "GlobalVariableSliderPanel": "Variable Slider",
 }
 
 #: Message types the 3D panel draws (topics it can show).
 DRAWABLE = frozenset({"foxglove.SceneUpdate", "foxglove.FrameTransforms"})
+
+#: Message types the Image panel shows as its image, and draws over it (Foxglove Studio 1.48:
+#: of ``foxglove.ImageAnnotations`` it draws circles and points, not texts).
+IMAGE_SCHEMAS = frozenset({"foxglove.CompressedImage", "foxglove.RawImage"})
+ANNOTATION_SCHEMAS = frozenset({"foxglove.ImageAnnotations"})
+
+#: A layout variable in a message path: ``{id==$unknown_id}``, ``[$word]``.
+_VARIABLE = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 #: Foxglove user scripts publish on topics under this prefix.
 USER_SCRIPT_PREFIX = "/studio_script/"
@@ -242,6 +254,49 @@ def _check_log(panel_id: str, config: Mapping[str, Any], where: Produced) -> Ite
                f"shows {', '.join(sorted(LOG_SCHEMAS))} (such as {LOG_TOPIC})")
 
 
+def _check_image(panel_id: str, config: Mapping[str, Any], where: Produced) -> Iterator[str]:
+    """The Image panel's image topic and the annotation topics it draws over it."""
+    topic = config.get("cameraTopic")
+    if not topic:
+        yield f"{panel_id}.cameraTopic: missing: the Image panel shows nothing"
+    else:
+        yield from _schema_of(f"{panel_id}.cameraTopic", topic, where, IMAGE_SCHEMAS,
+                              f"an image ({', '.join(sorted(IMAGE_SCHEMAS))})")
+    markers = config.get("enabledMarkerTopics", [])
+    if not isinstance(markers, list):
+        yield f"{panel_id}.enabledMarkerTopics: expected a list of topics"
+        return
+    for marker in markers:
+        yield from _schema_of(f"{panel_id}.enabledMarkerTopics", marker, where,
+                              ANNOTATION_SCHEMAS, ", ".join(sorted(ANNOTATION_SCHEMAS)))
+
+
+def _schema_of(key: str, topic: str, where: Produced, schemas: Iterable[str],
+               expected: str) -> Iterator[str]:
+    """What is wrong with ``topic`` as one of ``schemas``: none, or not produced, or another
+    schema."""
+    descriptor = where.topics.get(topic)
+    if descriptor is None:
+        yield f"{key}: no such topic {topic}"
+    elif descriptor.full_name not in schemas:
+        yield f"{key}: {topic} is {descriptor.full_name}, not {expected}"
+
+
+def _check_slider(panel_id: str, config: Mapping[str, Any],
+                  variables: Mapping[str, Any]) -> Iterator[str]:
+    """The Variable Slider panel: the layout variable it sets, and a range."""
+    name = config.get("globalVariableName")
+    if not isinstance(name, str) or not name:
+        yield f"{panel_id}.globalVariableName: missing: the slider sets no variable"
+    elif name not in variables:
+        yield (f"{panel_id}.globalVariableName: {name!r} is not one of the layout's "
+               f"globalVariables ({', '.join(variables) or 'none'})")
+    props = config.get("sliderProps", {})
+    low, high = props.get("min", 0), props.get("max", 10)
+    if not (isinstance(low, int | float) and isinstance(high, int | float) and low < high):
+        yield f"{panel_id}.sliderProps: expected min < max, not {low!r} and {high!r}"
+
+
 def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
     """Everything a layout names that the bridge does not produce (empty when all resolve)."""
     problems = check_format(layout)
@@ -254,12 +309,21 @@ def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
             problems += _check_3d(panel_id, config, where)
         if kind == "RosOut":
             problems += _check_log(panel_id, config, where)
+        if kind == "ImageViewPanel":
+            problems += _check_image(panel_id, config, where)
+        if kind == "GlobalVariableSliderPanel":
+            problems += _check_slider(panel_id, config, layout["globalVariables"])
         leaf = None
         for place, path, numeric in _paths_of(panel_id, config):
             if scripts and path.startswith(USER_SCRIPT_PREFIX):
                 continue  # published by the layout's own user script
+            undefined = [name for name in _VARIABLE.findall(path)
+                         if name not in layout["globalVariables"]]
+            if undefined:
+                problems.append(f"{place}: {path}: ${', $'.join(undefined)} is not one of "
+                                "the layout's globalVariables")
             try:
-                resolved = resolve_path(path, where)
+                resolved = resolve_path(path, where, lists=kind == "Table")
             except BridgeError as exc:
                 problems.append(f"{place}: {exc}")
                 continue
@@ -291,6 +355,10 @@ def referenced_topics(layout: Mapping[str, Any], where: Produced) -> set[str]:
     for panel_id, config in layout["configById"].items():
         if panel_type(panel_id) == "3D":
             out.update(config.get("topics", {}))
+        if panel_type(panel_id) == "ImageViewPanel":
+            out.update(t for t in [config.get("cameraTopic"),
+                                   *config.get("enabledMarkerTopics", [])]
+                       if t in where.topics)
         for _, path, _ in _paths_of(panel_id, config):
             topic, _ = split_topic(path, where.topics)
             if topic:

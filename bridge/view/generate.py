@@ -1,9 +1,9 @@
-"""Foxglove layouts made for a profile: profile + databases -> the tank-viz, engineer and
-can-debug layouts (what ``tankviz layouts --profile P --export DIR`` writes).
+"""Foxglove layouts made for a profile: profile + databases -> the tank-viz, engineer,
+can-debug and bring-up layouts (what ``tankviz layouts --profile P --export DIR`` writes).
 
-:func:`generate_layouts` builds the three layouts from what the bridge produces for the profile
-on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and the
-health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
+:func:`generate_layouts` builds the first three layouts from what the bridge produces for the
+profile on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and
+the health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
 names. The look and panel settings are those of the Tank Viz view (:func:`view_3d`: camera
 behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells):
 
@@ -22,7 +22,9 @@ behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells):
   group, the lane lines' offsets, the lead's own message; every signal a computed field reads)
   on each bus whose databases define them; per bus a column of its health (its
   ``bus.<bus>.silent`` and ``bus.<bus>.babbling`` Indicators, frames/s, load, error frames /
-  unknown ids / decode errors) and its raw frames; the Data Source Info panel.
+  unknown ids / decode errors) and its raw frames; the Data Source Info panel;
+- ``bring-up``: the ids of each bus, the bit-change map and one unknown id's bytes
+  (:mod:`bridge.view.bringup`: it does not depend on the profile, only on the buses).
 
 The buses are those the databases are given for (``--dbc BUS=PATH``, a profile's
 ``databases = { BUS = [...] }``); databases for every bus (``--dbc PATH``) mean ``can0``, the
@@ -34,7 +36,6 @@ written so).
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -53,10 +54,17 @@ from bridge.topics import (
     message_topic,
     objects_topic,
 )
+from bridge.view.bringup import BRINGUP_NAME, bringup_layout
+from bridge.view.panels import layout_of as _layout
+from bridge.view.panels import layout_text, plot, raw_messages, split, stack, weighted
+from bridge.view.panels import series as _path
 from bridge.view.produced import Produced, produced
 
+__all__ = ["LAYOUT_NAMES", "database_buses", "generate_layouts", "layout_text", "plot",
+           "raw_messages", "split", "stack", "weighted"]
+
 #: The layouts :func:`generate_layouts` makes, in this order.
-LAYOUT_NAMES = ("tank-viz", "engineer", "can-debug")
+LAYOUT_NAMES = ("tank-viz", "engineer", "can-debug", BRINGUP_NAME)
 #: The bus of databases given for every bus (a log without channels, ``tankviz demo``).
 DEFAULT_BUS = "can0"
 #: Indicator colours: an active alarm, a cleared one, no /health yet.
@@ -83,29 +91,23 @@ def database_buses(decoder: Decoder) -> list[str]:
 
 
 def generate_layouts(profile: Profile, decoder: Decoder,
-                     buses: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
-    """The tank-viz, engineer and can-debug layouts for ``profile`` with the databases of
-    ``decoder`` on ``buses`` (default :func:`database_buses`)."""
+                     buses: Sequence[str] | None = None, *,
+                     plot_id: tuple[str, str] | None = None) -> dict[str, dict[str, Any]]:
+    """The tank-viz, engineer, can-debug and bring-up layouts for ``profile`` with the
+    databases of ``decoder`` on ``buses`` (default :func:`database_buses`); ``plot_id``: the
+    bus and unknown id the bring-up layout follows at first
+    (:func:`bridge.view.bringup.bringup_layout`)."""
     buses = list(buses) if buses else database_buses(decoder)
     made = produced(decoder, profile, buses)
     return {
         "tank-viz": tank_viz(made, profile),
         "engineer": engineer(made, profile),
         "can-debug": can_debug(made, profile, decoder, buses),
+        BRINGUP_NAME: bringup_layout(buses, plot_id),
     }
 
 
-def layout_text(layout: dict[str, Any]) -> str:
-    """A layout as the bundled files are written: JSON, indented by 2, a final newline."""
-    return json.dumps(layout, indent=2, ensure_ascii=False) + "\n"
-
-
 # --- panels --------------------------------------------------------------------------------------
-
-
-def _layout(configs: dict[str, Any], tree: Any) -> dict[str, Any]:
-    return {"configById": configs, "globalVariables": {}, "userNodes": {},
-            "playbackConfig": {"speed": 1}, "layout": tree}
 
 
 #: The seed's camera: close behind and above the vehicle, about 60 m of road in view.
@@ -167,28 +169,6 @@ def tank_viz(made: Produced, profile: Profile) -> dict[str, Any]:
                    split("3D!tankviz", "3D!tankviz-range", "row", CHASE_SHARE))
 
 
-def _path(value: str, label: str, color: str | None = None) -> dict[str, Any]:
-    out: dict[str, Any] = {"value": value, "enabled": True, "timestampMethod": "receiveTime",
-                           "label": label}
-    if color is not None:
-        out["color"] = color
-    return out
-
-
-def plot(title: str, paths: list[dict[str, Any]], *, legend: str = "floating",
-         sidebar: int = 240) -> dict[str, Any]:
-    return {"foxglovePanelTitle": title, "paths": paths, "showXAxisLabels": True,
-            "showYAxisLabels": True, "showLegend": True, "legendDisplay": legend,
-            "showPlotValuesInLegend": True, "isSynced": True, "xAxisVal": "timestamp",
-            "sidebarDimension": sidebar}
-
-
-def raw_messages(title: str, topic: str) -> dict[str, Any]:
-    return {"foxglovePanelTitle": title, "topicPath": topic, "diffEnabled": False,
-            "diffMethod": "custom", "diffTopicPath": "", "showFullMessageForDiff": False,
-            "expansion": "all"}
-
-
 def alarm_path(alarm: str) -> str:
     """The message path of an alarm's state in ``/health``."""
     return f'{HEALTH_TOPIC}.alarms[:]{{id=="{alarm}"}}.active'
@@ -202,34 +182,6 @@ def indicator(alarm: str) -> dict[str, Any]:
             "rules": [{"operator": "=", "rawValue": "true", "color": ALARM_RED, "label": alarm},
                       {"operator": "=", "rawValue": "false", "color": OK_GREEN,
                        "label": "OK"}]}
-
-
-def stack(ids: Sequence[Any], direction: str) -> Any:
-    """Panels (or trees) side by side (``row``) or one above the other (``column``), each the
-    same share; None for none."""
-    if not ids:
-        return None
-    if len(ids) == 1:
-        return ids[0]
-    return {"direction": direction, "first": ids[0], "second": stack(ids[1:], direction),
-            "splitPercentage": round(100 / len(ids), 1)}
-
-
-def weighted(ids: Sequence[Any], weights: Sequence[float], direction: str) -> Any:
-    """Like :func:`stack`, each panel its weight's share."""
-    if len(ids) <= 1:
-        return ids[0] if ids else None
-    share = round(100 * weights[0] / sum(weights), 1)
-    return {"direction": direction, "first": ids[0],
-            "second": weighted(ids[1:], weights[1:], direction), "splitPercentage": share}
-
-
-def split(first: Any, second: Any, direction: str, percentage: float) -> Any:
-    """``first`` and ``second`` split at ``percentage``, or whichever of them there is."""
-    if first is None or second is None:
-        return second if first is None else first
-    return {"direction": direction, "first": first, "second": second,
-            "splitPercentage": percentage}
 
 
 # --- engineer ------------------------------------------------------------------------------------

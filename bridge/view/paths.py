@@ -50,6 +50,8 @@ _SEGMENT = re.compile(rf"""
     (?P<suffix>(?:{_SUFFIX_TOKEN})*)           # indexes, slices and filters
     """, re.VERBOSE)
 _TOKEN = re.compile(_SUFFIX_TOKEN)
+#: Filters on a topic's message itself, right after the topic name.
+_HEAD_FILTERS = re.compile(r"""(?:\{(?:[^}"']|"[^"]*"|'[^']*')*\})+""")
 _FILTER = re.compile(r"\{\s*([A-Za-z_][A-Za-z0-9_.]*)\s*(==|!=|<=|>=|<|>)\s*(.+?)\s*\}",
                      re.DOTALL)
 _INDEX = re.compile(r"\s*(-?\d+)?\s*(?::\s*(-?\d+)?\s*)?")
@@ -172,10 +174,12 @@ def _filter_type_error(leaf: Any, value: Any) -> str | None:
     return "not a number, a string or a boolean"
 
 
-def resolve_path(path: str, where: Produced) -> Resolved:
+def resolve_path(path: str, where: Produced, *, lists: bool = False) -> Resolved:
     """Resolve a Foxglove message path (``/topic.field.sub``, ``[0]``, ``[:]``, ``{id==3}``,
-    ``{id=="radar.silent"}``, a trailing ``.@derivative`` and the like) against the produced
-    topics' descriptors.
+    ``{id=="radar.silent"}``, a filter on the topic's message itself ``/topic{id==3}.field``, a
+    trailing ``.@derivative`` and the like) against the produced topics' descriptors.
+    ``lists``: the path may end at a repeated field, not indexed (the Table panel shows the
+    whole list, a row per element); the path can then give several values.
 
     On a topic with a sample message (:attr:`Produced.samples`, e.g. ``/health``), the path is
     also followed through the sample: an index past the end or a filter that matches no
@@ -187,17 +191,23 @@ def resolve_path(path: str, where: Produced) -> Resolved:
     descriptor = where.topics[topic]
     schema = descriptor.full_name
     rest = re.sub(r"\.@[A-Za-z]+$", "", rest)  # modifiers (@derivative, @abs, …)
+    sample = where.samples.get(topic)
+    #: the sample's values at the path walked so far (None: no sample, or not known)
+    values: list[Any] | None = [sample] if sample is not None else None
+    # filters on the topic's message itself: /can/can0/unknown{id=="0x2C4"}.bytes[0]
+    head = _HEAD_FILTERS.match(rest)
+    for token in _TOKEN.findall(head[0] if head else ""):
+        values = _filtered(token, descriptor, values, path, topic)
+    rest = rest[head.end() if head else 0:]
     if not rest:
         return Resolved(topic, schema, None)
     if not rest.startswith("."):
         raise BridgeError(f"{path}: expected '.field' after {topic}")
     message, leaf = descriptor, None
     walked = topic
-    sample = where.samples.get(topic)
-    #: the sample's values at the path walked so far (None: no sample, or not known)
-    values: list[Any] | None = [sample] if sample is not None else None
     several = False
-    for part in _segments(rest[1:], path):
+    parts = _segments(rest[1:], path)
+    for n, part in enumerate(parts, 1):
         match = _SEGMENT.fullmatch(part)
         if match is None:
             raise BridgeError(f"{path}: cannot read {part!r}")
@@ -213,7 +223,8 @@ def resolve_path(path: str, where: Produced) -> Resolved:
         walked += f".{name}"
         suffix = match["suffix"]
         repeated = _is_repeated(leaf)
-        if repeated and "[" not in suffix:
+        whole = repeated and lists and not suffix and n == len(parts)  # a whole list
+        if repeated and "[" not in suffix and not whole:
             raise BridgeError(f"{path}: {walked} is repeated: index it ([0], [:])")
         if not repeated and "[" in suffix:
             raise BridgeError(f"{path}: {walked} is not repeated: it cannot be indexed")
@@ -228,34 +239,42 @@ def resolve_path(path: str, where: Produced) -> Resolved:
             if token.startswith("["):
                 values, sliced = _index(token, values, path, walked)
                 continue
-            filtered = _FILTER.fullmatch(token)
-            if filtered is None:
-                raise BridgeError(f"{path}: cannot read the filter {token}")
-            field_name, operator, raw = filtered[1], filtered[2], filtered[3]
-            field_leaf = _field_of(message, field_name) if message is not None else None
-            if message is None or field_leaf is None:
-                raise BridgeError(f"{path}: the filter on {walked} names no field "
-                                  f"{field_name!r}")
-            value = _literal(raw, path)
-            problem = _filter_type_error(field_leaf, value)
-            if problem:
-                raise BridgeError(f"{path}: the filter on {walked}: {field_name} is {problem}")
+            values = _filtered(token, message, values, path, walked)
             sliced = False  # narrowed down
-            keys = SAMPLE_KEYS.get(message.full_name, frozenset())
-            if values is None or value is _UNKNOWN or field_name not in keys:
-                values = None  # which elements match is not known in advance
-                continue
-            kept = [v for v in values if _COMPARE[operator](_value_of(v, field_name), value)]
-            if not kept:
-                there = sorted({str(_value_of(v, field_name)) for v in values})
-                raise BridgeError(
-                    f"{path}: no {walked} has {field_name} {operator} {raw}; "
-                    f"{field_name}: {', '.join(there) if there else 'none at all'}")
-            values = kept
+        if whole:
+            values = [e for v in values for e in v] if values is not None else None
+            sliced = True
         several = several or sliced
     if values is not None:
         several = len(values) > 1
     return Resolved(topic, schema, leaf, several)
+
+
+def _filtered(token: str, message: Any, values: list[Any] | None, path: str,
+              walked: str) -> list[Any] | None:
+    """Apply the filter ``token`` (``{id==3}``) to the elements of ``walked`` (each a
+    ``message``; ``values``: the sample's, None when not known in advance)."""
+    filtered = _FILTER.fullmatch(token)
+    if filtered is None:
+        raise BridgeError(f"{path}: cannot read the filter {token}")
+    field_name, operator, raw = filtered[1], filtered[2], filtered[3]
+    field_leaf = _field_of(message, field_name) if message is not None else None
+    if message is None or field_leaf is None:
+        raise BridgeError(f"{path}: the filter on {walked} names no field {field_name!r}")
+    value = _literal(raw, path)
+    problem = _filter_type_error(field_leaf, value)
+    if problem:
+        raise BridgeError(f"{path}: the filter on {walked}: {field_name} is {problem}")
+    keys = SAMPLE_KEYS.get(message.full_name, frozenset())
+    if values is None or value is _UNKNOWN or field_name not in keys:
+        return None  # which elements match is not known in advance
+    kept = [v for v in values if _COMPARE[operator](_value_of(v, field_name), value)]
+    if not kept:
+        there = sorted({str(_value_of(v, field_name)) for v in values})
+        raise BridgeError(
+            f"{path}: no {walked} has {field_name} {operator} {raw}; "
+            f"{field_name}: {', '.join(there) if there else 'none at all'}")
+    return kept
 
 
 def _index(token: str, values: list[Any] | None, path: str,

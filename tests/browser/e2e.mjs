@@ -36,6 +36,16 @@
 //     "ocr": ["Lead\\s*Vehicle", "x[:;]\\s*\\d+"],  regular expressions to match in the text
 //                                        of the 3D labels (OCR with tesseract: screenshots are
 //                                        read until each was matched, at most ten)
+//     "ocrPanels": {"Table!ids-can0": ["0x2C4"]},  regular expressions to match in what OCR
+//                                        reads of a panel's pixels (the whole panel, made dark
+//                                        on light and scaled 2x; read until each was matched,
+//                                        at most "ocrAttempts" screenshots, default 4), as
+//                                        ocrPanels[id]
+//     "image": {"panel": "ImageViewPanel!bits", "minBright": 200},  an Image panel showing an
+//                                        image with at least that many bright orange pixels (the
+//                                        bit map's flipping bits; white ones are counted apart: a
+//                                        panel without an image is white too), as image
+//     "viewport": {"width": 1280, "height": 800},  this shot's window (default: the plan's)
 //     "screenshot": "/abs/out.png"
 //   }]
 // }
@@ -430,6 +440,77 @@ function ocrLabels(image, region, timeoutMs) {
     error: run.status === 0 ? undefined : run.stderr };
 }
 
+/** Pixels of an image region that are bright orange (a bit map's often flipping bits), and how
+ * many are white (its bits that flip in every frame, or an empty light panel). */
+function brightPixels(image, region) {
+  let bright = 0;
+  let white = 0;
+  for (let y = region.y; y < region.y + region.height; y++) {
+    for (let x = region.x; x < region.x + region.width; x++) {
+      const i = (y * image.width + x) * 4;
+      const [r, g, b] = [image.data[i], image.data[i + 1], image.data[i + 2]];
+      if (r >= 200 && g >= 120 && r - b >= 80) bright++;
+      else if (r >= 230 && g >= 230 && b >= 230) white++;
+    }
+  }
+  return { bright, white };
+}
+
+/** The box of a panel's root element on screen. */
+async function panelBox(page, panelId) {
+  return page.evaluate((id) => {
+    const root = document.querySelector(`[data-testid="panel-mouseenter-container ${id}"]`);
+    if (!root) return undefined;
+    const r = root.getBoundingClientRect();
+    return { x: Math.max(0, Math.round(r.x)), y: Math.max(0, Math.round(r.y)),
+      width: Math.round(Math.min(r.width, window.innerWidth - r.x)),
+      height: Math.round(Math.min(r.height, window.innerHeight - r.y)) };
+  }, panelId);
+}
+
+/**
+ * OCR of a region of the screenshot (a panel): grey, made dark on light (a dark panel is
+ * inverted), scaled 2x, read by tesseract as a block of text (psm 6), then as sparse text
+ * (psm 11) unless ``enough`` says the first reading is.
+ */
+function ocrRegion(image, region, timeoutMs, enough = () => false) {
+  const probe = spawnSync("tesseract", ["--version"], { encoding: "utf8" });
+  if (probe.error || probe.status !== 0) {
+    return { available: false, text: "" };
+  }
+  const scale = 2;
+  const width = region.width * scale;
+  const height = region.height * scale;
+  let sum = 0;
+  for (let y = region.y; y < region.y + region.height; y++) {
+    for (let x = region.x; x < region.x + region.width; x++) {
+      const i = (y * image.width + x) * 4;
+      sum += (image.data[i] + image.data[i + 1] + image.data[i + 2]) / 3;
+    }
+  }
+  const dark = sum / (region.width * region.height) < 128;
+  const out = Buffer.alloc(width * height * 4, 255);
+  for (let y = 0; y < height; y++) {
+    for (let x = 0; x < width; x++) {
+      const i = ((region.y + Math.floor(y / scale)) * image.width + region.x + Math.floor(x / scale)) * 4;
+      const grey = Math.max(image.data[i], image.data[i + 1], image.data[i + 2]);
+      const o = (y * width + x) * 4;
+      out[o] = out[o + 1] = out[o + 2] = dark ? 255 - grey : grey;
+    }
+  }
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), "tankviz-ocr-"));
+  const file = path.join(dir, "panel.png");
+  fs.writeFileSync(file, encodePng({ width, height, data: out }));
+  const texts = [];
+  for (const psm of ["6", "11"]) {
+    const run = spawnSync("tesseract", [file, "stdout", "--psm", psm], { encoding: "utf8", timeout: timeoutMs });
+    texts.push(run.stdout ?? "");
+    if (enough(texts.join("\n"))) break;
+  }
+  fs.rmSync(dir, { recursive: true, force: true });
+  return { available: true, text: texts.join("\n") };
+}
+
 async function closeSidebar(page, nav, timeoutMs) {
   // The left nav buttons toggle the sidebar: open the Layouts tab (if it is not) and close it.
   const importButton = page.locator('button[aria-label="Import layout"]');
@@ -464,6 +545,9 @@ async function runShot(ctx, base, shot, plan) {
       mark("served");
     }
     page = await ctx.newPage();
+    if (shot.viewport) {
+      await page.setViewportSize(shot.viewport);
+    }
     page.on("pageerror", (error) => result.errors.push(`pageerror: ${error.message}`));
     page.on("console", (message) => {
       if (message.type() === "error" && !/favicon|Failed to load resource/.test(message.text())) {
@@ -582,6 +666,18 @@ async function runShot(ctx, base, shot, plan) {
           if (!info?.text.includes(word)) state.failures.push(`${id}: no text ${JSON.stringify(word)}`);
         }
       }
+      if (shot.image) {
+        const info = await panelInfo(page, shot.image.panel);
+        if (!info?.region) {
+          state.failures.push(`no canvas in ${shot.image.panel}`);
+        } else {
+          const seen = { ...brightPixels(image, info.region), region: info.region };
+          state.imageReading = seen;
+          if (seen.bright < (shot.image.minBright ?? 1)) {
+            state.failures.push(`${shot.image.panel}: ${seen.bright} bright and ${seen.white} white pixels`);
+          }
+        }
+      }
       last = state;
       return state.failures.length === 0 ? state : undefined;
     };
@@ -624,6 +720,30 @@ async function runShot(ctx, base, shot, plan) {
       }
       mark("ocr");
     }
+    // Panels: OCR of screenshots until every wanted pattern was matched in what was read.
+    const ocrPanels = {};
+    for (const [id, wanted] of Object.entries(shot.ocrPanels ?? {})) {
+      const readText = [];
+      const matched = (text) => wanted.every((pattern) => new RegExp(pattern).test(text));
+      for (let attempt = 0; attempt < (shot.ocrAttempts ?? 4) && last; attempt++) {
+        const box = await panelBox(page, id);
+        if (!box) break;
+        const image = attempt === 0 ? last.image : decodePng(await page.screenshot({ type: "png", timeout: timeoutMs }));
+        const read = ocrRegion(image, box, timeoutMs, matched);
+        if (!read.available) {
+          ocrPanels[id] = { available: false };
+          break;
+        }
+        readText.push(read.text);
+        const all = readText.join("\n");
+        const found = wanted.filter((pattern) => new RegExp(pattern).test(all));
+        ocrPanels[id] = { available: true, wanted, found, text: all.slice(0, 6000), attempts: attempt + 1 };
+        if (found.length === wanted.length) break;
+      }
+    }
+    if (shot.ocrPanels) {
+      mark("ocrPanels");
+    }
     Object.assign(result, {
       ok: Boolean(seen),
       verdict: last?.verdict,
@@ -631,6 +751,8 @@ async function runShot(ctx, base, shot, plan) {
       plots: last?.plots,
       indicators: last?.indicators,
       ocr,
+      ocrPanels,
+      image: last?.imageReading,
     });
   } catch (error) {
     result.errors.push(String(error?.stack ?? error));

@@ -13,7 +13,11 @@ What is used, and why:
   (to check what a viewer sends with :func:`~bridge.sinks.server.viewer_input.client_message`
   before foxglove-websocket sees it: it calls ``_handle_client_text_message`` with what passed
   and answers the rest with ``_send_status``) and ``_send_json`` (to write replies without
-  waiting for the viewer; at most :data:`REPLY_LIMIT_BYTES` behind).
+  waiting for the viewer; at most :data:`REPLY_LIMIT_BYTES` behind; a server that publishes its
+  time follows a viewer's ``serverInfo`` with the latest time, :attr:`Server.latest_time_ns`,
+  before foxglove-websocket advertises the channels: Foxglove Studio takes the time it has when
+  the first channels come as the start of the timeline, zero without one, and a viewer joining
+  a replay then had plots reaching back to 1970).
 - :func:`clients` reads ``FoxgloveServer._clients`` (the connected ``ClientState`` s; each has
   ``connection`` and ``subscriptions_by_channel``, a new mapping at every (un)subscribe) and
   :func:`add_channel` writes ``FoxgloveServer._channels`` (the channels a client may subscribe
@@ -43,8 +47,8 @@ import weakref
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from foxglove_websocket.server import FoxgloveServer
-from foxglove_websocket.types import ChannelId, StatusLevel
+from foxglove_websocket.server import FoxgloveServer, TimeDataHeader
+from foxglove_websocket.types import BinaryOpcode, ChannelId, StatusLevel
 from websockets.exceptions import ConnectionClosed
 from websockets.frames import Frame, Opcode
 from websockets.legacy.framing import prepare_ctrl
@@ -77,6 +81,9 @@ class Server(FoxgloveServer):  # type: ignore[misc]
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._refusals: weakref.WeakKeyDictionary[Any, int] = weakref.WeakKeyDictionary()
+        #: the latest server time sent to the viewers (ns; set by whoever sends it), sent to a
+        #: viewer that connects right after its serverInfo
+        self.latest_time_ns: int | None = None
 
     async def _handle_raw_client_message(self, client: Any, raw_message: str | bytes) -> None:
         try:
@@ -101,8 +108,12 @@ class Server(FoxgloveServer):  # type: ignore[misc]
         (websockets' legacy connections cannot have two waiting at once)."""
         if (connection.open
                 and connection.transport.get_write_buffer_size() < REPLY_LIMIT_BYTES):
-            write_frames(connection, [Frame(
-                Opcode.TEXT, json.dumps(msg, separators=(",", ":")).encode())])
+            frames = [Frame(Opcode.TEXT, json.dumps(msg, separators=(",", ":")).encode())]
+            if (msg.get("op") == "serverInfo" and "time" in msg.get("capabilities", ())
+                    and self.latest_time_ns is not None):
+                frames.append(Frame(Opcode.BINARY, TimeDataHeader.pack(BinaryOpcode.TIME,
+                                                                       self.latest_time_ns)))
+            write_frames(connection, frames)
 
 
 def clients(server: FoxgloveServer | None) -> tuple[Any, ...]:

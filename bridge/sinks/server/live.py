@@ -412,6 +412,7 @@ def _control(server: FoxgloveServer, item: AdvertiseChannel | ServerTime,
             data = json.dumps({"op": "advertise", "channels": [channel]}, separators=(",", ":"))
         case ServerTime(t_ns):
             data = TimeDataHeader.pack(BinaryOpcode.TIME, t_ns)
+            server.latest_time_ns = t_ns  # (internals.Server: a viewer that comes gets it)
     for client in clients:
         client.put_control(data)
 

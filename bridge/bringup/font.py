@@ -1,0 +1,100 @@
+"""A 5 x 7 pixel font, to write labels into an image's own pixels (every viewer shows them, at
+any size the image is drawn).
+
+Digits (a zero as round as an O: read as one by people and OCR alike, in ``0x2C4``), capital
+letters, a small ``x`` (``0x2C4``) and ``_ - . / : # , ( )``; other small letters are
+written as capitals, anything else as a blank. A glyph is 5 pixels wide and 7 high; text
+advances 6 pixels a character (times ``scale``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+#: Width and height of a glyph, and its advance, in font pixels.
+GLYPH_WIDTH, GLYPH_HEIGHT, ADVANCE = 5, 7, 6
+
+_ROWS = {
+    "0": "01110 10001 10001 10001 10001 10001 01110",
+    "1": "00100 01100 00100 00100 00100 00100 01110",
+    "2": "01110 10001 00001 00010 00100 01000 11111",
+    "3": "11111 00010 00100 00010 00001 10001 01110",
+    "4": "00010 00110 01010 10010 11111 00010 00010",
+    "5": "11111 10000 11110 00001 00001 10001 01110",
+    "6": "00110 01000 10000 11110 10001 10001 01110",
+    "7": "11111 00001 00010 00100 01000 01000 01000",
+    "8": "01110 10001 10001 01110 10001 10001 01110",
+    "9": "01110 10001 10001 01111 00001 00010 01100",
+    "A": "01110 10001 10001 11111 10001 10001 10001",
+    "B": "11110 10001 10001 11110 10001 10001 11110",
+    "C": "01111 10000 10000 10000 10000 10000 01111",
+    "D": "11100 10010 10001 10001 10001 10010 11100",
+    "E": "11111 10000 10000 11110 10000 10000 11111",
+    "F": "11111 10000 10000 11110 10000 10000 10000",
+    "G": "01110 10001 10000 10111 10001 10001 01111",
+    "H": "10001 10001 10001 11111 10001 10001 10001",
+    "I": "01110 00100 00100 00100 00100 00100 01110",
+    "J": "00111 00010 00010 00010 00010 10010 01100",
+    "K": "10001 10010 10100 11000 10100 10010 10001",
+    "L": "10000 10000 10000 10000 10000 10000 11111",
+    "M": "10001 11011 10101 10101 10001 10001 10001",
+    "N": "10001 11001 11001 10101 10011 10011 10001",
+    "O": "01110 10001 10001 10001 10001 10001 01110",
+    "P": "11110 10001 10001 11110 10000 10000 10000",
+    "Q": "01110 10001 10001 10001 10101 10010 01101",
+    "R": "11110 10001 10001 11110 10100 10010 10001",
+    "S": "01111 10000 10000 01110 00001 00001 11110",
+    "T": "11111 00100 00100 00100 00100 00100 00100",
+    "U": "10001 10001 10001 10001 10001 10001 01110",
+    "V": "10001 10001 10001 10001 10001 01010 00100",
+    "W": "10001 10001 10001 10101 10101 10101 01010",
+    "X": "10001 10001 01010 00100 01010 10001 10001",
+    "Y": "10001 10001 10001 01010 00100 00100 00100",
+    "Z": "11111 00001 00010 00100 01000 10000 11111",
+    "x": "00000 00000 10001 01010 00100 01010 10001",
+    "_": "00000 00000 00000 00000 00000 00000 11111",
+    "-": "00000 00000 00000 11111 00000 00000 00000",
+    ".": "00000 00000 00000 00000 00000 01100 01100",
+    "/": "00000 00001 00010 00100 01000 10000 00000",
+    ":": "00000 01100 01100 00000 01100 01100 00000",
+    "#": "01010 01010 11111 01010 11111 01010 01010",
+    ",": "00000 00000 00000 00000 01100 00100 01000",
+    "(": "00010 00100 01000 01000 01000 00100 00010",
+    ")": "01000 00100 00010 00010 00010 00100 01000",
+}
+
+#: Each glyph as a boolean array, 7 rows by 5 columns.
+GLYPHS: dict[str, npt.NDArray[np.bool_]] = {
+    char: np.array([[c == "1" for c in row] for row in rows.split()], dtype=bool)
+    for char, rows in _ROWS.items()}
+
+
+def glyph(char: str) -> npt.NDArray[np.bool_] | None:
+    """The glyph of a character (small letters but ``x`` as capitals), None for a blank."""
+    found = GLYPHS.get(char)
+    return found if found is not None else GLYPHS.get(char.upper())
+
+
+def text_width(text: str, scale: int = 1) -> int:
+    """Pixels the text takes across."""
+    return max(0, len(text) * ADVANCE - 1) * scale
+
+
+def draw_text(canvas: npt.NDArray[np.uint8], x: int, y: int, text: str, value: int, *,
+              scale: int = 1) -> None:
+    """Write ``text`` into ``canvas`` (a 2-D array of colour indices) with its top left corner
+    at ``(x, y)``, its pixels set to ``value``; what falls outside the canvas is cut."""
+    height, width = canvas.shape
+    for i, char in enumerate(text):
+        shape = glyph(char)
+        if shape is None:
+            continue
+        big = np.kron(shape, np.ones((scale, scale), dtype=bool))
+        left, top = x + i * ADVANCE * scale, y
+        right, bottom = min(width, left + big.shape[1]), min(height, top + big.shape[0])
+        if left >= width or top >= height or right <= max(left, 0) or bottom <= max(top, 0):
+            continue
+        part = big[max(0, -top):bottom - top, max(0, -left):right - left]
+        region = canvas[max(top, 0):bottom, max(left, 0):right]
+        region[part] = value
