@@ -243,3 +243,13 @@ def test_the_unknown_ids_are_the_simulators_own(log) -> None:
     db = [cantools.database.load_file(str(data_dir() / n))
           for n in ("highway_car.dbc", "highway_radar.dbc")]
     assert not {m.frame_id for d in db for m in d.messages} & set(UNKNOWN_IDS)
+
+
+def test_a_recorded_drive_is_a_source_with_its_attached_databases(capsys, tmp_path, log) -> None:
+    """A drive converted with the car's databases tells the same ids as the log and the
+    databases did: its raw frames, decoded with the databases it carries."""
+    drive = tmp_path / "drive.mcap"
+    assert main(["convert", str(log), "-o", str(drive), "--dbc", CAR, "--dbc", RADAR,
+                 "--quiet"]) == 0
+    from_log = run(capsys, "ids", str(log), "--dbc", CAR, "--dbc", RADAR, "--json")
+    assert run(capsys, "ids", str(drive), "--json") == from_log

@@ -134,7 +134,8 @@ def test_each_second_the_ids_table_counts_the_frames_before_it() -> None:
             new = sum(1 for f in mine if f.timestamp_ns < previous)
             assert row.changed_last_s == len(flipped(mine, new))
             if key in UNKNOWN["can0"]:
-                assert row.message == "unknown" and not row.HasField("unexplained_bits")
+                assert row.message == "unknown"
+                assert row.unexplained_bits == row.changing_bits  # all: no signal covers any
             else:
                 assert row.message == KNOWN["can0"][key] and row.unexplained_bits == 0
         previous = t

@@ -262,7 +262,7 @@ def test_the_front_page_workflows_run_as_shown(tmp_path: Path) -> None:
     sessions = workflow_sessions()
     assert [command.split()[1] for command, _ in sessions] == [
         "demo", "simulate", "convert", "inspect", "profile", "profile", "convert", "ids", "bits",
-        "find-signal"]
+        "bits", "find-signal"]
     subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", "highway", "--road",
                     "winding", "-o", "highway.blf"], cwd=tmp_path, check=True,
                    capture_output=True)

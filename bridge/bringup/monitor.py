@@ -11,8 +11,8 @@ one by one, in reads or in blocks: the same figures), and it publishes
 
 - ``/can/<bus>/ids`` (``tankviz.CanIds``, schemas/bringup.proto) per bus: a row per id, sorted:
   frames, median period and jitter (p95 - p5) of its gaps of the latest :data:`WINDOW_S` s or
-  so, lengths, message (:data:`UNKNOWN` for none), changing bits, unexplained bits (known
-  messages only), bits changed in the last second;
+  so, lengths, message (:data:`UNKNOWN` for none), changing bits, unexplained bits (those no
+  signal covers: all of an unknown id's), bits changed in the last second;
 - ``/can/bits`` and ``/can/bits/labels``: the bit-change map of every id
   (:mod:`bridge.bringup.bitmap`);
 
@@ -442,6 +442,7 @@ def ids_message(bus: str, rows: Iterable[IdRow]) -> CanIds:
                            period_ms=round(r.period_ms or 0.0, 4), jitter_ms=round(jitter, 4),
                            dlc=",".join(map(str, r.dlcs)), changing_bits=r.changing_bits,
                            changed_last_s=r.recent_bits)
-        if r.unexplained_bits is not None:
-            row.unexplained_bits = r.unexplained_bits
+        # an unknown id's changing bits are all unexplained (and the Table has a number there)
+        row.unexplained_bits = (r.changing_bits if r.unexplained_bits is None
+                                else r.unexplained_bits)
     return out
