@@ -24,8 +24,9 @@ once a second, and every frame of the unknown ids. The sinks that record files
 (:attr:`bridge.sinks.base.Sink.records`) get less: on ``/can/<bus>/unknown`` at most
 :data:`FILE_HZ` frames a second per id, the first of the id in each ``1 / FILE_HZ`` s of log
 time, and the publications on the grid of :data:`FILE_PERIOD_S` and the last one, at the end of
-the drive (DEVELOPING.md says why). A drive whose sinks all record files (convert) makes only what they get: it counts and
-draws once a minute (the bits changed, and the map's shares of flips, of the second before).
+the drive (DEVELOPING.md says why). A drive whose sinks all record files (convert) makes only
+what they get: it counts and draws once a minute (the bits changed, and the map's shares of
+flips, of the second before).
 
 A clock step (:meth:`~BringUpMonitor.rebase`) counts the frames before it, moves every id's times
 with the clock (no gap across the step) and makes the next tick at the next frame, as the health
