@@ -178,9 +178,20 @@ def add_record_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_run_for(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--for", dest="run_for", type=float, metavar="S",
+    parser.add_argument("--for", dest="run_for", type=_run_for, metavar="S",
                         default=env_seconds("RUN_FOR"),
                         help="stop by itself after this many seconds (env TANKVIZ_RUN_FOR)")
+
+
+def _run_for(text: str) -> float:
+    """``--for``'s value, checked as it is parsed: a number of seconds > 0."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"--for {text}: expected a number of seconds > 0")
+    return seconds
 
 
 def install_stop_signals(stop: Callable[[], None]) -> None:

@@ -102,3 +102,14 @@ def test_the_highway_car_drives_the_road_asked_for(tmp_path: Path) -> None:
     assert read_drive(tmp_path / "w.mcap").metadata["simulated"]["road"] == "winding"
     line = one_error_line(tankviz("simulate", "--road", "winding", "-o", "e.blf", cwd=tmp_path))
     assert line == "error: --road winding: only the highway car has other roads (--car highway)"
+
+
+@pytest.mark.parametrize("command", [["live", "--bus", "can0=virtual:tankviz-for-check"],
+                                     ["demo"], ["replay", "drive.blf"]])
+@pytest.mark.parametrize("seconds", ["0", "-1", "nan", "inf", "soon"])
+def test_for_wants_a_number_of_seconds_above_zero(tmp_path: Path, command: list[str],
+                                                 seconds: str) -> None:
+    """#33 item 12: `--for -1` or `--for nan` failed with "did not open before the run was
+    stopped", and `--for 0` ran with no limit. Each is one line before anything starts."""
+    line = one_error_line(tankviz(*command, f"--for={seconds}", "--port", "0", cwd=tmp_path))
+    assert line == f"error: --for {seconds}: expected a number of seconds > 0"
