@@ -122,6 +122,18 @@ def test_nonsense_speed_and_start_are_refused(drive: Path) -> None:
             replay_mcap(drive, server, start_s=-1)
 
 
+@pytest.mark.parametrize(("options", "says"), [
+    (["--speed", "0"], "error: --speed 0: must be above 0"),
+    (["--start", "-1"], "error: --start -1: must not be negative"),
+    (["--start", "100"], "error: --start 100: the drive is only 3.0 s long")])
+def test_nonsense_speed_and_start_are_refused_before_a_word_is_printed(
+        capsys: pytest.CaptureFixture[str], drive: Path, options: list[str], says: str) -> None:
+    """#33 item 12: replay printed the connection and the layout to import, then refused."""
+    assert main(["replay", str(drive), "--port", "0", *options]) == 1
+    out, err = capsys.readouterr()
+    assert (out, err.strip()) == ("", says)
+
+
 def test_a_scene_rate_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str],
                                               tmp_path: Path) -> None:
     assert main(["convert", "--sample", "-o", str(tmp_path / "o.mcap"), "--scene-rate",

@@ -110,6 +110,19 @@ def _check(speed: float, start_s: float) -> None:
         raise UsageError(f"--start {start_s:g}: must not be negative")
 
 
+def _span_ns(path: Path) -> int | None:
+    """How far apart an MCAP's first and last messages are, from its summary (None without
+    one: a drive cut short tells only as it is read)."""
+    try:
+        with path.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+    except Exception:  # a file cut short or damaged: mcap raises many types
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    return int(summary.statistics.message_end_time - summary.statistics.message_start_time)
+
+
 def _past_end(start_s: float, span_ns: int) -> UsageError:
     """``--start`` past the end of a drive whose first and last messages are ``span_ns`` apart."""
     return UsageError(f"--start {start_s:g}: the drive is only {span_ns / NS:.1f} s long")
@@ -454,6 +467,11 @@ def _attached(path: Path) -> ArchiveContents:
 
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
            hint: hints.LayoutHint | None, unknown: hints.BringupHint) -> int:
+    _check(args.speed, args.start)  # before a word is printed or a port taken
+    if mcap and args.start:
+        span = _span_ns(mcap[0])
+        if span is not None and round(args.start * NS) > span:
+            raise _past_end(args.start, span)
     stopping = threading.Event()
     server = options.start_server(args, server_time=True, mode="replay")
     install_stop_signals(stopping.set)
