@@ -802,7 +802,7 @@ HIGHWAY_DBCS = ["can0=highway_car", "can1=highway_radar"]
 #: The unknown id the bring-up layout plots (brake switch, speedometer, yaw rate; bytes 0-7).
 BRINGUP_ID = "0x2C4"
 #: What OCR must read of that id: a 0 is often read as O or @.
-BRINGUP_ID_OCR = r"[0O@Q]x2C4"
+BRINGUP_ID_OCR = r"[0O@Q689G]x2C4"
 #: The two windows the bring-up layout is looked at in: a laptop's and a large one.
 BRINGUP_VIEWPORTS = {"1280": {"width": 1280, "height": 800},
                      "1920": {"width": 1920, "height": 1080}}
