@@ -183,15 +183,20 @@ def add_run_for(parser: argparse.ArgumentParser) -> None:
                         help="stop by itself after this many seconds (env TANKVIZ_RUN_FOR)")
 
 
-def _run_for(text: str) -> float:
-    """``--for``'s value, checked as it is parsed: a number of seconds > 0."""
+def seconds_above_zero(option: str, text: str) -> float:
+    """An option's value: a finite number of seconds > 0, else one line naming the option."""
     try:
         seconds = float(text)
     except ValueError:
         seconds = math.nan
     if not (math.isfinite(seconds) and seconds > 0):
-        raise UsageError(f"--for {text}: expected a number of seconds > 0")
+        raise UsageError(f"{option} {text}: expected a number of seconds > 0")
     return seconds
+
+
+def _run_for(text: str) -> float:
+    """``--for``'s value, checked as it is parsed."""
+    return seconds_above_zero("--for", text)
 
 
 def install_stop_signals(stop: Callable[[], None]) -> None:

@@ -29,12 +29,17 @@ on Ctrl+C. On a terminal it shows its progress as ``convert`` does (:func:`with_
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-from bridge.apps.options import Stopped, Subparsers, add_bring_up_option, stopped_by_signals
+from bridge.apps.options import (
+    Stopped,
+    Subparsers,
+    add_bring_up_option,
+    seconds_above_zero,
+    stopped_by_signals,
+)
 from bridge.apps.progress import ProgressBar
 from bridge.errors import OutputError, UsageError
 from bridge.frame import NS, Frame
@@ -95,13 +100,7 @@ def add_parser(sub: Subparsers) -> None:
 
 def duration_seconds(text: str) -> float:
     """``--duration``: a finite number of seconds > 0."""
-    try:
-        seconds = float(text)
-    except ValueError:
-        seconds = math.nan
-    if not (math.isfinite(seconds) and seconds > 0):
-        raise UsageError(f"--duration {text}: expected a number of seconds > 0")
-    return seconds
+    return seconds_above_zero("--duration", text)
 
 
 def log_format(output: Path, car: str = "ecocar") -> str:
