@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import struct
+import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,7 +107,7 @@ def summarize_file(path: Path | str) -> DriveSummary:
                          f"({path / '*.mcap'})") from None
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-    except (McapError, ValueError, EOFError, RuntimeError) as exc:  # mcap's, for damaged files
+    except (McapError, ValueError, struct.error, EOFError, RuntimeError) as exc:  # damaged files
         raise InputError(path, why_unreadable(path, exc)) from None
 
 
@@ -274,6 +276,15 @@ def add_parser(sub: Subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Each file in turn; one that cannot be read is one ``error:`` line, and the others are
+    still shown (exit status 1 if any could not be)."""
+    failed = 0
     for path in args.files:
-        print(format_summary(str(path), summarize_file(path)))
-    return 0
+        try:
+            summary = summarize_file(path)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            failed += 1
+            continue
+        print(format_summary(str(path), summary), flush=True)
+    return 1 if failed else 0

@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import json
 import re
+import struct
 import sys
 import tempfile
 import threading
@@ -55,7 +56,7 @@ from bridge.frame import NS
 from bridge.io.drives import METADATA_NAME, ArchiveContents, ArchiveSource, read_drive
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
-from bridge.io.unreadable import why_unreadable
+from bridge.io.unreadable import MAGIC, why_unreadable
 from bridge.pb.bringup_pb2 import CanPayload
 from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
@@ -214,7 +215,7 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
                 raise _past_end(start_s, last_ns - first_ns)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
-    except (McapError, ValueError, EOFError, RuntimeError) as exc:
+    except (McapError, ValueError, struct.error, EOFError, RuntimeError) as exc:
         raise InputError(path, why_unreadable(path, exc)) from None
 
 
@@ -468,6 +469,10 @@ def _attached(path: Path) -> ArchiveContents:
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
            hint: hints.LayoutHint | None, unknown: hints.BringupHint) -> int:
     _check(args.speed, args.start)  # before a word is printed or a port taken
+    for path in mcap:  # a file that is no MCAP at all (a drive cut as it was created)
+        with path.open("rb") as stream:
+            if stream.read(len(MAGIC)) != MAGIC:
+                raise InputError(path, why_unreadable(path))
     if mcap and args.start:
         span = _span_ns(mcap[0])
         if span is not None and round(args.start * NS) > span:

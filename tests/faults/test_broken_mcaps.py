@@ -71,6 +71,40 @@ def test_a_file_that_is_not_mcap(tmp_path: Path) -> None:
         "not a readable MCAP file: only 4 bytes, the start of the MCAP magic")
 
 
+@pytest.mark.parametrize("size", [1, 4, 7])
+def test_a_file_cut_right_after_it_was_created(drive: Path, tmp_path: Path, size: int) -> None:
+    """#33 item 10: a drive of 1 to 7 bytes (cut inside its magic) was a traceback (struct.error)
+    in inspect and replay, and inspect showed none of the files after it."""
+    path = (tmp_path / "cut.mcap").resolve()
+    path.write_bytes(drive.read_bytes()[:size])
+    said = f"{path}: not a readable MCAP file: only {size} bytes, the start of the MCAP magic"
+    assert both(path) == (said, said)
+
+
+def test_replay_refuses_a_file_of_a_few_bytes_before_it_prints(
+        drive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bridge.cli import main
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(drive.read_bytes()[:3])
+    assert main(["replay", str(cut), "--port", "0"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == (f"error: {cut}: not a readable MCAP file: only 3 bytes, "
+                                         "the start of the MCAP magic")
+
+
+def test_inspect_goes_on_after_a_file_it_cannot_read(drive: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    from bridge.cli import main
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(drive.read_bytes()[:5])
+    assert main(["inspect", str(cut), str(drive)]) == 1
+    out, err = capsys.readouterr()
+    assert f"file:      {drive}" in out
+    assert "not a readable MCAP file: only 5 bytes" in err and "Traceback" not in err
+
+
 def test_a_file_cut_short_says_where_and_how_to_salvage_it(drive: Path, tmp_path: Path) -> None:
     data = drive.read_bytes()
     with drive.open("rb") as f:
