@@ -700,6 +700,8 @@ class LogSource:
         except InputError:
             raise
         except Exception as exc:
+            if not stream.offset:  # as every other format says an empty file
+                raise InputError(self.path, "no CAN frames in this file (an empty file)") from exc
             raise InputError(self.path, " ".join(
                 f"not a readable {self._format()} log: {exc}".splitlines())) from exc
         last_failure: int | None = None
