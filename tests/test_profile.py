@@ -808,6 +808,14 @@ def test_group_names_that_are_taken(error: Callable[[str], str], name: str) -> N
         "lanes, lead, mio")
 
 
+@pytest.mark.parametrize("name", ['""', '"../x"', '"a b"', '"radar/near"'])
+def test_group_names_must_be_one_topic_segment(error: Callable[[str], str], name: str) -> None:
+    """#33 item 12: "" gave the topic /scene/ and "../x" /scene/../x."""
+    assert error(edit(("[objects.tracks]", f"[objects.{name}]"))) == (
+        f"car.toml: objects.{name.strip(chr(34))}: {name.strip(chr(34))!r} is not a name for "
+        "its topics (/scene/<name>, /perception/<name>): letters, digits and _ only")
+
+
 def test_a_sensor_named_like_the_vehicle_frame(error: Callable[[str], str]) -> None:
     assert error('[sensors.vehicle]\nkind = "fusion"\n') == (
         "car.toml: sensors.vehicle: 'vehicle' is the vehicle frame; name the sensor otherwise")

@@ -94,6 +94,8 @@ _LANE_NAMES = ("left", "right", "next_left", "next_right")
 
 #: A mapped field written as one name ("Signal", "Message.Signal", "Obj{i}_A.X"): no operator, space
 #: or parenthesis. Anything else is an expression.
+#: An object group's name: one segment of its topics' paths.
+_GROUP_NAME = re.compile(r"[A-Za-z0-9_]+")
 _ONE_NAME = re.compile(r"[^\s()+\-*/,<>=!&|]*")
 
 
@@ -389,6 +391,10 @@ class _Loader(ValueReader):
         sensors = {n: self.sensor(n, v) for n, v in sensors_doc.items()}
         objects_doc = self.section(doc.get("objects", {}), "objects")
         for n in objects_doc:
+            if not _GROUP_NAME.fullmatch(n):
+                raise self.fail(f"objects.{n}", f"{n!r} is not a name for its topics "
+                                "(/scene/<name>, /perception/<name>): letters, digits and _ "
+                                "only")
             if n in _RESERVED_GROUPS:
                 raise self.fail(f"objects.{n}", f"'{n}' is taken by /scene/{n}; not one of "
                                 f"{', '.join(sorted(_RESERVED_GROUPS))}")
