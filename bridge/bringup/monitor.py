@@ -29,8 +29,8 @@ what they get: it counts and draws once a minute (the bits changed, and the map'
 flips, of the second before).
 
 A clock step (:meth:`~BringUpMonitor.rebase`) counts the frames before it, moves every id's times
-with the clock (no gap across the step) and makes the next tick at the next frame, as the health
-monitor does. :attr:`BringUpMonitor.on_unknown` is told ``(bus, frame key)`` once per bus, at the
+with the clock (no gap across the step) and makes the next tick the next of the grid.
+:attr:`BringUpMonitor.on_unknown` is told ``(bus, frame key)`` once per bus, at the
 first frame of an id no database of the bus defines (:attr:`~BringUpMonitor.first_unknown` keeps
 them).
 """
@@ -330,7 +330,8 @@ class BringUpMonitor:
     def rebase(self, shift_ns: int, t_ns: int) -> None:
         """The clock stepped by ``shift_ns`` to log time ``t_ns``: the frames before the step are
         counted, every id's times move with the clock (no gap across the step), and the next
-        tick is the one of the grid at or before ``t_ns`` (made at the next frame)."""
+        tick is the one of the grid after ``t_ns``: nothing is drawn at the step itself, where
+        live's health and scene catch up on the new clock."""
         self._count()
         for tally in self.census.tallies.values():
             tally.first_ns += shift_ns
@@ -338,7 +339,7 @@ class BringUpMonitor:
             tally.ends = deque(end + shift_ns for end in tally.ends)
         if self.next_tick_ns != NEVER_NS:
             period = self._period()
-            self.next_tick_ns = t_ns // period * period
+            self.next_tick_ns = (t_ns // period + 1) * period
 
     def _count(self, cuts: Sequence[int] = ()) -> None:
         """The frames since the last count into the census: the frames before each of
