@@ -26,21 +26,18 @@ silently. With ``strict=True`` the first such problem is an :class:`~bridge.erro
   objects first and gives python-can's object parser only intact ones: a damaged log container is
   skipped whole, a damaged object up to the next object signature (``LOBJ``), and each damage is
   reported with its byte offset; the frames before and after it are kept.
-- SQLite (``.db``) and MF4: python-can reads them row by row (record by record); a row it
-  cannot read (a damaged page) ends the reading there, reported as a stop naming the row.
+- SQLite (``.db``) and MF4: a row python-can cannot read ends the reading, a stop naming it.
 - A frame with no readable timestamp (None, text, NaN: a damaged SQLite row) is skipped and
   reported as such; a frame stamped before 1970 or after 2262 (a negative, huge or infinite time:
   more than an MCAP can hold) is skipped and reported; the others go on.
 - Every :class:`SourceIssue` says what it did to the reading (its ``kind``, :data:`ISSUE_KINDS`:
   ``stop``, ``damage``, ``skip`` or ``note``) and its family (``group``), so that a summary can
   put stops first and count repeated issues together.
-- A log that gives no frame at all, a folder or a file of unknown format is an
-  :class:`~bridge.errors.InputError` (one line naming the file, and the first problem met).
+- A log of no frame, a folder or a file of unknown format is an :class:`~bridge.errors.InputError`.
+- candump error frames of every class are error frames (:mod:`bridge.io.candump`).
 
-Time: logs with absolute time (BLF, candump, TRC, CSV/SQLite as python-can writes them, ASC with a
-dated ``Begin Triggerblock``) keep it. python-can reports float seconds, which at Unix-epoch
-magnitudes resolve about a quarter of a microsecond, so times are rounded to whole microseconds
-when converted to nanoseconds. Logs without a start date (an ASC without a date) start at 0.
+Time: a log's absolute time is kept (an ASC without a date starts at 0), rounded to whole
+microseconds (python-can's float seconds resolve a quarter of one at Unix-epoch magnitudes).
 """
 
 from __future__ import annotations
@@ -64,6 +61,7 @@ from can.io.player import MESSAGE_READERS
 
 from bridge.errors import InputError
 from bridge.frame import Frame
+from bridge.io.candump import candump_error, error_frame
 
 #: The bus name for frames whose log names no channel (CSV, SQLite, some error frames).
 DEFAULT_BUS = "can0"
@@ -641,8 +639,8 @@ class LogSource:
                         damage(lines.line, lines.text)
                         continue
                     if (candump and message.is_extended_id and not message.is_error_frame
-                            and _candump_error(lines.text)):
-                        message = _error_frame(message)
+                            and candump_error(lines.text)):
+                        message = error_frame(message)
                     yield message
                 lines.done()
                 return
@@ -750,29 +748,6 @@ class LogSource:
                           "not read", "stop", f"stopped at a {what} python-can cannot read")
         finally:
             reader.stop()
-
-
-#: candump's mark of an error frame in its id (SocketCAN's CAN_ERR_FLAG); its class is in the
-#: low bits. python-can's reader makes an error frame of a bus error (0x80) alone.
-CAN_ERR_FLAG = 0x20000000
-
-
-def _candump_error(line: str) -> bool:
-    """Whether a candump line's id has :data:`CAN_ERR_FLAG`: an error frame of any class."""
-    fields = line.split()
-    ident = fields[2].partition("#")[0] if len(fields) >= 3 else ""
-    try:
-        return len(ident) == 8 and bool(int(ident, 16) & CAN_ERR_FLAG)
-    except ValueError:
-        return False
-
-
-def _error_frame(message: can.Message) -> can.Message:
-    """A data frame python-can made of a candump error frame, as the error frame it is (its
-    error class and data kept: the class in the id, the details in the data)."""
-    return can.Message(timestamp=message.timestamp, arbitration_id=message.arbitration_id,
-                       is_extended_id=True, is_error_frame=True, data=message.data,
-                       dlc=message.dlc, channel=message.channel, is_rx=message.is_rx)
 
 
 def _unrecordable(message: can.Message) -> tuple[str, IssueKind, str]:
