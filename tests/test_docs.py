@@ -283,3 +283,14 @@ def test_the_front_page_workflows_run_as_shown(tmp_path: Path) -> None:
         printed = {same(line) for line in done.stdout.splitlines()}
         for line in shown:
             assert same(line) in printed, f"{command}: {line!r} not in\n" + done.stdout
+
+
+@pytest.mark.parametrize("path, parser", list(every_command()), ids=lambda v: str(v)
+                         if isinstance(v, str) else "")
+def test_every_argument_and_option_says_what_it_is_in_help(
+        path: str, parser: argparse.ArgumentParser) -> None:
+    """docs/commands.md's tables are "as --help lists them": nothing there without its words."""
+    silent = [action.option_strings[0] if action.option_strings else action.dest
+              for action in parser._actions
+              if not isinstance(action, argparse._SubParsersAction) and not action.help]
+    assert silent == [], f"`tankviz {path} --help` says nothing of {silent}"

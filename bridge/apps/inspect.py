@@ -271,7 +271,8 @@ def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser("inspect", help="show what a drive archive (MCAP) holds",
                             description="Duration, start and end, topics with schemas and "
                             "counts, metadata, attachments and decode statistics of MCAP files.")
-    parser.add_argument("files", nargs="+", type=Path, metavar="FILE.mcap")
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE.mcap",
+                        help="drives to show (MCAP files), each in turn")
     parser.set_defaults(run=run)
 
 

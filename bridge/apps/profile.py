@@ -266,7 +266,8 @@ def add_parser(sub: Subparsers) -> None:
                      help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
                      "without BUS=; repeatable: a database per bus is written as "
                      "[profile] databases = { BUS = [...] }")
-    new.add_argument("-o", "--output", type=Path, required=True, metavar="car.toml")
+    new.add_argument("-o", "--output", type=Path, required=True, metavar="car.toml",
+                     help="the profile to write (an existing file only with --force)")
     new.add_argument("--force", action="store_true", help="overwrite an existing file")
     new.set_defaults(run=run_new)
     check = commands.add_parser(

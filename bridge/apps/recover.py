@@ -197,7 +197,8 @@ def add_parser(sub: Subparsers) -> None:
         "killed recorder) into a complete new MCAP, and say what was recovered and where and why "
         "reading stopped. Damaged records are skipped (or repaired from the file's indexes) and "
         "reported.")
-    parser.add_argument("input", type=Path, metavar="BROKEN.mcap")
+    parser.add_argument("input", type=Path, metavar="BROKEN.mcap",
+                        help="the cut drive (left as it is: nothing is written into it)")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="FIXED.mcap",
                         help="the complete MCAP to write")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
