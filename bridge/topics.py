@@ -34,8 +34,30 @@ def frames_topic(bus: str) -> str:
     return f"/can/{bus_segment(bus)}/frames"
 
 
+#: tankviz's own topics under every bus, ``/can/<bus>/<leaf>``: each leaf and what it carries
+#: (:func:`frames_topic`, :func:`ids_topic`, :func:`unknown_topic`). A new one goes here.
+BUS_LEAVES = {"frames": "tankviz's raw frames", "ids": "bring-up's ids",
+              "unknown": "bring-up's unknown ids"}
+#: Where a message goes whose topic would be one of tankviz's own: ``/can/<bus>/msg/<Message>``.
+MOVED_SEGMENT = "msg"
+
+
+def own_topic(bus: str, message_name: str) -> str | None:
+    """What tankviz publishes on the topic that ``message_name`` of ``bus`` would plainly take
+    (``/can/<bus>/<Message>``), or None when that topic is no topic of tankviz's own.
+    Topics are case-sensitive: ``Frames`` takes none."""
+    what = BUS_LEAVES.get(message_name)
+    if what is None:
+        what = _CAN_TOPICS.get(f"/can/{bus_segment(bus)}/{message_name}")
+    return what
+
+
 def message_topic(bus: str, message_name: str) -> str:
-    """The decoded signals of one DBC message on one bus."""
+    """The decoded signals of one DBC message on one bus: ``/can/<bus>/<Message>``, or
+    ``/can/<bus>/msg/<Message>`` where that would be one of tankviz's own topics
+    (:func:`own_topic`). Every topic of a message is this function's."""
+    if own_topic(bus, message_name) is not None:
+        return f"/can/{bus_segment(bus)}/{MOVED_SEGMENT}/{message_name}"
     return f"/can/{bus_segment(bus)}/{message_name}"
 
 
@@ -83,3 +105,5 @@ def unknown_topic(bus: str) -> str:
 BITS_TOPIC = "/can/bits"
 #: Bring-up: the map's row labels and header (``foxglove.ImageAnnotations``, the image's stamp).
 BITS_LABELS_TOPIC = "/can/bits/labels"
+#: tankviz's own topics under ``/can/`` of no bus, and what they carry (as :data:`BUS_LEAVES`)
+_CAN_TOPICS = {BITS_TOPIC: "bring-up's bit map", BITS_LABELS_TOPIC: "bring-up's bit-map labels"}

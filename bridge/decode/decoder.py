@@ -28,38 +28,37 @@ message as it came, named in :attr:`Decoded.non_finite` and counted per bus, mes
 (``non_finite`` in the statistics); the world never takes such a value
 (:mod:`bridge.world.observe`).
 
-Problems that would silence a message without a word are warnings: a message cantools cannot
-decode (overlapping signals, a signal beyond the message: cantools' ``strict`` check) is named in
-:attr:`DatabaseFile.warnings` when the file is loaded, and :meth:`Decoder.warnings` adds, once
-frames have been decoded, every ``--dbc BUS=`` whose bus no frame came from.
+Problems that would silence, move or mix a message without a word are warnings: those of a
+database itself are named in :attr:`DatabaseFile.warnings` when the file is loaded
+(:mod:`bridge.decode.database`), and :meth:`Decoder.warnings` adds a message moved off a topic of
+tankviz's own on one bus (:func:`bridge.topics.message_topic`), buses that share their topics and,
+once frames have been decoded, every ``--dbc BUS=`` whose bus no frame came from.
 """
 
 from __future__ import annotations
 
-import codecs
-import hashlib
 import math
-import re
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from functools import cached_property, partial
-from pathlib import Path
 from typing import Any, NamedTuple, cast
 
-import cantools
-from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
-from cantools.database.errors import Error as CantoolsError
 from google.protobuf import descriptor_pool
 
 from bridge.block import ERROR, EXTENDED, REMOTE, FrameBlock
 from bridge.decode.compiled import DecodeColumn, compile_decoders
+from bridge.decode.database import DatabaseFile as DatabaseFile
+from bridge.decode.database import database_warnings as database_warnings
+from bridge.decode.database import layout as _layout
+from bridge.decode.database import load_database as load_database
+from bridge.decode.database import parse_dbc_option as parse_dbc_option
 from bridge.decode.proto_schema import MessageSchema, identifier
-from bridge.errors import DatabaseError, UsageError
+from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
-from bridge.topics import message_topic
+from bridge.topics import BUS_LEAVES, bus_segment, message_topic, own_topic
 
 #: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
 #: 256 holds every payload of a static message with an 8-bit rolling counter; more hit no more
@@ -74,76 +73,6 @@ _REST_FRAMES = 16 * _TRIAL_MISSES
 
 #: bytes.translate table of block flags: 1 where the frame is extended, else 0
 _EXTENDED_ONLY = bytes(1 if f & EXTENDED else 0 for f in range(256))
-
-_BUS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]*$")
-
-
-@dataclass(frozen=True)
-class DatabaseFile:
-    """A loaded signal database and what identifies it in a drive archive."""
-
-    path: Path
-    name: str
-    sha256: str
-    content: bytes
-    db: Database = field(repr=False, compare=False)
-    #: what in it silences a message (:func:`database_warnings`), one line each
-    warnings: tuple[str, ...] = field(default=(), compare=False)
-
-
-def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
-    """A line for every message whose layout cantools' strict check refuses (overlapping
-    signals, a signal that does not fit), saying when no frame of it can decode."""
-    warnings = []
-    for message in db.messages:
-        try:
-            message.refresh(strict=True)
-            continue
-        except CantoolsError as exc:
-            text = str(exc).strip().rstrip(".")
-        message.refresh(strict=False)
-        text = f"{text[:1].lower()}{text[1:]} (0x{message.frame_id:X})"
-        if not message.is_multiplexed():  # a payload of zeros may name no multiplexed part
-            try:
-                message.decode(bytes(message.length), decode_choices=False,
-                               allow_truncated=True)
-            except Exception:  # cantools: DecodeError, bitstruct errors
-                text += "; cantools cannot decode any frame of it"
-        warnings.append(f"{path}: {text}")
-    return tuple(warnings)
-
-
-def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
-    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file, with its warnings."""
-    path = Path(path)
-    try:
-        content = path.read_bytes()
-    except FileNotFoundError:
-        raise DatabaseError(path, "no such file") from None
-    except OSError as exc:
-        raise DatabaseError(path, f"cannot read: {exc.strerror or exc}") from None
-    # a UTF-8 byte-order mark (editors on Windows write one): read as UTF-8 without it
-    encoding = "utf-8-sig" if content.startswith(codecs.BOM_UTF8) else None
-    try:
-        db = cantools.database.load_file(str(path), strict=False, encoding=encoding)
-    except Exception as exc:  # cantools raises many types; its text is the useful part
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise DatabaseError(path, f"cantools cannot load it: {reason}") from None
-    if not isinstance(db, Database):
-        raise DatabaseError(path, "not a CAN database (cantools loaded a diagnostics database)")
-    return DatabaseFile(path, name or path.stem, hashlib.sha256(content).hexdigest(), content, db,
-                        database_warnings(path, db))
-
-
-def parse_dbc_option(text: str) -> tuple[str | None, Path]:
-    """``[BUS=]PATH`` from the command line: the bus (None for every bus) and the path."""
-    bus, sep, rest = text.partition("=")
-    if sep and bus and _BUS_NAME.match(bus) and not Path(text).exists():
-        if not rest:
-            raise UsageError(f"--dbc {text}: no path after '{bus}='")
-        return bus, Path(rest)
-    return None, Path(text)
-
 
 class Decoded(NamedTuple):
     """One decoded frame: its message, the signal values and their protobuf encoding, and the
@@ -353,19 +282,6 @@ class MessageCodec:
             self._misses, self._since = 0, self.decoded
 
 
-def _layout(message: DbcMessage) -> tuple[Any, ...]:
-    """Everything that decides how a message decodes, to tell real conflicts from duplicates."""
-    return (
-        message.name,
-        message.length,
-        tuple(
-            (s.name, s.start, s.length, s.byte_order, s.is_signed, s.is_float, s.scale, s.offset,
-             s.is_multiplexer, tuple(s.multiplexer_ids or ()), s.multiplexer_signal)
-            for s in message.signals
-        ),
-    )
-
-
 class Outcome(Enum):
     """What the decoder made of a frame (as cantools' monitor has ``MessageFormattingResult``)."""
 
@@ -432,6 +348,10 @@ class Decoder:
         self._decoders: dict[int, tuple[Callable[[bytes], Any], DecodeColumn | None]] = {}
         self._tables: dict[str, dict[int, MessageCodec]] = {}
         self._database_names: dict[str, str] = {}
+        #: topic segment -> the buses that have it (:func:`~bridge.topics.bus_segment`)
+        self._segments: dict[str, list[str]] = {}
+        #: a line for each message of a bus moved off a topic of tankviz's own there alone
+        self._moved: list[str] = []
         self.stats = DecodeStats()
         #: the latest frame :meth:`decode` returned None for, and why (read by :meth:`outcome`;
         #: the health monitor reads them itself, as :meth:`outcome` does, in its per-frame path)
@@ -451,9 +371,17 @@ class Decoder:
         return list(seen.values())
 
     def warnings(self) -> list[str]:
-        """What silences messages: the databases' warnings, then every ``--dbc BUS=`` whose bus
-        no frame came from (once frames have been decoded)."""
-        lines = [text for f in self.files for text in f.warnings]
+        """What silences, moves or mixes messages: the databases' warnings, a message of a bus
+        moved off a topic of tankviz's own on that bus alone, buses whose names make one topic
+        segment, then every ``--dbc BUS=`` whose bus no frame came from (once frames have been
+        decoded)."""
+        lines = [text for f in self.files for text in f.warnings] + self._moved
+        for segment, buses in self._segments.items():
+            if len(buses) > 1:
+                named = sorted(buses)
+                lines.append(f"buses {', '.join(named[:-1])} and {named[-1]} share the topics "
+                             f"/can/{segment}/...: their decoded messages are mixed there (each "
+                             "raw frame keeps its bus)")
         seen = self.stats.frames
         if seen:
             have = ", ".join(sorted(seen))
@@ -548,9 +476,15 @@ class Decoder:
             for message in f.db.messages:
                 key = frame_key(message.frame_id, message.is_extended_frame)
                 if key not in table:
-                    table[key] = MessageCodec(message, f, partial(self._schema, f, message), bus,
-                                              partial(self._decoder, message),
-                                              partial(self._column_decoder, message))
+                    codec = table[key] = MessageCodec(
+                        message, f, partial(self._schema, f, message), bus,
+                        partial(self._decoder, message), partial(self._column_decoder, message))
+                    what = own_topic(bus, message.name)
+                    if what is not None and message.name not in BUS_LEAVES:
+                        self._moved.append(
+                            f"{f.path}: message {message.name} (0x{message.frame_id:X}) would "
+                            f"take {what} topic on bus {bus}: its signals go to {codec.topic}")
+        self._segments.setdefault(bus_segment(bus), []).append(bus)
         self._tables[bus] = table
         return table
 

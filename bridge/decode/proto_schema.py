@@ -9,7 +9,9 @@ that its multiplexer does not select is simply absent:
   stay representable, and 0 is named ``<signal>_UNNAMED`` when the DBC gives it no name;
 - an integer signal with integer scaling (cantools decodes it to ``int``) becomes the smallest of
   uint32/sint32/uint64/sint64 that holds its whole range;
-- everything else is a ``double``.
+- everything else is a ``double``: also an integer signal whose range fits no 64-bit integer
+  (a 64-bit raw value scaled by 2, or offset by 1), whose values beyond 2^53 are then rounded
+  (:func:`rounded_range`; its database warns of it at load).
 
 :func:`compile_encoder` turns a generated type into a function that writes the protobuf wire
 format of cantools' decoded signals directly (tag, varint or zigzag varint or little-endian
@@ -82,6 +84,14 @@ def _integer_type(lo: int, hi: int) -> Any:
     if lo >= -(2**63) and hi < 2**63:
         return FieldType.TYPE_SINT64
     return None
+
+
+def rounded_range(signal: Signal) -> tuple[int, int] | None:
+    """The scaled range of a signal that cantools decodes to an exact ``int`` but that is stored
+    as a ``double`` because the range fits no 64-bit integer type (so values beyond 2^53 are
+    rounded), else None."""
+    ends = _integer_range(signal)
+    return ends if ends is not None and _integer_type(*ends) is None else None
 
 
 def _enum_values(signal_field: str, choices: dict[int, Any]) -> list[tuple[str, int]]:

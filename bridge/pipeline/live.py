@@ -70,7 +70,7 @@ from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
 from bridge.sinks.server import ClientStats, LiveServer
-from bridge.topics import LOG_TOPIC, TopicMessage
+from bridge.topics import LOG_TOPIC, TopicMessage, bus_segment
 
 
 def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
@@ -111,6 +111,12 @@ class Live:
         names = [b.name for b in buses]
         if len(set(names)) != len(names):
             raise UsageError(f"--bus: a bus name is used twice ({', '.join(names)})")
+        segments: dict[str, str] = {}
+        for name in names:
+            other = segments.setdefault(bus_segment(name), name)
+            if other != name:
+                raise UsageError(f"--bus {other} and --bus {name} would share the topics "
+                                 f"/can/{bus_segment(name)}/...: rename one")
         self.buses = list(buses)
         self.scene_rate = scene_rate
         self.server = server

@@ -161,3 +161,69 @@ def test_a_database_and_a_profile_saved_with_a_byte_order_mark_load(tmp_path: Pa
     profile = tmp_path / "ecocar.toml"
     profile.write_bytes(b"\xef\xbb\xbf" + (data_dir() / "ecocar.toml").read_bytes())
     assert load_profile(profile, [loaded.db]).name == "ecocar"
+
+
+def test_one_file_giving_an_id_two_messages_is_one_line_naming_both(
+        tmp_path: Path, write_log: WriteLog, capsys: pytest.CaptureFixture[str]) -> None:
+    """#33 item 12: the error advised giving the file to two buses, after cantools' own
+    'Overwriting message ...' log line."""
+    (tmp_path / "dup.dbc").write_text(DOOR_DBC.replace("BO_ 1058 Mirror", "BO_ 1056 Mirror"))
+    log = write_log("door.blf", door_frames(1))
+    assert main(["convert", str(log), "-o", str(tmp_path / "door.mcap"), "--dbc",
+                 str(tmp_path / "dup.dbc")]) == 1
+    printed = capsys.readouterr()
+    assert printed.err.splitlines() == [
+        f"error: {tmp_path / 'dup.dbc'}: messages DoorState (line 4) and Mirror (line 10) both "
+        "have id 0x420: a database gives an id one message; remove or renumber one"]
+    assert not (tmp_path / "door.mcap").exists()
+
+
+def test_an_identical_twin_message_loads_without_a_word(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """cantools logs 'Overwriting message ...' for it (to stderr, without a handler): kept in."""
+    twin = 'BO_ 1058 Mirror: 8 Door\n SG_ Angle : 0|8@1+ (1,0) [0|255] "" Door\n'
+    (tmp_path / "twin.dbc").write_text(DOOR_DBC + twin)
+    loaded = load_database(tmp_path / "twin.dbc")
+    assert [m.name for m in loaded.db.messages].count("Mirror") == 2
+    assert not any("cantools:" in text for text in loaded.warnings)
+    assert [r.getMessage() for r in caplog.records if r.name.startswith("cantools")] == []
+
+
+WIDE_DBC = """VERSION ""
+BS_:
+BU_: Meter
+BO_ 1024 Odometer: 8 Meter
+ SG_ Doubled : 0|64@1+ (2,1) [1|36893488147419103231] "" Meter
+BO_ 1025 Counter: 8 Meter
+ SG_ Signed : 0|64@1- (1,-1) [0|0] "" Meter
+BO_ 1026 Trip: 8 Meter
+ SG_ Exact : 0|64@1+ (1,0) [0|18446744073709551615] "" Meter
+BO_ 1027 Half: 8 Meter
+ SG_ Half : 0|64@1+ (0.5,0) [0|0] "" Meter
+"""
+
+
+def test_an_integer_signal_beyond_64_bits_is_said_to_be_rounded(tmp_path: Path) -> None:
+    """#33 item 12: a 64-bit signal with scale 2 and offset 1 is an exact int in cantools but
+    fits no 64-bit integer field: it is stored as a double, and the load says so. Scale 1 stays
+    an exact uint64; a fractional scale is cantools' own float, no warning."""
+    from bridge.decode.decoder import Decoder
+
+    path = tmp_path / "wide.dbc"
+    path.write_text(WIDE_DBC)
+    loaded = load_database(path)
+    assert loaded.warnings == (
+        f"{path}: signal Doubled of message Odometer (0x400) ranges over "
+        "1..36893488147419103231, beyond any 64-bit integer: it is stored as a double, so "
+        "values beyond 2^53 are rounded (the raw frames keep them exact)",
+        f"{path}: signal Signed of message Counter (0x401) ranges over "
+        "-9223372036854775809..9223372036854775806, beyond any 64-bit integer: it is stored as "
+        "a double, so values beyond 2^53 are rounded (the raw frames keep them exact)")
+    decoder = Decoder({None: [loaded]})
+    codecs = {c.message.name: c for c in decoder.codecs_for("can0")}
+    big = 2**64 - 3
+    data = big.to_bytes(8, "little")
+    assert codecs["Trip"].schema.parse(codecs["Trip"].decode(data).payload) == {
+        "Exact": big}  # a uint64: exact
+    doubled = codecs["Odometer"].schema.parse(codecs["Odometer"].decode(data).payload)
+    assert doubled["Doubled"] == float(2 * big + 1) != 2 * big + 1  # a double: rounded
