@@ -301,3 +301,15 @@ def test_replay_of_a_drive_live_recorded_points_at_the_layouts_live_wrote(
     folder = drives / "layouts" / "mazda_radar"
     assert (f"layout:   import {folder / 'tank-viz.json'} (Layouts menu), made for profile "
             "mazda_radar") in capsys.readouterr().out.splitlines()
+
+
+def test_the_connection_line_says_who_can_open_it() -> None:
+    """The default server is this machine's only; a newcomer learns what serves a laptop."""
+    from bridge.apps.hints import connection_lines
+
+    assert connection_lines("127.0.0.1", ["ws://localhost:8765"]) == [
+        "Foxglove: open connection ws://localhost:8765 (Foxglove WebSocket)",
+        "          this machine only: --host 0.0.0.0 serves other laptops too"]
+    assert connection_lines("0.0.0.0", ["ws://10.0.0.2:8765", "ws://192.168.1.4:8765"]) == [
+        "Foxglove: open connection ws://10.0.0.2:8765 or ws://192.168.1.4:8765 "
+        "(Foxglove WebSocket)"]

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bridge.resources import bundled_database, layouts_dir
+from bridge.sinks.server.addresses import LOOPBACK
 
 if TYPE_CHECKING:
     from bridge.pipeline.drive import Stages
@@ -31,6 +32,15 @@ BUNDLED_PROFILE = "ecocar"
 HINT_LAYOUT = "tank-viz.json"
 #: How ``layout:`` hints go on: the lines after the first, under its text.
 HINT_INDENT = " " * len("layout:   ")
+
+
+def connection_lines(host: str, urls: Sequence[str]) -> list[str]:
+    """Where to open Foxglove, and from where: a loopback server (the default) serves this
+    machine only, and the line says what serves a laptop beside it."""
+    lines = [f"Foxglove: open connection {' or '.join(urls)} (Foxglove WebSocket)"]
+    if host in LOOPBACK:
+        lines.append(f"{HINT_INDENT}this machine only: --host 0.0.0.0 serves other laptops too")
+    return lines
 
 
 def bundled_layout() -> str:

@@ -175,8 +175,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
         live.start()
         print(f"buses: {', '.join(str(b) for b in buses)}")
         if server is not None:
-            print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)",
-                  flush=True)
+            print(*hints.connection_lines(server.host, server.urls), sep="\n", flush=True)
         try:
             hint = layout_hint(args, stages, [b.name for b in buses],
                                recording=live.recorder is not None)

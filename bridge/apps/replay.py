@@ -484,7 +484,7 @@ def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
     timer.daemon = True  # (a replay that ends first does not wait for it)
     if args.run_for:
         timer.start()
-    print(f"Foxglove: open connection {' or '.join(server.urls)} (Foxglove WebSocket)")
+    print(*hints.connection_lines(server.host, server.urls), sep="\n")
     if hint is not None:
         hint.say()
     sys.stdout.flush()

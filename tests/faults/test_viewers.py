@@ -122,6 +122,7 @@ def test_garbage_from_a_viewer_gets_a_status_and_one_line_and_everyone_goes_on(
                 "--profile", str(PROFILE), "--host", "0.0.0.0")
     (line,) = [line for _, line in car.lines if "Foxglove: open connection" in line]
     assert "0.0.0.0" not in line, line
+    assert "this machine only" not in car.output
     viewer = Viewer(car.url)
     car.when("Ctrl+C")
     statuses, address, message = asyncio.run(send_garbage(car.url))
