@@ -102,6 +102,9 @@ def receive_report(receive: dict[str, ReceiveCounts]) -> list[str]:
         if c.unreadable:
             said.append(f"{c.unreadable:,} messages that are not CAN frames (skipped; the "
                         f"latest: {c.last_unreadable})")
+        if c.missed_estimate:
+            said.append(f"about {c.missed_estimate:,} frames missed while the bus was down (an "
+                        "estimate: its frame rate before times how long it was down)")
         if said:
             lines.append(f"bus {bus}: " + "; ".join(said))
     return lines

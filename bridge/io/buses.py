@@ -19,8 +19,12 @@ merged in time order (:func:`merge_batches`). A read takes what python-can has r
 python-can's own is read through ``_recv_internal``, the method ``recv`` calls, with the same
 filters. A frame whose stamp is not a time (NaN, infinite, before 1970 or after 2262) is not a
 failure of the bus: it is stamped with the time it was read (on the bus's own clock, as its last
-frames tell it), kept, and counted; something that is not a frame at all is skipped and counted
-(:class:`ReceiveCounts`, which :mod:`bridge.health.receive` tells on ``/log`` and ``/health``).
+frames tell it), kept, and counted; something that is not a frame at all is skipped and counted,
+and so is a datagram that a udp_multicast bus cannot unpack (another program's on the group: the
+bus reads on, :func:`one_datagram`) (:class:`ReceiveCounts`, which :mod:`bridge.health.receive`
+tells on ``/log`` and ``/health``). A udp_multicast bus hears only its own group
+(:func:`own_group_only`: python-can binds every such socket to one port, and Linux gives each
+socket every group the host joined).
 Where python-can exposes the socket (socketcan, udp_multicast), its receive buffer is raised to
 :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows: :func:`raise_receive_buffer`) and the
 kernel's count of the frames it dropped for want of room is read at each read
@@ -49,6 +53,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
+from can.interfaces.udp_multicast import UdpMulticastBus
 
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame
@@ -203,6 +208,47 @@ def kernel_drops(sock: socket.socket) -> int | None:
         return None
 
 
+_IP_MULTICAST_ALL = 49  # Linux: 1 (default): every group the host joined; 0: the socket's own
+_IPV6_MULTICAST_ALL = 29
+
+
+def own_group_only(bus: can.BusABC) -> None:
+    """A udp_multicast bus's socket gets only the group it joined.
+
+    python-can binds every udp_multicast socket to the same port, and Linux delivers to each
+    every group that any socket of the host joined (``IP_MULTICAST_ALL``): two buses would each
+    get both groups' frames. Set off; what the socket had queued before (maybe another group's)
+    is dropped: the bus is open from here. (Other systems deliver a socket its own groups only.)
+    """
+    sock = receive_socket(bus)
+    if not isinstance(bus, UdpMulticastBus) or sock is None or sys.platform != "linux":
+        return
+    with contextlib.suppress(OSError):  # a kernel without it (IPv6 before Linux 4.20)
+        if sock.family == socket.AF_INET:
+            sock.setsockopt(socket.IPPROTO_IP, _IP_MULTICAST_ALL, 0)
+        else:
+            sock.setsockopt(socket.IPPROTO_IPV6, _IPV6_MULTICAST_ALL, 0)
+    with contextlib.suppress(OSError):  # (BlockingIOError: nothing more queued)
+        while True:
+            sock.recv(1, socket.MSG_DONTWAIT)
+
+
+def one_datagram(bus: can.BusABC, exc: Exception) -> bool:
+    """Whether ``exc``, raised by reading ``bus``, is about one datagram python-can took off a
+    udp_multicast bus and could not read (no msgpack frame: another program's on the group, an
+    error frame with an id >= 2**29; a bad receive stamp), not about the bus: that datagram is
+    skipped and counted, and the bus read on. A failure of the socket itself comes from an
+    ``OSError``: the bus is lost."""
+    return (isinstance(bus, UdpMulticastBus) and isinstance(exc, can.CanOperationError)
+            and not isinstance(exc.__cause__, OSError))
+
+
+def datagram_text(exc: BaseException) -> str:
+    """Why a datagram could not be read, in one line: python-can's error and its cause."""
+    cause = exc.__cause__
+    return one_line(exc) + (f" ({one_line(cause)})" if cause is not None else "")
+
+
 # --- python-can's log lines ---------------------------------------------------------------------
 
 _DIGITS = re.compile(r"\d+")
@@ -288,6 +334,7 @@ class ReceiveCounts:
     last_unreadable: str = ""
     kernel_drops: int = 0
     receive_buffer_bytes: int = 0
+    missed_estimate: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """For the drive's metadata (``bus_receive``)."""
@@ -296,12 +343,15 @@ class ReceiveCounts:
 
 @dataclass(frozen=True)
 class BusEvent:
-    """A bus that had opened went away, or came back."""
+    """A bus that had opened went away, or came back (then, where its rate was known, about
+    how many frames it missed while it was down: ``missed``, from ``rate`` frames per second)."""
 
     bus: str
     up: bool
     t_ns: int
     reason: str = ""
+    missed: int | None = None
+    rate: float | None = None
 
 
 class BusLink:
@@ -316,13 +366,17 @@ class BusLink:
     :attr:`error` says why. Other failures to open are retried; until the bus first opened
     (:attr:`opened`) they are only noted (:attr:`failure`, :attr:`tries`), after that a failure
     and the return are put on ``events`` (a lost bus). :attr:`receive` counts what the reading
-    mended or lost (bad stamps, what is not a frame, the kernel's drops).
+    mended or lost (bad stamps, what is not a frame, the kernel's drops, and an estimate of the
+    frames missed while the bus was down: its frame rate while up, after a second of it, times
+    how long it was down, on ``clock``).
     """
 
     def __init__(self, spec: BusSpec, events: queue.SimpleQueue[BusEvent], *,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
-                 backoff: tuple[float, float] = (0.2, 5.0)) -> None:
+                 backoff: tuple[float, float] = (0.2, 5.0),
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.spec = spec
+        self.clock = clock
         self.events = events
         self.open_bus = open_bus
         self.backoff = backoff
@@ -345,6 +399,11 @@ class BusLink:
         self._reopen = threading.Event()  # the opener is wanted
         self._reopen.set()
         self._down = False
+        #: frames read since the start
+        self.frames_read = 0
+        self._up_s = 0.0  # seconds the bus was up, before its latest opening
+        self._up_since: float | None = None  # when it was last opened (clock)
+        self._lost_at = 0.0  # when it was last lost (clock)
         self._opener = threading.Thread(target=self._open_loop, daemon=True,
                                         name=f"tankviz-bus-{spec.name}")
 
@@ -393,9 +452,12 @@ class BusLink:
                 continue
             delay = self.backoff[0]
             self._reopen.clear()
+            now = self.clock()
             if self._down:
                 self._down = False
-                self.events.put(BusEvent(self.spec.name, True, time.time_ns()))
+                self._back(now)
+            self._up_since = now
+            own_group_only(bus)
             sock = receive_socket(bus)
             if sock is not None:
                 self.receive.receive_buffer_bytes = raise_receive_buffer(
@@ -410,29 +472,47 @@ class BusLink:
         self.failure = one_line(exc)
         if self.opened.is_set() and not self._down:
             self._down = True
+            self._lost_at = now = self.clock()
+            if self._up_since is not None:
+                self._up_s += now - self._up_since
+                self._up_since = None
             self.events.put(BusEvent(self.spec.name, False, time.time_ns(), self.failure))
+
+    def _back(self, now: float) -> None:
+        """The bus is back: about how many frames it missed (its rate while up, once it was up
+        a second, times how long it was down), counted and said."""
+        rate = self.frames_read / self._up_s if self._up_s >= 1.0 else None
+        missed = None if rate is None else round(rate * max(now - self._lost_at, 0.0))
+        if missed is not None:
+            self.receive.missed_estimate += missed
+        self.events.put(BusEvent(self.spec.name, True, time.time_ns(), missed=missed, rate=rate))
 
     def poll(self, limit: int = 100_000) -> list[Frame]:
         """What the interface has received by now (at most ``limit`` frames), never waiting.
 
         When the bus fails, the frames read before are returned and the opener takes over. A
         frame whose stamp is not a time is stamped with the time it is read and kept; something
-        that is not a frame is skipped; both are counted (:attr:`receive`).
+        that is not a frame, and a datagram python-can could not unpack (:func:`one_datagram`),
+        are skipped; all are counted (:attr:`receive`).
         """
         bus = self._bus
         if bus is None:
             return []
         frames: list[Frame] = []
         name, to_frame, append = self.spec.name, _frame, frames.append
+        failure = None
         try:
-            for message in _received(bus, limit):
+            for message in _received(bus, limit, self._skip):
                 try:
                     append(to_frame(name, message))
                 except Exception as exc:  # a stamp that is not a time, or not a frame at all
                     self._mend(message, exc, frames)
         except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
+            failure = exc
+        self.frames_read += len(frames)
+        if failure is not None:
             self.close()
-            self._failed(exc)
+            self._failed(failure)
             self._reopen.set()
         if frames:
             self._lead_ns = frames[-1].timestamp_ns - time.time_ns()
@@ -442,6 +522,11 @@ class BusLink:
             if drops is not None:
                 self.receive.kernel_drops = self._drops_before + drops
         return frames
+
+    def _skip(self, exc: Exception) -> None:
+        """A datagram python-can took and could not read: counted, skipped."""
+        self.receive.unreadable += 1
+        self.receive.last_unreadable = datagram_text(exc)
 
     def _mend(self, message: can.Message, exc: Exception, frames: list[Frame]) -> None:
         """A frame python-can gave that :func:`_frame` refused: kept, stamped with the time it
@@ -472,9 +557,11 @@ def _stamp_text(seconds: Any) -> str:
     return str(seconds) if isinstance(seconds, float) else repr(seconds)
 
 
-def _received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
+def _received(bus: can.BusABC, limit: int,
+              skip: Callable[[Exception], None] | None = None) -> Iterator[can.Message]:
     """What ``bus`` has received by now, at most ``limit`` messages, never waiting: what
-    ``bus.recv(0)`` returns until it returns None.
+    ``bus.recv(0)`` returns until it returns None. A datagram python-can could not read
+    (:func:`one_datagram`) is given to ``skip`` and the read goes on (it counts in ``limit``).
 
     A bus that keeps python-can's own ``recv`` is read through the method ``recv`` calls,
     ``_recv_internal`` (every interface implements it), with the same filtering: ``recv``'s
@@ -492,7 +579,14 @@ def _received(bus: can.BusABC, limit: int) -> Iterator[can.Message]:
     receive, matches = bus._recv_internal, bus._matches_filters
     taken = 0
     while taken < limit:
-        message, filtered = receive(0.0)
+        try:
+            message, filtered = receive(0.0)
+        except Exception as exc:
+            if skip is None or not one_datagram(bus, exc):
+                raise
+            skip(exc)
+            taken += 1
+            continue
         if message is None:
             return
         if filtered or matches(message):

@@ -78,6 +78,11 @@ def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
                                        name="tankviz"), t_ns)
 
 
+def duration(ns: int) -> str:
+    """A gap's length: in ms below a second (a reopen takes a few), else in seconds."""
+    return f"{ns / 1e6:.0f} ms" if ns < NS else f"{ns / 1e9:.1f} s"
+
+
 @dataclass
 class LiveReport:
     """What a live run did: frames read, files recorded, bus gaps, messages dropped for slow
@@ -283,6 +288,11 @@ class Live:
         else:
             gap = self._down.pop(event.bus, Gap(event.bus, t, None, ""))
             gap.end_ns = t
-            text = f"bus {event.bus} is back after {(t - gap.start_ns) / 1e9:.1f} s"
+            text = f"bus {event.bus} is back after {duration(t - gap.start_ns)}: " + (
+                f"about {event.missed:,} frames missed (an estimate: {event.rate:,.0f} frames/s "
+                "before, times how long it was down)"
+                if event.missed is not None and event.rate is not None else
+                "the frames sent meanwhile were missed (how many is not known: it was up less "
+                "than a second before)")
             self.pipeline.emit([log_message(t, Log.INFO, text)])
         self.say(text)

@@ -259,3 +259,94 @@ def test_the_slow_viewers_line_is_short() -> None:
     assert "and 37 more topics" in line
     assert line.endswith("and 9 more viewers")
     assert re.search(r"10\.0\.0\.0:", line) is None
+
+
+# --- a bus lost and back: the frames it missed ---------------------------------------------------
+
+class FailingBus(can.BusABC):
+    """A bus with ``frames`` to read that fails (as a socket does: an ``OSError``) once
+    ``fail`` is set."""
+
+    def __init__(self, frames: int) -> None:
+        super().__init__(channel="x")
+        self.frames = [can.Message(timestamp=time.time(), arbitration_id=1) for _ in range(frames)]
+        self.fail = False
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.fail:
+            raise can.CanOperationError("Failed to wait for IP/UDP socket") from OSError(5, "EIO")
+        return (self.frames.pop() if self.frames else None), False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise NotImplementedError
+
+
+def test_a_bus_back_after_a_loss_says_about_how_many_frames_it_missed() -> None:
+    """A bus read at 100 frames/s for 5 s, lost for 2 s: about 200 frames missed, an estimate
+    from its rate before (on the link's clock, set by the test), said as such; a loss before a
+    second of the bus was seen is not estimated."""
+    import queue
+
+    from bridge.io.buses import BusEvent
+
+    now = [0.0]
+    opened: list[FailingBus] = []
+    may_open = threading.Event()
+    may_open.set()
+
+    def open_bus(spec: BusSpec) -> can.BusABC:
+        assert may_open.wait(30)
+        opened.append(FailingBus(500 if not opened else 0))
+        return opened[-1]
+
+    events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
+    link = BusLink(BusSpec("radar", "fake", "x"), events, open_bus=open_bus,
+                   backoff=(0.01, 0.01), clock=lambda: now[0])
+    link.start()
+    assert link.opened.wait(30)
+    now[0] = 5.0
+    assert len(link.poll()) == 500
+    may_open.clear()
+    opened[-1].fail = True
+    assert link.poll() == []
+    lost = events.get(timeout=30)
+    assert not lost.up and lost.reason == "CanOperationError: Failed to wait for IP/UDP socket"
+    now[0] = 7.0
+    may_open.set()
+    back = events.get(timeout=30)
+    assert back.up and back.missed == 200 and back.rate == 100.0
+    assert link.receive.missed_estimate == 200
+    link.stop()
+    link.close()
+    # the end-of-run line says it is an estimate
+    from bridge.apps.live import receive_report
+    assert receive_report({"radar": link.receive}) == [
+        "bus radar: about 200 frames missed while the bus was down (an estimate: its frame "
+        "rate before times how long it was down)"]
+
+
+def test_a_bus_lost_before_its_rate_is_known_says_the_frames_missed_are_not_known() -> None:
+    import queue
+
+    from bridge.io.buses import BusEvent
+
+    now = [0.0]
+    opened: list[FailingBus] = []
+
+    def open_bus(spec: BusSpec) -> can.BusABC:
+        opened.append(FailingBus(10))
+        return opened[-1]
+
+    events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
+    link = BusLink(BusSpec("radar", "fake", "x"), events, open_bus=open_bus,
+                   backoff=(0.01, 0.01), clock=lambda: now[0])
+    link.start()
+    assert link.opened.wait(30)
+    now[0] = 0.5  # half a second: no rate to estimate with
+    opened[-1].fail = True
+    link.poll()
+    assert not events.get(timeout=30).up
+    back = events.get(timeout=30)
+    link.stop()
+    link.close()
+    assert back.up and back.missed is None and link.receive.missed_estimate == 0
