@@ -103,10 +103,11 @@ def write_log(tmp_path: Path) -> WriteLog:
 
 @pytest.fixture
 def restore_stop_signals() -> Iterator[None]:
-    """live, demo and replay take SIGINT and SIGTERM to stop cleanly: given back after."""
+    """live, demo and replay take SIGINT and SIGTERM (live and demo SIGHUP too) to stop
+    cleanly: given back after."""
     import signal
 
-    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     yield
     for s, handler in saved.items():
         signal.signal(s, handler)

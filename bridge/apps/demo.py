@@ -3,14 +3,14 @@
 The simulated car (:class:`bridge.sim.car.SimulatedCar`) plays its drive onto a python-can
 ``virtual`` bus in real time, and ``tankviz live`` runs on that bus: it serves Foxglove and
 records to ./drives, exactly as in a car. On stop, the car stops first, so that every frame it
-sent is read and recorded.
+sent is read and recorded. SIGHUP stops it as SIGTERM does (the drive is finished).
 """
 
 from __future__ import annotations
 
 import argparse
 
-from bridge.apps.live import run_live
+from bridge.apps.live import output_may_vanish, run_live
 from bridge.apps.options import (
     Subparsers,
     add_record_options,
@@ -43,9 +43,10 @@ def run(args: argparse.Namespace) -> int:
         if car.is_alive():
             car.join(2.0)
 
-    try:
-        return run_live(args, [BusSpec("can0", "virtual", DEMO_CHANNEL)],
-                        start_feed=car.start, stop_feed=stop_car)
-    finally:
-        stop_car()
-        print(f"the simulated car sent {car.sent:,} frames")
+    with output_may_vanish():  # (its last line too, when the terminal went away)
+        try:
+            return run_live(args, [BusSpec("can0", "virtual", DEMO_CHANNEL)],
+                            start_feed=car.start, stop_feed=stop_car)
+        finally:
+            stop_car()
+            print(f"the simulated car sent {car.sent:,} frames")

@@ -13,6 +13,10 @@ error: one line, exit 1, nothing recorded. A bus that had opened and fails is sa
 is back) as the run goes. python-can's own log lines are said once per cause, then counted
 (:class:`~bridge.io.buses.CanLogLimiter`).
 
+SIGINT, SIGTERM and SIGHUP (the terminal or SSH session went away) stop the run and finish the
+drive. Output to a terminal or pipe that is gone (EIO, EPIPE) never stops the run or the drive's
+finishing: from then on it goes nowhere (:func:`output_may_vanish`).
+
 At the end it prints the files recorded, what the buses' reading mended or lost
 (:func:`receive_report`) and how many messages slow viewers lost: which viewers, and of which
 topics (the few that lost most, the rest counted: :func:`dropped_report`); a run that got no
@@ -30,11 +34,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import shlex
+import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any, TextIO
 
 from bridge.apps import hints, options
 from bridge.apps.options import (
@@ -110,6 +117,65 @@ def receive_report(receive: dict[str, ReceiveCounts]) -> list[str]:
     return lines
 
 
+class VanishingOutput:
+    """A standard stream whose terminal or pipe may go away during the run (a closed window, an
+    ended SSH session): a write that fails for that (EIO, EPIPE, any ``OSError`` but a full
+    non-blocking pipe) makes this and every later write go nowhere, the descriptor included (it
+    becomes ``/dev/null``: the interpreter's last flush, a thread's line)."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.gone = False
+
+    def write(self, text: str) -> int:
+        if not self.gone:
+            try:
+                return self.stream.write(text)
+            except (BlockingIOError, InterruptedError):
+                pass  # this text is lost, the output is not
+            except OSError:
+                self._went()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.gone:
+            try:
+                self.stream.flush()
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                self._went()
+
+    def _went(self) -> None:
+        self.gone = True
+        with contextlib.suppress(Exception):  # (a stream without a descriptor: nothing to do)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, self.stream.fileno())
+            os.close(null)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def output_may_vanish() -> Iterator[None]:
+    """Within the block, standard output and error are :class:`VanishingOutput`: a terminal
+    that went away never stops the run nor the drive's finishing."""
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = VanishingOutput(out), VanishingOutput(err)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = out, err
+
+
+def install_hangup(stop: Callable[[], None]) -> None:
+    """SIGHUP (the terminal or SSH session went away) stops the run as SIGTERM does: the drive
+    is finished."""
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, lambda signum, frame: stop())
+
+
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
         "live", help="CAN buses in, Foxglove live, every drive recorded",
@@ -139,6 +205,13 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
              start_feed: Callable[[], None] | None = None,
              stop_feed: Callable[[], None] | None = None) -> int:
     """Live on ``buses``; ``start_feed``/``stop_feed`` run a frame source beside it (demo)."""
+    with output_may_vanish():
+        return _run_live(args, buses, start_feed=start_feed, stop_feed=stop_feed)
+
+
+def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
+              start_feed: Callable[[], None] | None,
+              stop_feed: Callable[[], None] | None) -> int:
     stages = options.stages(args)
     decoder, names = stages.decoder, {b.name for b in buses}
     unread = [f"--dbc {bus}={f.path}: no --bus {bus}, so nothing is decoded with it"
@@ -169,6 +242,7 @@ def run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             live.stop()
 
         install_stop_signals(stop)
+        install_hangup(stop)
         if args.run_for:
             timer = threading.Timer(args.run_for, stop)
             timer.daemon = True  # an error at start ends the process at once
