@@ -49,11 +49,14 @@ CAR = textwrap.dedent("""
 """)
 
 
-def unique_group(index: int = 0) -> str:
-    """A multicast group no other test (nor process) uses at the same time."""
+def unique_group(index: int = 0, *, ipv6: bool = False) -> str:
+    """A multicast group no other test (nor process) uses at the same time (IPv4, or IPv6 of
+    site-local scope)."""
     with _LOCK:
         n = next(_COUNTER)
     pid = os.getpid()
+    if ipv6:
+        return f"ff15::7a:{78 + index:x}:{pid % 0xFFFF:x}:{n:x}"
     return f"239.{78 + index}.{pid % 250}.{(pid // 250 * 7 + n) % 250 + 1}"
 
 
@@ -78,17 +81,17 @@ class Sender:
         self.process.wait()
 
 
-_checked: list[str] = []
+_checked: dict[bool, str] = {}
 
 
-def multicast_or_skip() -> None:
+def multicast_or_skip(*, ipv6: bool = False) -> None:
     """Skips the test, saying why, where a frame sent to a multicast group on this host does not
     come back to a socket of that group (no multicast route, a kernel without multicast)."""
-    if _checked:
-        if _checked[0]:
-            pytest.skip(_checked[0])
+    if ipv6 in _checked:
+        if _checked[ipv6]:
+            pytest.skip(_checked[ipv6])
         return
-    group, why = unique_group(9), ""
+    group, why = unique_group(9, ipv6=ipv6), ""
     try:
         with can.Bus(interface="udp_multicast", channel=group) as rx, \
                 can.Bus(interface="udp_multicast", channel=group) as tx:
@@ -97,6 +100,6 @@ def multicast_or_skip() -> None:
                 why = f"a frame sent to multicast group {group} did not come back on this host"
     except Exception as exc:
         why = f"no udp_multicast bus on this host: {type(exc).__name__}: {exc}"
-    _checked.append(why)
+    _checked[ipv6] = why
     if why:
         pytest.skip(why)

@@ -5,7 +5,7 @@
   lost the frames queued behind it), reading goes on, and not one good frame is lost;
 - each bus gets only its own group's frames, with two and three groups on one host (Linux
   delivers every group the host joined to every socket bound to the port, and python-can binds
-  them all to one: ``IP_MULTICAST_ALL``).
+  them all to one: ``IP_MULTICAST_ALL``), IPv6 groups too.
 """
 
 from __future__ import annotations
@@ -78,9 +78,10 @@ def test_a_datagram_python_can_cannot_unpack_is_skipped_and_counted() -> None:
     assert link.receive.kernel_drops == 0
 
 
-@pytest.mark.parametrize("groups", [2, 3])
-def test_each_bus_gets_only_its_own_groups_frames(groups: int) -> None:
-    opened, events = links(*[unique_group(i) for i in range(groups)])
+@pytest.mark.parametrize(("groups", "ipv6"), [(2, False), (3, False), (2, True)])
+def test_each_bus_gets_only_its_own_groups_frames(groups: int, ipv6: bool) -> None:
+    multicast_or_skip(ipv6=ipv6)
+    opened, events = links(*[unique_group(i, ipv6=ipv6) for i in range(groups)])
     counts = [100, 40, 7][:groups]
     try:
         for link, n in zip(opened, counts, strict=True):
