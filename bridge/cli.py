@@ -8,7 +8,9 @@ The ``TANKVIZ_*`` settings are checked first, for every command and for ``--help
 (:func:`bridge.apps.options.check_environment`).
 
 Every user error is a :class:`~bridge.errors.BridgeError`, printed as one ``error: …`` line with
-exit status 1; ``--debug`` shows the traceback instead.
+exit status 1; ``--debug`` shows the traceback instead. So is an error of the system about a file
+(an ``OSError`` naming it: a name too long, no permission, …). A name that is not UTF-8 is shown
+with its bytes as ``\\xNN`` (:func:`~bridge.errors.shown`).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from collections.abc import Sequence
 
 from bridge import __version__
 from bridge.apps.options import check_environment
-from bridge.errors import BridgeError
+from bridge.errors import BridgeError, os_error_text, shown
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -92,12 +94,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_environment()  # a TANKVIZ_* setting may make no sense
         parser = build_parser(chosen_command(arguments))
     except BridgeError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {shown(str(exc))}", file=sys.stderr)
         return EXIT_ERROR
     try:
         args = parser.parse_args(arguments)  # an option's value may be a one-line error
     except BridgeError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {shown(str(exc))}", file=sys.stderr)
         return EXIT_ERROR
     args.argv = arguments
     try:
@@ -106,10 +108,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BridgeError as exc:
         if args.debug:
             traceback.print_exc()
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {shown(str(exc))}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         return 0
+    except OSError as exc:
+        if exc.filename is None:
+            raise
+        if args.debug:
+            traceback.print_exc()
+        print(f"error: {os_error_text(exc)}", file=sys.stderr)
+        return EXIT_ERROR

@@ -51,7 +51,15 @@ caught there) and ``_Unreadable`` (bridge.apps.recover_records, caught by the re
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 from pathlib import Path
+
+#: The longest name of one file (a part of a path), in bytes, on Linux's file systems...
+NAME_MAX = 255
+#: ... and the longest path (less one byte: C's string end).
+PATH_MAX = 4096
 
 
 class BridgeError(Exception):
@@ -62,7 +70,7 @@ class InputError(BridgeError):
     """A CAN log that is missing, of an unknown format, or unreadable at some place."""
 
     def __init__(self, path: Path | str, reason: str, *, where: str | None = None) -> None:
-        self.path = str(path)
+        self.path = shown(path)
         self.reason = reason
         self.where = where
         place = f"{self.path}:{where}" if where else self.path
@@ -73,7 +81,7 @@ class DatabaseError(BridgeError):
     """A DBC (or KCD/SYM/ARXML) file that cannot be loaded or that conflicts with another."""
 
     def __init__(self, path: Path | str, reason: str) -> None:
-        self.path = str(path)
+        self.path = shown(path)
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
@@ -82,10 +90,88 @@ class OutputError(BridgeError):
     """An output file that exists already or cannot be written."""
 
     def __init__(self, path: Path | str, reason: str) -> None:
-        self.path = str(path)
+        self.path = shown(path)
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
 
 class UsageError(BridgeError):
     """A command-line argument or setting that does not make sense."""
+
+
+# --- how errors name files ----------------------------------------------------------------------
+
+def shown(path: Path | str) -> str:
+    """A path as text to print or store (msgpack, DuckDB, JSON): as it is where it is Unicode;
+    the bytes of a name that is not (a latin-1 ``bad\\xe9.blf`` on a UTF-8 system, which Python
+    holds as surrogates) as ``\\xNN``."""
+    text = str(path)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        try:
+            return os.fsencode(text).decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:  # a surrogate no file name decoded into
+            return text.encode("utf-8", "backslashreplace").decode("ascii")
+    return text
+
+
+def name_too_long(path: Path | str) -> str | None:
+    """Why ``path`` cannot name a file: a part of it over :data:`NAME_MAX` bytes, or the whole
+    over :data:`PATH_MAX`; None when neither."""
+    parts = Path(path).parts
+    long = [part for part in parts if len(os.fsencode(part)) > NAME_MAX]
+    if long:
+        whose = "its name" if long[0] == parts[-1] else f"its folder's name {shown(long[0])}"
+        return (f"{whose} is {len(os.fsencode(long[0]))} bytes long: a name has at most "
+                f"{NAME_MAX} bytes; name it shorter")
+    if (size := len(os.fsencode(str(path)))) >= PATH_MAX:
+        return f"the path is {size} bytes long: at most {PATH_MAX - 1}; name it shorter"
+    return None
+
+
+def os_error_text(exc: OSError) -> str:
+    """An error of the system about a file as one line naming it (``path: reason``)."""
+    if exc.filename is None:
+        return exc.strerror or str(exc)
+    name = exc.filename if isinstance(exc.filename, (str, Path)) else os.fsdecode(exc.filename)
+    if exc.errno == errno.ENAMETOOLONG:
+        return f"{shown(name)}: {name_too_long(name) or 'its name is too long'}"
+    return f"{shown(name)}: {(exc.strerror or str(exc)).lower()}"
+
+
+def not_a_file(path: Path | str) -> str | None:
+    """Why ``path`` cannot be read as a file (no such file, a dangling symbolic link, a FIFO, a
+    device, a folder, a name too long), or None for a regular file (or a link to one)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            return name_too_long(path) or "its name is too long"
+        if os.path.islink(path):
+            return f"is a symbolic link to {shown(os.readlink(path))}, which does not exist"
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return "no such file"
+        return f"cannot read: {(exc.strerror or str(exc)).lower()}"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "is a folder, not a file"
+    kind = ("a FIFO (a named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a device")
+    return (f"is {kind}, not a file: tankviz reads files it can go back in (save the stream to "
+            "a file first; tankviz live reads a bus as it comes)")
+
+
+def check_input_path(path: Path | str) -> None:
+    """Refuse, before it is opened, an input whose name is too long, or that is a FIFO, a socket
+    or a device (:func:`not_a_file`): opening one waits for a writer, and its bytes cannot be
+    read again. Anything else (no such file, a folder) is told by the caller as it opens it."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            raise InputError(path, name_too_long(path) or "its name is too long") from None
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise InputError(path, str(not_a_file(path)))

@@ -29,7 +29,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from bridge.apps.options import Subparsers
-from bridge.errors import InputError
+from bridge.errors import InputError, check_input_path
 from bridge.frame import format_time
 from bridge.io.drives import BLOCK_SCHEMA
 from bridge.io.issues import summarize_issues
@@ -97,6 +97,7 @@ def summarize(stream: IO[bytes]) -> DriveSummary:
 
 def summarize_file(path: Path | str) -> DriveSummary:
     path = Path(path)
+    check_input_path(path)
     try:
         with path.open("rb") as stream:
             return summarize(stream)

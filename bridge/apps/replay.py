@@ -51,7 +51,7 @@ from bridge.apps.options import (
     install_stop_signals,
 )
 from bridge.decode.decoder import parse_dbc_option
-from bridge.errors import BridgeError, InputError, UsageError
+from bridge.errors import BridgeError, InputError, UsageError, check_input_path
 from bridge.frame import NS
 from bridge.io.drives import METADATA_NAME, ArchiveContents, ArchiveSource, read_drive
 from bridge.io.logs import LogSource, merge, supported_suffixes
@@ -313,6 +313,8 @@ def add_parser(sub: Subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    for path in args.files:  # a FIFO would be waited on: one line instead
+        check_input_path(path)
     mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
     if mcap and len(args.files) > 1:
         raise UsageError("replay: one MCAP at a time (CAN logs can be several)")

@@ -43,7 +43,7 @@ from mcap.reader import McapReader, make_reader
 from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from bridge.errors import InputError
+from bridge.errors import InputError, check_input_path
 from bridge.frame import NEVER_NS, Frame
 from bridge.io.logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
@@ -92,6 +92,7 @@ def _values(record: Metadata) -> dict[str, Any]:
 def _open(path: Path) -> IO[bytes]:
     if path.is_dir():
         raise InputError(path, "is a folder, not a drive (MCAP file)")
+    check_input_path(path)
     try:
         stream = path.open("rb")
     except FileNotFoundError:

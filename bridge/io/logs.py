@@ -55,7 +55,7 @@ import can
 from can.io.generic import MessageReader, TextIOMessageReader
 from can.io.player import MESSAGE_READERS
 
-from bridge.errors import InputError
+from bridge.errors import InputError, not_a_file
 from bridge.frame import Frame
 from bridge.io.blf import BlfReader, Bytes
 from bridge.io.candump import candump_error, error_frame
@@ -225,8 +225,8 @@ class LogSource:
             known = ", ".join(supported_suffixes())
             raise InputError(self.path, f"unknown log format {suffix or '(no suffix)'!r}; "
                              f"python-can reads {known}")
-        if not self.path.is_file():
-            raise InputError(self.path, "no such file")
+        if (why := not_a_file(self.path)) is not None:  # missing, a FIFO, a dangling link, …
+            raise InputError(self.path, why)
         self._size = self.path.stat().st_size
 
     def _format(self) -> str:
