@@ -27,7 +27,7 @@ import can
 
 from bridge.errors import OutputError
 from bridge.frame import Frame
-from bridge.sinks.outputs import publish
+from bridge.sinks.outputs import fitted_name, publish
 
 
 class _CompleteSqliteWriter(can.SqliteWriter):
@@ -58,7 +58,8 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str, *,
     them CAN FD."""
     replace = os.path.lexists(output) if force is None else force
     # python-can chooses its writer by the suffixes (exactly two for gzip): keep only those
-    base = output.name[:-len(suffix)].replace('.', '_')
+    base = fitted_name(output.name[:-len(suffix)].replace('.', '_'),
+                       len(f"._partial_{'9' * 16}-{'f' * 8}{suffix}"))  # (a name of 255 bytes)
     partial = output.with_name(f".{base}_partial_{os.getpid()}-{secrets.token_hex(4)}{suffix}")
     count = fd = 0
     try:

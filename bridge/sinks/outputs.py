@@ -4,17 +4,19 @@ inputs.
 :func:`check_output` refuses an output that is an input by any name (the same path, a symbolic
 or a hard link: :func:`same_file`), whatever ``--force`` says, one that exists (unless
 ``--force``) and one that cannot be written. :func:`atomic_output` writes a partial file of the
-run's own (``.<name>.<pid>-<random>.partial``, locked while it is written) and gives it its name
-when it is complete (:func:`publish`), so two runs writing one output never mix their bytes: with
-``--force`` the last to finish wins; without, the second keeps the first's file and fails saying
-so. Partial files that no run is writing any more (a killed run's) are removed by the next run
-(:func:`remove_stale_partials`).
+run's own (``.<name>.<pid>-<random>.partial``, locked while it is written; a long name is cut
+in it, so that any name a file may have can be written) and gives it its name when it is
+complete (:func:`publish`), so two runs writing one output never mix their bytes: with
+``--force`` the last to finish wins; without, the second keeps the first's file and fails
+saying so. Partial files that no run is writing any more (a killed run's) are removed by the
+next run (:func:`remove_stale_partials`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import secrets
@@ -27,7 +29,7 @@ try:
 except ImportError:  # Windows: no locks, so no partial file is ever taken for stale
     fcntl = None  # type: ignore[assignment]
 
-from bridge.errors import OutputError
+from bridge.errors import NAME_MAX, OutputError
 
 #: What tells one run's partial output from another's: ``<pid>-<random>``.
 _TOKEN = re.compile(r"\d+-[0-9a-f]+")
@@ -37,16 +39,38 @@ _NO_LINKS = {errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.E
 
 
 def partial_name(name: str, token: str) -> str:
-    """The hidden name an output ``name`` is written under by one run (``token``: the run's)."""
-    return f".{name}.{token}.partial"
+    """The hidden name an output ``name`` is written under by one run (``token``: the run's); a
+    name too long to take the additions is cut in it (:func:`fitted_name`)."""
+    return f".{fitted_name(name, _PARTIAL_ROOM)}.{token}.partial"
+
+
+#: The room a partial file's name keeps for ``.``, ``.<token>`` (25 bytes) and ``.partial``.
+_PARTIAL_ROOM = 1 + 1 + 25 + len(".partial")
+
+
+def fitted_name(name: str, room: int) -> str:
+    """``name``, or where it leaves less than ``room`` bytes of a file's name
+    (:data:`~bridge.errors.NAME_MAX`), its start with ``~`` and a hash of the whole: what the
+    hidden file an output is written under holds of the output's name."""
+    if len(os.fsencode(name)) + room <= NAME_MAX:
+        return name
+    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:12]
+    left = NAME_MAX - room - 1 - len(digest)
+    kept, size = [], 0
+    for char in name:
+        size += len(os.fsencode(char))
+        if size > left:
+            break
+        kept.append(char)
+    return f"{''.join(kept)}~{digest}"
 
 
 def is_partial_of(file_name: str, name: str) -> bool:
     """Whether ``file_name`` is a partial file of the output ``name``: one run's
     (:func:`partial_name`), or the bare ``.<name>.partial`` that earlier versions wrote."""
-    head, tail = f".{name}.", ".partial"
+    head, tail = f".{fitted_name(name, _PARTIAL_ROOM)}.", ".partial"
     if not (file_name.startswith(head) and file_name.endswith(tail)):
-        return False
+        return file_name == f".{name}.partial"
     token = file_name[len(head):len(file_name) - len(tail)]
     return file_name == f".{name}.partial" or _TOKEN.fullmatch(token) is not None
 
@@ -60,9 +84,10 @@ def same_file(a: Path | str, b: Path | str) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _lock(fd: int, *, wait: bool) -> bool:
+def lock(fd: int, *, wait: bool) -> bool:
     """An exclusive advisory lock on an open file (held until it is closed); False where it is
-    held by another run, or where the file system has no locks."""
+    held by another run, or where the file system has no locks. A file being written holds it
+    (a partial output, a part of a drive being recorded: :func:`being_written`)."""
     if fcntl is None:
         return False
     try:
@@ -70,6 +95,25 @@ def _lock(fd: int, *, wait: bool) -> bool:
     except OSError:
         return False
     return True
+
+
+def being_written(path: Path | str) -> bool:
+    """Whether a run holds the lock of the file ``path`` while it writes it (:func:`lock`)."""
+    if fcntl is None:
+        return False
+    try:  # (O_NONBLOCK: a FIFO does not wait for a writer)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # a file system without locks
+        return False
+    finally:
+        os.close(fd)
+    return False
 
 
 def remove_stale_partials(path: Path) -> list[Path]:
@@ -90,7 +134,7 @@ def remove_stale_partials(path: Path) -> list[Path]:
         except OSError:
             continue
         try:
-            if _lock(fd, wait=False) and os.stat(entry.path).st_ino == os.fstat(fd).st_ino:
+            if lock(fd, wait=False) and os.stat(entry.path).st_ino == os.fstat(fd).st_ino:
                 os.unlink(entry.path)
                 removed.append(Path(entry.path))
         except OSError:
@@ -106,7 +150,7 @@ def _create_partial(path: Path) -> tuple[Path, IO[bytes]]:
         partial = path.with_name(partial_name(path.name, f"{os.getpid()}-{secrets.token_hex(4)}"))
         fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
-            locked = _lock(fd, wait=True)
+            locked = lock(fd, wait=True)
             # Another run's cleanup may have taken it between its creation and its lock.
             if not locked or os.stat(partial).st_ino == os.fstat(fd).st_ino:
                 return partial, os.fdopen(fd, "wb")
