@@ -53,7 +53,7 @@ from bridge.bringup.census import Census, IdRow
 from bridge.bringup.columns import Columns, concat, data_frames
 from bridge.bringup.payload import PayloadWriter
 from bridge.decode.decoder import Decoded, Decoder
-from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame, frame_key
+from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.topics import (
     BITS_LABELS_TOPIC,
@@ -155,8 +155,6 @@ class BringUpMonitor:
         self._pieces: list[list[Any]] = []
         #: (bus, key) -> the unknown id, or None for a known one
         self._ids: dict[tuple[str, int], _Unknown | None] = {}
-        #: bus -> frame key -> its databases' message
-        self._messages: dict[str, dict[int, Any]] = {}
         #: each id's frames when its share of flips started to be counted
         self._frames_then: dict[tuple[str, int], int] = {}
         #: the block whose unknown rows are found (:meth:`on_rows`), and they: the rows files
@@ -411,13 +409,9 @@ class BringUpMonitor:
         return out
 
     def message(self, bus: str, key: int) -> Any:
-        """The database message of (bus, frame key), or None."""
-        table = self._messages.get(bus)
-        if table is None:
-            table = self._messages[bus] = {
-                frame_key(c.message.frame_id, c.message.is_extended_frame): c.message
-                for c in self.decoder.codecs_for(bus)}
-        return table.get(key)
+        """The database message of (bus, frame key), or None: the decoder's (a J1939 message's
+        for every source address of its PGN)."""
+        return self.decoder.message_of(bus, key)
 
     def topics(self, buses: Iterable[str]) -> list[tuple[str, Any]]:
         """Every topic it publishes on these buses, with its message class."""

@@ -1,4 +1,6 @@
-"""Decode: CAN frames to signals with cantools, by (bus, id), each bus with its own databases.
+"""Decode: CAN frames to signals with cantools, by (bus, id), each bus with its own databases; a
+J1939 message by its PGN from any source address (:mod:`bridge.decode.j1939`: a codec is made
+for each id of it seen, one topic and schema for all, the address in each decoded message).
 
 Every frame has one :class:`Outcome`: decoded, an unknown id (no database of its bus defines
 it), a decode error, an error frame or a remote frame. Those that do not decode are counted per
@@ -55,6 +57,7 @@ from bridge.decode.database import database_warnings as database_warnings
 from bridge.decode.database import layout as _layout
 from bridge.decode.database import load_database as load_database
 from bridge.decode.database import parse_dbc_option as parse_dbc_option
+from bridge.decode.j1939 import address_fields, address_suffix, is_j1939, pgn_key
 from bridge.decode.proto_schema import MessageSchema, identifier
 from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
@@ -108,7 +111,8 @@ class MessageCodec:
     def __init__(self, message: DbcMessage, database: DatabaseFile,
                  schema: Callable[[], MessageSchema], bus: str,
                  decoder: Callable[[], Callable[[bytes], Any]],
-                 column_decoder: Callable[[], DecodeColumn | None] | None = None) -> None:
+                 column_decoder: Callable[[], DecodeColumn | None] | None = None, *,
+                 j1939_id: int | None = None, derived: bool = False) -> None:
         self.message = message
         self.database = database
         self._schema = schema
@@ -119,6 +123,10 @@ class MessageCodec:
         self._column_made = column_decoder is None
         self.bus = bus
         self.topic = message_topic(bus, message.name)
+        #: a J1939 message: the id of its frames, whose addresses its decoded messages keep
+        self.j1939_id = j1939_id
+        #: a J1939 message's codec for another id than the database's (same topic, schema)
+        self.derived = derived
         self.length = message.length
         self.decoded = 0
         self.truncated = 0
@@ -147,7 +155,12 @@ class MessageCodec:
         return self._decode(data)
 
     def _first_encode(self, signals: Mapping[str, Any]) -> bytes:
-        self._encode = self.schema.encode
+        encode = self.schema.encode
+        if self.j1939_id is not None:
+            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses))
+            self._encode = lambda s: encode(s) + suffix
+        else:
+            self._encode = encode
         return self._encode(signals)
 
     def decode(self, data: bytes) -> Decoded:
@@ -317,23 +330,33 @@ class DecodeStats:
         def ids(counter: Counter[tuple[str, int]]) -> dict[str, int]:
             return {f"{bus}/0x{i:X}": n for (bus, i), n in sorted(counter.items())}
 
-        codecs = list(codecs)
+        codecs = sorted(codecs, key=lambda c: c.topic)  # (a J1939 message's: one topic)
+        decoded: Counter[str] = Counter()
+        truncated: Counter[str] = Counter()
+        longer: dict[str, dict[str, int]] = {}
+        non_finite: Counter[str] = Counter()
+        for c in codecs:
+            decoded[c.topic] += c.decoded
+            truncated[c.topic] += c.truncated
+            if c.longer:
+                seen = longer.setdefault(c.topic, {"frames": 0, "message_bytes": c.length,
+                                                   "longest": 0})
+                seen["frames"] += c.longer
+                seen["longest"] = max(seen["longest"], c.longest)
+            for name, n in sorted(c.non_finite.items()):
+                non_finite[f"{c.bus}/{c.message.name}.{name}"] += n
         return {
             "frames": dict(sorted(self.frames.items())),
-            "decoded": {c.topic: c.decoded for c in sorted(codecs, key=lambda c: c.topic)
-                        if c.decoded},
-            "truncated": {c.topic: c.truncated for c in codecs if c.truncated},
-            "longer": {c.topic: {"frames": c.longer, "message_bytes": c.length,
-                                 "longest": c.longest} for c in codecs if c.longer},
+            "decoded": {topic: n for topic, n in decoded.items() if n},
+            "truncated": {topic: n for topic, n in truncated.items() if n},
+            "longer": longer,
             "unknown_ids": ids(self.unknown),
             "decode_errors": ids(self.errors),
             "last_decode_error": {f"{bus}/0x{i:X}": text
                                   for (bus, i), text in sorted(self.last_error.items())},
             "error_frames": dict(sorted(self.error_frames.items())),
             "remote_frames": dict(sorted(self.remote_frames.items())),
-            "non_finite": {f"{c.bus}/{c.message.name}.{name}": n
-                           for c in sorted(codecs, key=lambda c: c.topic)
-                           for name, n in sorted(c.non_finite.items())},
+            "non_finite": dict(non_finite),
         }
 
 
@@ -347,6 +370,8 @@ class Decoder:
         #: compiled decoders by id of the DBC message (the databases keep the messages alive)
         self._decoders: dict[int, tuple[Callable[[bytes], Any], DecodeColumn | None]] = {}
         self._tables: dict[str, dict[int, MessageCodec]] = {}
+        #: per bus with J1939 messages, each PGN's (:func:`~bridge.decode.j1939.pgn_key`)
+        self._pgns: dict[str, dict[int, tuple[DatabaseFile, DbcMessage]]] = {}
         self._database_names: dict[str, str] = {}
         #: topic segment -> the buses that have it (:func:`~bridge.topics.bus_segment`)
         self._segments: dict[str, list[str]] = {}
@@ -400,9 +425,10 @@ class Decoder:
         return [c for table in self._tables.values() for c in table.values()]
 
     def codecs_for(self, bus: str) -> list[MessageCodec]:
-        """Every message the databases of ``bus`` define there."""
+        """Every message the databases of ``bus`` define there, each once."""
         table = self._tables.get(bus)
-        return list((table if table is not None else self._table(bus)).values())
+        table = table if table is not None else self._table(bus)
+        return [c for c in table.values() if not c.derived]
 
     def _files_for(self, bus: str | None) -> list[DatabaseFile]:
         files = list(self._databases.get(None, []))
@@ -452,7 +478,8 @@ class Decoder:
         key = (name, message.name)
         schema = self._schemas.get(key)
         if schema is None:
-            schema = self._schemas[key] = MessageSchema(message, name, self._pool)
+            addresses = address_fields(message) if is_j1939(message, database.db) else ()
+            schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses)
         return schema
 
     def _decoders_of(self, message: DbcMessage
@@ -469,24 +496,48 @@ class Decoder:
     def _column_decoder(self, message: DbcMessage) -> DecodeColumn | None:
         return self._decoders_of(message)[1]
 
+    def _codec(self, bus: str, f: DatabaseFile, message: DbcMessage, j1939_id: int | None,
+               derived: bool = False) -> MessageCodec:
+        return MessageCodec(message, f, partial(self._schema, f, message), bus,
+                            partial(self._decoder, message), partial(self._column_decoder, message),
+                            j1939_id=j1939_id, derived=derived)
+
     def _table(self, bus: str) -> dict[int, MessageCodec]:
         table: dict[int, MessageCodec] = {}
+        pgns: dict[int, tuple[DatabaseFile, DbcMessage]] = {}
         for f in self._files_for(bus if bus in self._databases else None):
             self._database_name(f)
             for message in f.db.messages:
                 key = frame_key(message.frame_id, message.is_extended_frame)
+                j1939 = is_j1939(message, f.db)
+                if j1939:
+                    pgns.setdefault(pgn_key(message.frame_id), (f, message))
                 if key not in table:
-                    codec = table[key] = MessageCodec(
-                        message, f, partial(self._schema, f, message), bus,
-                        partial(self._decoder, message), partial(self._column_decoder, message))
+                    codec = table[key] = self._codec(bus, f, message,
+                                                     message.frame_id if j1939 else None)
                     what = own_topic(bus, message.name)
                     if what is not None and message.name not in BUS_LEAVES:
                         self._moved.append(
                             f"{f.path}: message {message.name} (0x{message.frame_id:X}) would "
                             f"take {what} topic on bus {bus}: its signals go to {codec.topic}")
         self._segments.setdefault(bus_segment(bus), []).append(bus)
+        if pgns:
+            self._pgns[bus] = pgns
         self._tables[bus] = table
         return table
+
+    def _match(self, bus: str, key: int) -> MessageCodec | None:
+        """The codec of frame ``key`` on ``bus`` (whose table is made) that is no id of its
+        databases: a J1939 message's by the frame's PGN (made for that id), else None."""
+        pgns = self._pgns.get(bus)
+        if pgns is None or not key & EXTENDED_KEY:
+            return None
+        ident = key & ~EXTENDED_KEY
+        found = pgns.get(pgn_key(ident))
+        if found is None:
+            return None
+        codec = self._tables[bus][key] = self._codec(bus, *found, ident, derived=True)
+        return codec
 
     def decode(self, frame: Frame) -> Decoded | None:
         """Decode one frame, or count why it cannot be decoded (its :class:`Outcome`, which
@@ -499,6 +550,8 @@ class Decoder:
         # frame_key inlined (the per-frame path)
         codec = table.get(frame.arbitration_id | EXTENDED_KEY if frame.is_extended
                           else frame.arbitration_id)
+        if codec is None and frame.is_extended and bus in self._pgns:
+            codec = self._match(bus, frame.arbitration_id | EXTENDED_KEY)
         if codec is not None and not (frame.is_error or frame.is_remote):
             try:
                 return codec.decode(frame.data)
@@ -581,6 +634,8 @@ class Decoder:
         stats = self.stats
         stats.frames[bus] += n
         codec = table.get(key)
+        if codec is None and bus in self._pgns:
+            codec = self._match(bus, key)
         errors: dict[tuple[str, int], tuple[int, str]] = {}
         every = 0
         if flags is not None:
@@ -643,11 +698,19 @@ class Decoder:
 
     def knows(self, bus: str, key: int) -> bool:
         """Whether a database of ``bus`` defines the message of frame key ``key``
-        (:func:`~bridge.frame.frame_key`)."""
+        (:func:`~bridge.frame.frame_key`): its id, or a J1939 message its PGN. What the decoder,
+        the health counts and bring-up call a known id."""
+        return self.message_of(bus, key) is not None
+
+    def message_of(self, bus: str, key: int) -> DbcMessage | None:
+        """The database message that frames of ``key`` on ``bus`` decode as, or None."""
         table = self._tables.get(bus)
         if table is None:
             table = self._table(bus)
-        return key in table
+        codec = table.get(key)
+        if codec is None:
+            codec = self._match(bus, key)
+        return None if codec is None else codec.message
 
     def outcome(self, frame: Frame, decoded: Decoded | None) -> Outcome:
         """What :meth:`decode` made of ``frame``, given what it returned: for the latest frame
@@ -667,5 +730,6 @@ class Decoder:
         if table is None:
             table = self._table(frame.bus)
         # frame_key inlined (the health monitor's per-frame path, for frames fed by hand)
-        return (_DECODE_ERROR if (frame.arbitration_id | EXTENDED_KEY if frame.is_extended
-                                  else frame.arbitration_id) in table else _UNKNOWN_ID)
+        key = frame.arbitration_id | EXTENDED_KEY if frame.is_extended else frame.arbitration_id
+        return (_DECODE_ERROR if key in table or self._match(frame.bus, key) is not None
+                else _UNKNOWN_ID)

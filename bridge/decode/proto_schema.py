@@ -13,6 +13,9 @@ that its multiplexer does not select is simply absent:
   (a 64-bit raw value scaled by 2, or offset by 1), whose values beyond 2^53 are then rounded
   (:func:`rounded_range`; its database warns of it at load).
 
+A J1939 message also has its frame's addresses (``source_address``, and ``destination_address``
+for a PDU1 group) as ``uint32`` fields after the signals' (:mod:`bridge.decode.j1939`).
+
 :func:`compile_encoder` turns a generated type into a function that writes the protobuf wire
 format of cantools' decoded signals directly (tag, varint or zigzag varint or little-endian
 double, fields in number order, every present field written even when zero), without building a
@@ -55,7 +58,7 @@ class SignalField:
 
     signal: str
     field: str
-    kind: str  # "enum", "int" or "double"
+    kind: str  # "enum", "int", "double"; "address": a J1939 message's, no signal
 
 
 def _integer_range(signal: Signal) -> tuple[int, int] | None:
@@ -110,9 +113,11 @@ def _enum_values(signal_field: str, choices: dict[int, Any]) -> list[tuple[str, 
 
 
 def describe_message(
-    message: DbcMessage, package: str, file_name: str
+    message: DbcMessage, package: str, file_name: str, addresses: tuple[str, ...] = ()
 ) -> tuple[descriptor_pb2.FileDescriptorProto, list[SignalField]]:
-    """The .proto file (as a descriptor) for one DBC message, and how each signal maps to it."""
+    """The .proto file (as a descriptor) for one DBC message, and how each signal maps to it;
+    ``addresses`` (a J1939 message's, :mod:`bridge.decode.j1939`) become ``uint32`` fields after
+    the signals, of kind ``address`` (a signal of the same name makes one ``<name>_<number>``)."""
     proto = descriptor_pb2.FileDescriptorProto(name=file_name, package=package, syntax="proto3")
     type_name = identifier(message.name)
     out = proto.message_type.add(name=type_name)
@@ -153,6 +158,14 @@ def describe_message(
         else:
             field.type = FieldType.TYPE_DOUBLE
             fields.append(SignalField(signal.name, name, "double"))
+    for number, address in enumerate(addresses, start=len(message.signals) + 1):
+        name = address if address not in used else f"{address}_{number}"
+        used.add(name)
+        field = out.field.add(name=name, number=number, label=FieldType.LABEL_OPTIONAL,
+                              type=FieldType.TYPE_UINT32, proto3_optional=True,
+                              oneof_index=len(out.oneof_decl))
+        out.oneof_decl.add(name=f"_{name}")
+        fields.append(SignalField(address, name, "address"))
     return proto, fields
 
 
@@ -185,7 +198,7 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
     to the serialized message, byte for byte what the message class's ``SerializeToString``
     gives (see the module docstring); it falls back to the message class for anything else."""
     fallback = schema.serialize_with_protobuf
-    field_of = {f.signal: f.field for f in schema.fields}
+    field_of = {f.signal: f.field for f in schema.fields if f.kind != "address"}
     field_of.update(schema.renamed)  # a repeated signal name: the last one's field, as kwargs do
     source: dict[str, str] = {}
     for key, name in field_of.items():
@@ -269,10 +282,16 @@ class MessageSchema:
     """A DBC message's generated protobuf class and how to fill it from cantools' decoded dict."""
 
     def __init__(self, message: DbcMessage, database_name: str,
-                 pool: descriptor_pool.DescriptorPool) -> None:
+                 pool: descriptor_pool.DescriptorPool, addresses: tuple[str, ...] = ()) -> None:
         package = f"tankviz.dbc.{identifier(database_name)}"
         file_name = f"tankviz/dbc/{identifier(database_name)}/{identifier(message.name)}.proto"
-        proto, self.fields = describe_message(message, package, file_name)
+        proto, fields = describe_message(message, package, file_name, addresses)
+        #: how each signal is stored
+        self.fields = [f for f in fields if f.kind != "address"]
+        #: a J1939 message's address fields (name, number), written after the signals' by the
+        #: decoder (:func:`bridge.decode.j1939.address_suffix`)
+        self.addresses = tuple((f.field, len(self.fields) + i)
+                               for i, f in enumerate(fields[len(self.fields):], start=1))
         pool.Add(proto)
         self.full_name = f"{package}.{identifier(message.name)}"
         self.message_class: Any = message_factory.GetMessageClass(
@@ -301,4 +320,5 @@ class MessageSchema:
         """The signals present in a serialized message, keyed by signal name (for tests, tools)."""
         msg = self.message_class.FromString(data)
         by_field = {f.field: f.signal for f in self.fields}
+        by_field.update((name, name) for name, _ in self.addresses)
         return {by_field[d.name]: v for d, v in msg.ListFields()}
