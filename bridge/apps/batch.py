@@ -34,7 +34,7 @@ from typing import TextIO
 
 from bridge.apps.options import Subparsers, add_stage_options, dbc_option
 from bridge.decode.decoder import parse_dbc_option
-from bridge.errors import OutputError, UsageError
+from bridge.errors import OutputError, UsageError, shown
 from bridge.fleet.batch import (
     ConvertJob,
     JobResult,
@@ -51,6 +51,7 @@ from bridge.fleet.batch import (
     plan_jobs,
     progress_line,
     progress_topic,
+    refused_inputs,
     run_batch,
     slow_drives,
 )
@@ -109,15 +110,17 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--workers: a number ≥ 1, for the local cluster only (a --scheduler's "
                          "cluster has its own workers)")
     suffixes = supported_suffixes() if args.verb == "convert" else [".mcap"]
-    files = find_inputs(args.inputs, suffixes)
+    files, refused = refused_inputs(find_inputs(args.inputs, suffixes))
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise OutputError(out, "is not a folder")
     settings = _settings(args)
     jobs = plan_jobs(group_drives(files, suffixes, merge=args.verb == "convert"), out)
     todo, skipped = finished(jobs, force=args.force)
+    for path, why in refused:  # each a drive that fails: its file cannot be read
+        print(f"failed {shown(path)}: {why}")
     for job in skipped:
-        print(f"skipped {job.output}: finished already (--force converts it again)")
+        print(f"skipped {shown(job.output)}: finished already (--force converts it again)")
     started = time.monotonic()
     results: list[JobResult] = []
     if todo:
@@ -129,15 +132,17 @@ def run(args: argparse.Namespace) -> int:
             raise OutputError(out, f"cannot write: {exc.strerror or exc}") from None
         results = _run(args, todo, settings)
     failed = [r for r in results if r.error is not None]
+    written = len(results) - len(failed)
     frames = sum(r.frames for r in results)
     seconds = time.monotonic() - started
     rate = frames / seconds if seconds > 0 else 0.0
-    print(f"{_drives(len(jobs))}: {len(results) - len(failed)} written, {len(skipped)} skipped, "
-          f"{len(failed)} failed; {frames:,} frames in {seconds:.1f} s ({rate:,.0f} frames/s)")
+    total, failures = len(jobs) + len(refused), len(failed) + len(refused)
+    print(f"{_drives(total)}: {written} written, {len(skipped)} skipped, {failures} failed; "
+          f"{frames:,} frames in {seconds:.1f} s ({rate:,.0f} frames/s)")
     for line in input_issue_lines(results):
         print(line)
-    if failed:
-        print(f"error: {len(failed)} of {_drives(len(jobs))} failed", file=sys.stderr)
+    if failures:
+        print(f"error: {failures} of {_drives(total)} failed", file=sys.stderr)
         return 1
     return 0
 
@@ -151,8 +156,9 @@ class _BatchProgress:
         self.stream = stream if stream is not None else sys.stderr  # (the one of the moment)
         self.tty = self.stream.isatty()
         self.total = len(todo)
-        self.sizes = {j.output: input_bytes(j) for j in todo}
-        self.names = {j.output: j.name for j in todo}
+        # (by output as shown: the progress events name it so)
+        self.sizes = {shown(j.output): input_bytes(j) for j in todo}
+        self.names = {shown(j.output): shown(j.name) for j in todo}
         self.total_bytes = sum(self.sizes.values()) or 1
         self.running: dict[str, tuple[int, float]] = {}
         #: when each drive under way sent its first event
@@ -198,31 +204,32 @@ class _BatchProgress:
 
     def result(self, result: JobResult) -> None:
         job = result.job
+        output = shown(job.output)
         with self._lock:
-            self.running.pop(job.output, None)
-            self.since.pop(job.output, None)
-            self.finished.add(job.output)
+            self.running.pop(output, None)
+            self.since.pop(output, None)
+            self.finished.add(output)
             self.done += 1
             self.frames += result.frames
-            self.bytes += self.sizes.get(job.output, 0)
+            self.bytes += self.sizes.get(output, 0)
             if self.tty:
                 self.stream.write("\r\033[K")
                 self.stream.flush()
             if result.error is None:
-                self.written_bytes += self.sizes.get(job.output, 0)
+                self.written_bytes += self.sizes.get(output, 0)
                 self.written_seconds += result.seconds
                 worker = f" on worker {result.worker}" if result.worker else ""
                 damaged = (f"; {result.issues:,} input "
                            f"{'issue' if result.issues == 1 else 'issues'}"
                            if result.issues else "")
-                print(f"wrote {job.output}: {result.frames:,} frames from "
-                      f"{', '.join(job.inputs)} in {result.seconds:.1f} s{worker}{damaged}",
-                      flush=True)
+                print(f"wrote {output}: {result.frames:,} frames from "
+                      f"{', '.join(map(shown, job.inputs))} in {result.seconds:.1f} s{worker}"
+                      f"{damaged}", flush=True)
                 for text in result.warnings:
                     print(f"  warning: {text}", flush=True)
             else:
                 self.failed += 1
-                print(f"failed {job.output}: {result.error}", flush=True)
+                print(f"failed {output}: {result.error}", flush=True)
             self._draw()
 
     def close(self) -> None:

@@ -44,6 +44,7 @@ import contextlib
 import datetime
 import glob
 import importlib.util
+import itertools
 import logging
 import os
 import re
@@ -54,7 +55,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from bridge.errors import BridgeError, UsageError
+from bridge.errors import BridgeError, UsageError, not_a_file, os_error_text, shown
 from bridge.io.logs import LogSource
 
 if TYPE_CHECKING:
@@ -106,8 +107,8 @@ def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[
     wanted = ", ".join(suffixes)
 
     def add_folder(folder: Path) -> int:
-        files = [p for p in sorted(folder.rglob("*"))
-                 if p.is_file() and not p.name.startswith(".") and format_suffix(p, suffixes)]
+        files = [p for p in sorted(folder.rglob("*"))  # (a dangling link too: refused_inputs)
+                 if not p.is_dir() and not p.name.startswith(".") and format_suffix(p, suffixes)]
         for p in files:
             found.setdefault(p, folder)
         return len(files)
@@ -124,18 +125,33 @@ def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[
             for m in matches:
                 if m.is_dir():
                     add_folder(m)
-                elif m.is_file() and format_suffix(m, suffixes):
+                elif format_suffix(m, suffixes):
                     found.setdefault(m, m.parent)
         elif path.is_dir():
             if not add_folder(path):
                 raise UsageError(f"{text}: holds no {wanted} file")
-        elif path.is_file():
+        elif os.path.lexists(path):  # (a dangling link or a FIFO too: refused_inputs)
             found.setdefault(path, path.parent)
         else:
             raise UsageError(f"{text}: no such file or folder")
     if not found:
         raise UsageError(f"{' '.join(patterns)}: no {wanted} file found")
     return sorted(found.items())
+
+
+def refused_inputs(files: Sequence[tuple[Path, Path]]
+                   ) -> tuple[list[tuple[Path, Path]], list[tuple[Path, str]]]:
+    """The files of :func:`find_inputs` that can be read, and those that cannot with why (a
+    symbolic link to nothing, a FIFO: :func:`~bridge.errors.not_a_file`)."""
+    usable: list[tuple[Path, Path]] = []
+    refused: list[tuple[Path, str]] = []
+    for path, base in files:
+        why = not_a_file(path)
+        if why is None:
+            usable.append((path, base))
+        else:
+            refused.append((path, why))
+    return usable, refused
 
 
 def file_span(path: Path) -> Span:
@@ -348,7 +364,7 @@ def _progress_events(job: ConvertJob, topic: str | None
         now = time.monotonic()
         if now - last[0] >= PROGRESS_EVERY_S or fraction == 1.0:
             last[0] = now
-            worker.log_event(topic, {"output": job.output, "frames": frames,
+            worker.log_event(topic, {"output": shown(job.output), "frames": frames,
                                      "fraction": fraction})
 
     return progress
@@ -362,18 +378,41 @@ def convert_task(job: ConvertJob, convert: ConvertFunction, settings: Settings) 
     if progress is not None:
         progress(0, 0.0)  # under way: the client times the drive from here
     try:
+        if (twice := one_log_twice(job.inputs)) is not None:
+            return JobResult(job, error=twice, worker=_worker_name())
         report = convert(list(job.inputs), job.output, list(settings.dbc_options),
                          profile=settings.profile, scene_rate=settings.scene_rate,
                          force=settings.force, progress=progress, bring_up=settings.bring_up)
     except BridgeError as exc:
-        return JobResult(job, error=str(exc), worker=_worker_name())
+        return JobResult(job, error=shown(str(exc)), worker=_worker_name())
+    except OSError as exc:
+        error = os_error_text(exc) if exc.filename is not None else f"{job.inputs[0]}: {exc}"
+        return JobResult(job, error=shown(error), worker=_worker_name())
     except Exception as exc:  # a bug must not stop the other drives: it is reported with them
-        return JobResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}",
+        return JobResult(job, error=shown(f"{job.inputs[0]}: {type(exc).__name__}: {exc}"),
                            worker=_worker_name())
     return JobResult(job, report.frames, time.perf_counter() - started,
                        worker=_worker_name(), issues=len(report.issues),
-                       first_issue=str(report.issues[0]) if report.issues else "",
-                       warnings=tuple(report.input_warnings))
+                       first_issue=shown(str(report.issues[0])) if report.issues else "",
+                       warnings=tuple(shown(w) for w in report.input_warnings))
+
+
+def one_log_twice(inputs: Sequence[str]) -> str | None:
+    """Why a drive's files are not converted when two of them are one log saved twice (as BLF
+    and as ASC: :func:`bridge.pipeline.convert.same_frames` of their first frames), or None: a
+    drive made of both would record every frame twice, so the drive is refused, naming both."""
+    if len(inputs) < 2:
+        return None
+    from bridge.pipeline.convert import first_frames, same_frames
+
+    heads = [first_frames(Path(p)) for p in inputs]
+    for i, j in itertools.combinations(range(len(inputs)), 2):
+        if same_frames(heads[i], heads[j]):
+            return (f"{shown(inputs[i])} and {shown(inputs[j])} are one log saved twice (their "
+                    f"first {len(heads[i])} frames match in id, data and time): not converted, "
+                    "as the drive would hold every frame twice; convert one of them (tankviz "
+                    "convert FILE -o OUTPUT), or move the other out of the folder")
+    return None
 
 
 def input_issue_lines(results: Sequence[JobResult]) -> list[str]:
@@ -386,8 +425,9 @@ def input_issue_lines(results: Sequence[JobResult]) -> list[str]:
     lines = [f"input issues in {len(damaged)} of {len(written)} drives written (what a log "
              "could not give was skipped, the rest converted):"]
     for r in sorted(damaged, key=lambda r: r.job.name):
-        lines.append(f"  {r.job.name}: {r.issues:,} {'issue' if r.issues == 1 else 'issues'}, "
-                     f"the first {r.first_issue}; tankviz inspect {r.job.output} lists them")
+        lines.append(f"  {shown(r.job.name)}: {r.issues:,} "
+                     f"{'issue' if r.issues == 1 else 'issues'}, the first {r.first_issue}; "
+                     f"tankviz inspect {shown(r.job.output)} lists them")
     return lines
 
 
@@ -520,7 +560,7 @@ def run_batch(client: Client, jobs: Sequence[ConvertJob],
 
         client.subscribe_topic(topic, handler)  # type: ignore[no-untyped-call]
     token = uuid.uuid4().hex[:8]
-    futures = {client.submit(task, job, key=f"tankviz-drive-{job.name}-{token}", pure=False,
+    futures = {client.submit(task, job, key=f"tankviz-drive-{shown(job.name)}-{token}", pure=False,
                              retries=0): job for job in jobs}
     results = []
     try:
@@ -529,7 +569,8 @@ def run_batch(client: Client, jobs: Sequence[ConvertJob],
             try:
                 result: JobResult = future.result()
             except Exception as exc:  # the worker died (KilledWorker), or the task did not run
-                result = JobResult(job, error=f"{job.inputs[0]}: {type(exc).__name__}: {exc}")
+                result = JobResult(job, error=shown(f"{job.inputs[0]}: {type(exc).__name__}: "
+                                                    f"{exc}"))
             results.append(result)
             if on_result is not None:
                 on_result(result)

@@ -4,8 +4,9 @@
   frames``. Now the drive's line counts its input issues, and the summary names every drive
   with input issues, with their count, the first (the damaged container, its byte) and where all
   are listed.
-- One log in two formats (``trip.blf`` + ``trip.asc``) is one drive that records every frame
-  twice: its line warns, naming both files.
+- One log in two formats (``trip.blf`` + ``trip.asc``) was one drive that recorded every frame
+  twice (with a warning): now that drive is refused in one line naming both files (#33 item
+  12), and the other drives go on.
 - A drive that takes far longer than its size allows is named in the progress line.
 """
 
@@ -83,27 +84,47 @@ def test_the_summary_names_every_drive_with_damaged_inputs(tmp_path: Path) -> No
         f"tankviz inspect {tmp_path / 'out' / 'week' / 'bad.mcap'} lists them"]
 
 
-def test_a_batch_names_its_damaged_drive_and_warns_of_one_log_in_two_formats(
+def test_a_batch_names_its_damaged_drive_and_refuses_one_log_in_two_formats(
         broken: Path, write_log: WriteLog, tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
     trip = [write_log("trip.blf", frames(3000)), write_log("trip.asc", frames(3000))]
     write_log("good.blf", frames(3000))
     out = tmp_path / "out"
-    assert main(["batch", "convert", str(tmp_path), "--out", str(out), "--workers", "1"]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    assert main(["batch", "convert", str(tmp_path), "--out", str(out), "--workers", "1"]) == 1
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
     (wrote_broken,) = [line for line in lines if line.startswith(f"wrote {out / 'broken.mcap'}")]
     assert wrote_broken.endswith("; 1 input issue")
     (wrote_good,) = [line for line in lines if line.startswith(f"wrote {out / 'good.mcap'}")]
     assert "issue" not in wrote_good
-    at = lines.index("input issues in 1 of 3 drives written (what a log could not give was "
+    at = lines.index("input issues in 1 of 2 drives written (what a log could not give was "
                      "skipped, the rest converted):")
     assert lines[at + 1].startswith(f"  broken: 1 issue, the first {broken}:byte ")
     assert lines[at + 1].endswith(f"; tankviz inspect {out / 'broken.mcap'} lists them")
-    (wrote_trip,) = [i for i, line in enumerate(lines)
-                     if line.startswith(f"wrote {out / 'trip.mcap'}")]
-    assert lines[wrote_trip + 1] == (
-        f"  warning: {trip[1]} and {trip[0]} hold the same frames (their first 16 match in id, "
-        "data and time): the drive records each of them twice; convert one of the two")
+    # one log saved twice is not one drive holding every frame twice: it is refused, in one
+    # line naming both files, and the other drives go on (issue #33, item 12)
+    (failed_trip,) = [line for line in lines if line.startswith("failed")]
+    assert failed_trip == (
+        f"failed {out / 'trip.mcap'}: {trip[1]} and {trip[0]} are one log saved twice (their "
+        "first 16 frames match in id, data and time): not converted, as the drive would hold "
+        "every frame twice; convert one of them (tankviz convert FILE -o OUTPUT), or move the "
+        "other out of the folder")
+    assert not (out / "trip.mcap").exists()
+    assert "3 drives: 2 written, 0 skipped, 1 failed" in captured.out
+    assert captured.err.strip().splitlines()[-1] == "error: 1 of 3 drives failed"
+
+
+def test_the_bus_files_of_one_drive_are_not_taken_for_one_log_twice(
+        write_log: WriteLog, tmp_path: Path) -> None:
+    """``trip_can0.blf`` and ``trip_can1.blf``: one drive, each frame once."""
+    first = write_log("trip_can0.blf", frames(100))
+    second = write_log("trip_can1.blf", [can.Message(
+        timestamp=m.timestamp, arbitration_id=m.arbitration_id + 0x200, data=m.data, channel=1)
+        for m in frames(100)])
+    (tmp_path / "out").mkdir()
+    result = convert_task(job(tmp_path, "trip", first, second), convert,
+                          Settings((), None, None, False))
+    assert result.error is None and result.frames == 200
 
 
 # --- slow drives --------------------------------------------------------------------------------
