@@ -8,8 +8,9 @@ local cluster (``--workers`` processes, one per core by default) or on the clust
 ``--scheduler``.
 
 It prints one line per drive (``wrote``, with the count of its input issues (a damaged BLF
-container skipped, a line python-can cannot parse, ...) and any warning that its inputs are one
-log twice over; ``skipped``: finished already; ``failed`` with its one-line error) and a summary
+container skipped, a line python-can cannot parse, ...); ``skipped``: finished already;
+``failed`` with its one-line error: also a drive whose files are one log saved twice, or a file
+that cannot be read as one, a link to nothing) and a summary
 on stdout, which names every drive with input issues, with their count, the first and
 ``tankviz inspect OUTPUT`` for all of them
 (:func:`~bridge.fleet.batch.input_issue_lines`); on stderr where the work runs, the Dask

@@ -4,7 +4,11 @@ one conversion per drive on a Dask cluster (``tankviz batch``).
 - **Inputs** (:func:`find_inputs`): files, folders (searched recursively) and globs, keeping the
   files whose suffix is one of the formats asked for (CAN logs, or ``.mcap`` drives). Paths only:
   a URL (``s3://…``, any fsspec scheme but ``file://``) is refused with one line, since the
-  readers open local files; storage every worker sees must be mounted (NFS, SMB, s3fs, …).
+  readers open local files; storage every worker sees must be mounted (NFS, SMB, s3fs, …). A
+  file that cannot be read as one (a symbolic link to nothing, a FIFO) is a drive that fails,
+  saying why (:func:`refused_inputs`). A name that is not UTF-8 is carried as the file's own
+  path, and shown (Dask keys and events, results, lines) as ``\\xNN``
+  (:func:`bridge.errors.shown`): msgpack refuses the surrogates Python holds it with.
 - **Drives** (:func:`group_drives`): files in one folder whose names have the same *drive stem*
   (:func:`drive_stem`: the name without its format suffix and without trailing bus or part
   suffixes: ``_can1``, ``-CAN2``, ``_bus3``, ``_ch4``, ``_canfd0``, ``_part002``, ``.001``) are
@@ -21,9 +25,10 @@ one conversion per drive on a Dask cluster (``tankviz batch``).
   inode), are refused before anything runs.
 - **The run** (:func:`run_batch`): one Dask task per drive, without retries, each calling the
   conversion function it is given (``tankviz convert``'s own, :func:`convert_task`) with the
-  drive's inputs, which writes the output atomically (and refuses one file given twice, and warns
-  about inputs that are one log twice over, e.g. ``trip.blf`` and ``trip.asc``: see
-  :mod:`bridge.pipeline.convert`). A drive that fails (an error of its input or database, any
+  drive's inputs, which writes the output atomically (and refuses one file given twice: see
+  :mod:`bridge.pipeline.convert`). A drive whose files are one log saved twice (``trip.blf``
+  and ``trip.asc``) is refused, naming both (:func:`one_log_twice`): it would hold every frame
+  twice. A drive that fails (an error of its input or database, any
   exception, its worker dying) gives a :class:`JobResult` with its one-line error; the others
   go on. A drive written from inputs with issues (damaged or unreadable parts skipped, times
   that jump back) gives how many and the first (the batch's summary names each such drive:
