@@ -53,10 +53,13 @@ def own_topic(bus: str, message_name: str) -> str | None:
 
 
 def message_topic(bus: str, message_name: str) -> str:
-    """The decoded signals of one DBC message on one bus: ``/can/<bus>/<Message>``, or
-    ``/can/<bus>/msg/<Message>`` where that would be one of tankviz's own topics
-    (:func:`own_topic`). Every topic of a message is this function's."""
-    if own_topic(bus, message_name) is not None:
+    """The decoded signals of one DBC message on one bus: ``/can/<bus>/<Message>``, the name as
+    the database spells it, or ``/can/<bus>/msg/<Message>`` where that would be one of tankviz's
+    own topics (:func:`own_topic`); a name that starts with ``msg/`` (a KCD may have one) goes
+    there too, so that no two names share a topic. Every topic of a message is this
+    function's."""
+    if (own_topic(bus, message_name) is not None
+            or message_name.startswith(f"{MOVED_SEGMENT}/")):
         return f"/can/{bus_segment(bus)}/{MOVED_SEGMENT}/{message_name}"
     return f"/can/{bus_segment(bus)}/{message_name}"
 

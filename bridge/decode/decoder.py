@@ -58,7 +58,7 @@ from bridge.decode.database import layout as _layout
 from bridge.decode.database import load_database as load_database
 from bridge.decode.database import parse_dbc_option as parse_dbc_option
 from bridge.decode.j1939 import address_fields, address_suffix, is_j1939, pgn_key
-from bridge.decode.proto_schema import MessageSchema, identifier
+from bridge.decode.proto_schema import MessageSchema, identifier, type_names
 from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
 from bridge.topics import BUS_LEAVES, bus_segment, message_topic, own_topic
@@ -367,6 +367,8 @@ class Decoder:
         self._databases = {bus: list(files) for bus, files in databases.items()}
         self._pool = descriptor_pool.DescriptorPool()
         self._schemas: dict[tuple[str, str], MessageSchema] = {}
+        #: per database's part of the types' names, its messages' type names
+        self._type_names: dict[str, dict[str, str]] = {}
         #: compiled decoders by id of the DBC message (the databases keep the messages alive)
         self._decoders: dict[int, tuple[Callable[[bytes], Any], DecodeColumn | None]] = {}
         self._tables: dict[str, dict[int, MessageCodec]] = {}
@@ -479,7 +481,11 @@ class Decoder:
         schema = self._schemas.get(key)
         if schema is None:
             addresses = address_fields(message) if is_j1939(message, database.db) else ()
-            schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses)
+            types = self._type_names.get(name)
+            if types is None:
+                types = self._type_names[name] = type_names(database.db.messages)
+            schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses,
+                                                        types[message.name])
         return schema
 
     def _decoders_of(self, message: DbcMessage

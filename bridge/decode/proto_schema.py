@@ -1,7 +1,8 @@
 """Protobuf types generated at run time from DBC messages, so Foxglove can plot every signal.
 
 One message type per DBC message, in its own ``.proto`` file so each MCAP schema carries only its
-own definition: ``tankviz.dbc.<database>.<Message>`` in ``tankviz/dbc/<database>/<Message>.proto``.
+own definition: ``tankviz.dbc.<database>.<Message>`` in ``tankviz/dbc/<database>/<Message>.proto``
+(the name made an identifier, unique in its database: :func:`type_names`).
 Signals become proto3 ``optional`` fields (field numbers in DBC order), so a multiplexed signal
 that its multiplexer does not select is simply absent:
 
@@ -28,7 +29,7 @@ from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +51,23 @@ def identifier(name: str) -> str:
     if cleaned[0].isdigit():
         cleaned = f"_{cleaned}"
     return cleaned
+
+
+def type_names(messages: Iterable[DbcMessage]) -> dict[str, str]:
+    """Each message's type name (:func:`identifier` of its name), unique in its database: a
+    name that only its unsafe characters tell from an earlier one (``A-B``, ``A_B``) gets the
+    message's id in hex (``A_B_101``)."""
+    out: dict[str, str] = {}
+    used: set[str] = set()
+    for message in messages:
+        if message.name in out:
+            continue
+        name = identifier(message.name)
+        if name in used:
+            name = f"{name}_{message.frame_id:X}"
+        used.add(name)
+        out[message.name] = name
+    return out
 
 
 @dataclass(frozen=True)
@@ -119,7 +137,7 @@ def describe_message(
     ``addresses`` (a J1939 message's, :mod:`bridge.decode.j1939`) become ``uint32`` fields after
     the signals, of kind ``address`` (a signal of the same name makes one ``<name>_<number>``)."""
     proto = descriptor_pb2.FileDescriptorProto(name=file_name, package=package, syntax="proto3")
-    type_name = identifier(message.name)
+    type_name = file_name.rsplit("/", 1)[-1].removesuffix(".proto")
     out = proto.message_type.add(name=type_name)
     fields: list[SignalField] = []
     used: set[str] = set()
@@ -282,9 +300,11 @@ class MessageSchema:
     """A DBC message's generated protobuf class and how to fill it from cantools' decoded dict."""
 
     def __init__(self, message: DbcMessage, database_name: str,
-                 pool: descriptor_pool.DescriptorPool, addresses: tuple[str, ...] = ()) -> None:
+                 pool: descriptor_pool.DescriptorPool, addresses: tuple[str, ...] = (),
+                 type_name: str | None = None) -> None:
+        type_name = type_name or identifier(message.name)  # (:func:`type_names`)
         package = f"tankviz.dbc.{identifier(database_name)}"
-        file_name = f"tankviz/dbc/{identifier(database_name)}/{identifier(message.name)}.proto"
+        file_name = f"tankviz/dbc/{identifier(database_name)}/{type_name}.proto"
         proto, fields = describe_message(message, package, file_name, addresses)
         #: how each signal is stored
         self.fields = [f for f in fields if f.kind != "address"]
@@ -293,7 +313,7 @@ class MessageSchema:
         self.addresses = tuple((f.field, len(self.fields) + i)
                                for i, f in enumerate(fields[len(self.fields):], start=1))
         pool.Add(proto)
-        self.full_name = f"{package}.{identifier(message.name)}"
+        self.full_name = f"{package}.{type_name}"
         self.message_class: Any = message_factory.GetMessageClass(
             pool.FindMessageTypeByName(self.full_name)
         )

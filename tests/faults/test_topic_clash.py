@@ -195,3 +195,37 @@ def test_live_refuses_two_buses_that_share_a_topic_segment(tmp_path: Path) -> No
     assert run.returncode == 1, run.stderr
     assert run.stderr.strip() == ("error: --bus can.0 and --bus can_0 would share the topics "
                                   "/can/can_0/...: rename one")
+
+
+NAMES_KCD = """<NetworkDefinition xmlns="http://kayak.2codeornot2code.org/1.0">
+  <Document/>
+  <Bus name="b">
+    <Message id="0x100" name="A-B" length="8"><Signal name="T" offset="0" length="8"/></Message>
+    <Message id="0x101" name="A_B" length="8"><Signal name="S" offset="0" length="16"/></Message>
+    <Message id="0x102" name="frames" length="8"><Signal name="S" offset="0" length="8"/></Message>
+    <Message id="0x103" name="msg/frames" length="8"><Signal name="R" offset="8" length="8"/>
+    </Message>
+  </Bus>
+</NetworkDefinition>
+"""
+
+
+def test_names_that_differ_only_by_characters_made_safe_keep_apart(tmp_path: Path) -> None:
+    """A KCD may name messages A-B and A_B: their protobuf types were one (the second's never
+    built: every frame of it a decode error); and a message msg/frames took the topic that
+    frames moves to."""
+    path = tmp_path / "names.kcd"
+    path.write_text(NAMES_KCD)
+    decoder = Decoder({None: [load_database(path)]})
+    out = {}
+    for id_ in (0x100, 0x101, 0x102, 0x103):
+        decoded = decoder.decode(Frame(0, "can0", id_, bytes(range(1, 9))))
+        assert decoded is not None, decoder.stats.last_error
+        out[decoded.codec.message.name] = (decoded.codec.topic, decoded.codec.schema.full_name,
+                                           decoded.codec.schema.parse(decoded.payload))
+    assert out == {
+        "A-B": ("/can/can0/A-B", "tankviz.dbc.names.A_B", {"T": 1}),
+        "A_B": ("/can/can0/A_B", "tankviz.dbc.names.A_B_101", {"S": 0x0201}),
+        "frames": ("/can/can0/msg/frames", "tankviz.dbc.names.frames", {"S": 1}),
+        "msg/frames": ("/can/can0/msg/msg/frames", "tankviz.dbc.names.msg_frames", {"R": 2}),
+    }
