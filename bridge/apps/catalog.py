@@ -2,12 +2,14 @@
 
 ``tankviz catalog DRIVES... -o CATALOG`` (re)indexes (:func:`bridge.fleet.catalog.index`: only
 new or changed drives are read; ``--workers N`` or ``--scheduler ADDRESS`` read them on Dask) and
-prints one line per drive that could not be indexed (``skipped: <error>``) and a summary line;
-exit status 1 when a drive was not indexed. ``tankviz catalog query CATALOG "SQL"`` (or
-``--alarm ID``, ``--topic T``, ``--between T1 T2``) prints the answer as a table, then, for every
-row with a drive and a log time, the ``tankviz replay`` command and the Foxglove time to open it.
-(A drive file named ``query`` is given as ``./query``.) ``tankviz catalog --help`` shows the
-indexing options, ``tankviz catalog query --help`` the query's.
+prints one line per drive that could not be indexed (``skipped: <error>``), one per drive a
+recording is writing (``skipped <drive>: being recorded ...``, read once it is finished) and a
+summary line; exit status 1 when a drive was not indexed (one being recorded is not a failure).
+``tankviz catalog query CATALOG "SQL"`` (or ``--alarm ID``, ``--topic T``, ``--between T1 T2``)
+prints the answer as a table, then, for every row with a drive and a log time, the ``tankviz
+replay`` command and the Foxglove time to open it. (A drive file named ``query`` is given as
+``./query``.) ``tankviz catalog --help`` shows the indexing options, ``tankviz catalog query
+--help`` the query's.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import sys
 from pathlib import Path
 
 from bridge.apps.options import Subparsers
-from bridge.errors import UsageError
+from bridge.errors import UsageError, shown
 from bridge.fleet import catalog
 
 USAGE = """tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]
@@ -101,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
     report = catalog.index(args.output, items, reader=reader)
     for _, error in report.failed:
         print(f"skipped: {error}", file=sys.stderr)
-    print(report.summary(args.output))
+    for path in report.recording:
+        print(f"skipped {path}: being recorded (a recording is writing it): index it once the "
+              "drive has ended", file=sys.stderr)
+    print(shown(report.summary(args.output)))
     return 1 if report.failed else 0
 
 

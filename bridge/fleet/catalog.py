@@ -20,7 +20,11 @@ is not a tankviz drive (neither the metadata record nor a ``tankviz.Health`` cha
 (:func:`bridge.io.unreadable.why_unreadable`: empty, not MCAP, cut at which byte, …).
 
 A drive is keyed by its resolved path (symbolic links and ``..`` followed), so one file named two
-ways is indexed once.
+ways is indexed once; a name that is not UTF-8 as shown (``bad\\xe9.mcap``:
+:func:`bridge.errors.shown`), which DuckDB takes, and its open hint is bash's ``$'...'``. A drive
+a recording is writing (``tankviz live`` locks each part while it writes it) is not read, nor
+called cut: :class:`BeingRecorded`, indexed on a later run. A symbolic link to nothing in a
+folder is not indexed, saying so.
 
 Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since the epoch,
 ``*_s`` seconds since the drive's first message, which is ``tankviz replay --start``):
@@ -57,6 +61,7 @@ import difflib
 import glob
 import importlib
 import json
+import os
 import re
 import struct
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -68,13 +73,22 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from bridge.errors import BridgeError, InputError, UsageError
+from bridge.errors import (
+    BridgeError,
+    InputError,
+    OutputError,
+    UsageError,
+    name_too_long,
+    not_a_file,
+    shown,
+)
 from bridge.fleet.held import RECOVER_RECORD, held_metadata
 from bridge.frame import NS, format_time
 from bridge.io.drives import raw_frame_counts
 from bridge.io.unreadable import why_unreadable
 from bridge.pb import perception_pb2
 from bridge.sinks.mcap import METADATA_NAME
+from bridge.sinks.outputs import being_written
 from bridge.topics import LOG_TOPIC
 
 #: The one-line advice when Dask or DuckDB is missing.
@@ -225,9 +239,11 @@ class _Lead:
 
 def read_drive(path: Path | str) -> DriveRows:
     """Every table's rows for one tankviz MCAP drive (:class:`~bridge.errors.InputError` if it
-    is none)."""
+    is none), keyed by its resolved path as shown (:func:`~bridge.errors.shown`)."""
+    if (why := not_a_file(path)) is not None and not os.path.isdir(path):
+        raise InputError(path, why)
     path = Path(path).resolve()
-    drive = str(path)
+    drive = shown(path)
     try:
         stat = path.stat()
         with path.open("rb") as stream:
@@ -331,14 +347,24 @@ def _log_entry(t_ns: int, data: bytes) -> tuple[int, str, str]:
     return t_ns, log.name, log.message
 
 
-def read_drive_or_error(path: str) -> DriveRows | str:
-    """:func:`read_drive`, its error as its one-line message: what a Dask task returns."""
+@dataclass(frozen=True)
+class BeingRecorded:
+    """A drive that a recording is writing (it holds its lock: :mod:`bridge.sinks.drives`)."""
+
+    path: str
+
+
+def read_drive_or_error(path: str) -> DriveRows | BeingRecorded | str:
+    """:func:`read_drive`, its error as its one-line message: what a Dask task returns; a drive
+    being recorded is not read."""
+    if being_written(path):
+        return BeingRecorded(shown(path))
     try:
         return read_drive(path)
     except BridgeError as exc:
         return str(exc)
     except Exception as exc:
-        return f"{path}: cannot index: {type(exc).__name__}: {exc}"
+        return shown(f"{path}: cannot index: {type(exc).__name__}: {exc}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -365,26 +391,42 @@ def find_drives(inputs: Sequence[str]) -> list[Path]:
                     found[m.resolve()] = None
         elif path.is_dir():
             found.update(dict.fromkeys(_in_folder(path)))
-        elif path.exists():
-            found[path.resolve()] = None
+        elif os.path.lexists(path):
+            found[_resolved(path)] = None
         else:
             raise InputError(path, "no such file or folder")
     return list(found)
 
 
 def _in_folder(folder: Path) -> Iterator[Path]:
+    """The drives in a folder; a link to nothing too, which is told (:func:`read_drive`)."""
     for p in sorted(folder.rglob("*.mcap")):
-        if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts):
-            yield p.resolve()
+        if not p.is_dir() and not any(part.startswith(".")
+                                      for part in p.relative_to(folder).parts):
+            yield _resolved(p)
+
+
+def _resolved(path: Path) -> Path:
+    """The path resolved; a link to nothing is kept (in its resolved folder) to be told."""
+    return path.resolve() if path.exists() else path.parent.resolve() / path.name
+
+
+def _exists(drive: str) -> Path | None:
+    """The file of a catalogued drive (whose path may show bytes as ``\\xNN``), or None."""
+    if os.path.exists(drive):
+        return Path(drive)
+    raw = re.sub(rb"\\x([0-9a-f]{2})", lambda m: bytes([int(m[1], 16)]), os.fsencode(drive))
+    path = Path(os.fsdecode(raw))
+    return path if shown(path) == drive and path.exists() else None
 
 
 # ---------------------------------------------------------------------------------------------
 # Reading many drives: here or on Dask workers
 
-Reader = Callable[[Sequence[str]], Iterator[DriveRows | str]]
+Reader = Callable[[Sequence[str]], Iterator[DriveRows | BeingRecorded | str]]
 
 
-def read_here(paths: Sequence[str]) -> Iterator[DriveRows | str]:
+def read_here(paths: Sequence[str]) -> Iterator[DriveRows | BeingRecorded | str]:
     """Read drives one after the other in this process."""
     for p in paths:
         yield read_drive_or_error(p)
@@ -401,7 +443,7 @@ def dask_reader(*, workers: int | None = None, scheduler: str | None = None) -> 
     if workers is not None and workers < 1:
         raise UsageError(f"--workers {workers}: expected at least 1")
 
-    def read(paths: Sequence[str]) -> Iterator[DriveRows | str]:
+    def read(paths: Sequence[str]) -> Iterator[DriveRows | BeingRecorded | str]:
         if not paths:
             return
         if scheduler is not None:
@@ -437,6 +479,8 @@ def connect(catalog: Path | str, *, create: bool = False) -> Any:
         raise UsageError(f"the catalogue is a DuckDB file, and duckdb is not installed: "
                          f"{FLEET_EXTRA}") from None
     catalog = Path(catalog)
+    if (why := name_too_long(catalog)) is not None:  # (DuckDB's error would be pages)
+        raise (OutputError if create else InputError)(catalog, why)
     if not create and not catalog.is_file():
         raise InputError(catalog, "no such catalogue (make one with tankviz catalog DRIVES... "
                          f"-o {catalog})")
@@ -462,6 +506,8 @@ class IndexReport:
     removed: list[str] = field(default_factory=list)
     #: ``(path, one-line error)`` of every drive that could not be indexed
     failed: list[tuple[str, str]] = field(default_factory=list)
+    #: drives a recording is writing: not read (nor failed), indexed once they are finished
+    recording: list[str] = field(default_factory=list)
 
     @property
     def read(self) -> list[str]:
@@ -471,7 +517,8 @@ class IndexReport:
     def summary(self, catalog: Path | str) -> str:
         return (f"{catalog}: {len(self.new)} new, {len(self.changed)} changed, "
                 f"{len(self.unchanged)} unchanged, {len(self.removed)} removed, "
-                f"{len(self.failed)} not indexed")
+                f"{len(self.failed)} not indexed"
+                + (f", {len(self.recording)} being recorded" if self.recording else ""))
 
 
 def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_here
@@ -485,20 +532,29 @@ def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_h
     try:
         known = {p: (size, mtime) for p, size, mtime in
                  con.execute("SELECT path, size, mtime_ns FROM drives").fetchall()}
-        to_read: list[str] = []
+        to_read: list[str] = []  # (the files' own paths: the keys show them, :func:`shown`)
         for f in files:
-            key, stat = str(f), f.stat()
-            if key not in known or known[key] != (stat.st_size, stat.st_mtime_ns):
-                to_read.append(key)
+            key = shown(f)
+            try:
+                stat = f.stat()
+            except OSError:  # (a link to nothing: reading it says so)
+                stat = None
+            if stat is None or known.get(key) != (stat.st_size, stat.st_mtime_ns):
+                to_read.append(str(f))
             else:
                 report.unchanged.append(key)
         for p in sorted(known):
-            if not Path(p).exists() or str(Path(p).resolve()) != p:  # gone, or not resolved
+            file = _exists(p)
+            if file is None or shown(file.resolve()) != p:  # gone, or not resolved
                 _delete(con, p)  # (indexed before paths were: the resolved one is read now)
                 report.removed.append(p)
         for result in reader(to_read):
+            if isinstance(result, BeingRecorded):
+                report.recording.append(result.path)
+                continue
             if isinstance(result, str):
-                path = next((p for p in to_read if result.startswith(p + ":")), result)
+                path = next((shown(p) for p in to_read if result.startswith(shown(p) + ":")),
+                            result)
                 report.failed.append((path, result))
                 if path in known:  # changed into something unreadable: not what it was
                     _delete(con, path)
@@ -666,9 +722,16 @@ class OpenHint:
 
 
 def _quote(path: str) -> str:
+    """A drive's path as a shell reads it back: a name with bytes that are not UTF-8 (shown as
+    ``\\xNN``) in bash's ``$'...'``."""
     import shlex
 
-    return shlex.quote(path)
+    file = _exists(path)
+    if file is None or str(file) == path:
+        return shlex.quote(path)
+    escaped = {"\\": "\\\\", "'": "\\'"}
+    return "$'" + "".join(f"\\x{ord(c) - 0xDC00:02x}" if "\udc80" <= c <= "\udcff"
+                          else escaped.get(c, c) for c in str(file)) + "'"
 
 
 def open_hints(answer: Answer) -> list[OpenHint | None]:

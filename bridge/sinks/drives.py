@@ -65,6 +65,7 @@ from bridge.frame import timestamp
 from bridge.health.alarms import AlarmKind, Notice, alarm_notice
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.mcap import METADATA_NAME, Recorder
+from bridge.sinks.outputs import lock
 from bridge.sinks.raw import RawBlock
 from bridge.topics import LOG_TOPIC
 
@@ -81,11 +82,13 @@ def free_bytes(folder: Path) -> int:
 
 class _PartFile(io.RawIOBase):
     """A part's file: a write the disk has no room for calls ``release`` (which frees the
-    reserve) and is retried; :attr:`full` then says that the disk filled."""
+    reserve) and is retried; :attr:`full` then says that the disk filled. It is locked while it
+    is open: a part being recorded, not one cut short (``tankviz catalog`` tells them apart)."""
 
     def __init__(self, path: Path, release: Callable[[], bool]) -> None:
         super().__init__()
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        lock(self._fd, wait=False)  # held while it is written: tankviz catalog leaves it alone
         self._release = release
         self.full = False
 
