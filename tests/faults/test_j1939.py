@@ -160,6 +160,7 @@ def test_convert_decodes_every_source_and_bring_up_calls_none_unknown(
     assert len(by_topic["/can/can0/EEC1"]) == 60
     assert {m.source_address for m in by_topic["/can/can0/EEC1"]} == {0xFE, 0x00, 0x01}
     assert "/can/can0/unknown" not in by_topic
+    assert by_topic["/health"][-1].buses[0].unknown_ids_total == 0  # health agrees
     rows = by_topic["/can/can0/ids"][-1].rows
     assert len(rows) == len({f.arbitration_id for f in frames()})
     assert [row.message for row in rows if row.message not in ("EEC1", "CCVS1", "TSC1")] == []
