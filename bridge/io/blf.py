@@ -212,9 +212,17 @@ class BlfReader(can.BLFReader):
                 damage_at = None
                 self._lost, self._tail = True, b""
             at = self._at
-            if not self._fill(size):
-                self._damaged(at, "the file ends in the middle of an object; frames in it are "
-                              "lost", "stop", "file cut short")
+            if not self._fill(size):  # the file is cut: the buffer holds the rest of it
+                kind = _OBJ.unpack_from(self._buffer)[4]
+                if kind == blf.LOG_CONTAINER and len(self._buffer) > _OBJ.size + _CONTAINER.size:
+                    yield from self._container(bytes(self._buffer), at, cut=True)
+                    self._damaged(at, "the file ends in the middle of an object (a log "
+                                  "container: its frames before the cut are kept); frames in it "
+                                  "after the cut are lost", "stop", "file cut short")
+                else:
+                    self._damaged(at, "the file ends in the middle of an object; frames in it "
+                                  "are lost", "stop", "file cut short")
+                self._tail = b""
                 break
             obj = bytes(self._buffer[:size])
             self._drop(size)
@@ -231,8 +239,9 @@ class BlfReader(can.BLFReader):
                           "are lost", "stop", "file cut short")
         self.stop()
 
-    def _container(self, obj: bytes, at: int) -> Iterator[can.Message]:
-        """The frames of the log container ``obj`` found at byte ``at`` of the file."""
+    def _container(self, obj: bytes, at: int, cut: bool = False) -> Iterator[can.Message]:
+        """The frames of the log container ``obj`` found at byte ``at`` of the file (``cut``: its
+        start only, the file ends in it)."""
         method, _ = _CONTAINER.unpack_from(obj, _OBJ.size)
         packed = obj[_OBJ.size + _CONTAINER.size:]
         if method == blf.NO_COMPRESSION:
@@ -241,7 +250,7 @@ class BlfReader(can.BLFReader):
             unpack = zlib.decompressobj()
             try:
                 data = unpack.decompress(packed, _MAX_CONTAINER)
-                if not unpack.eof:
+                if not unpack.eof and not cut:
                     raise zlib.error("the compressed data ends early" if not
                                      unpack.unconsumed_tail else "too much data")
             except zlib.error as exc:

@@ -39,7 +39,6 @@ microseconds (python-can's float seconds resolve a quarter of one at Unix-epoch 
 
 from __future__ import annotations
 
-import gzip
 import heapq
 import io
 import itertools
@@ -59,6 +58,7 @@ from bridge.errors import InputError, not_a_file
 from bridge.frame import Frame
 from bridge.io.blf import BlfReader, Bytes
 from bridge.io.candump import candump_error, error_frame
+from bridge.io.gzipped import GzipReader
 
 #: The bus name for frames whose log names no channel (CSV, SQLite, some error frames).
 DEFAULT_BUS = "can0"
@@ -214,6 +214,7 @@ class LogSource:
     _size: int = field(default=0, repr=False)
     _where: Callable[[], str] = field(default=lambda: "", repr=False)
     _warnings: _Warnings | None = field(default=None, repr=False)
+    _gzip: GzipReader | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -321,17 +322,39 @@ class LogSource:
             assert isinstance(raw, io.FileIO)
             self._raw = raw
             binary: IO[bytes] = io.BufferedReader(raw, buffer_size=1 << 16)
-            if gzipped:
-                binary = gzip.GzipFile(fileobj=binary, mode="rb")  # type: ignore[assignment]
+            self._gzip = GzipReader(binary) if gzipped else None
+            if self._gzip is not None:
+                binary = io.BufferedReader(self._gzip, buffer_size=1 << 16)
+            text = issubclass(reader_type, TextIOMessageReader) and suffix in _LINE_FORMATS
+            issues = len(self.issues)
             try:
-                if issubclass(reader_type, TextIOMessageReader) and suffix in _LINE_FORMATS:
-                    text = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
-                    yield from self._text(reader_type, text, suffix)
+                if text:
+                    lines = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
+                    yield from self._text(reader_type, lines, suffix)
                 else:
                     yield from self._binary(reader_type, binary)
-            except (OSError, EOFError, zlib.error) as exc:  # also gzip.BadGzipFile
+            except (OSError, EOFError, zlib.error) as exc:
                 self._problem("", f"cannot read the file any further: {exc}", "stop",
                               "file unreadable from here")
+            if self._gzip is not None:
+                self._unpacked(self._gzip, self._where() if text else f"byte {self._gzip.unpacked}",
+                               self.issues[issues:])
+
+    def _unpacked(self, unpacking: GzipReader, where: str, told: list[SourceIssue]) -> None:
+        """Reports how the unpacking of a gzipped log ended, at ``where`` (the place in the log
+        where it ends): cut (unless the reader told it cut already, in ``told``), damaged, or
+        with a failed check."""
+        where = where if unpacking.unpacked else ""
+        if unpacking.failed_check is not None:
+            self._problem(where, f"damaged data: {unpacking.failed_check}", "damage",
+                          "gzip check failed")
+        if unpacking.cut and not any(i.group == "file cut short" for i in told):
+            self._problem(where, f"the file is cut short: it ends inside its gzip compression, "
+                          f"after {unpacking.unpacked:,} bytes of the log; what followed is lost",
+                          "stop", "file cut short")
+        elif unpacking.problem is not None:
+            self._problem(where, f"cannot read the file any further: {unpacking.problem}",
+                          "stop", "file unreadable from here")
 
     def _text(self, reader_type: type[MessageReader], text: Iterator[str],
               suffix: str) -> Iterator[can.Message]:
@@ -341,6 +364,13 @@ class LogSource:
         candump = reader_type is can.CanutilsLogReader
         checked = 0  # the lines up to this one are accounted for (a fresh reader reads some again)
         warned = self._warnings
+        cut = False  # the last line, without its newline, is reported
+
+        def cut_short(line: int, what: str) -> None:
+            nonlocal cut
+            cut = True
+            self._problem(f"line {line}", f"the file ends in the middle of this line (no "
+                          f"newline): cut short, {what}", "stop", "file cut short")
 
         def damage(line: int, content: str) -> None:
             """A line with zero bytes: damaged data, whatever python-can made of it."""
@@ -357,6 +387,8 @@ class LogSource:
                 said = warned.take(f"line {line}") if warned is not None else []
                 if "\0" in content:
                     damage(line, content)
+                elif not content.endswith("\n") and (quiet is None or not quiet.match(content)):
+                    cut_short(line, "python-can makes no frame of it")
                 elif said:  # python-can's word for it, in the order of the lines
                     for text in said:
                         self._problem(f"line {line}", f"skipped: python-can says "
@@ -382,9 +414,7 @@ class LogSource:
                         lines.header = None
                     lines.framed = True
                     if lines.cut:
-                        self._problem(f"line {lines.line}", "the file ends in the middle of this "
-                                      "line (no newline): cut short, its frame is not kept",
-                                      "stop", "file cut short")
+                        cut_short(lines.line, "its frame is not kept")
                         continue
                     if "\0" in lines.text:
                         damage(lines.line, lines.text)
@@ -394,6 +424,8 @@ class LogSource:
                         message = error_frame(message)
                     yield message
                 lines.done()
+                if lines.cut and not cut:  # a blank line or a comment, cut short
+                    cut_short(lines.line, "whatever followed is lost")
                 return
             except Exception as exc:  # python-can raises anything from ValueError to IndexError
                 if isinstance(exc, (InputError, OSError, EOFError, zlib.error)):
@@ -407,7 +439,9 @@ class LogSource:
                                       f"line {failed_at} ({type(exc).__name__}: {exc}): the rest "
                                       "of the file is not read", "stop", "cannot read on")
                     return
-                if lines.ended:  # python-can failed at the end of the file (inside its header)
+                if lines.ended or (lines.cut and bad_line == lines.line):
+                    # python-can failed at the end of the file (inside its header), or on its
+                    # last line, cut short
                     how = "in the middle of this line (no newline)" if lines.cut else \
                         "after this line"
                     self._problem(f"line {bad_line}", f"the file ends {how}: cut short, "
@@ -449,6 +483,8 @@ class LogSource:
         except InputError:
             raise
         except Exception as exc:
+            if self._gzip is not None and (self._gzip.cut or self._gzip.problem is not None):
+                return  # the unpacking ended early: it says why
             if not stream.offset:  # as every other format says an empty file
                 raise InputError(self.path, "no CAN frames in this file (an empty file)") from exc
             raise InputError(self.path, " ".join(

@@ -160,6 +160,26 @@ def test_a_damaged_object_inside_a_container_loses_only_that_object(blf: Path) -
     assert "damaged object" in issue.reason
 
 
+@pytest.mark.parametrize("part", [0.1, 0.5, 0.99])
+def test_a_blf_cut_inside_a_log_container_keeps_its_frames_before_the_cut(
+        blf: Path, part: float) -> None:
+    whole = blf.read_bytes()
+    spans = list(containers(whole))
+    offset, size, _ = spans[4]
+    end = offset + 32 + int(part * (size - 32))  # in the container's compressed data
+    blf.write_bytes(whole[:end])
+    # the frames of the containers before, and the bytes of this one zlib gives up to the cut
+    before = sum(len(data) for _, _, data in spans[:4])
+    given = zlib.decompressobj().decompress(whole[offset + 32:end])
+
+    frames, source = read(blf)
+
+    assert [number(f) for f in frames] == list(range((before + len(given)) // 48))
+    (issue,) = source.issues
+    assert (issue.where, issue.kind, issue.group) == (f"byte {offset}", "stop", "file cut short")
+    assert issue.reason.startswith("the file ends in the middle of an object (a log container")
+
+
 @pytest.mark.parametrize("flags", [1, 2])
 def test_a_blf_frame_with_an_impossible_time_is_reported_and_the_rest_converts(
         blf: Path, tmp_path: Path, flags: int) -> None:

@@ -16,6 +16,8 @@ import json
 import subprocess
 import sys
 import textwrap
+import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -187,3 +189,107 @@ def test_a_trc_cut_in_its_header_is_one_error_saying_where_it_ends(
     assert str(error.value) == (
         f"{path}: no CAN frames in this file (line {line}: the file ends {how}: cut short, "
         "python-can cannot read it (ValueError: File has no column information))")
+
+
+# --- a gzipped log cut short (issue #33, item 6) ---
+
+#: Where a gzipped log is cut: its byte count, from the size of the whole .gz.
+GZ_CUTS: dict[str, Callable[[int], int]] = {
+    "in the gzip header": lambda size: 5,
+    "in the middle": lambda size: size // 2,
+    "a third in": lambda size: size // 3,
+    "just before the gzip trailer": lambda size: size - 8,  # the data whole, no CRC and size
+    "in the gzip trailer": lambda size: size - 3,
+}
+
+
+def gzipped_formats() -> list[str]:
+    return [s for s in supported_suffixes() if s.endswith(".gz")]
+
+
+def said(source: LogSource) -> list[tuple[str, str, str, str]]:
+    """The issues of a source without its path: (where, reason, kind, group)."""
+    return [(i.where, i.reason, i.kind, i.group) for i in source.issues]
+
+
+@pytest.mark.parametrize("where", GZ_CUTS)
+@pytest.mark.parametrize("suffix", gzipped_formats())
+def test_a_gzipped_log_cut_keeps_every_frame_before_the_cut_and_says_it_is_cut(
+        tmp_path: Path, suffix: str, where: str) -> None:
+    path = simulated(tmp_path / f"drive{suffix}", 4.0)
+    full = list(LogSource(path))
+    packed = path.read_bytes()
+    cut = packed[:GZ_CUTS[where](len(packed))]
+    path.write_bytes(cut)
+    # the same bytes unzipped: every byte of the log before the cut
+    plain = tmp_path / f"plain{suffix.removesuffix('.gz')}"
+    plain.write_bytes(zlib.decompressobj(zlib.MAX_WBITS | 16).decompress(cut))
+
+    if where == "in the gzip header":
+        with pytest.raises(InputError) as error:
+            list(LogSource(path))
+        assert str(error.value) == (
+            f"{path}: no CAN frames in this file (the file is cut short: it ends inside its gzip "
+            "compression, after 0 bytes of the log; what followed is lost)")
+        return
+    source = LogSource(path)
+    frames = list(source)
+
+    assert frames == full[:len(frames)]
+    unzipped = LogSource(plain)
+    assert frames == list(unzipped)  # all the frames the same bytes unzipped give
+    if where in {"in the middle", "a third in"}:  # told as a cut of the unzipped log is
+        assert said(source) == said(unzipped)
+        assert [i.group for i in source.issues] == ["file cut short"]
+        assert len(frames) > len(full) // 4
+    else:  # every frame is there, but the file is still cut (its check is lost)
+        assert frames == full
+        assert said(source) == [(
+            f"line {plain.read_text().count(chr(10))}" if suffix != ".blf.gz" else
+            f"byte {plain.stat().st_size}",
+            f"the file is cut short: it ends inside its gzip compression, after "
+            f"{plain.stat().st_size:,} bytes of the log; what followed is lost", "stop",
+            "file cut short")]
+
+
+@pytest.mark.parametrize("suffix", gzipped_formats())
+def test_a_gzipped_log_cut_in_its_first_two_bytes_says_it_is_cut(tmp_path: Path,
+                                                                 suffix: str) -> None:
+    path = tmp_path / f"drive{suffix}"
+    path.write_bytes(b"\x1f")
+    with pytest.raises(InputError, match=r"no CAN frames in this file .the file is cut short"):
+        list(LogSource(path))
+
+
+@pytest.mark.parametrize("suffix", [".log.gz", ".blf.gz"])
+def test_a_gz_that_is_no_gzip_or_fails_its_check_is_one_line(tmp_path: Path, suffix: str) -> None:
+    path = simulated(tmp_path / f"drive{suffix}", 1.0)
+    full = list(LogSource(path))
+    packed = bytearray(path.read_bytes())
+    packed[-8] ^= 0xFF  # the CRC of the data
+    path.write_bytes(packed)
+    source = LogSource(path)
+    frames = list(source)
+    assert frames == full  # the frames are kept, but the check is told
+    (issue,) = source.issues
+    assert "fails its check" in issue.reason and issue.kind == "damage"
+
+    path.write_bytes(b"this is no gzip at all\n")
+    with pytest.raises(InputError, match=r"no CAN frames in this file .*it is no gzip data"):
+        list(LogSource(path))
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".log", ".trc", ".csv"])
+def test_a_text_log_cut_in_any_line_says_once_it_is_cut(tmp_path: Path, suffix: str) -> None:
+    path = simulated(tmp_path / f"drive{suffix}", 1.0)
+    whole = path.read_bytes()
+    for at in range(len(whole) // 2, len(whole) // 2 + 120, 7):  # every part of a few lines
+        path.write_bytes(whole[:at])
+        source = LogSource(path)
+        frames = list(source)
+        whole_line = whole[at - 1] in b"\r\n"  # (a CR of a CR LF is a newline too)
+        lines = tmp_path / f"lines{suffix}"  # its whole lines
+        lines.write_bytes(whole[:at] if whole_line else whole[:whole.rindex(b"\n", 0, at) + 1])
+        assert frames == list(LogSource(lines))
+        groups = [i.group for i in source.issues]
+        assert groups == ([] if whole_line else ["file cut short"]), (at, whole[at - 30:at])
