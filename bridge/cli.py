@@ -10,12 +10,14 @@ The ``TANKVIZ_*`` settings are checked first, for every command and for ``--help
 Every user error is a :class:`~bridge.errors.BridgeError`, printed as one ``error: …`` line with
 exit status 1; ``--debug`` shows the traceback instead. So is an error of the system about a file
 (an ``OSError`` naming it: a name too long, no permission, …). A name that is not UTF-8 is shown
-with its bytes as ``\\xNN`` (:func:`~bridge.errors.shown`).
+with its bytes as ``\\xNN`` (:func:`~bridge.errors.shown`), in every line a command prints: its
+output streams encode so (:data:`~bridge.errors.SHOWN_ERRORS`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 import traceback
@@ -23,7 +25,7 @@ from collections.abc import Sequence
 
 from bridge import __version__
 from bridge.apps.options import check_environment
-from bridge.errors import BridgeError, os_error_text, shown
+from bridge.errors import SHOWN_ERRORS, BridgeError, os_error_text, shown
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -90,6 +92,9 @@ def build_parser(command: str | None = None, *, every: bool = False) -> argparse
 
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = list(argv) if argv is not None else sys.argv[1:]
+    for stream in (sys.stdout, sys.stderr):  # a name that is not UTF-8 prints as \xNN
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors=SHOWN_ERRORS)  # type: ignore[union-attr]
     try:
         check_environment()  # a TANKVIZ_* setting may make no sense
         parser = build_parser(chosen_command(arguments))

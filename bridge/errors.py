@@ -51,6 +51,7 @@ caught there) and ``_Unreadable`` (bridge.apps.recover_records, caught by the re
 
 from __future__ import annotations
 
+import codecs
 import errno
 import os
 import stat
@@ -114,6 +115,23 @@ def shown(path: Path | str) -> str:
         except UnicodeEncodeError:  # a surrogate no file name decoded into
             return text.encode("utf-8", "backslashreplace").decode("ascii")
     return text
+
+
+def _shown_on_encode(exc: UnicodeError) -> tuple[str, int]:
+    """The codec error handler :data:`SHOWN_ERRORS`: a byte of a name that is not UTF-8 (held as
+    a surrogate) as ``\\xNN``, any other character the output cannot hold as Python escapes it."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    text = exc.object[exc.start:exc.end]
+    return "".join(f"\\x{ord(c) - 0xDC00:02x}" if "\udc80" <= c <= "\udcff"
+                   else c.encode("ascii", "backslashreplace").decode("ascii")
+                   for c in text), exc.end
+
+
+#: The errors handler of the command's output: what it prints of a name that is not UTF-8 (or
+#: of any text its terminal cannot show) reads as :func:`shown` writes it, never a traceback.
+SHOWN_ERRORS = "tankviz.shown"
+codecs.register_error(SHOWN_ERRORS, _shown_on_encode)
 
 
 def name_too_long(path: Path | str) -> str | None:

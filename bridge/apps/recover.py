@@ -85,7 +85,7 @@ from bridge.apps.recover_records import (
     _Unreadable,
 )
 from bridge.apps.recover_salvage import _Salvage
-from bridge.errors import InputError, OutputError, check_input_path
+from bridge.errors import InputError, OutputError, check_input_path, shown
 from bridge.frame import format_time
 from bridge.sinks.mcap import FastWriter as Writer  # mcap's Writer, faster add_message
 from bridge.sinks.outputs import atomic_output, check_output
@@ -150,7 +150,7 @@ def recover_file(broken: Path | str, fixed: Path | str, *, force: bool = False,
     except OSError as exc:
         raise InputError(broken, f"cannot read: {exc.strerror or exc}") from None
     with source, atomic_output(fixed, force=force) as stream:
-        return recover(source, stream, source_name=str(broken), progress=progress)
+        return recover(source, stream, source_name=shown(broken), progress=progress)
 
 
 def format_report(report: RecoverReport, broken_path: Path | str, fixed_path: Path | str) -> str:

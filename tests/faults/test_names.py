@@ -121,6 +121,24 @@ def test_an_error_about_a_name_that_is_not_utf8_shows_it(
     assert err[-1] == f"error: {tmp_path}/{SHOWN}.blf: no such file"
 
 
+def test_every_command_prints_a_name_that_is_not_utf8_readably(
+        drives: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """(capsys encodes strictly, as Python does on a UTF-8 terminal but in the C locale.)"""
+    bad = bytes_name(drives, BAD + b".mcap")
+    log = bytes_name(tmp_path, BAD + b".blf")
+    capsys.readouterr()
+    for argv, line in (
+            (["simulate", "-o", str(log), "--duration", "1"], f"wrote {tmp_path}/{SHOWN}.blf"),
+            (["convert", str(log), "-o", str(bytes_name(tmp_path, BAD + b"2.mcap"))],
+             f"wrote {tmp_path}/{SHOWN}2.mcap"),
+            (["inspect", str(bad)], f"file:      {drives}/{SHOWN}.mcap"),
+            (["recover", str(bad), "-o", str(bytes_name(tmp_path, BAD + b"3.mcap"))],
+             f"wrote {tmp_path}/{SHOWN}3.mcap")):
+        assert main(argv) == 0, argv
+        out = printable(capsys.readouterr().out)
+        assert line in out, (argv, out)
+
+
 # --- names too long ----------------------------------------------------------------------------
 
 LONG = "x" * 260
