@@ -14,6 +14,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import can
 import cantools
 import pytest
 from conftest import T0, WriteLog, message
@@ -301,4 +302,22 @@ def test_check_says_a_group_that_saw_nothing(capsys: pytest.CaptureFixture[str],
     code, out, err = run(capsys, "profile", "check", str(PROFILES / "bosch_radar.toml"),
                          str(log), "--dbc", str(dbc))
     assert code == 0, err
-    assert "  radar: no valid object" in out
+    # which rule never held, and with what values (#33 item 3)
+    assert ("  radar: no valid object: rule 'Valid == 1 and ProbExist > 70' held in 0 of 1 "
+            "judgements; ProbExist was 0..0; Valid was 0..0") in out.splitlines()
+
+
+def test_check_says_when_no_frame_of_the_log_decoded(
+        capsys: pytest.CaptureFixture[str], shared_dbc: Path, write_log: WriteLog) -> None:
+    # #33 item 12: a log none of whose ids the databases know said only "no valid object"
+    dbc = shared_dbc / "tesla_radar_bosch.dbc"
+    log = write_log("drive.blf", [can.Message(timestamp=T0 + k * 0.1, arbitration_id=0x7F0,
+                                              data=bytes(8), is_extended_id=False)
+                                  for k in range(5)])
+    code, out, err = run(capsys, "profile", "check", str(PROFILES / "bosch_radar.toml"),
+                         str(log), "--dbc", str(dbc))
+    assert code == 0, err
+    assert ("log: 5 frames, 0 decoded: none of their ids is in the databases (the wrong log, "
+            "or the wrong bus?); valid objects per group (vehicle frame, m):") in out
+    assert ("  radar: no valid object: none of its messages (RadarPoint{i}_A + RadarPoint{i}_B) "
+            "decoded") in out.splitlines()

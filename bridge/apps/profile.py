@@ -28,9 +28,11 @@ from __future__ import annotations
 
 import argparse
 import os
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from bridge.apps.options import Subparsers, dbc_option
 from bridge.errors import BridgeError
@@ -39,9 +41,18 @@ from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.draft import TODO, draft_profile
 from bridge.profile.loader import load_profile
-from bridge.profile.model import Computed, ObjectGroup, Profile, ProfileError, SignalRef
+from bridge.profile.model import (
+    Computed,
+    ObjectGroup,
+    Profile,
+    ProfileError,
+    Rule,
+    SignalRef,
+)
 from bridge.sinks.base import Serialized, Sink
 from bridge.world.lateral import LateralVerdict
+from bridge.world.observe import ObjectObservation
+from bridge.world.pages import PageStats
 
 # --- profile new --------------------------------------------------------------------------------
 
@@ -122,10 +133,15 @@ def _group_lines(name: str, g: ObjectGroup) -> list[str]:
     rules = {r.text for r in g.valid.values()}
     rule = next(iter(rules)) if len(rules) == 1 else (f"{len(rules)} rules, one per object"
                                                       if rules else "none: every object valid")
+    paged = {m.template: g.pages[message].multiplexors for message, m in g.members.items()
+             if message in g.pages}
     return [f"  {name}: sensor {g.sensor.name} ({g.sensor.kind.value}), role "
             f"{'tracks' if g.is_tracks else 'detections'}, {' + '.join(g.templates)} {where}",
             f"    {', '.join(fields)}",
-            f"    valid: {rule}; lifetime {g.lifetime_s:g} s"]
+            f"    valid: {rule}; lifetime {g.lifetime_s:g} s",
+            *(f"    pages of {template} (multiplexor {', '.join(by)}) merged per object "
+              f"{'id' if g.id is not None and not indices else 'slot'} within a cycle"
+              for template, by in paged.items())]
 
 
 def format_mapping(profile: Profile, databases: Sequence[str]) -> str:
@@ -174,6 +190,42 @@ class GroupStats:
     y: list[float] = field(default_factory=lambda: [float("inf"), float("-inf")])
 
 
+@dataclass
+class RuleStats:
+    """How one group's objects fared when evaluated (each time their signals changed)."""
+
+    #: evaluations without a position
+    no_position: int = 0
+    #: evaluations that judged the validity rule, and those where it held
+    judged: int = 0
+    held: int = 0
+    rule: str = ""
+    #: per name the rule reads: in how many judgements it was missing; the least and the most
+    #: it was (numbers)
+    missing: Counter[str] = field(default_factory=Counter)
+    least: dict[str, float] = field(default_factory=dict)
+    most: dict[str, float] = field(default_factory=dict)
+
+    def note(self, made: ObjectObservation | None, rule: Rule | None,
+             values: Mapping[str, Any]) -> None:
+        """One evaluation of an object (:data:`~bridge.world.observe.Watcher`)."""
+        if made is None:
+            self.no_position += 1
+            return
+        if rule is None:
+            return
+        self.judged += 1
+        self.held += made.valid
+        self.rule = rule.text
+        for name in sorted(rule.names):
+            value = values.get(name)
+            if value is None:
+                self.missing[name] += 1
+            elif isinstance(value, (int, float)):
+                self.least[name] = min(self.least.get(name, value), value)
+                self.most[name] = max(self.most.get(name, value), value)
+
+
 class CheckSink(Sink):
     """A sink of a drive that watches the world at every scene tick for the object statistics of
     each group. Records nothing."""
@@ -198,16 +250,83 @@ class CheckSink(Sink):
                     stats.y[0], stats.y[1] = min(stats.y[0], obs.y), max(stats.y[1], obs.y)
 
 
+def _signals_in_order(group: ObjectGroup, names: Iterable[str]) -> list[str]:
+    """``names`` in the order the group's fields read them (others after, by name)."""
+    order = [signal for ref in (group.x, group.y, group.range, group.azimuth, group.vx,
+                                group.vy, group.probability, group.class_signal, group.id)
+             if ref is not None for _, signal in ref.signals]
+    return sorted(names, key=lambda n: (order.index(n) if n in order else len(order), n))
+
+
+def _counted(group: ObjectGroup, counts: Counter[str], of: int, what: str) -> str:
+    """``A, B missing in 3 of 10 cycles``, or ``A missing in 3, B in 2 of 10 cycles``."""
+    names = _signals_in_order(group, counts)
+    if len({counts[n] for n in names}) == 1:
+        return f"{', '.join(names)} missing in {counts[names[0]]:,} of {of:,} {what}"
+    return ("missing: " + ", ".join(f"{n} in {counts[n]:,}" for n in names)
+            + f" of {of:,} {what}")
+
+
+def _pages_line(group: ObjectGroup, pages: PageStats) -> str:
+    """What merging the group's pages lacked (``pages`` with incomplete cycles)."""
+    messages = ", ".join(pages.messages)
+    head = (f"no cycle of {messages} had every page" if pages.incomplete == pages.cycles
+            else f"{pages.incomplete:,} of {pages.cycles:,} cycles of {messages} lacked a page")
+    text = f"{head}: {_counted(group, pages.missing, pages.cycles, 'cycles')}"
+    rule = _signals_in_order(group, pages.rule & set(pages.missing))
+    if pages.unjudged:
+        why = f"the rule reads {', '.join(rule)}" if rule else "no position"
+        text += f" ({why}: not judged)"
+    return text
+
+
+def why_none(group: ObjectGroup, rules: RuleStats | None, pages: PageStats | None,
+             decoded: set[str]) -> str:
+    """Why a group had no valid object: its messages never came, its pages never made a
+    whole cycle, no position, or its rule never held (with what it read)."""
+    if decoded.isdisjoint(group.members):
+        return f"none of its messages ({' + '.join(group.templates)}) decoded"
+    reasons = []
+    if pages is not None and pages.incomplete:
+        reasons.append(_pages_line(group, pages))
+    if rules is not None and rules.judged and not rules.held:
+        text = f"rule '{rules.rule}' held in 0 of {rules.judged:,} judgements"
+        if rules.missing:
+            text += "; " + _counted(group, rules.missing, rules.judged, "judgements")
+        ranges = [f"{n} was {rules.least[n]:g}..{rules.most[n]:g}"
+                  for n in _signals_in_order(group, rules.least)]
+        reasons.append("; ".join([text, *ranges]))
+    elif rules is not None and rules.no_position and not rules.judged:
+        fields = [f"{label} {_field(ref)}" for label, ref in (
+            ("x", group.x), ("y", group.y), ("range", group.range), ("azimuth", group.azimuth))
+            if ref is not None]
+        reasons.append(f"no position in {rules.no_position:,} evaluations ({', '.join(fields)}"
+                       " missing or not finite)")
+    return "; ".join(reasons)
+
+
 def format_stats(frames: int, stats: dict[str, GroupStats], verdicts: Sequence[LateralVerdict],
-                 profile: Profile) -> str:
-    """Per group: valid objects and their x/y ranges; per sensor: the lateral sign verdict."""
-    lines = [f"log: {frames:,} frames; valid objects per group (vehicle frame, m):"]
+                 profile: Profile, *, decoded: int | None = None,
+                 why: Mapping[str, str] | None = None,
+                 pages: Mapping[str, PageStats] | None = None) -> str:
+    """Per group: valid objects and their x/y ranges (none: ``why``; pages that lacked some:
+    ``pages``); per sensor: the lateral sign verdict. A log none of whose frames ``decoded``
+    says so: the wrong log, or the wrong bus."""
+    head = f"log: {frames:,} frames"
+    if decoded == 0 and frames:
+        head += (", 0 decoded: none of their ids is in the databases (the wrong log, or the "
+                 "wrong bus?)")
+    lines = [f"{head}; valid objects per group (vehicle frame, m):"]
     for name, s in stats.items():
         if not s.ids:
-            lines.append(f"  {name}: no valid object")
+            reason = (why or {}).get(name, "")
+            lines.append(f"  {name}: no valid object" + (f": {reason}" if reason else ""))
             continue
         lines.append(f"  {name}: {len(s.ids)} objects (ids/slots), {len(s.observations):,} "
                      f"observations; x {s.x[0]:.1f}..{s.x[1]:.1f}, y {s.y[0]:.1f}..{s.y[1]:.1f}")
+        paged = (pages or {}).get(name)
+        if paged is not None and paged.incomplete:
+            lines.append(f"    {_pages_line(profile.groups[name], paged)}")
     lines.append("lateral sign:")
     lines += [f"  {v.message}" for v in verdicts]
     if not verdicts:
@@ -226,16 +345,29 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
         return _with_warnings(out, stages.decoder.warnings())
     sources = [LogSource(p) for p in logs]
     drive = Drive(Stages(stages.decoder, profile))
-    assert drive.pipeline.perception is not None
-    sink = CheckSink(drive.pipeline.perception)
+    perception = drive.pipeline.perception
+    assert perception is not None
+    sink = CheckSink(perception)
     drive.add(sink)
+    observer = perception.observer
+    rules: dict[str, RuleStats] = {}
+    observer.watch(lambda group, made, rule, values: rules.setdefault(
+        group.name, RuleStats()).note(made, rule, values))
     frames = drive.run(merge(sources))
     drive.finish()
+    observer.close()
+    pages = observer.page_stats()
+    codecs = stages.decoder.codecs()
+    decoded = {c.message.name for c in codecs if c.decoded}
+    why = {name: why_none(g, rules.get(observer.aliases.get(name, name)), pages.get(name),
+                          decoded)
+           for name, g in profile.groups.items() if not sink.groups[name].ids}
     # the health monitor runs the lateral sign check of every drive (bridge.world.lateral)
     lateral = drive.health.lateral
     verdicts = lateral.verdicts() if lateral is not None else []
-    return _with_warnings(out + "\n" + format_stats(frames, sink.groups, verdicts, profile),
-                          stages.decoder.warnings())
+    return _with_warnings(out + "\n" + format_stats(
+        frames, sink.groups, verdicts, profile, decoded=sum(c.decoded for c in codecs),
+        why=why, pages=pages), stages.decoder.warnings())
 
 
 def _with_warnings(text: str, warnings: Sequence[str]) -> str:

@@ -53,6 +53,7 @@ from bridge.profile.model import (
     Mount,
     ObjectClass,
     ObjectGroup,
+    Pages,
     Profile,
     ProfileError,
     Rule,
@@ -502,14 +503,38 @@ class _Loader(ValueReader):
         classes = self.classes(t, key)
         rules = self.rules(t, key, family)
         f = {field: self.family_field(t, key, field, family) for field in _GROUP_FIELDS}
+        pages = self.pages(key, family, f["id"])
         return ObjectGroup(
             name=name, sensor=sensor, templates=family.templates, members=family.members,
             x=f["x"], y=f["y"], range=f["range"], azimuth=f["azimuth"], vx=f["vx"], vy=f["vy"],
             probability=f["probability"], class_signal=f["class"], classes=classes, id=f["id"],
             valid=rules,
             lifetime_s=self.number(t, key, "lifetime", lifetime, non_negative=True, **SECONDS),
-            role=role,
+            role=role, pages=pages,
         )
+
+    def pages(self, key: str, family: _Family, ident: Field | None) -> dict[str, Pages]:
+        """The multiplexed messages of the family and their pages. Without an index range the
+        id tells the pages of one object from another's: it must be in every page."""
+        pages: dict[str, Pages] = {}
+        for messages in family.instances.values():
+            for m in messages:
+                if not m.is_multiplexed():
+                    continue
+                pages[m.name] = Pages(
+                    tuple(s.name for s in m.signals if s.is_multiplexer),
+                    frozenset(s.name for s in m.signals if s.multiplexer_ids is not None))
+                if ident is None or None not in family.instances:
+                    continue
+                for message, name in ident.signals:
+                    s = m.get_signal_by_name(name) if message == m.name else None
+                    if s is not None and s.multiplexer_ids is not None:
+                        which = ", ".join(map(str, s.multiplexer_ids))
+                        raise self.fail(f"{key}.id", f"{name} is only in page {which} of "
+                                        f"{m.name} (multiplexor {s.multiplexer_signal}): a "
+                                        "page without it cannot be told which object it is; "
+                                        "the id must be in every page")
+        return pages
 
     def templates(self, t: Mapping[str, Any], key: str) -> tuple[str, ...]:
         """``messages``: one message name or several, each once (templates with {i})."""

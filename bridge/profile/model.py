@@ -288,6 +288,18 @@ class FamilyMember:
 
 
 @dataclass(frozen=True)
+class Pages:
+    """A multiplexed message of an object family: sent in pages, each a value of its multiplexor
+    signal(s) and carrying some of its signals; the pages of one object are merged within a
+    cycle (:mod:`bridge.world.pages`)."""
+
+    #: the multiplexor signals: their values say which page a frame is
+    multiplexors: tuple[str, ...]
+    #: the signals only some pages carry (the others are in every page)
+    paged: frozenset[str]
+
+
+@dataclass(frozen=True)
 class ObjectGroup:
     """A group of objects (detections of one sensor, or tracks) from a family of messages.
 
@@ -321,6 +333,8 @@ class ObjectGroup:
     #: "detections" or "tracks" (red, labelled, candidates for ``[lead] source = "tracks"``);
     #: None: from the sensor's kind (fusion: tracks, else detections)
     role: str | None = None
+    #: each multiplexed message of the family (by name) and its pages; empty: none is
+    pages: Mapping[str, Pages] = field(default_factory=dict)
 
     @property
     def is_tracks(self) -> bool:

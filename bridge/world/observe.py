@@ -29,6 +29,11 @@ time of the newest position. Values equal by ``==`` make the same observation (a
 as value·scale + offset, so -0.0 reads as 0.0; a class or id as an int; a rule compares), and a
 value that is not equal to itself (NaN) is evaluated every time.
 
+The pages of a multiplexed message of an object family (:attr:`ObjectGroup.pages
+<bridge.profile.model.ObjectGroup.pages>`) are merged per object and cycle first
+(:mod:`bridge.world.pages`); each merged cycle is observed as one message. Such messages are
+observed frame by frame (:attr:`Observer.every_frame`).
+
 A validity rule that cannot be evaluated (a division by zero: :meth:`Rule.judge
 <bridge.profile.model.Rule.judge>`) leaves the object or lane line out, as a rule that does
 not hold does; its observation says why in ``rule_error``, and the world counts it per group
@@ -50,9 +55,11 @@ from bridge.profile.model import (
     ObjectClass,
     ObjectGroup,
     Profile,
+    Rule,
     Sensor,
     expand,
 )
+from bridge.world.pages import PageMerger, PageStats
 
 
 def to_vehicle(sensor: Sensor, x: float, y: float) -> tuple[float, float]:
@@ -138,6 +145,11 @@ class EgoObservation:
 
 
 Observation = ObjectObservation | LaneObservation | EgoObservation
+
+#: What :meth:`Observer.watch` calls with each evaluation of an object: its group, what it made
+#: (None: no position), its validity rule (None: none) and the values the rule read (by its
+#: names; a missing one left out).
+Watcher = Callable[[ObjectGroup, ObjectObservation | None, Rule | None, dict[str, Any]], None]
 
 #: The group name under which the lead vehicle's own messages are observed.
 LEAD_GROUP = "lead"
@@ -328,6 +340,24 @@ class _Object:
                 key.append((found,) if part.single else found)
         return tuple(key)
 
+    def rule_values(self) -> dict[str, Any]:
+        """The values the validity rule reads (by its names; a missing one left out)."""
+        rule = self.rule
+        if rule is None:
+            return {}
+        latest = self.latest
+        values: dict[str, Any] = {}
+        for name in self.rule_sources:
+            found = next((v for v in map(latest.get, self.names)
+                          if v is not None and name in v), None)
+            if found is not None:
+                values[name] = found[name]
+        for name, message, signal in rule.qualified:
+            found = latest.get(message)
+            if found is not None and signal in found:
+                values[name] = found[signal]
+        return values
+
     def valid(self) -> tuple[bool, str]:
         """Whether the object is valid, and why its rule could not be evaluated ("" if it
         could)."""
@@ -376,6 +406,8 @@ class _GroupReader:
         #: one radar's slots as detections and as tracks): each of its observations is theirs
         #: too, under their name (:func:`_reading`)
         self.aliases: list[str] = []
+        #: what merging the pages of its multiplexed messages made (:mod:`bridge.world.pages`)
+        self.page_stats = PageStats()
 
     def note(self, member: FamilyMember, message: str, values: Mapping[str, Any],
              t_ns: int) -> _Object:
@@ -486,6 +518,50 @@ class _GroupReader:
                                  object_class, rule_error)
 
 
+class _Paged:
+    """A multiplexed message of an object family, for one group: its pages merged per object
+    (its id; in an indexed family, its message) and cycle (:class:`PageMerger`), each merged
+    cycle observed as one message."""
+
+    __slots__ = ("ident", "member", "merger", "message", "reader")
+
+    def __init__(self, reader: _GroupReader, member: FamilyMember, message: str) -> None:
+        self.reader, self.member, self.message = reader, member, message
+        group = reader.group
+        pages = group.pages[message]
+        obj = reader.object(member.index)
+        reads = frozenset(dict(obj.reads).get(message, ()))
+
+        def paged(*refs: Field | None) -> frozenset[str]:
+            return frozenset(signal for ref in refs if ref is not None
+                             for m, signal in ref.signals if m == message) & pages.paged
+
+        rule: frozenset[str] = frozenset()
+        if obj.rule is not None:
+            rule = (frozenset(obj.rule_sources) | frozenset(
+                signal for _, m, signal in obj.rule.qualified if m == message)) & pages.paged
+        self.merger = PageMerger(pages.multiplexors, reads & pages.paged,
+                                 paged(obj.x, obj.y, obj.range, obj.azimuth), rule,
+                                 reader.page_stats)
+        reader.page_stats.messages[member.template] = pages.multiplexors
+        #: the id that tells one object's pages from another's (without an index range)
+        self.ident = group.id if member.index is None else None
+
+    def observe(self, values: Mapping[str, Any], t_ns: int, out: list[Observation]) -> None:
+        key: float | None = None
+        if self.ident is not None:
+            key = self.ident.value({self.message: values})
+            if key is None:
+                return  # no object to give the page to (an id that is not finite)
+        reader = self.reader
+        for merged, at_ns in self.merger.take(key, values, t_ns):
+            made = reader.observe(self.member, self.message, merged, at_ns)
+            if made is not None:
+                out.append(made)
+                if reader.aliases:
+                    reader.also(made, out)
+
+
 def copies(a: Mapping[int, ObjectObservation], b: Mapping[int, ObjectObservation]) -> bool:
     """Whether two groups' objects (by id) are the same observations under two names: each
     field the very same value (``is``: what :meth:`_GroupReader.also` makes, and nothing that
@@ -528,9 +604,15 @@ class Observer:
                 readers.append(_GroupReader(group))
         if profile.lead is not None and profile.lead.group is not None:
             readers.append(_GroupReader(replace(profile.lead.group, name=LEAD_GROUP)))
+        self._readers = readers
+        #: each multiplexed message of an object family: its pages merged, for each group
+        self._paged: dict[str, list[_Paged]] = {}
         for reader in readers:
             for name, member in reader.group.members.items():
-                self._objects.setdefault(name, []).append((reader, member))
+                if name in reader.group.pages:
+                    self._paged.setdefault(name, []).append(_Paged(reader, member, name))
+                else:
+                    self._objects.setdefault(name, []).append((reader, member))
         #: per message: each object it is for (made here, once), the object's reader and
         #: whether it is the family's first message (its time is the object's position's)
         #: each group observed with another (:func:`_reading`) -> that group
@@ -554,23 +636,55 @@ class Observer:
         self._ego_latest: dict[str, Mapping[str, Any]] = {}
         #: every message name this observer uses, to skip the rest cheaply
         self._lanes_and_ego = frozenset(self._lanes) | frozenset(self._ego)
-        self.messages = frozenset(self._objects) | self._lanes_and_ego
+        self.messages = frozenset(self._objects) | frozenset(self._paged) | self._lanes_and_ego
         #: whether a message of objects is read by a lane line or an ego value too
         self._objects_and_more = not self._lanes_and_ego.isdisjoint(self._objects)
         #: messages of object groups without an index range: each frame may be another object
-        #: (its id signal says which), so every frame counts, not only the newest of its name
+        #: (its id signal says which), so every frame counts, not only the newest of its name;
+        #: and multiplexed messages of objects: each frame is another page
         self.every_frame = frozenset(
             name for reader in readers if reader.group.name != LEAD_GROUP
-            for name, member in reader.group.members.items() if member.index is None)
+            for name, member in reader.group.members.items()
+            if member.index is None) | frozenset(self._paged)
 
     def shift(self, shift_ns: int) -> None:
         """The clock stepped: the time of each object's latest position moves by ``shift_ns``,
         so an observation its companion message makes after the step is in the new timeline."""
-        readers = {id(reader): reader for pairs in self._objects.values() for reader, _ in pairs}
-        for reader in readers.values():
+        for reader in self._readers:
             for obj in reader.objects.values():
                 if obj.position_ns >= 0:
                     obj.position_ns += shift_ns
+        for paged in self._paged.values():
+            for one in paged:
+                one.merger.shift(shift_ns)
+
+    def close(self) -> None:
+        """The input ended: the cycles of pages still open end (counted in
+        :meth:`page_stats`; not observed)."""
+        for paged in self._paged.values():
+            for one in paged:
+                one.merger.close()
+
+    def page_stats(self) -> dict[str, PageStats]:
+        """Per group with multiplexed messages: what merging their pages made."""
+        return {name: reader.page_stats for reader in self._readers
+                if reader.page_stats.messages for name in (reader.group.name, *reader.aliases)}
+
+    def watch(self, watcher: Watcher) -> None:
+        """Call ``watcher`` each time an object is evaluated (its signals changed), e.g. to
+        say why a group's objects never hold their rule (``tankviz profile check``). Costs
+        nothing unwatched."""
+        for reader in self._readers:
+            evaluate = reader.evaluate
+
+            def watched(index: int | None, obj: _Object, t_ns: int, *,
+                        evaluate: Callable[..., ObjectObservation | None] = evaluate,
+                        group: ObjectGroup = reader.group) -> ObjectObservation | None:
+                made = evaluate(index, obj, t_ns)
+                watcher(group, made, obj.rule, obj.rule_values())
+                return made
+
+            reader.evaluate = watched  # type: ignore[method-assign]
 
     def observe(self, message: str, values: Mapping[str, Any], t_ns: int) -> list[Observation]:
         """The observations one decoded message makes (often none, e.g. for a companion)."""
@@ -581,6 +695,10 @@ class Observer:
                 out.append(obs)
                 if reader.aliases:
                     reader.also(obs, out)
+        paged = self._paged.get(message)
+        if paged is not None:
+            for one in paged:
+                one.observe(values, t_ns, out)
         self._observe_lanes_and_ego(message, values, t_ns, out)
         return out
 
@@ -604,6 +722,8 @@ class Observer:
                     touched[obj] = reader
                 if both and message in others:
                     self._observe_lanes_and_ego(message, values, t_ns, out)
+            elif message in self._paged:  # in every_frame: here only when called with it
+                out += self.observe(message, values, t_ns)
             elif message in others:
                 self._observe_lanes_and_ego(message, values, t_ns, out)
         for obj, reader in touched.items():  # _GroupReader.observation, inline
