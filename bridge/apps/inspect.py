@@ -213,9 +213,10 @@ def format_summary(path: str, s: DriveSummary) -> str:
             more = f", … and {len(top) - 12:,} more" if len(top) > 12 else ""
             lines.append(f"  {title}: {total:,}" + ("" if not entries else " — " + ", ".join(
                 f"{k} ({v})" for k, v in top[:12]) + more))
-        last_errors = stats.get("last_decode_error", {})
-        lines += _cut([f"    {k}: {text}" for k, text in last_errors.items()], limit=12,
-                      indent="    ")
+            if key == "decode_errors":  # each id's last error, under them
+                last_errors = stats.get("last_decode_error", {})
+                lines += _cut([f"    {k}: {text}" for k, text in last_errors.items()],
+                              limit=12, indent="    ")
         longer = stats.get("longer", {})
         lines.append("  CAN FD frames longer than their message (decoded what it defines): "
                      f"{sum(v['frames'] for v in longer.values()):,}")

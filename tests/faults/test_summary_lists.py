@@ -8,12 +8,15 @@ many entries it left out (the unknown ids too).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from bridge.apps.convert import format_report
+from bridge.apps.inspect import DriveSummary, format_summary
 from bridge.io.issues import summarize_issues
 from bridge.io.logs import SourceIssue
 from bridge.pipeline.convert import MAX_ISSUES_RECORDED, ConvertReport, recorded_issues
+from bridge.sinks.mcap import METADATA_NAME
 
 STATISTICS = {"decoded": {}, "unknown_ids": {}, "decode_errors": {}, "truncated": {},
               "error_frames": {}}
@@ -65,3 +68,17 @@ def test_issues_kept_as_text_in_the_metadata_are_told_the_same_way() -> None:
         "d.csv:line 40: damaged data: 4096 zero bytes in this line: no frame is kept from it "
         "(the lines they overwrote are lost)",
         "d.db: skipped a frame with no readable timestamp (None) (3 times: row 1, row 2, row 3)"]
+
+
+def test_inspect_prints_each_ids_last_decode_error_under_decode_errors() -> None:
+    # #33 item 12: the last error of each id came after "short frames", as if it were one of
+    # theirs
+    statistics = {**STATISTICS, "frames": {"can0": 10},
+                  "decode_errors": {"can0/0x700": 3},
+                  "last_decode_error": {"can0/0x700": "SensorDiag: bad multiplexer id 9"},
+                  "truncated": {"/can/can0/EgoMotion": 2}}
+    summary = DriveSummary(0, 1, 10, [], {METADATA_NAME: {"statistics": json.dumps(statistics)}})
+    lines = format_summary("d.mcap", summary).splitlines()
+    at = lines.index("  decode errors: 3 — can0/0x700 (3)")
+    assert lines[at + 1] == "    can0/0x700: SensorDiag: bad multiplexer id 9"
+    assert lines[at + 2] == "  short frames (decoded what fits): 2 — /can/can0/EgoMotion (2)"
