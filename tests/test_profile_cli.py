@@ -321,3 +321,26 @@ def test_check_says_when_no_frame_of_the_log_decoded(
             "or the wrong bus?); valid objects per group (vehicle frame, m):") in out
     assert ("  radar: no valid object: none of its messages (RadarPoint{i}_A + RadarPoint{i}_B) "
             "decoded") in out.splitlines()
+
+
+@pytest.mark.parametrize("dbc,written", [
+    ("ecocar", 'databases = ["ecocar.dbc"]'),
+    ("ecocar.dbc", 'databases = ["ecocar.dbc"]'),
+    ("radar=highway_radar", 'databases = { radar = ["highway_radar.dbc"] }'),
+])
+def test_new_names_a_bundled_database_by_its_bundled_name(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        dbc: str, written: str) -> None:
+    # #33 item 12: a bundled name was written as a path into the venv's site-packages, which
+    # breaks when the venv moves or tankviz is upgraded
+    monkeypatch.chdir(tmp_path)
+    output = tmp_path / "profiles" / "car.toml"
+    output.parent.mkdir()
+    code, _, err = run(capsys, "profile", "new", "--dbc", dbc, "-o", str(output))
+    assert code == 0, err
+    lines = output.read_text().splitlines()
+    assert any(line.startswith(f"{written}  # ") for line in lines), lines
+    assert "site-packages" not in output.read_text() and "bridge/data" not in output.read_text()
+    # the profile finds it from anywhere (or stops at a TODO line of the draft, not before)
+    code, _, err = run(capsys, "profile", "check", str(output))
+    assert code == 0 or ": TODO: " in err, err

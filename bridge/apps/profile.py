@@ -3,10 +3,10 @@
 - ``tankviz profile new --dbc [BUS=]PATH [--dbc ...] -o car.toml`` writes the commented starting
   profile that :func:`bridge.profile.draft.draft_profile` drafts from the databases (loaded with
   cantools as :mod:`bridge.decode` loads them, each on its bus: an id defined differently on two
-  buses is no conflict), naming them in ``[profile] databases`` relative to the output file (a
-  table per bus, ``{ can0 = [...], can1 = [...] }``, when buses are given; a list otherwise),
-  and says whether it loads as written or which ``# TODO:`` line stops it. An existing file is
-  not overwritten unless ``--force``.
+  buses is no conflict), naming them in ``[profile] databases`` relative to the output file, a
+  bundled one by its name (``ecocar.dbc``) (a table per bus, ``{ can0 = [...], can1 = [...] }``,
+  when buses are given; a list otherwise), and says whether it loads as written or which
+  ``# TODO:`` line stops it. An existing file is not overwritten unless ``--force``.
 - ``tankviz profile check car.toml [--dbc ...] [LOG ...]`` loads the profile against the
   databases (``--dbc``, else the profile's own; a bad name is the loader's one-line error with
   the closest names) and prints what it maps (:func:`format_mapping`: sensors, object groups
@@ -49,6 +49,7 @@ from bridge.profile.model import (
     Rule,
     SignalRef,
 )
+from bridge.resources import data_dir
 from bridge.sinks.base import Serialized, Sink
 from bridge.world.lateral import LateralVerdict
 from bridge.world.observe import ObjectObservation
@@ -67,7 +68,11 @@ def new_profile(dbc_options: Sequence[str], output: Path, *, force: bool = False
     if not files:
         raise BridgeError("profile new: name the databases with --dbc [BUS=]PATH")
     base = output.resolve().parent
-    named = [(os.path.relpath(f.path.resolve(), base), f.db) for f in files]
+    bundled = data_dir().resolve()
+    # a bundled database by its bundled name, which the loader finds (never a path into the
+    # installed package); any other relative to the profile
+    named = [(f.path.name if f.path.resolve().parent == bundled
+              else os.path.relpath(f.path.resolve(), base), f.db) for f in files]
     buses: dict[str, list[str]] = {}
     for (path, _), f in zip(named, files, strict=True):
         for bus in decoder.buses_for(f):
