@@ -4,15 +4,20 @@ from __future__ import annotations
 
 import gzip
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import can
 import pytest
-from conftest import T0, WriteLog
+from can.io.trc import TRCFileVersion
+from conftest import ECOCAR_DBC, T0, WriteLog
 
 from bridge.errors import InputError
 from bridge.frame import Frame, to_ns
 from bridge.io.logs import LogSource, bus_name, merge, supported_suffixes
+from bridge.pipeline.convert import convert
+from bridge.sim.ecocar import simulate
+from bridge.sinks.logs import write_log
 
 
 def classic(i: int, channel: object = 0, t: float | None = None) -> can.Message:
@@ -71,6 +76,71 @@ def test_every_format_reads_back_what_python_can_wrote(write_log: WriteLog, suff
         assert remote.is_remote and remote.arbitration_id == 0x7
 
 
+def trc(version: TRCFileVersion) -> Callable[[Path, list[can.Message]], None]:
+    """Writes a TRC of ``version`` with python-can's writer."""
+    def write(path: Path, messages: list[can.Message]) -> None:
+        writer = can.TRCWriter(path)
+        writer.file_version = version
+        with writer:
+            for m in messages:
+                writer.on_message_received(m)
+    return write
+
+
+def written(path: Path, messages: list[can.Message]) -> None:
+    with can.Logger(path) as logger:
+        for m in messages:
+            logger.on_message_received(m)
+
+
+#: Each format with numbered channels, as python-can writes it (it numbers them from 1 in the
+#: file: channel 0 is written 1); TRC 1.0 has no bus column (every frame is on its one bus).
+NUMBERED: dict[str, Callable[[Path, list[can.Message]], None]] = {
+    "drive.asc": written, "drive.blf": written, "drive.trc": trc(TRCFileVersion.V2_1),
+    "v1.trc": trc(TRCFileVersion.V1_0), "drive.log": written, "drive.asc.gz": written,
+}
+
+
+@pytest.mark.parametrize("name", NUMBERED)
+def test_one_numbering_of_channels_for_every_format(tmp_path: Path, name: str) -> None:
+    messages = [classic(i, channel=i % 3) for i in range(6)]
+    path = tmp_path / name
+    NUMBERED[name](path, messages)
+
+    frames, source = read(path)
+
+    assert source.issues == []
+    buses = ["can0"] * 6 if name == "v1.trc" else ["can0", "can1", "can2"] * 2
+    assert [f.bus for f in frames] == buses
+
+
+@pytest.mark.parametrize(("line", "bus"), [
+    ("      1         0.000 DT  1     0100 Rx -  1    00", "can0"),
+    ("      1         0.000 DT  4     0100 Rx -  1    00", "can3"),
+])
+def test_a_trc_bus_1_is_can0_as_an_asc_channel_1_is(tmp_path: Path, line: str, bus: str) -> None:
+    trc = tmp_path / "drive.trc"
+    trc.write_text(";$FILEVERSION=2.1\n;$STARTTIME=45000.5\n;$COLUMNS=N,O,T,B,I,d,R,L,D\n"
+                   f"{line}\n")
+    asc = tmp_path / "drive.asc"
+    asc.write_text("base hex  timestamps absolute\nBegin Triggerblock\n"
+                   f" 0.000000 {int(bus[3:]) + 1}  100             Rx   d 1 00\nEnd TriggerBlock\n")
+    assert [f.bus for f in read(trc)[0]] == [f.bus for f in read(asc)[0]] == [bus]
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".trc"])
+def test_a_drive_logged_as_trc_decodes_with_the_bus_names_of_its_asc(tmp_path: Path,
+                                                                    suffix: str) -> None:
+    log = tmp_path / f"drive{suffix}"
+    write_log((f for f in simulate(duration_s=0.5) if not f.is_fd), log, suffix)
+
+    report = convert([log], tmp_path / "drive.mcap", [f"can0={ECOCAR_DBC}"])
+
+    assert report.warnings == []  # no "--dbc can0=…: no input has bus can0"
+    assert list(report.statistics["frames"]) == ["can0"]
+    assert report.statistics["decoded"] and not report.statistics["unknown_ids"]
+
+
 def test_candump_keeps_interface_names_as_bus_names(write_log: WriteLog) -> None:
     path = write_log("drive.log", [classic(0, "radar"), classic(1, "vcan1")])
     frames, _ = read(path)
@@ -83,6 +153,7 @@ def test_bus_names_for_numbered_and_missing_channels() -> None:
     assert bus_name("2") == "can2"
     assert bus_name(None) == "can0"
     assert bus_name("chassis") == "chassis"
+    assert (bus_name(1, 1), bus_name("4", 1), bus_name("radar", 1)) == ("can0", "can3", "radar")
 
 
 def test_time_is_integer_nanoseconds_rounded_to_the_microsecond() -> None:

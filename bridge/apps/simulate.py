@@ -8,13 +8,13 @@ road ``--road`` names (the highway car only: one curve, winding, straight, weavi
 profile, the simulation's seed and duration, and a car other than ecocar, in the metadata); any
 other suffix that python-can writes (.blf .asc .log .csv .db, the text formats also gzipped) is a
 CAN log of the same frames, each of them: read back, the log gives exactly the frames written, as
-many as the command says, on the same buses (a bus ``can<N>`` is log channel N, which BLF and ASC
-number from 1). CSV and SQLite have no channel column: a drive on two buses reads back as one
-``can0``, and the command warns about it.
+many as the command says, on the same buses (a bus ``can<N>`` is log channel N, which BLF, ASC
+and TRC number from 1). CSV and SQLite have no channel column: a drive on two buses reads back as
+one ``can0``, and the command warns about it.
 
 A format that cannot hold the drive is refused before anything is simulated, saying why
-(:data:`CANNOT_HOLD`: python-can's TRC writer skips CAN FD frames, and it cannot gzip BLF;
-:data:`CANNOT_HOLD_BUSES`: TRC reads a bus back as the next one).
+(:data:`CANNOT_HOLD`: python-can cannot gzip BLF; :data:`CANNOT_HOLD_FD`: python-can's TRC writer
+skips the ecocar's CAN FD frames).
 CSV and SQLite have no column for the CAN FD flags: their frames keep id, time and every data
 byte, and the command warns about the flags it leaves out. The output is checked before anything
 is simulated and appears only complete: a log is written under a hidden name of the run's own
@@ -50,18 +50,12 @@ from bridge.sim.highway import ROADS, simulate_highway
 from bridge.sinks.logs import write_log
 from bridge.sinks.outputs import atomic_output, check_output
 
-#: Log formats that cannot hold the simulated drive (it has CAN FD frames), and why.
-CANNOT_HOLD = {
+#: Log formats that cannot hold a simulated drive, and why.
+CANNOT_HOLD = {".blf.gz": "python-can cannot write BLF into gzip"}
+#: ... and those that cannot hold the ecocar's drive (it has CAN FD frames).
+CANNOT_HOLD_FD = {
     ".trc": "python-can's TRC writer cannot write CAN FD frames, and the drive has them",
     ".trc.gz": "python-can's TRC writer cannot write CAN FD frames, and the drive has them",
-    ".blf.gz": "python-can cannot write BLF into gzip",
-}
-#: ... and why they cannot hold a drive on several buses (the highway car's).
-CANNOT_HOLD_BUSES = {
-    ".trc": "python-can's TRC writer adds 1 to each bus number and its reader keeps it: "
-            "every bus would be read back as the next one",
-    ".trc.gz": "python-can's TRC writer adds 1 to each bus number and its reader keeps it: "
-               "every bus would be read back as the next one",
 }
 #: Log formats without a column for the CAN FD flags (FD, bitrate switch).
 NO_FD_FLAGS = {".csv": "CSV", ".csv.gz": "CSV", ".db": "SQLite"}
@@ -113,7 +107,7 @@ def log_format(output: Path, car: str = "ecocar") -> str:
         suffix = next((s for s in CANNOT_HOLD if name.endswith(s)), None)
     if suffix is None:
         raise OutputError(output, f"unknown log format; write {_HOLDS}")
-    cannot = CANNOT_HOLD if car == "ecocar" else {**CANNOT_HOLD, **CANNOT_HOLD_BUSES}
+    cannot = {**CANNOT_HOLD, **CANNOT_HOLD_FD} if car == "ecocar" else CANNOT_HOLD
     if suffix in cannot:
         raise OutputError(output, f"{cannot[suffix]}; write {_HOLDS}")
     return suffix

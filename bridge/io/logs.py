@@ -91,14 +91,22 @@ def supported_suffixes() -> list[str]:
     return plain + [f"{s}.gz" for s in plain if s not in {".db", ".mf4"}]
 
 
-def bus_name(channel: Any) -> str:
-    """The bus name of a python-can channel: ``can<N>`` for numbered channels, else the name."""
+#: How python-can's reader numbers a log's channels, where it does not give them from 0 (its ASC
+#: and BLF readers give the log's channel 1 as 0; its TRC reader gives a TRC's bus 1 as 1).
+_FIRST_CHANNEL = {".trc": 1}
+
+
+def bus_name(channel: Any, first: int = 0) -> str:
+    """The bus name of a channel as python-can's reader gives it, which numbers the channels from
+    ``first`` (:data:`_FIRST_CHANNEL`): ``can<N>`` for the (N+1)-th numbered channel (a log's
+    channel 1 is ``can0``, in every format), the name itself for a named one (candump's
+    interfaces), :data:`DEFAULT_BUS` where the log has no channel."""
     if channel is None or channel == "":
         return DEFAULT_BUS
     if isinstance(channel, int):
-        return f"can{channel}"
+        return f"can{channel - first}"
     text = str(channel).strip()
-    return f"can{text}" if text.isdigit() else text
+    return text if not text.isdigit() else f"can{int(text) - first}" if first else f"can{text}"
 
 
 #: What an issue did to the reading, gravest first (a summary lists them in this order):
@@ -257,6 +265,7 @@ class LogSource:
         can_logger = logging.getLogger("can")
         can_logger.addHandler(warnings)
         buses: dict[Any, str] = {}
+        numbered_from = _FIRST_CHANNEL.get(suffix, 0)
         frames = 0
         try:
             for message in self._messages(reader_type, suffix, gzipped):
@@ -281,7 +290,7 @@ class LogSource:
                 channel = message.channel
                 bus = buses.get(channel)
                 if bus is None:
-                    bus = buses[channel] = bus_name(channel)
+                    bus = buses[channel] = bus_name(channel, numbered_from)
                 yield Frame(
                     ns,
                     bus,

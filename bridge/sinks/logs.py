@@ -3,9 +3,9 @@ suffix (.blf .asc .log .csv .db, the text formats also gzipped; .mf4 with ``tank
 
 Every frame given is written (python-can's SQLite writer would lose what is still queued when it
 stops: :class:`_CompleteSqliteWriter` waits for it), each on its bus's channel (a bus ``can<N>``
-is log channel N, which BLF and ASC number from 1: :func:`log_channel`), so that read back the log
-gives the frames written on the same buses. CSV and SQLite have no column for the channel nor for
-the CAN FD flags: their frames read back on ``can0``, without the flags.
+is log channel N, which BLF, ASC and TRC number from 1: :func:`log_channel`), so that read back
+the log gives the frames written on the same buses. CSV and SQLite have no column for the channel
+nor for the CAN FD flags: their frames read back on ``can0``, without the flags.
 
 The log appears only complete: it is written under a hidden name of the run's own
 (``.NAME_partial_<pid>-<random>.SUFFIX``) and given its name when python-can has written every
