@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
+import random
 
 import pytest
 
-from bridge.scene.camera import BEYOND, MIN_MARK_PX, camera_for
+from bridge.scene.camera import BEYOND, MIN_MARK_PX, camera_for, chase_camera
 from bridge.scene.labels import LINE_PX, PLACE_M, Label, _overlaps, box, lay_out
 
 CAMERA = camera_for(200.0)
@@ -31,15 +33,16 @@ def test_labels_within_a_place_share_one_block() -> None:
 
 
 def test_the_camera_frames_the_range_and_keeps_marks_visible() -> None:
-    assert CAMERA.project(-6.0, 0.0, 0.0) == pytest.approx((0.0, 450.0))  # the bottom edge
+    half = CAMERA.height_px / 2
+    assert CAMERA.project(-6.0, 0.0, 0.0) == pytest.approx((0.0, half))  # the bottom edge
     top = CAMERA.project(200.0 * (1 + BEYOND), 0.0, 0.0)
-    assert top is not None and top[1] == pytest.approx(-450.0)  # the top edge, beyond 200 m
+    assert top is not None and top[1] == pytest.approx(-half)  # the top edge, beyond 200 m
     far = CAMERA.project(200.0, 0.0, 0.0)
-    assert far is not None and far[1] > -450.0 + 2 * LINE_PX  # room for a compact label above
+    assert far is not None and far[1] > -half + 2 * LINE_PX  # room for a compact label above
     for x in (10.0, 50.0, 100.0, 200.0):
         assert 0.5 * CAMERA.scale(x, 0.0, 0.5) * CAMERA.px_per_m(x, 0.0) >= MIN_MARK_PX - 1e-9
     assert camera_for(60.0).scale(5.0, 0.0, 0.5) == 1.0  # near: the seed's sizes
-    assert CAMERA.scale(5.0, 0.0, 0.5) < 1.1
+    assert CAMERA.scale(5.0, 0.0, 0.5) < 1.15
 
 
 def test_far_labels_are_made_compact_moved_or_left_to_the_metadata() -> None:
@@ -64,3 +67,43 @@ def test_near_labels_are_drawn_in_full() -> None:
     assert sorted(b.text.split("\n")[0] for b in blocks) == [
         "TrackID: 1", "TrackID: 2", "TrackID: 3"]
     assert all(b.leader is None for b in blocks)
+
+
+#: The 3D panels of the generated layouts as Foxglove Studio draws them (width, height px), by
+#: view: tank-viz's two and engineer's chase view, in 1280 x 800 and 1920 x 1080 windows.
+PANELS = {"chase": [(676, 693), (442, 498), (1028, 973), (673, 702)],
+          "range": [(553, 693), (841, 973)]}
+VIEWS = {"chase": chase_camera(), "range": CAMERA}
+
+
+def highway(seed: int) -> list[Label]:
+    """A busy road: 10-190 m ahead, up to four lanes either side, cars a few metres apart."""
+    rng = random.Random(seed)
+    return [track(i, rng.uniform(8.0, 190.0), 3.6 * rng.randint(-4, 4) + rng.uniform(-1, 1))
+            for i in range(rng.randint(5, 40))]
+
+
+@pytest.mark.parametrize("view", sorted(VIEWS))
+def test_each_views_labels_stay_apart_and_on_every_panel_of_that_view(view: str) -> None:
+    """Laid out for the view's smallest panel, the blocks stay whole on every panel the layouts
+    give it, small window or large: none leaves the panel, none covers another."""
+    camera = VIEWS[view]
+    for width, height in PANELS[view]:
+        assert camera.holds(height, width), (view, width, height)
+    for seed in range(40):
+        blocks = lay_out(highway(seed), camera)
+        assert blocks
+        for width, height in PANELS[view]:
+            seen = dataclasses.replace(camera, height_px=height, aspect=width / height)
+            boxes = [box(seen, b.x, b.y, b.z, b.text) for b in blocks]
+            for b, block in zip(boxes, blocks, strict=True):
+                assert b is not None and seen.on_panel(*b), (view, width, height, block.text)
+            for a, b in itertools.combinations(boxes, 2):
+                assert a is not None and b is not None and not _overlaps(a, b), (
+                    view, width, height, seed)
+
+
+def test_a_panel_smaller_than_the_view_was_laid_out_for_is_not_held() -> None:
+    camera = VIEWS["range"]
+    assert not camera.holds(camera.height_px - 1, camera.height_px)  # shorter
+    assert not camera.holds(camera.height_px, camera.height_px * camera.aspect - 1)  # narrower

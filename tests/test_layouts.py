@@ -151,11 +151,13 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
     _, profile = stages
     chase, whole = layout("tank-viz")["configById"]["3D!tankviz"], layout("tank-viz")[
         "configById"]["3D!tankviz-range"]
-    # The range view shows the same scene as the chase view, from farther, over a longer grid.
-    assert {k: v for k, v in whole.items() if k not in ("cameraState", "layers",
-                                                         "foxglovePanelTitle")} == {
-        k: v for k, v in chase.items() if k not in ("cameraState", "layers",
-                                                    "foxglovePanelTitle")}
+    # The range view shows the same scene as the chase view, from farther, over a longer grid,
+    # with the labels laid out for it.
+    kept = ("cameraState", "layers", "foxglovePanelTitle", "topics")
+    assert {k: v for k, v in whole.items() if k not in kept} == {
+        k: v for k, v in chase.items() if k not in kept}
+    assert set(whole["topics"]) ^ set(chase["topics"]) == {"/scene/labels/chase",
+                                                          "/scene/labels/range"}
     assert whole["cameraState"]["distance"] > chase["cameraState"]["distance"]
     panel = chase
     assert panel["followTf"] == VEHICLE_FRAME and panel["followMode"] == "follow-pose"
@@ -171,8 +173,8 @@ def test_tank_viz_is_the_seed_view(stages: tuple[Any, Any], made: Produced) -> N
     assert all(t.startswith(scene_topic("")) for t in scene)
     assert scene >= {scene_topic(c) for c in ("ego", "lanes", "radar", "camera", "tracks",
                                               "lead", "mio")}
-    assert set(panel["topics"]) == scene
-    assert all(panel["topics"][t]["visible"] is True for t in scene)
+    assert set(panel["topics"]) == scene - {"/scene/labels/range"}
+    assert all(panel["topics"][t]["visible"] is True for t in panel["topics"])
     # Every frame transform is visible.
     assert {f"frame:{f}" for f in made.frames} == set(panel["transforms"])
     assert all(t["visible"] is True for t in panel["transforms"].values())

@@ -96,9 +96,12 @@ def test_generated_layouts_name_only_what_the_profile_produces(car: str) -> None
     layouts = generate_layouts(profile, decoder)
     for name, data in layouts.items():
         assert check_layout(data, made) == [], f"{car}: {name}"
-    # The 3D view: every scene topic and every frame of this profile, nothing else.
+    # The 3D views: every scene topic and every frame of this profile, nothing else; each view
+    # its own labels.
     chase, view = panels(layouts["tank-viz"], "3D").values()
-    assert chase["topics"] == view["topics"] and chase["transforms"] == view["transforms"]
+    assert set(chase["topics"]) - set(view["topics"]) == {"/scene/labels/chase"}
+    assert set(view["topics"]) - set(chase["topics"]) == {"/scene/labels/range"}
+    assert chase["transforms"] == view["transforms"]
     # The range view frames the profile's reach: from behind the vehicle to its farthest sensor.
     reach = view_range(profile)
     state = view["cameraState"]
@@ -111,7 +114,7 @@ def test_generated_layouts_name_only_what_the_profile_produces(car: str) -> None
     (grid,) = view["layers"].values()
     assert grid["position"][0] + grid["size"] / 2 >= reach
     scene = {t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"}
-    assert set(view["topics"]) == scene
+    assert set(view["topics"]) == scene - {"/scene/labels/chase"}
     assert {f"/scene/{g}" for g in profile.groups} <= scene
     assert set(view["transforms"]) == {f"frame:{f}" for f in made.frames}
     assert {f"frame:{s}" for s in profile.sensors} <= set(view["transforms"])
@@ -221,7 +224,7 @@ def test_a_two_bus_car_without_camera_or_lead(two_bus: tuple[Path, list[str]]) -
         assert check_layout(data, made) == []
     view = layouts["tank-viz"]["configById"]["3D!tankviz-range"]
     assert set(view["topics"]) == {"/scene/ego", "/scene/lanes", "/scene/slots",
-                                   "/scene/health"}
+                                   "/scene/health", "/scene/labels/range"}
     assert set(view["transforms"]) == {"frame:vehicle", "frame:front"}
     engineer = layouts["engineer"]
     assert indicated(engineer) == ["front.silent", "front.rate", "ego.silent", "ego.rate",

@@ -99,6 +99,7 @@ def test_tracks_are_drawn_where_distance_and_angle_point_labelled_by_slot(
 
     scene = last_message(mazda_drive, scene_topic("radar_tracks"))
     drawn = {e.id: e for e in scene.entities}
+    blocks = {e.id: e for e in last_message(mazda_drive, scene_topic("labels/range")).entities}
     assert set(drawn) == {"radar_tracks-361", "radar_tracks-362"}
     for slot, (distance, angle) in TRACKS.items():
         entity = drawn[f"radar_tracks-{slot}"]
@@ -107,7 +108,7 @@ def test_tracks_are_drawn_where_distance_and_angle_point_labelled_by_slot(
         assert color == pytest.approx(TRACK_COLOR[:3])  # red: tracks
         position = sphere.pose.position
         assert (position.x, position.y) == pytest.approx(where(distance, angle), abs=0.02)
-        assert any(f"TrackID: {slot}" in text.text for text in entity.texts)
+        assert any(f"TrackID: {slot}" in text.text for text in blocks[entity.id].texts)
 
 
 def test_healthy_mazda_data_raises_no_alarm(mazda_drive: Path) -> None:

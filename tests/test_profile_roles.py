@@ -158,7 +158,8 @@ def test_a_radars_track_slots_are_drawn_as_labelled_tracks_and_feed_the_lead(
     # the detection: a small blue radar sphere, unlabelled (no class)
     (point,) = points.entities
     assert rgba(point.spheres[0]) == RADAR_COLOR
-    assert not point.texts
+    blocks = {e.id: [t.text for t in e.texts] for e in out[scene_topic("labels/range")].entities}
+    assert point.id not in blocks
     # the track slots: red spheres labelled with their TrackID and position (lateral = right,
     # mount x = 3); slot 7 is the lead, labelled once, on the lead box
     by_id = {e.id: e for e in slots.entities}
@@ -166,8 +167,8 @@ def test_a_radars_track_slots_are_drawn_as_labelled_tracks_and_feed_the_lead(
     for e in by_id.values():
         assert rgba(e.spheres[0]) == TRACK_COLOR
         assert e.spheres[0].size.x > point.spheres[0].size.x
-    assert [t.text for t in by_id["slots-9"].texts] == ["TrackID: 9\nx: 28.00\ny: -6.00"]
-    assert not by_id["slots-7"].texts
+    assert blocks["slots-9"] == ["TrackID: 9\nx: 28.00\ny: -6.00"]
+    assert "slots-7" not in blocks
     lead = out[LEAD_TOPIC]
     assert lead.present and lead.mio_ok
     assert (lead.object.id, round(lead.object.x, 2), round(lead.object.y, 2)) == (7, 43.0, 0.5)
@@ -189,7 +190,8 @@ def test_without_role_a_radar_group_is_detections_and_feeds_no_lead(
         ("RDR_SLOT_0", {"SLOT_ID": 7, "SLOT_LONG": 40.0, "SLOT_LAT": -0.5, "SLOT_STATE": 2}),
     ])
     (slot,) = out[scene_topic("slots")].entities
-    assert rgba(slot.spheres[0]) == RADAR_COLOR and not slot.texts
+    assert rgba(slot.spheres[0]) == RADAR_COLOR
+    assert out[scene_topic("labels/range")].entities == []
     assert LEAD_TOPIC not in out
 
 

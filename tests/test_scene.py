@@ -69,6 +69,11 @@ class Drive:
     def topic(self, topic: str) -> list[Any]:
         return [o.message for o in self.outputs if o.topic == topic]
 
+    def labels(self, view: str = "range") -> dict[str, list[str]]:
+        """The texts of one view's labels at the latest scene, by the entity each names."""
+        update = self.scene(f"labels/{view}")[-1]
+        return {e.id: [t.text for t in e.texts] for e in update.entities}
+
 
 def lanes(drive: Drive, t_ms: float, *, valid: bool = True) -> None:
     for name, c0 in (("CamLaneLeft", -1.8), ("CamLaneRight", 1.8)):  # camera: y positive right
@@ -101,13 +106,14 @@ def check_golden(name: str, message: SceneUpdate) -> None:
     assert got == json.loads(path.read_text()), f"{name} differs from {path}"
 
 
-@pytest.mark.parametrize("category", ["ego", "lanes", "radar", "camera", "tracks", "lead", "mio"])
+@pytest.mark.parametrize("category", ["ego", "lanes", "radar", "camera", "tracks", "lead", "mio",
+                                      "labels/chase", "labels/range"])
 def test_the_street_scene_matches_its_golden(db: cantools.database.can.Database,
                                              profile: Profile, category: str) -> None:
     drive = Drive(db, profile)
     street(drive)
     (update,) = drive.scene(category)
-    check_golden(f"street_{category}", update)
+    check_golden(f"street_{category.replace('/', '-')}", update)
 
 
 def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: Profile) -> None:
@@ -126,7 +132,7 @@ def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: 
     assert (pedestrian.spheres[0].pose.position.x, pedestrian.spheres[0].pose.position.y) == (
         12.5, -4.0)
     assert pedestrian.cylinders[0].size.z == 1.8  # and a tall yellow cylinder
-    assert pedestrian.texts[0].text == "PEDESTRIAN"
+    assert not pedestrian.texts  # its label is each view's
     assert pedestrian.lifetime.nanos == 100 * MS
 
     (camera,) = drive.scene("camera")
@@ -137,15 +143,23 @@ def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: 
     # One block per place: track 7 stands where the (wrong) lead is, track 9 is where the MIO
     # check points: each track's label is a line of that block.
     (tracks,) = drive.scene("tracks")
-    assert [(e.id, len(e.texts)) for e in tracks.entities] == [("tracks-7", 0), ("tracks-9", 0)]
+    assert [e.id for e in tracks.entities] == ["tracks-7", "tracks-9"]
     assert tracks.entities[0].lifetime.nanos == 300 * MS
 
-    (lead,) = drive.scene("lead")
-    assert lead.entities[0].texts[0].text == "Lead Vehicle\nx: 30.00\ny: 0.50\nTrackID: 7 · 30 m"
-    (mio,) = drive.scene("mio")
-    assert mio.entities[0].texts[0].text == (
-        "MIO CHECK: lead #7 at 30.0 m is not the closest in-lane track #9 at 20.0 m\n"
-        "TrackID: 9 · 20 m")
+    # Each view's labels: an entity per block, with the id and lifetime of what it names; the
+    # MIO check's reason in lines a laptop's panel holds, first; in the chase view's smaller
+    # panel the lead's label is compact beside it.
+    mio_words = ("MIO CHECK: lead #7 at 30.0 m is not the\nclosest in-lane track #9 at 20.0 m\n"
+                 "TrackID: 9 · 20 m")
+    assert drive.labels("range") == {
+        "mio-check": [mio_words], "lead": ["Lead Vehicle\nx: 30.00\ny: 0.50\nTrackID: 7 · 30 m"],
+        "radar-0": ["PEDESTRIAN"]}
+    assert drive.labels("chase") == {
+        "mio-check": [mio_words], "lead": ["Lead · 30 m"], "radar-0": ["PEDESTRIAN"]}
+    for view in ("chase", "range"):
+        (labels,) = drive.scene(f"labels/{view}")
+        lifetimes = {e.id: e.lifetime.ToNanoseconds() for e in labels.entities}
+        assert lifetimes["radar-0"] == pedestrian.lifetime.ToNanoseconds()
 
     (lane_update,) = drive.scene("lanes")
     left = lane_update.entities[0].lines[0]
@@ -171,10 +185,9 @@ def test_the_lead_track_is_labelled_once_on_the_lead_box(
     (mio,) = drive.scene("mio")
     assert mio.entities == []  # the lead is the closest in-lane track
     (tracks,) = drive.scene("tracks")
-    assert [(e.id, len(e.spheres), [t.text for t in e.texts]) for e in tracks.entities] == [
-        ("tracks-7", 1, []), ("tracks-9", 1, ["TrackID: 9\nx: 60.00\ny: 5.00\ncar"])]
-    (lead,) = drive.scene("lead")
-    assert lead.entities[0].texts[0].text == "Lead Vehicle · TrackID: 7\nx: 30.50\ny: 0.50\ncar"
+    assert [(e.id, len(e.spheres)) for e in tracks.entities] == [("tracks-7", 1), ("tracks-9", 1)]
+    assert drive.labels() == {"tracks-9": ["TrackID: 9\nx: 60.00\ny: 5.00\ncar"],
+                              "lead": ["Lead Vehicle · TrackID: 7\nx: 30.50\ny: 0.50\ncar"]}
 
 
 def test_every_visible_field_is_set(db: cantools.database.can.Database, profile: Profile) -> None:

@@ -141,10 +141,15 @@ def entities(updates: dict[str, SceneUpdate]) -> Iterator[SceneEntity]:
         yield from u.entities
 
 
+def labels(updates: dict[str, SceneUpdate], view: str = "range") -> dict[str, SceneEntity]:
+    """One view's label blocks, by the id of the entity each names."""
+    return {e.id: e for e in updates[scene_topic(f"labels/{view}")].entities}
+
+
 def texts_at(updates: dict[str, SceneUpdate], x: float, y: float,
-             within: float = 2.0) -> list[str]:
-    """Every label anchored within ``within`` metres of (x, y), whatever topic draws it."""
-    return [t.text for e in entities(updates) for t in e.texts
+             within: float = 2.0, view: str = "range") -> list[str]:
+    """Every label of one view anchored within ``within`` metres of (x, y)."""
+    return [t.text for e in labels(updates, view).values() for t in e.texts
             if math.hypot(t.pose.position.x - x, t.pose.position.y - y) < within]
 
 
@@ -185,9 +190,11 @@ def test_a_track_and_the_detections_at_its_place_show_one_label_block(made_up: A
         ("VIS_0", {"VIS_X": 23.5, "VIS_Y": -2.0, "VIS_KIND": CAR, "VIS_OK": 1}),
     ])
     # every one is at x = 25 m, y = -2 m in the vehicle frame (mounts: radar 3.5, camera 1.5)
-    assert texts_at(updates, 25.0, -2.0) == ["TrackID: 42\nx: 25.00\ny: -2.00\ncar"]
+    for view in ("chase", "range"):
+        assert texts_at(updates, 25.0, -2.0, view=view) == [
+            "TrackID: 42\nx: 25.00\ny: -2.00\ncar"]
     (track,) = updates[scene_topic("slots")].entities
-    assert len(track.texts) == 1
+    assert list(labels(updates)) == [track.id]
 
 
 def test_a_detection_of_another_class_is_named_in_the_tracks_block(made_up: Any) -> None:
@@ -200,7 +207,7 @@ def test_a_detection_of_another_class_is_named_in_the_tracks_block(made_up: Any)
         "TrackID: 3\nx: 15.00\ny: 1.00\ncar\nhits: PEDESTRIAN"]
     # the pedestrian still stands out: its tall cylinder is drawn
     (hit,) = updates[scene_topic("hits")].entities
-    assert hit.cylinders and not hit.texts
+    assert hit.cylinders and hit.id not in labels(updates)
 
 
 def test_a_detection_away_from_every_track_keeps_its_class_label(made_up: Any) -> None:
@@ -214,7 +221,7 @@ def test_a_detection_away_from_every_track_keeps_its_class_label(made_up: Any) -
     assert texts_at(updates, 40.0, 4.0) == ["TrackID: 3\nx: 40.00\ny: 4.00\ncar"]
     # 4 m from the track, 40 m ahead: on screen its label would cover the track's block, so it
     # is moved aside, with a leader line from where it would have stood
-    (far,) = [e for e in updates[scene_topic("hits")].entities if e.lines]
+    (far,) = [e for e in labels(updates).values() if e.lines]
     assert [t.text for t in far.texts] == ["stationary"]
     (leader,) = far.lines
     assert (leader.points[0].x, leader.points[0].y) == (40.0, 8.0)

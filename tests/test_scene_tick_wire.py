@@ -32,10 +32,10 @@ def _number(rnd: random.Random) -> float:
     return rnd.choice(_EDGES) if rnd.random() < 0.3 else rnd.uniform(-300.0, 300.0)
 
 
-def _by_fields(block: Block) -> SceneEntity:
-    """What the scene drew for a block before it was built as wire bytes: add_text, then a
-    leader line set field by field."""
-    e = SceneEntity(id="x")
+def _by_fields(block: Block, t_ns: int, lifetime_s: float) -> SceneEntity:
+    """A block's entity set field by field: the entity it names' id and lifetime, add_text,
+    then a leader line."""
+    e = entities.entity(t_ns, "x", lifetime_s)
     entities.add_text(e, block.x, block.y, block.z, block.text)
     if block.leader is not None:
         leader = e.lines.add(type=LinePrimitive.LINE_STRIP, thickness=entities.LEADER_PX,
@@ -51,17 +51,20 @@ def _by_fields(block: Block) -> SceneEntity:
 def test_labels_drawn_as_wire_bytes_are_the_messages_set_field_by_field(seed: int) -> None:
     rnd = random.Random(seed)
     for _ in range(200):
-        wire = entities.WireEntity("x", [entities._field(entities._ID_TAG, b"x")])
+        lifetime_s = rnd.choice([0.0, 0.1, 0.3, 2.5])
+        owner = entities.WireEntity("x", [], lifetime_s)
         leader = None
         if rnd.random() < 0.5:
             leader = ((_number(rnd), _number(rnd), _number(rnd)),
                       (_number(rnd), _number(rnd), _number(rnd)))
         text = rnd.choice(["", "car", "TrackID: 3\nx: 41.00\ny: -0.20", "Lead · 40 m",
                            "x" * 200])
-        block = Block(wire, _number(rnd), _number(rnd), _number(rnd), text, (), leader)
-        entities.draw_labels([block])
-        got = entities.scene_update([wire]).entities[0]
-        assert got.SerializeToString() == _by_fields(block).SerializeToString()
+        block = Block(owner, _number(rnd), _number(rnd), _number(rnd), text, (), leader)
+        t_ns = rnd.randrange(2**62)
+        drawn: list[entities.WireEntity] = []
+        entities.draw_labels(drawn, [block], t_ns)
+        got = entities.scene_update(drawn).entities[0]
+        assert got.SerializeToString() == _by_fields(block, t_ns, lifetime_s).SerializeToString()
 
 
 def test_a_scene_update_of_wire_entities_keeps_their_order_and_bytes() -> None:

@@ -45,7 +45,7 @@ from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObje
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.scene import semantic
-from bridge.scene.camera import camera_for, view_range
+from bridge.scene.camera import VIEWS, view_cameras
 from bridge.topics import (
     EGO_TOPIC,
     LANES_TOPIC,
@@ -85,8 +85,8 @@ class Perception:
         self.observer = Observer(profile)
         self.world = World(profile)
         self.scene_state = scene.SceneState({})
-        #: the view the scene's marks and labels are made for (the generated layouts' camera)
-        self.camera = camera_for(view_range(profile))
+        #: the views the scene's labels are laid out for (the generated layouts' cameras)
+        self.cameras = view_cameras(profile)
         #: log time of the next scene; frames at or after it make it happen
         self.next_tick_ns = NEVER_NS
         self._started = False
@@ -100,7 +100,8 @@ class Perception:
         self._every_frame = self.observer.every_frame
         #: each scene category's topic, each group's /perception topic
         self._topics = {category: scene_topic(category) for category in
-                        ("ego", "lanes", "lead", "mio", *profile.groups)}
+                        ("ego", "lanes", "lead", "mio", *profile.groups,
+                         *map(scene.label_category, VIEWS))}
         self._objects_topics = {name: objects_topic(name) for name in profile.groups}
         self._pending_frames: list[tuple[str, Mapping[str, Any], int]] = []
 
@@ -110,6 +111,7 @@ class Perception:
         categories = ["ego", "lanes", *profile.groups]
         if profile.lead is not None:
             categories += ["lead", "mio"]
+        categories += map(scene.label_category, VIEWS)
         out: list[tuple[str, Any]] = [(scene_topic(c), SceneUpdate) for c in categories]
         out.append((TF_TOPIC, FrameTransforms))
         out += [(objects_topic(name), PerceivedObjects) for name in profile.groups]
@@ -224,7 +226,7 @@ class Perception:
         out = [_topic_message((topics[category], update, t_ns)) for category, update
                in scene.scene_updates(world, lanes, check, t_ns, self.scene_state,
                                       lead_track=steady.lead if from_tracks else None,
-                                      twins=twins, camera=self.camera).items()]
+                                      twins=twins, cameras=self.cameras).items()]
         out.append(_topic_message((TF_TOPIC, scene.frame_transforms(profile, t_ns), t_ns)))
         perceived: dict[str, PerceivedObjects] = {}
         for name, group in profile.groups.items():

@@ -1,15 +1,21 @@
-"""The camera a profile is viewed from: framed for its sensors' reach, and how big a metre looks.
+"""The cameras a profile is viewed from, and how big a metre looks in each.
 
-A long-range radar sees 200 m ahead; a camera that follows the car from just behind shows about
-60 m of that and squeezes the rest into a band at the horizon. :func:`camera_for` frames the
-road from just behind the ego vehicle to the profile's farthest sensor range
-(:func:`view_range`) in the generated layouts' 3D panel: looking :data:`DEPRESSION_DEG` down from
-the horizon, with the bottom edge of the view :data:`BEHIND_M` behind the vehicle origin and the
-top edge just beyond the range. The generated layouts (:mod:`bridge.view.generate`) use it as
-the panel's default camera; the scene uses it to keep every mark visible
-(:meth:`ViewCamera.scale`) and to lay out labels that do not cover each other
-(:mod:`bridge.scene.labels`), for a panel :data:`PANEL_HEIGHT_PX` high (the Tank Viz panel on
-a 1600 x 1000 screen). Moving the camera in Foxglove is still possible; these are the defaults.
+The generated layouts have two 3D views (:data:`VIEWS`). The chase view (:func:`chase_camera`)
+follows the car from close behind: about 60 m of road, the rest squeezed into a band at the
+horizon. The range view (:func:`camera_for`) frames the road from :data:`BEHIND_M` behind the
+vehicle origin (the bottom edge) to just beyond the profile's farthest sensor range
+(:func:`view_range`), looking :data:`DEPRESSION_DEG` down from the horizon. The layouts
+(:mod:`bridge.view.generate`) use them as their panels' default cameras; the scene keeps every
+mark visible in the range view (:meth:`ViewCamera.scale`) and lays out each view's labels apart
+and on its panel (:mod:`bridge.scene.labels`).
+
+Labels have a fixed size in pixels, and a window can be any size, which the server cannot know.
+Each view is laid out for the smallest panel the generated layouts give it in a 1280 x 800
+window (:data:`RANGE_PANEL`, :data:`CHASE_PANEL`, as Foxglove Studio draws them). Foxglove keeps
+the vertical field of view, so on a panel as tall or taller and as wide or wider for its height
+every distance on screen grows and the labels do not: blocks apart and on the small panel stay
+apart and on it (:meth:`ViewCamera.holds`). Moving the camera in Foxglove is still possible;
+these are the defaults.
 
 Foxglove's camera state: ``distance`` from the eye to the target, ``phi`` the angle of the
 line of sight from straight down (degrees), ``targetOffset`` the target in the followed frame,
@@ -32,16 +38,22 @@ FOVY_DEG = 45.0
 BEHIND_M = 6.0
 #: The top edge of the view lies this much beyond the range (share of the range): room for the
 #: labels above the farthest objects.
-BEYOND = 0.12
-#: The height (px) of the panel the scene is laid out for.
-PANEL_HEIGHT_PX = 900.0
-#: The width-to-height ratio of that panel (the range view, beside the chase view).
-PANEL_ASPECT = 0.78
+BEYOND = 0.16
+#: The smallest panel of each view (height px, width-to-height ratio): Foxglove Studio's 3D
+#: panels of the generated layouts in a 1280 x 800 window, measured a little under. The range
+#: view: tank-viz's right panel, 553 x 693. The chase view: engineer's, 442 x 498 (tank-viz's
+#: is 676 x 693). In a 1920 x 1080 window they are 841 x 973, 673 x 702 and 1028 x 973.
+RANGE_PANEL = (680.0, 0.79)
+CHASE_PANEL = (490.0, 0.88)
+#: The chase view's camera: close behind and above the vehicle, 30 degrees down to a target
+#: 16 m ahead, 40 m from the eye (the seed's view).
+CHASE_DEPRESSION_DEG, CHASE_TARGET_M, CHASE_DISTANCE_M = 30.0, 16.0, 40.0
 #: The view covers at least this much road (m), however short the sensors' reach.
 MIN_RANGE_M = 60.0
-#: A mark is drawn at least this many pixels wide on that panel (a detection ball, at its
-#: base size DETECTION_SIZE; every other mark grows with it).
-MIN_MARK_PX = 6.0
+#: A mark is drawn at least this many pixels wide on the range view's smallest panel (a
+#: detection ball, at its base size DETECTION_SIZE; every other mark grows with it): about 6 px
+#: in a 1600 x 1000 window.
+MIN_MARK_PX = 4.5
 
 
 @dataclass(frozen=True)
@@ -52,8 +64,8 @@ class ViewCamera:
     eye_z: float  # m, above the ground
     depression_deg: float = DEPRESSION_DEG
     fovy_deg: float = FOVY_DEG
-    height_px: float = PANEL_HEIGHT_PX
-    aspect: float = PANEL_ASPECT
+    height_px: float = RANGE_PANEL[0]
+    aspect: float = RANGE_PANEL[1]
 
     @property
     def distance(self) -> float:
@@ -106,6 +118,11 @@ class ViewCamera:
         half_h, half_w = self.height_px / 2, self.height_px * self.aspect / 2
         return -half_w <= left and right <= half_w and -half_h <= top and bottom <= half_h
 
+    def holds(self, height_px: float, width_px: float) -> bool:
+        """Whether labels laid out for this camera's panel are apart and on a panel of this
+        size too: as tall or taller, and as wide or wider for its height."""
+        return height_px >= self.height_px and width_px >= self.aspect * height_px
+
     def px_per_m(self, x: float, y: float, z: float = 0.0) -> float:
         """How many pixels a metre across the line of sight takes at the point."""
         cos, sin = self._sight  # depth(x, y, z), inline
@@ -134,10 +151,21 @@ def view_range(profile: Profile) -> float:
     return max([MIN_RANGE_M, *ranges])
 
 
+def chase_camera() -> ViewCamera:
+    """The chase view's camera (:data:`CHASE_DEPRESSION_DEG`, :data:`CHASE_TARGET_M`,
+    :data:`CHASE_DISTANCE_M`) on its smallest panel (:data:`CHASE_PANEL`)."""
+    a = math.radians(CHASE_DEPRESSION_DEG)
+    eye_z = CHASE_DISTANCE_M * math.sin(a)
+    return ViewCamera(CHASE_TARGET_M - CHASE_DISTANCE_M * math.cos(a), eye_z,
+                      depression_deg=CHASE_DEPRESSION_DEG, height_px=CHASE_PANEL[0],
+                      aspect=CHASE_PANEL[1])
+
+
 @lru_cache(maxsize=16)
 def camera_for(range_m: float) -> ViewCamera:
-    """The camera whose view reaches from :data:`BEHIND_M` behind the origin (bottom edge) to
-    ``range_m`` and a little beyond (top edge)."""
+    """The range view's camera, whose view reaches from :data:`BEHIND_M` behind the origin
+    (bottom edge) to ``range_m`` and a little beyond (top edge), on its smallest panel
+    (:data:`RANGE_PANEL`)."""
     a = math.radians(DEPRESSION_DEG)
     half = math.radians(FOVY_DEG) / 2
     low, high = math.tan(a + half), math.tan(a - half)  # slopes of the bottom and top rays
@@ -145,3 +173,12 @@ def camera_for(range_m: float) -> ViewCamera:
     # eye at (-b, h): h = low * (b - BEHIND_M) = high * (b + far)
     b = (high * far + low * BEHIND_M) / (low - high)
     return ViewCamera(-b, high * (b + far))
+
+
+#: The generated layouts' 3D views, by name: each has its own labels (``/scene/labels/<view>``).
+VIEWS = ("chase", "range")
+
+
+def view_cameras(profile: Profile) -> dict[str, ViewCamera]:
+    """Each view's camera for ``profile`` (:data:`VIEWS`)."""
+    return {"chase": chase_camera(), "range": camera_for(view_range(profile))}

@@ -14,6 +14,11 @@ label block: the track's (its id, position and class, then "group: class" for a 
 another class there; the lead box's when the track is the lead). A detection within
 SHARED_PLACE_M of a track has no label of its own (:mod:`bridge.scene.places`).
 
+Labels are not drawn by the entities they name: each 3D view of the generated layouts has its
+own label category (``labels/chase``, ``labels/range``), laid out for that view's camera
+(:func:`bridge.scene.camera.view_cameras`), with one entity per block that has the id of the
+entity it names.
+
 Foxglove decodes protobuf with defaults, and a default is invisible (alpha 0, font size 0,
 thickness 0, a zero quaternion): every visible field is set here explicitly.
 """
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import math
 import struct
+import textwrap
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache, partial
@@ -46,7 +52,7 @@ from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
 from bridge.protowire import varint
-from bridge.scene.camera import MIN_MARK_PX, ViewCamera, camera_for, view_range
+from bridge.scene.camera import MIN_MARK_PX, ViewCamera, camera_for, view_cameras, view_range
 from bridge.scene.labels import Block, Label, lay_out
 from bridge.scene.places import (
     CLASS_LABELS,
@@ -290,15 +296,16 @@ def _stamp_field(t_ns: int) -> bytes:
 
 
 class WireEntity:
-    """A SceneEntity being built as the wire bytes of its fields (``parts``, in order: a
-    label's text is added as one more), and its ``id``; :func:`scene_update` parses the
+    """A SceneEntity being built as the wire bytes of its fields (``parts``, in order), its
+    ``id`` and lifetime (its label's, when it has one); :func:`scene_update` parses the
     entities of a category at once."""
 
-    __slots__ = ("id", "parts")
+    __slots__ = ("id", "lifetime_s", "parts")
 
-    def __init__(self, entity_id: str, parts: list[bytes]) -> None:
+    def __init__(self, entity_id: str, parts: list[bytes], lifetime_s: float = 0.0) -> None:
         self.id = entity_id
         self.parts = parts
+        self.lifetime_s = lifetime_s
 
 
 def scene_update(entities: Iterable[WireEntity]) -> SceneUpdate:
@@ -399,6 +406,8 @@ def _pedestrian(x: float, y: float) -> bytes:
 #: Python-level ``__new__`` (a few dozen a tick)
 _label = partial(tuple.__new__, Label)
 
+#: The MIO check's reason is drawn in lines of at most this many characters.
+MIO_LINE_CHARS = 40
 #: Label priorities (lower first), then nearer first: see bridge.scene.labels.
 MIO_FIRST, LEAD_NEXT, TRACKS_NEXT, DETECTIONS_LAST = 0, 1, 2, 3
 
@@ -513,7 +522,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
             fields.append(speed or _speed(vx))
         if object_class is ObjectClass.PEDESTRIAN:
             fields.append(_pedestrian(x, y))
-        e = WireEntity(entity_id, fields)
+        e = WireEntity(entity_id, fields, lifetime_s)
         into.append(e)
         if track:
             if o is lead:
@@ -586,7 +595,7 @@ def lead_entities(into: list[WireEntity], lead: ObjectObservation | None, t_ns: 
     wire = WireEntity("lead", [
         head, _stamp_field(t_ns),
         _field(_CUBES_TAG, _POSE_HEAD + place + _ORIENTATION + rest),
-        _pair("label", label)])
+        _pair("label", label)], lifetime_s)
     into.append(wire)
     return [Label(wire, lead.x, lead.y, LEAD_BOX[2] + 1.4, label, compact, compact,
                   (LEAD_NEXT, lead.x))]
@@ -606,9 +615,10 @@ def mio_entities(into: list[WireEntity], check: MioCheck, t_ns: int,
         x, y = target.x, target.y
     else:
         x, y = 5.0, 0.0
-    wire = WireEntity("mio-check", [e.SerializeToString()])
+    wire = WireEntity("mio-check", [e.SerializeToString()], lifetime_s)
     into.append(wire)
-    words = f"MIO CHECK: {check.reason}"
+    # in lines a laptop's panel holds (the reason is a sentence)
+    words = "\n".join(textwrap.wrap(f"MIO CHECK: {check.reason}", MIO_LINE_CHARS))
     return [Label(wire, x, y, 3.2, words, "MIO CHECK", "MIO CHECK", (MIO_FIRST, x))]
 
 
@@ -634,20 +644,29 @@ def _leader_head() -> bytes:
 _LEADER_HEAD = _leader_head()
 
 
-def draw_labels(blocks: Iterable[Block]) -> None:
-    """Each laid-out block as a text of the entity that carries it (a :class:`WireEntity`); a
-    block moved off its place with a thin leader line from where its label would have stood to
-    its edge."""
+@lru_cache(maxsize=1024)
+def _label_head(entity_id: str, lifetime_s: float) -> bytes:
+    """A label entity without its timestamp, text and leader, as wire bytes."""
+    data: bytes = _template(entity_id, lifetime_s).SerializeToString()
+    return data
+
+
+def draw_labels(into: list[WireEntity], blocks: Iterable[Block], t_ns: int) -> None:
+    """Each laid-out block as an entity of its own (added to ``into``), with the id and lifetime
+    of the entity it names (its ``owner``, a :class:`WireEntity`); a block moved off its place
+    with a thin leader line from where its label would have stood to its edge."""
     pack = _VECTOR.pack
+    stamp = _stamp_field(t_ns)
     for b in blocks:
         owner = b.owner
         assert isinstance(owner, WireEntity)
-        owner.parts.append(_field(_TEXTS_TAG, b"".join((
+        parts = [_label_head(owner.id, owner.lifetime_s), stamp, _field(_TEXTS_TAG, b"".join((
             _TEXT_POSE_HEAD, pack(0x0A, 27, 0x09, b.x, 0x11, b.y, 0x19, b.z), _ORIENTATION,
-            _TEXT_REST, _field(b"\x32", b.text.encode())))))
+            _TEXT_REST, _field(b"\x32", b.text.encode()))))]
         if b.leader is not None:
-            owner.parts.append(_field(_LINES_TAG, _LEADER_HEAD + b"".join(
+            parts.append(_field(_LINES_TAG, _LEADER_HEAD + b"".join(
                 [pack(_POINTS_TAG, 27, 0x09, x, 0x11, y, 0x19, z) for x, y, z in b.leader])))
+        into.append(WireEntity(owner.id, parts, owner.lifetime_s))
 
 
 
@@ -716,17 +735,19 @@ def _delete(topic: str, scene_update: SceneUpdate, ids: set[str], t_ns: int,
 def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
                   state: SceneState, *, lead_track: ObjectObservation | None = None,
                   twins: Mapping[str, Mapping[int, tuple[int, ...]]] | None = None,
-                  camera: ViewCamera | None = None) -> dict[str, SceneUpdate]:
+                  cameras: Mapping[str, ViewCamera] | None = None) -> dict[str, SceneUpdate]:
     """Every category's SceneUpdate at ``t_ns`` (category -> update).
 
     ``lead_track``: the track that is the lead (default: the MIO check's track, when the check
     holds); ``twins``: each group's sets of twins (:func:`bridge.world.lead.twin_sets`), drawn
-    as one object; ``camera``: the view the marks and labels are made for (default the
-    profile's, :func:`bridge.scene.camera.camera_for`)."""
+    as one object; ``cameras``: the views, each of which gets its labels (``labels/<view>``);
+    the range view's camera sizes the marks (default: the profile's,
+    :func:`bridge.scene.camera.view_cameras`)."""
     profile = world.profile
     twins = twins or {}
-    if camera is None:
-        camera = camera_for(view_range(profile))
+    if cameras is None:
+        cameras = view_cameras(profile)
+    camera = cameras.get("range") or camera_for(view_range(profile))
     out: dict[str, list[WireEntity]] = {}
 
     def category(name: str) -> list[WireEntity]:
@@ -758,10 +779,16 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
         labels += lead_entities(category("lead"), check.lead, t_ns, profile.lead.lifetime_s,
                                 lead_drawn, lead_notes)
         labels += mio_entities(category("mio"), check, t_ns, profile.lead.lifetime_s)
-    draw_labels(lay_out(labels, camera))
+    for view, view_camera in cameras.items():
+        draw_labels(category(label_category(view)), lay_out(labels, view_camera), t_ns)
     return {name: _delete(_scene_topic(name), scene_update(entities),
                           {e.id for e in entities}, t_ns, state)
             for name, entities in out.items()}
 
 
 _scene_topic = lru_cache(maxsize=256)(scene_topic)
+
+
+def label_category(view: str) -> str:
+    """The scene category of one view's labels (``labels/range``: ``/scene/labels/range``)."""
+    return f"labels/{view}"

@@ -43,7 +43,8 @@ from typing import Any
 from bridge.decode.decoder import Decoder
 from bridge.health.alarms import AlarmKind, alarm_id
 from bridge.profile.model import Field, ObjectGroup, Profile
-from bridge.scene.camera import camera_for, view_range
+from bridge.scene.camera import VIEWS, camera_for, chase_camera, view_range
+from bridge.scene.entities import label_category
 from bridge.topics import (
     EGO_TOPIC,
     HEALTH_TOPIC,
@@ -53,6 +54,7 @@ from bridge.topics import (
     frames_topic,
     message_topic,
     objects_topic,
+    scene_topic,
 )
 from bridge.view.bringup import BRINGUP_NAME, bringup_layout
 from bridge.view.panels import layout_of as _layout
@@ -111,9 +113,7 @@ def generate_layouts(profile: Profile, decoder: Decoder,
 
 
 #: The seed's camera: close behind and above the vehicle, about 60 m of road in view.
-CHASE_CAMERA = {"distance": 40, "perspective": True, "phi": 60, "thetaOffset": 90,
-                "target": [0, 0, 0], "targetOffset": [16, 0, 0],
-                "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5, "far": 5000}
+CHASE_CAMERA = chase_camera().foxglove_state()
 #: Share of the tank-viz layout's width the chase view takes (the range view the rest).
 CHASE_SHARE = 55.0
 
@@ -126,8 +126,12 @@ def view_3d(made: Produced, profile: Profile, *, whole_range: bool = False) -> d
     The chase view (default) has the seed's close camera and grid (160 m, 70 m ahead). The
     range view (``whole_range``) frames the road from just behind the vehicle to the profile's
     largest sensor range (:func:`bridge.scene.camera.camera_for`, the camera the scene keeps
-    its marks visible and its labels apart for), on a grid from 10 m behind to beyond it."""
-    scene = [t for t, d in made.topics.items() if d.full_name == "foxglove.SceneUpdate"]
+    its marks visible for), on a grid from 10 m behind to beyond it. Each view shows the labels
+    laid out for it, not the other's."""
+    view = "range" if whole_range else "chase"
+    others = {scene_topic(label_category(v)) for v in VIEWS if v != view}
+    scene = [t for t, d in made.topics.items()
+             if d.full_name == "foxglove.SceneUpdate" and t not in others]
     frames = [VEHICLE_FRAME, *(s for s in profile.sensors if s != VEHICLE_FRAME)]
     if whole_range:
         reach = view_range(profile)
