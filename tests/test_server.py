@@ -164,8 +164,7 @@ def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
 
         async def session() -> None:
             async with client(server) as ws:
-                await next_json(ws, "serverInfo")
-                await next_json(ws, "advertise")
+                await next_json(ws, "serverInfo")  # (no advertise: there is no channel yet)
                 await ws.send(json.dumps({"op": "subscribe", "subscriptions": []}))
                 server.channel("/scene/lanes", SceneUpdate)
                 late = await next_json(ws, "advertise")
@@ -176,12 +175,14 @@ def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
 
 def test_server_time_for_replays() -> None:
     with LiveServer(port=0, server_time=True) as server:
+        server.broadcast_time(41_000_000_000)
         scene = server.channel("/scene/ego", SceneUpdate)
 
         async def session() -> None:
             async with client(server) as ws:
                 info = await next_json(ws, "serverInfo")
                 assert "time" in info["capabilities"]
+                await next_json(ws, "advertise")
                 await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
                     {"id": 1, "channelId": scene}]}))
                 await asyncio.to_thread(wait_for, lambda: server.wanted(scene))
@@ -190,6 +191,25 @@ def test_server_time_for_replays() -> None:
                 assert struct.unpack("<BQ", data) == (2, 42_000_000_000)
 
         asyncio.run(session())
+
+
+def test_a_viewer_hears_the_time_before_the_first_channel() -> None:
+    """Foxglove Studio takes its clock when the first channels come as the start of the
+    timeline, zero without a time: a replay advertising its channels before its first frame made
+    a drive on a since-boot clock start at 0 and last 12 hours (#33). A server that publishes
+    its time advertises no channel before its first time."""
+    with LiveServer(port=0, server_time=True) as server:
+
+        async def session() -> list[str | bytes]:
+            async with client(server) as ws:
+                await next_json(ws, "serverInfo")
+                server.channel("/scene/ego", SceneUpdate)  # the pipeline's, advertised early
+                server.broadcast_time(46_411_900_000_000)  # then the first frame's time
+                return [await asyncio.wait_for(ws.recv(), 5.0) for _ in range(2)]
+
+        first, second = asyncio.run(session())
+        assert isinstance(first, bytes) and struct.unpack("<BQ", first) == (2, 46_411_900_000_000)
+        assert isinstance(second, str) and json.loads(second)["op"] == "advertise"
 
 
 def test_every_start_is_a_new_session() -> None:

@@ -17,7 +17,8 @@ What is used, and why:
   time follows a viewer's ``serverInfo`` with the latest time, :attr:`Server.latest_time_ns`,
   before foxglove-websocket advertises the channels: Foxglove Studio takes the time it has when
   the first channels come as the start of the timeline, zero without one, and a viewer joining
-  a replay then had plots reaching back to 1970).
+  a replay then had plots reaching back to 1970); an ``advertise`` of no channel (what a
+  viewer gets when it connects before the first one) is not sent at all, for the same reason.
 - :func:`clients` reads ``FoxgloveServer._clients`` (the connected ``ClientState`` s; each has
   ``connection`` and ``subscriptions_by_channel``, a new mapping at every (un)subscribe) and
   :func:`add_channel` writes ``FoxgloveServer._channels`` (the channels a client may subscribe
@@ -84,6 +85,8 @@ class Server(FoxgloveServer):  # type: ignore[misc]
         #: the latest server time sent to the viewers (ns; set by whoever sends it), sent to a
         #: viewer that connects right after its serverInfo
         self.latest_time_ns: int | None = None
+        #: channels of a server that publishes its time, held until its first time
+        self.held_channels: list[dict[str, Any]] = []
 
     async def _handle_raw_client_message(self, client: Any, raw_message: str | bytes) -> None:
         try:
@@ -106,6 +109,8 @@ class Server(FoxgloveServer):  # type: ignore[misc]
     async def _send_json(self, connection: Any, msg: Any) -> None:
         """Written at once, never awaited: only our sender task waits for a viewer's socket
         (websockets' legacy connections cannot have two waiting at once)."""
+        if msg.get("op") == "advertise" and not msg.get("channels"):
+            return  # nothing to tell, and Studio would start its timeline at zero
         if (connection.open
                 and connection.transport.get_write_buffer_size() < REPLY_LIMIT_BYTES):
             frames = [Frame(Opcode.TEXT, json.dumps(msg, separators=(",", ":")).encode())]

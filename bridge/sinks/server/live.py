@@ -385,7 +385,7 @@ class LiveServer(Sink):
         while inbox:
             item = inbox.popleft()
             if not isinstance(item, tuple):
-                _control(server, item, clients)
+                _control(server, item, clients, server_time=self.server_time)
                 continue
             channel_id = item[0]  # a message: (channel, time, payload)
             channel_shares = targets.get(channel_id)
@@ -402,19 +402,31 @@ class LiveServer(Sink):
             client.write_now()
 
 
-def _control(server: FoxgloveServer, item: AdvertiseChannel | ServerTime,
-             clients: list[ClientQueue]) -> None:
-    """A control message, queued for every client ahead of its messages."""
-    data: str | bytes
+def _control(server: internals.Server, item: AdvertiseChannel | ServerTime,
+             clients: list[ClientQueue], *, server_time: bool) -> None:
+    """A control message, queued for every client ahead of its messages. A server that
+    publishes its time advertises its channels from its first time on: Foxglove Studio takes
+    the time it has when the first channels come as the start of its timeline, zero without
+    one."""
+    data: list[str | bytes] = []
+    channels: list[dict[str, Any]] = []
     match item:
         case AdvertiseChannel(channel):
-            internals.add_channel(server, channel)  # then clients may subscribe to it
-            data = json.dumps({"op": "advertise", "channels": [channel]}, separators=(",", ":"))
+            if server_time and server.latest_time_ns is None:
+                server.held_channels.append(channel)
+                return
+            channels.append(channel)
         case ServerTime(t_ns):
-            data = TimeDataHeader.pack(BinaryOpcode.TIME, t_ns)
+            data.append(TimeDataHeader.pack(BinaryOpcode.TIME, t_ns))
             server.latest_time_ns = t_ns  # (internals.Server: a viewer that comes gets it)
+            channels, server.held_channels = server.held_channels, []
+    for channel in channels:
+        internals.add_channel(server, channel)  # then clients may subscribe to it
+    if channels:
+        data.append(json.dumps({"op": "advertise", "channels": channels}, separators=(",", ":")))
     for client in clients:
-        client.put_control(data)
+        for control in data:
+            client.put_control(control)
 
 
 def _listening_socket(host: str, port: int) -> socket.socket:
