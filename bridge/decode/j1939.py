@@ -17,6 +17,8 @@ from __future__ import annotations
 from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
+from bridge.protowire import varint
+
 #: PF from which a group is PDU2 (PS is part of the PGN, a group extension)
 _PDU2 = 240
 #: the field names of the addresses, before any clash with a signal's
@@ -49,18 +51,10 @@ def address_fields(message: DbcMessage) -> tuple[str, ...]:
     return (SOURCE, DESTINATION) if is_pdu1(message.frame_id) else (SOURCE,)
 
 
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while value > 0x7F:
-        out.append((value & 0x7F) | 0x80)
-        value >>= 7
-    out.append(value)
-    return bytes(out)
-
 
 def address_suffix(frame_id: int, numbers: tuple[int, ...]) -> bytes:
     """The protobuf bytes of a frame's addresses: field ``numbers[0]`` the source address and,
     for a PDU1 group, ``numbers[1]`` the destination address (``uint32``, always present)."""
     values = (frame_id & 0xFF, (frame_id >> 8) & 0xFF)
-    return b"".join(_varint(number << 3) + _varint(value)
+    return b"".join(varint(number << 3) + varint(value)
                     for number, value in zip(numbers, values, strict=False))

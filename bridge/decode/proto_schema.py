@@ -39,6 +39,8 @@ from cantools.database.conversion import BaseConversion, IdentityConversion, Lin
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from bridge.protowire import varint
+
 FieldType = descriptor_pb2.FieldDescriptorProto
 
 _NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
@@ -201,15 +203,6 @@ _SMALL: dict[bytes, tuple[bytes, ...]] = {}
 Encoder = Callable[[Mapping[str, Any]], bytes]
 
 
-def _varint(value: int) -> bytes:
-    """A non-negative int as a protobuf base-128 varint."""
-    out = bytearray()
-    while value > 0x7F:
-        out.append((value & 0x7F) | 0x80)
-        value >>= 7
-    out.append(value)
-    return bytes(out)
-
 
 def compile_encoder(schema: MessageSchema) -> Encoder:
     """A function from cantools' decoded signals (keyed by signal name, ``decode_choices=False``)
@@ -223,7 +216,7 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
         if name in source:  # two keys for one field: only protobuf itself knows the answer
             return fallback
         source[name] = key
-    names: dict[str, Any] = {"F": fallback, "V": _varint,
+    names: dict[str, Any] = {"F": fallback, "V": varint,
                              "D1": struct.Struct("<Bd").pack, "D2": struct.Struct("<BBd").pack}
     # Every signal present (a whole frame of a message without multiplexing) with every integer
     # below 128 as a varint: one struct.pack of the tags and values.
@@ -239,7 +232,7 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
         if src is None:
             continue
         double = fd.type == FieldType.TYPE_DOUBLE
-        tag = _varint(fd.number << 3 | 1) if double else _varint(fd.number << 3)
+        tag = varint(fd.number << 3 | 1) if double else varint(fd.number << 3)
         if len(tag) > 2:
             return fallback
         v = f"v{n}"
