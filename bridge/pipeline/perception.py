@@ -19,8 +19,10 @@ observing a message many times per tick, and an object once per message of its f
 object whose signals did not change since its last observation is not evaluated again, only its
 time moves on (:mod:`bridge.world.observe`). The messages of a group without an index range are
 the exception: each frame may be another object (an object list sent one object per frame, its
-id signal says which), so every one of their frames is observed at the tick, in order. Health
-counts and decoding stay per frame.
+id signal says which), so every one of their frames is observed at the tick, in order; so are
+multiplexed object messages, whose pages are merged per object (:mod:`bridge.world.pages`).
+Health counts and decoding stay per frame. Each 3D view gets its own labels
+(``/scene/labels/<view>``, :func:`bridge.scene.camera.view_cameras`).
 
 Two groups that read the same fields of the same messages (one radar's slots as detections and
 as tracks) are observed once (:class:`bridge.world.observe.Observer`); at the tick the second
