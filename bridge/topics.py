@@ -86,6 +86,11 @@ LANES_TOPIC = "/perception/lanes"
 EGO_TOPIC = "/ego"
 #: Messages for people (``foxglove.Log``): alarms, bus loss, skipped input.
 LOG_TOPIC = "/log"
+#: Moments somebody marked (``tankviz.Mark``): from a viewer's Publish panel (the one topic a
+#: viewer may publish to), a profile's ``[marks]`` rule, live's terminal.
+MARKS_TOPIC = "/marks"
+#: The scene category of the marks, each shown for a few seconds.
+MARKS_CATEGORY = "marks"
 #: Bus, message family and sensor health with its alarms (``tankviz.Health``).
 HEALTH_TOPIC = "/health"
 #: The scene category of the alarm overlay and the sensors' fields of view.

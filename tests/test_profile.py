@@ -800,12 +800,12 @@ def test_a_message_named_twice(error: Callable[[str], str]) -> None:
         "car.toml: objects.tracks.messages: 'FusionTrack{i}' is named twice")
 
 
-@pytest.mark.parametrize("name", ["ego", "health", "lanes", "lead", "mio"])
+@pytest.mark.parametrize("name", ["ego", "health", "lanes", "lead", "marks", "mio"])
 def test_group_names_that_are_taken(error: Callable[[str], str], name: str) -> None:
     # each would overwrite its /scene/<name> topic
     assert error(edit(("[objects.tracks]", f"[objects.{name}]"))) == (
         f"car.toml: objects.{name}: '{name}' is taken by /scene/{name}; not one of ego, health, "
-        "lanes, lead, mio")
+        "lanes, lead, marks, mio")
 
 
 @pytest.mark.parametrize("name", ['""', '"../x"', '"a b"', '"radar/near"'])

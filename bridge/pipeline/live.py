@@ -67,10 +67,11 @@ from bridge.io.buses import (
 from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
 from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
+from bridge.pipeline.marks import Marks, describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
 from bridge.sinks.server import ClientStats, LiveServer
-from bridge.topics import LOG_TOPIC, TopicMessage, bus_segment
+from bridge.topics import LOG_TOPIC, MARKS_TOPIC, TopicMessage, bus_segment
 
 
 def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
@@ -149,6 +150,8 @@ class Live:
             self.recorder.min_free = min_free
             self.recorder.check_space()
         self.pipeline = self.drive.pipeline
+        #: the marks of this drive: :meth:`Marks.ask` from any thread, made in the loop
+        self.marks = self.pipeline.marks = Marks()
         self.pipeline.advertise(names)
         self.stopping = threading.Event()
         self._down: dict[str, Gap] = {}
@@ -225,6 +228,7 @@ class Live:
                 # or not a later frame came (a quiet or silent bus).
                 log_now = schedule.log_time(time.time_ns())
                 if log_now is not None:
+                    self._take_marks(log_now)  # (before the first frame, marks wait for one)
                     pipeline.advance(log_now)
                 if self.server is not None:
                     # raw frames and signals for who subscribed to them, with the next scene
@@ -244,6 +248,8 @@ class Live:
             for link in self.links:
                 link.close()
             self._receive_state()
+            if pipeline.last_ns is not None:
+                self._take_marks(pipeline.last_ns)
             self.drive.finish()
             if self.recorder is not None:
                 for text in self.recorder.take_notices():
@@ -253,6 +259,16 @@ class Live:
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
                           self.recorder.gaps if self.recorder else [],
                           sum(s.dropped for s in viewers), viewers, dict(self.receive))
+
+    def _take_marks(self, t_ns: int) -> None:
+        """The marks asked for since the last call, made at ``t_ns`` (the drive's clock now),
+        recorded, shown and said on the console."""
+        made = self.marks.take(t_ns)
+        if made:
+            self.pipeline.emit(made)
+            for message in made:
+                if message.topic == MARKS_TOPIC:
+                    self.say(describe(message.message))
 
     def _receive_state(self) -> None:
         """What each bus's reading mended or lost, when it changed: to the health monitor

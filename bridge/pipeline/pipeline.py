@@ -37,13 +37,23 @@ from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrameBlock
+from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.clock import ClockStep, StepDetector
+from bridge.pipeline.marks import Marks
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
 from bridge.sinks.raw import Blocker, RawBlock
-from bridge.topics import HEALTH_CATEGORY, LOG_TOPIC, TopicMessage, frames_topic, scene_topic
+from bridge.topics import (
+    HEALTH_CATEGORY,
+    LOG_TOPIC,
+    MARKS_CATEGORY,
+    MARKS_TOPIC,
+    TopicMessage,
+    frames_topic,
+    scene_topic,
+)
 
 if TYPE_CHECKING:  # (bring-up brings numpy: a drive without it does not import it)
     from bridge.bringup.monitor import BringUpMonitor
@@ -90,6 +100,9 @@ class Pipeline:
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
+        #: the drive's marks, where it takes them (live; a drive re-derived with its marks):
+        #: its channels then have /marks and /scene/marks
+        self.marks: Marks | None = None
 
     def add_sink(self, sink: Sink) -> None:
         """One more sink, after those there are (before the first frame)."""
@@ -401,6 +414,8 @@ class Pipeline:
         buses = list(buses)
         if self.bringup is not None:
             topics += self.bringup.topics(buses)
+        if self.marks is not None:
+            topics += [(MARKS_TOPIC, Mark), (scene_topic(MARKS_CATEGORY), SceneUpdate)]
         out = [Channel(topic, cls.DESCRIPTOR.full_name, partial(_fds, cls))
                for topic, cls in [*topics, (LOG_TOPIC, Log)]]
         for bus in buses:

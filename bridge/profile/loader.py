@@ -82,7 +82,7 @@ else:  # pragma: no cover - Python 3.10
 
 
 #: Scene categories that are not object groups (a group gets /scene/<name>).
-_RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "mio"}
+_RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "marks", "mio"}
 #: What an object group is (``[objects.GROUP] role``).
 _ROLES = ("detections", "tracks")
 _TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
