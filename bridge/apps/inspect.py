@@ -1,7 +1,9 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
-Besides times, topics (raw frames are counted in blocks there, and in frames under the decode
-statistics), attachments and the decode statistics it prints what the ``tankviz``
+Besides times, the drive's marks (``/marks``, each with its seconds from the drive's start:
+read through the file's indexes, only the chunks that hold them), topics (raw frames are counted
+in blocks there, and in frames under the decode statistics), attachments and the decode
+statistics it prints what the ``tankviz``
 metadata record says of the drive: inputs, databases, clock steps, bus gaps (a bus lost and back,
 live), recording pauses (the disk was full: when, why, and what was not recorded), warnings, the
 alarms raised and cleared, each sensor's lateral sign verdict (``ok``, ``flipped`` or
@@ -31,11 +33,14 @@ from mcap.reader import make_reader
 from bridge.apps.options import Subparsers
 from bridge.errors import InputError, check_input_path
 from bridge.frame import format_time
-from bridge.io.drives import BLOCK_SCHEMA
+from bridge.io.drives import BLOCK_SCHEMA, DriveMarks, by_number, parse_mark, read_marks
 from bridge.io.issues import summarize_issues
 from bridge.io.unreadable import why_unreadable
+from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline.marks import describe
 from bridge.sinks.mcap import METADATA_NAME
 from bridge.sinks.raw import WINDOW_NS
+from bridge.topics import MARKS_TOPIC
 
 
 @dataclass
@@ -56,6 +61,7 @@ class DriveSummary:
     topics: list[Topic]
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: list[tuple[str, str, int]] = field(default_factory=list)
+    marks: DriveMarks = field(default_factory=lambda: DriveMarks([], None))
 
     @property
     def duration_s(self) -> float:
@@ -71,11 +77,20 @@ def summarize(stream: IO[bytes]) -> DriveSummary:
         counts = dict(stats.channel_message_counts)
         channels, schemas = summary.channels, summary.schemas
         start, end, total = stats.message_start_time, stats.message_end_time, stats.message_count
+        marks, unreadable = read_marks(reader)
     else:
         counter: Counter[int] = Counter()
         start, end, total = 0, 0, 0
         channels, schemas = {}, {}
+        found: list[Mark] = []
+        unreadable = 0
         for schema, channel, message in reader.iter_messages():
+            if channel.topic == MARKS_TOPIC:
+                mark = parse_mark(message.data, message.log_time)
+                if mark is None:
+                    unreadable += 1
+                else:
+                    found.append(mark)
             counter[channel.id] += 1
             channels[channel.id] = channel
             if schema is not None:
@@ -84,6 +99,7 @@ def summarize(stream: IO[bytes]) -> DriveSummary:
             end = max(end, message.log_time)
             total += 1
         counts = dict(counter)
+        marks = by_number(found)
     topics = [
         Topic(ch.topic, schemas[ch.schema_id].name if ch.schema_id in schemas else "",
               ch.message_encoding, counts.get(ch.id, 0))
@@ -92,7 +108,8 @@ def summarize(stream: IO[bytes]) -> DriveSummary:
     topics.sort(key=lambda t: t.topic)
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     attachments = [(a.name, a.media_type, len(a.data)) for a in reader.iter_attachments()]
-    return DriveSummary(start, end, total, topics, metadata, attachments)
+    return DriveSummary(start, end, total, topics, metadata, attachments,
+                        DriveMarks(marks, start if total else None, unreadable))
 
 
 def summarize_file(path: Path | str) -> DriveSummary:
@@ -171,6 +188,19 @@ def _entry(key: str, text: str) -> list[str]:
     return [f"  {key}: {text}"]
 
 
+def _marks(marks: DriveMarks) -> list[str]:
+    """The drive's marks, a line each: seconds from its start, then as live said it."""
+    if not marks.marks and not marks.unreadable:
+        return []
+    lines = ["", f"marks ({len(marks.marks)}; seconds from the drive's start):"]
+    lines += _cut([f"  {marks.seconds(m):>10,.3f} s  {describe(m)}" for m in marks.marks],
+                  limit=50)
+    if marks.unreadable:
+        lines.append(f"  ({marks.unreadable:,} {MARKS_TOPIC} messages are not a tankviz.Mark: "
+                     "left out)")
+    return lines
+
+
 def format_summary(path: str, s: DriveSummary) -> str:
     """The report ``tankviz inspect`` prints."""
     lines = [
@@ -179,9 +209,9 @@ def format_summary(path: str, s: DriveSummary) -> str:
         f"start:     {format_time(s.start_ns)}",
         f"end:       {format_time(s.end_ns)}",
         f"messages:  {s.messages:,}",
-        "",
-        f"topics ({len(s.topics)}):",
     ]
+    lines += _marks(s.marks)
+    lines += ["", f"topics ({len(s.topics)}):"]
     width = max((len(t.topic) for t in s.topics), default=10)
     for t in s.topics:
         lines.append(f"  {t.topic:<{width}}  {t.messages:>10,}  {t.schema} ({t.encoding})")

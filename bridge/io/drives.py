@@ -24,6 +24,11 @@ business.
   carries (an id of more than 29 bits, a time before 1970 or after 2262, as a log's are
   skipped), is skipped and reported; the others go on.
 - :func:`raw_frame_counts`: frames per bus a finished drive holds, counted from its blocks.
+- :func:`read_marks` and :func:`drive_marks`: the marks a drive recorded (``/marks``,
+  ``tankviz.Mark``: :mod:`bridge.pipeline.marks`) in the order of their numbers, read through
+  the file's indexes (only the chunks that hold ``/marks`` are read, however long the drive), or
+  streamed from a drive cut short; a ``/marks`` message that is not a ``tankviz.Mark`` is counted
+  and skipped.
 """
 
 from __future__ import annotations
@@ -47,6 +52,8 @@ from bridge.errors import InputError, check_input_path
 from bridge.frame import NEVER_NS, Frame
 from bridge.io.logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
+from bridge.pb.marks_pb2 import Mark
+from bridge.topics import MARKS_TOPIC
 
 #: The suffix of a recorded drive.
 DRIVE_SUFFIX = ".mcap"
@@ -370,3 +377,98 @@ def raw_frame_counts(reader: McapReader) -> dict[str, int]:
             rows = len(CanFrameBlock.FromString(message.data).frames)
             counts[bus["bus"]] = counts.get(bus["bus"], 0) + rows
     return dict(sorted(counts.items()))
+
+
+def mark_time(mark: Mark) -> int:
+    """A recorded mark's log time (ns)."""
+    return int(mark.timestamp.ToNanoseconds())
+
+
+def parse_mark(data: bytes, log_time: int) -> Mark | None:
+    """A ``/marks`` message's Mark (stamped with the message's log time where it has no
+    timestamp of its own); None if its bytes are not one."""
+    try:
+        mark: Mark = Mark.FromString(data)
+    except DecodeError:
+        return None
+    if not mark.HasField("timestamp"):
+        mark.timestamp.FromNanoseconds(log_time)
+    return mark
+
+
+def by_number(marks: list[Mark]) -> list[Mark]:
+    """Marks in the order of their numbers (then of their times)."""
+    return sorted(marks, key=lambda m: (m.number, mark_time(m)))
+
+
+def read_marks(reader: McapReader) -> tuple[list[Mark], int]:
+    """The marks of a finished drive (``reader``: mcap's, of its file) in the order of their
+    numbers, and how many ``/marks`` messages were not a ``tankviz.Mark``: only the chunks that
+    hold ``/marks`` are read (its indexes say which)."""
+    summary = reader.get_summary()
+    if summary is None or not any(c.topic == MARKS_TOPIC for c in summary.channels.values()):
+        return [], 0
+    marks: list[Mark] = []
+    unreadable = 0
+    for _, _, message in reader.iter_messages(topics=[MARKS_TOPIC], log_time_order=False):
+        mark = parse_mark(message.data, message.log_time)
+        if mark is None:
+            unreadable += 1
+        else:
+            marks.append(mark)
+    return by_number(marks), unreadable
+
+
+@dataclass(frozen=True)
+class DriveMarks:
+    """The marks a drive recorded (:func:`drive_marks`), and where the drive starts."""
+
+    marks: list[Mark]
+    #: the log time of the drive's first message (None: it has none)
+    start_ns: int | None
+    #: ``/marks`` messages that are not a ``tankviz.Mark`` (skipped)
+    unreadable: int = 0
+
+    def seconds(self, mark: Mark) -> float:
+        """How many seconds after the drive's first message ``mark`` is."""
+        return (mark_time(mark) - (self.start_ns or 0)) / 1e9
+
+
+def drive_marks(path: Path | str) -> DriveMarks:
+    """The marks of the drive at ``path`` (:func:`read_marks`); a drive cut short (no summary)
+    is read up to where it is cut. A file that cannot be opened or is not an MCAP is an
+    :class:`~bridge.errors.InputError`."""
+    path = Path(path)
+    with _open(path) as stream:
+        try:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+        except Exception:  # a file cut short or damaged: mcap raises many types
+            summary = None
+        if summary is not None and summary.statistics is not None:
+            marks, unreadable = read_marks(reader)
+            stats = summary.statistics
+            return DriveMarks(marks, stats.message_start_time if stats.message_count else None,
+                              unreadable)
+        stream.seek(0)
+        found: list[Mark] = []
+        unreadable = 0
+        start: int | None = None
+        ids: set[int] = set()
+        try:
+            for record in StreamReader(stream).records:
+                if isinstance(record, Message):
+                    start = record.log_time if start is None else min(start, record.log_time)
+                    if record.channel_id in ids:
+                        mark = parse_mark(record.data, record.log_time)
+                        if mark is None:
+                            unreadable += 1
+                        else:
+                            found.append(mark)
+                elif isinstance(record, Channel) and record.topic == MARKS_TOPIC:
+                    ids.add(record.id)
+                elif isinstance(record, (DataEnd, Footer)):
+                    break
+        except Exception:  # where the file is cut: what came before it counts
+            pass
+        return DriveMarks(by_number(found), start, unreadable)

@@ -1,0 +1,167 @@
+"""Finding marks (#34): inspect lists a drive's marks, the catalogue indexes them, replay starts a
+few seconds before one, recover keeps those of a cut drive, and a re-derived drive keeps them.
+
+One drive is recorded for real (``tankviz live`` on python-can's virtual bus, three marks asked
+between bursts of frames); another is written with the recorder (marks far apart in time).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+from conftest import timeout_scale
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from mcap.reader import make_reader
+from waiting import wait_for
+
+from bridge.cli import main
+from bridge.frame import NS, Frame, timestamp
+from bridge.io.buses import BusSpec
+from bridge.io.drives import mark_time
+from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline.drive import load_stages
+from bridge.pipeline.live import Live
+from bridge.pipeline.marks import MarkAsked, describe
+from bridge.sim.ecocar import simulate
+from bridge.sinks.base import Serialized
+from bridge.sinks.mcap import Recorder
+from bridge.topics import LOG_TOPIC, MARKS_TOPIC
+
+#: The marks asked for during the recorded drive, in order.
+ASKED = [MarkAsked("ghost on the left", "radar", "viewer", "192.168.1.4:53211"),
+         MarkAsked("lanes jumped", "lanes", "terminal", "terminal"),
+         MarkAsked("Ghost again", "", "car", "MARK_BTN == 1")]
+
+
+def send(bus: can.BusABC, frames: list[Frame]) -> None:
+    for frame in frames:
+        bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                             is_fd=frame.is_fd, dlc=frame.dlc))
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Mark]]:
+    """A drive recorded live with :data:`ASKED`, each between two bursts of frames (a chunk
+    flushed at every tick, so that the drive has many), and the marks live made."""
+    folder = tmp_path_factory.mktemp("marked")
+    channel = f"marks-{os.getpid()}"
+    live = Live([BusSpec("can0", "virtual", channel)], load_stages([], "ecocar"), drives=folder,
+                say=lambda _: None)
+    assert live.recorder is not None
+    live.recorder.flush_interval_s = 0.0
+    live.start()
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    frames = list(simulate(duration_s=1.0))
+    bursts = [frames[i::4] for i in range(4)]  # (each covers the whole simulated second)
+    sent = 0
+    wait = 10 * timeout_scale()
+    try:
+        with can.Bus(interface="virtual", channel=channel) as bus:
+            for i, burst in enumerate(bursts):
+                send(bus, burst)
+                sent += len(burst)
+                assert wait_for(lambda n=sent: live.pipeline.frames >= n, wait)
+                if i < len(ASKED):
+                    live.marks.ask(ASKED[i])
+                    assert wait_for(lambda n=i: len(live.marks.made) > n, wait)
+    finally:
+        live.stop()
+        runner.join(wait)
+    (drive,) = folder.glob("*.mcap")
+    return drive, list(live.marks.made)
+
+
+T0 = 1_767_268_800_000_000_000  # 2026-01-01T12:00:00Z
+
+
+def mark(number: int, at_s: float, text: str, category: str = "",
+         source: str = "viewer", by: str = "") -> Mark:
+    return Mark(timestamp=timestamp(T0 + round(at_s * NS)), number=number, text=text,
+                category=category, source=source, by=by)
+
+
+def write_drive(path: Path, marks: list[Mark], *, seconds: int = 40,
+                extra: list[Serialized] = ()) -> Path:  # type: ignore[assignment]
+    """An MCAP of ``seconds`` with a /log line a second and ``marks`` on /marks."""
+    with path.open("wb") as stream:
+        recorder = Recorder(stream)
+        recorder.on_messages([Serialized(LOG_TOPIC, Log, Log(message=f"{s}").SerializeToString(),
+                                         T0 + s * NS) for s in range(seconds + 1)])
+        recorder.on_messages([Serialized(MARKS_TOPIC, Mark, m.SerializeToString(),
+                                         mark_time(m)) for m in marks])
+        recorder.on_messages(list(extra))
+        recorder.finish()
+    return path
+
+
+FAR = [mark(1, 12.5, "ghost target here", "radar", "viewer", "192.168.1.4:53211"),
+       mark(2, 30.0, "lanes jumped", "lanes", "terminal", "terminal"),
+       mark(3, 31.0, "Ghost again")]
+
+
+# --- inspect ------------------------------------------------------------------------------------
+
+def test_inspect_lists_each_mark_with_its_seconds_from_the_drives_start(
+        recorded: tuple[Path, list[Mark]], capsys: pytest.CaptureFixture[str]) -> None:
+    drive, made = recorded
+    assert [m.text for m in made] == [a.text for a in ASKED]
+    assert main(["inspect", str(drive)]) == 0
+    out = capsys.readouterr().out
+    with drive.open("rb") as f:
+        stats = make_reader(f).get_summary().statistics  # type: ignore[union-attr]
+    assert stats is not None
+    lines = out.splitlines()
+    at = lines.index("marks (3; seconds from the drive's start):")
+    expected = [f"  {(mark_time(m) - stats.message_start_time) / NS:>10,.3f} s  {describe(m)}"
+                for m in made]
+    assert lines[at + 1:at + 4] == expected
+    assert "MARK 1: ghost on the left [radar] (viewer 192.168.1.4:53211)" in expected[0]
+    assert "MARK 2: lanes jumped [lanes] (terminal terminal)" in expected[1]
+    assert "MARK 3: Ghost again (car MARK_BTN == 1)" in expected[2]
+    assert 0 < mark_time(made[0]) - stats.message_start_time < mark_time(made[2]) - \
+        stats.message_start_time
+
+
+def test_inspect_reads_only_the_chunks_that_hold_marks(
+        recorded: tuple[Path, list[Mark]], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A drive of hours is not read through to list its marks: only the chunks with /marks."""
+    import mcap.reader
+
+    from bridge.apps.inspect import summarize_file
+
+    drive, _ = recorded
+    with drive.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    (marks_id,) = [c.id for c in summary.channels.values() if c.topic == MARKS_TOPIC]
+    holding = [c for c in summary.chunk_indexes if marks_id in c.message_index_offsets]
+    assert len(holding) < len(summary.chunk_indexes)
+    read: list[Any] = []
+    breakup = mcap.reader.breakup_chunk
+    monkeypatch.setattr(mcap.reader, "breakup_chunk",
+                        lambda chunk, **kw: read.append(chunk) or breakup(chunk, **kw))
+    assert len(summarize_file(drive).marks.marks) == 3
+    assert len(read) == len(holding)
+
+
+def test_inspect_of_a_drive_without_marks_says_nothing_of_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["inspect", str(write_drive(tmp_path / "none.mcap", []))]) == 0
+    assert "marks" not in capsys.readouterr().out
+
+
+def test_a_marks_message_that_is_no_mark_is_counted_and_the_others_listed(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = Serialized(MARKS_TOPIC, Mark, b"\xff\xff\xff", T0 + 5 * NS)
+    drive = write_drive(tmp_path / "bad.mcap", FAR, extra=[bad])
+    assert main(["inspect", str(drive)]) == 0
+    out = capsys.readouterr().out
+    assert "marks (3;" in out
+    assert "      12.500 s  MARK 1: ghost target here [radar] (viewer 192.168.1.4:53211)" in out
+    assert "(1 /marks messages are not a tankviz.Mark: left out)" in out
