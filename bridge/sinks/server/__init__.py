@@ -2,10 +2,10 @@
 
 :class:`LiveServer` runs its own asyncio loop in a thread; the pipeline publishes to it without
 ever waiting, every viewer gets its own bounded queue (a slow one loses its own oldest messages,
-never anyone else's), and a viewer may only subscribe and unsubscribe. The protocol has no
-authentication: bind to 127.0.0.1 (the default) unless the network is trusted. Bound to every
-address (``0.0.0.0``, ``::``), :attr:`LiveServer.urls` names the machine's own addresses, which
-a laptop on the car's network can open.
+never anyone else's), and a viewer may only subscribe and unsubscribe (and, on a live server,
+publish marks). The protocol has no authentication: bind to 127.0.0.1 (the default) unless the
+network is trusted. Bound to every address (``0.0.0.0``, ``::``), :attr:`LiveServer.urls` names
+the machine's own addresses, which a laptop on the car's network can open.
 
 The package, one concern a module:
 
@@ -14,7 +14,7 @@ The package, one concern a module:
 - :mod:`~bridge.sinks.server.client`: one viewer's bounded queue and sender task, and
   :class:`ClientStats` (what it was sent and lost).
 - :mod:`~bridge.sinks.server.viewer_input`: what a viewer may send (:func:`client_message`,
-  :class:`ViewerInputError`).
+  :class:`ViewerInputError`; marks: :class:`ViewerMark`, their limits).
 - :mod:`~bridge.sinks.server.addresses`: the URLs to print and the machine's own addresses
   (:func:`machine_addresses`).
 - :mod:`~bridge.sinks.server.internals`: the fence; every use of foxglove-websocket's and
@@ -33,8 +33,8 @@ from bridge.sinks.server.live import (
     LiveServer,
     ServerError,
 )
-from bridge.sinks.server.viewer_input import ViewerInputError, client_message
+from bridge.sinks.server.viewer_input import ViewerInputError, ViewerMark, client_message
 
 __all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "DEFAULT_QUEUE_LIMIT", "SEND_BUFFER_BYTES",
-           "ClientStats", "LiveServer", "ServerError", "ViewerInputError", "client_message",
-           "machine_addresses"]
+           "ClientStats", "LiveServer", "ServerError", "ViewerInputError", "ViewerMark",
+           "client_message", "machine_addresses"]

@@ -9,16 +9,17 @@ it before adding it there.
 
 What is used, and why:
 
-- :class:`Server` subclasses ``FoxgloveServer`` and overrides ``_handle_raw_client_message``
-  (to check what a viewer sends with :func:`~bridge.sinks.server.viewer_input.client_message`
-  before foxglove-websocket sees it: it calls ``_handle_client_text_message`` with what passed
-  and answers the rest with ``_send_status``) and ``_send_json`` (to write replies without
-  waiting for the viewer; at most :data:`REPLY_LIMIT_BYTES` behind; a server that publishes its
-  time follows a viewer's ``serverInfo`` with the latest time, :attr:`Server.latest_time_ns`,
-  before foxglove-websocket advertises the channels: Foxglove Studio takes the time it has when
-  the first channels come as the start of the timeline, zero without one, and a viewer joining
-  a replay then had plots reaching back to 1970); an ``advertise`` of no channel (what a
-  viewer gets when it connects before the first one) is not sent at all, for the same reason.
+- :class:`Server` subclasses ``FoxgloveServer`` and overrides ``_handle_raw_client_message`` (to
+  check what a viewer sends with its :class:`~bridge.sinks.server.viewer_input.ViewerInput` before
+  foxglove-websocket sees it: it calls ``_handle_client_text_message`` with the subscriptions that
+  passed, handles a viewer's channels and marks itself, never through foxglove-websocket's, and
+  answers the rest with ``_send_status``) and ``_send_json`` (to write replies without waiting for
+  the viewer; at most :data:`REPLY_LIMIT_BYTES` behind; a server that publishes its time follows a
+  viewer's ``serverInfo`` with the latest time, :attr:`Server.latest_time_ns`, before
+  foxglove-websocket advertises the channels: Foxglove Studio takes the time it has when the first
+  channels come as the start of the timeline, zero without one, and a viewer joining a replay then
+  had plots reaching back to 1970); an ``advertise`` of no channel (what a viewer gets when it
+  connects before the first one) is not sent at all, for the same reason.
 - :func:`clients` reads ``FoxgloveServer._clients`` (the connected ``ClientState`` s; each has
   ``connection`` and ``subscriptions_by_channel``, a new mapping at every (un)subscribe) and
   :func:`add_channel` writes ``FoxgloveServer._channels`` (the channels a client may subscribe
@@ -32,7 +33,9 @@ What is used, and why:
 
 Refusals: a viewer that sends what the server does not take gets the protocol's ``status``
 message (level error) saying what was wrong, the console one line (logger ``tankviz.server``,
-warning, no traceback; at most :data:`REFUSALS_LOGGED` per viewer), and nothing else happens.
+warning, no traceback), and nothing else happens; how many of each are told is
+:meth:`ViewerInput.refused`'s business (statuses and lines are limited per viewer). A mark that
+is taken goes to :attr:`Server.take_mark`, in the server's loop.
 
 A viewer that closes the connection while it still has not read what was sent to it (its socket
 buffers are full) is dropped at once: the echo of its close frame could only reach it behind all
@@ -44,8 +47,9 @@ from __future__ import annotations
 import json
 import logging
 import struct
+import time
 import weakref
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from foxglove_websocket.server import FoxgloveServer, TimeDataHeader
@@ -56,12 +60,16 @@ from websockets.legacy.framing import prepare_ctrl
 from websockets.legacy.server import WebSocketServerProtocol
 from websockets.typing import DataLike
 
-from bridge.sinks.server.viewer_input import ViewerInputError, client_message
+from bridge.sinks.server.viewer_input import (
+    REFUSALS_LOGGED,
+    TooManyMarks,
+    ViewerInput,
+    ViewerInputError,
+    ViewerMark,
+)
 
 #: foxglove-websocket releases this module was checked against (tests/test_server.py).
 CHECKED_FOXGLOVE_WEBSOCKET = ("0.1.4",)
-#: Console lines for one viewer's refused messages; it gets a status for every one.
-REFUSALS_LOGGED = 20
 #: A viewer this far behind (bytes not yet taken by its socket) gets no more replies.
 REPLY_LIMIT_BYTES = 2**20
 
@@ -75,36 +83,61 @@ def viewer_name(connection: Any) -> str:
 
 
 class Server(FoxgloveServer):  # type: ignore[misc]
-    """foxglove-websocket's server, taking from viewers only what
-    :func:`~bridge.sinks.server.viewer_input.client_message` lets through, and replying without
-    waiting for the viewer to read."""
+    """foxglove-websocket's server, taking from viewers only what their
+    :class:`~bridge.sinks.server.viewer_input.ViewerInput` lets through (with ``marks``: marks
+    too, handed to :attr:`take_mark`), and replying without waiting for the viewer to read."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, marks: bool = False, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._refusals: weakref.WeakKeyDictionary[Any, int] = weakref.WeakKeyDictionary()
+        self.marks = marks
+        #: called in the server's loop with each mark a viewer published and that was taken;
+        #: a ``ViewerInputError`` it raises is the viewer's refusal
+        self.take_mark: Callable[[ViewerMark], None] | None = None
+        self._viewers: weakref.WeakKeyDictionary[Any, ViewerInput] = weakref.WeakKeyDictionary()
         #: the latest server time sent to the viewers (ns; set by whoever sends it), sent to a
         #: viewer that connects right after its serverInfo
         self.latest_time_ns: int | None = None
         #: channels of a server that publishes its time, held until its first time
         self.held_channels: list[dict[str, Any]] = []
 
+    def viewer_input(self, connection: Any) -> ViewerInput:
+        """What this viewer sent that the server keeps (made at its first message)."""
+        viewer = self._viewers.get(connection)
+        if viewer is None:
+            viewer = self._viewers[connection] = ViewerInput(viewer_name(connection), self.marks,
+                                                             time.monotonic)
+        return viewer
+
     async def _handle_raw_client_message(self, client: Any, raw_message: str | bytes) -> None:
+        viewer = self.viewer_input(client.connection)
         try:
-            message = client_message(raw_message)
-            await self._handle_client_text_message(client, message)
+            if isinstance(raw_message, str):
+                message = viewer.text(raw_message)
+                if message is not None:
+                    await self._handle_client_text_message(client, message)
+            else:
+                mark = viewer.binary(raw_message)
+                if mark is not None and self.take_mark is not None:
+                    self.take_mark(mark)
         except ConnectionClosed:
             pass
         except ViewerInputError as exc:
-            await self._refuse(client.connection, str(exc))
+            await self._refuse(client.connection, viewer, exc)
         except Exception as exc:  # checked, and foxglove-websocket refused it all the same
-            await self._refuse(client.connection, f"{type(exc).__name__}: {exc}")
+            await self._refuse(client.connection, viewer,
+                               ViewerInputError(f"{type(exc).__name__}: {exc}"))
 
-    async def _refuse(self, connection: Any, problem: str) -> None:
-        count = self._refusals[connection] = self._refusals.get(connection, 0) + 1
-        if count <= REFUSALS_LOGGED:
-            log.warning("viewer %s: %s: ignored%s", viewer_name(connection), problem,
-                        " (its next ones are not logged)" if count == REFUSALS_LOGGED else "")
-        await self._send_status(connection, StatusLevel.ERROR, problem)
+    async def _refuse(self, connection: Any, viewer: ViewerInput,
+                      problem: ViewerInputError) -> None:
+        status, line = viewer.refused(problem)
+        if line:
+            log.warning("viewer %s: %s: ignored%s", viewer.name, problem,
+                        " (said once: the next ones are counted)"
+                        if isinstance(problem, TooManyMarks) else
+                        " (its next ones are not logged)"
+                        if viewer.refusals == REFUSALS_LOGGED else "")
+        if status:
+            await self._send_status(connection, StatusLevel.ERROR, str(problem))
 
     async def _send_json(self, connection: Any, msg: Any) -> None:
         """Written at once, never awaited: only our sender task waits for a viewer's socket

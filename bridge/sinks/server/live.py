@@ -20,6 +20,11 @@ Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is adv
 client but its messages go only to the clients that subscribed; :meth:`LiveServer.wanted` tells
 the pipeline whether anyone subscribed, so it can skip work nobody looks at.
 
+A live server (``mode`` live, not publishing its time) takes marks from its viewers: it
+advertises ``clientPublish`` with ``json`` and hands each mark taken
+(:mod:`~bridge.sinks.server.viewer_input` says which are) to :attr:`LiveServer.on_mark`, in the
+server's thread. A replay takes none.
+
 A viewer that left (:mod:`~bridge.sinks.server.internals` drops one that closes without reading
 at once, not after websockets' close timeout, :data:`CLOSE_TIMEOUT_S` here) is no longer counted
 (:meth:`LiveServer.viewers`) and its subscriptions no longer keep channels wanted.
@@ -36,7 +41,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,6 +57,7 @@ from bridge.sinks.raw import RawBlock
 from bridge.sinks.server import internals
 from bridge.sinks.server.addresses import viewer_urls
 from bridge.sinks.server.client import ClientQueue, ClientStats
+from bridge.sinks.server.viewer_input import MARK_ENCODING, ViewerInputError, ViewerMark
 from bridge.topics import frames_topic
 
 DEFAULT_HOST = "127.0.0.1"
@@ -125,6 +131,11 @@ class LiveServer(Sink):
         self.name = name
         self.queue_limit = queue_limit
         self.server_time = server_time
+        #: whether viewers may publish marks (``clientPublish``): a live server's do
+        self.takes_marks = mode == "live" and not server_time
+        #: called with each mark a viewer published (in the server's thread); until it is set,
+        #: marks are refused
+        self.on_mark: Callable[[ViewerMark], None] | None = None
         self.session_id = f"tankviz-{uuid.uuid4().hex[:12]}"
         self.port = 0
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -205,8 +216,11 @@ class LiveServer(Sink):
             self._ready.set()
             return
         capabilities = ["time"] if self.server_time else []
-        server = internals.Server(None, None, self.name,
-                                  capabilities=capabilities, supported_encodings=[],
+        if self.takes_marks:
+            capabilities.append("clientPublish")
+        server = internals.Server(None, None, self.name, marks=self.takes_marks,
+                                  capabilities=capabilities,
+                                  supported_encodings=[MARK_ENCODING] if self.takes_marks else [],
                                   session_id=self.session_id,
                                   metadata={"tankviz": self.mode}, logger=internals.log,
                                   # No keepalive pings: websockets' legacy protocol cannot have a
@@ -216,6 +230,7 @@ class LiveServer(Sink):
                                                  "create_protocol": internals.Connection,
                                                  "close_timeout": CLOSE_TIMEOUT_S})
         server.set_listener(_Subscriptions(self._wanted))
+        server.take_mark = self._take_mark
         self._server = server
         server.start()
         opened = await server.wait_opened()
@@ -232,6 +247,12 @@ class LiveServer(Sink):
         server.close()
         with contextlib.suppress(asyncio.TimeoutError):  # a stalled client cannot hold us up
             await asyncio.wait_for(server.wait_closed(), 2.0)
+
+    def _take_mark(self, mark: ViewerMark) -> None:
+        on_mark = self.on_mark
+        if on_mark is None:
+            raise ViewerInputError("no drive is taking marks now")
+        on_mark(mark)
 
     # --- channels and messages (any thread) ------------------------------------------------
 
