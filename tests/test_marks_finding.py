@@ -165,3 +165,84 @@ def test_a_marks_message_that_is_no_mark_is_counted_and_the_others_listed(
     assert "marks (3;" in out
     assert "      12.500 s  MARK 1: ghost target here [radar] (viewer 192.168.1.4:53211)" in out
     assert "(1 /marks messages are not a tankviz.Mark: left out)" in out
+
+
+# --- replay --start mark:N ----------------------------------------------------------------------
+
+@pytest.mark.parametrize(("spec", "start_s"), [
+    ("mark:1", 7.5), ("mark:2", 25.0), ("mark:3", 26.0),  # MARK_LEAD_S before each
+    ("mark:ghost", 7.5), ("mark:GHOST AGAIN", 26.0), ("mark:jump", 25.0)])
+def test_replay_starts_a_few_seconds_before_the_mark_named_by_number_or_text(
+        tmp_path: Path, spec: str, start_s: float) -> None:
+    from bridge.apps.replay import MARK_LEAD_S, mark_start_s
+
+    assert MARK_LEAD_S == 5.0
+    drive = write_drive(tmp_path / "far.mcap", FAR)
+    start, chosen = mark_start_s(drive, spec)
+    assert start == pytest.approx(start_s)
+    assert chosen.text.lower().find(spec[5:].lower()) >= 0 or str(chosen.number) == spec[5:]
+
+
+def test_a_mark_in_the_first_seconds_starts_the_replay_at_the_drives_start(
+        tmp_path: Path) -> None:
+    from bridge.apps.replay import mark_start_s
+
+    drive = write_drive(tmp_path / "early.mcap", [mark(1, 2.0, "early")])
+    assert mark_start_s(drive, "mark:1")[0] == 0.0
+
+
+@pytest.mark.parametrize(("marks", "spec", "says"), [
+    (FAR, "mark:7", "error: --start mark:7: far.mcap has no mark 7; its marks: 1 ghost target "
+     "here (12.5 s), 2 lanes jumped (30.0 s), 3 Ghost again (31.0 s)"),
+    (FAR, "mark:fog", "error: --start mark:fog: far.mcap has no mark whose text contains 'fog'; "
+     "its marks: 1 ghost target here (12.5 s), 2 lanes jumped (30.0 s), 3 Ghost again (31.0 s)"),
+    ([], "mark:1", "error: --start mark:1: far.mcap has no marks"),
+    (FAR, "mark:", "error: --start mark:: name a mark: mark:N (its number) or mark:TEXT (the "
+     "first whose text contains TEXT)"),
+    (FAR, "soon", "error: --start soon: expected SECONDS, mark:N or mark:TEXT")])
+def test_a_mark_that_is_not_there_is_one_line_naming_the_drives_marks(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], marks: list[Mark], spec: str,
+        says: str) -> None:
+    drive = write_drive(tmp_path / "far.mcap", marks)
+    assert main(["replay", str(drive), "--port", "0", "--start", spec]) == 1
+    assert capsys.readouterr() == ("", says + "\n")
+
+
+def test_replay_serves_the_drive_from_a_few_seconds_before_the_mark(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    drive = write_drive(tmp_path / "far.mcap", FAR)
+    assert main(["replay", str(drive), "--port", "0", "--speed", "100", "--start",
+                 "mark:ghost again"]) == 0
+    out = capsys.readouterr().out
+    assert "starting 5 s before MARK 3: Ghost again (viewer), at 26.000 s" in out
+    # from 26 s: the /log lines of 26 to 40 s and marks 2 and 3
+    assert "replayed 17 messages (1 pass)" in out
+
+
+def test_many_marks_are_listed_cut_short(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    drive = write_drive(tmp_path / "many.mcap", [mark(n, n, f"m{n}") for n in range(1, 31)])
+    assert main(["replay", str(drive), "--port", "0", "--start", "mark:99"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("10 m10 (10.0 s), … and 20 more") and len(err.splitlines()) == 1
+
+
+def test_can_logs_have_no_marks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = tmp_path / "drive.asc"
+    log.write_text("date Thu Jan 1 12:00:00.000 am 2026\nbase hex timestamps absolute\n"
+                   "   0.001000 1  123             Rx   d 1 00\n")
+    assert main(["replay", str(log), "--dbc", "ecocar", "--port", "0", "--start",
+                 "mark:1"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: --start mark:1: CAN logs have no marks (a drive tankviz recorded, .mcap, has)")
+
+
+def test_replay_of_a_recorded_drive_starts_before_its_mark(
+        recorded: tuple[Path, list[Mark]]) -> None:
+    """The live drive's marks come within a second of its start: replay starts at its start."""
+    from bridge.apps.replay import mark_start_s
+
+    drive, made = recorded
+    start, chosen = mark_start_s(drive, "mark:lanes")
+    assert (start, chosen.number) == (0.0, 2)
+    assert chosen == made[1]

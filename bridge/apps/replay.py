@@ -12,7 +12,10 @@ The input is read in a thread (:func:`~bridge.io.readahead.read_in_thread`): ``-
 SIGTERM/SIGINT end a replay within a twentieth of a second even while a read is slow or never
 returns. ``--start`` past the end of the drive is a :class:`~bridge.errors.UsageError` naming the
 drive's length (known before serving for an MCAP with its summary, after reading through it for
-CAN logs and a drive cut short).
+CAN logs and a drive cut short). ``--start mark:N`` (the mark numbered N) or ``--start mark:TEXT``
+(the first mark, by number, whose text contains TEXT, in any case) starts :data:`MARK_LEAD_S`
+seconds before one of the drive's marks (:func:`mark_start_s`; at its start for a mark sooner);
+a mark that is not there is one line naming the drive's marks, and CAN logs have none.
 
 The layout to import is named as live names it (:func:`bridge.apps.hints.layout_hint`); for a
 drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
@@ -53,13 +56,21 @@ from bridge.apps.options import (
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import BridgeError, InputError, UsageError, check_input_path
 from bridge.frame import NS
-from bridge.io.drives import METADATA_NAME, ArchiveContents, ArchiveSource, read_drive
+from bridge.io.drives import (
+    METADATA_NAME,
+    ArchiveContents,
+    ArchiveSource,
+    drive_marks,
+    read_drive,
+)
 from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import MAGIC, why_unreadable
 from bridge.pb.bringup_pb2 import CanPayload
+from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
+from bridge.pipeline.marks import describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
 from bridge.resources import layouts_dir
@@ -69,6 +80,12 @@ from bridge.view.generate import DEFAULT_BUS, database_buses, generate_layouts, 
 
 #: Server time is published at least this often (ns of log time).
 TIME_EVERY_NS = 50_000_000
+#: ``--start mark:N`` starts this many seconds before the mark: what led to it is seen.
+MARK_LEAD_S = 5.0
+#: How ``--start`` names a mark.
+MARK_PREFIX = "mark:"
+#: How many marks an error lists (the rest: ``… and N more``).
+MARKS_LISTED = 10
 
 
 @dataclass
@@ -109,6 +126,48 @@ def _check(speed: float, start_s: float) -> None:
         raise UsageError(f"--speed {speed:g}: must be above 0")
     if start_s < 0:
         raise UsageError(f"--start {start_s:g}: must not be negative")
+
+
+def start_seconds(text: str) -> float | None:
+    """``--start``'s seconds; None for a mark (``mark:N``, ``mark:TEXT``)."""
+    if text.startswith(MARK_PREFIX):
+        if not text[len(MARK_PREFIX):].strip():
+            raise UsageError(f"--start {text}: name a mark: mark:N (its number) or mark:TEXT (the "
+                             "first whose text contains TEXT)")
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise UsageError(f"--start {text}: expected SECONDS, mark:N or mark:TEXT") from None
+
+
+def find_mark(marks: Sequence[Mark], wanted: str) -> Mark | None:
+    """The mark numbered ``wanted``, or else the first (by number) whose text contains it, in
+    any case; None if there is none."""
+    if wanted.isdigit():
+        return next((m for m in marks if m.number == int(wanted)), None)
+    folded = wanted.casefold()
+    return next((m for m in marks if folded in m.text.casefold()), None)
+
+
+def mark_start_s(path: Path, text: str) -> tuple[float, Mark]:
+    """Where ``--start mark:N`` (``text``) starts a replay of the drive at ``path``: seconds
+    from its first message, :data:`MARK_LEAD_S` before the mark (0 at the most), and the mark.
+    A mark that is not there is a :class:`~bridge.errors.UsageError` naming the drive's marks."""
+    wanted = text[len(MARK_PREFIX):].strip()
+    found = drive_marks(path)
+    if not found.marks:
+        raise UsageError(f"--start {text}: {path.name} has no marks")
+    mark = find_mark(found.marks, wanted)
+    if mark is None:
+        what = (f"mark {wanted}" if wanted.isdigit()
+                else f"mark whose text contains {wanted!r}")
+        listed = [f"{m.number} {m.text} ({found.seconds(m):.1f} s)"
+                  for m in found.marks[:MARKS_LISTED]]
+        more = len(found.marks) - len(listed)
+        raise UsageError(f"--start {text}: {path.name} has no {what}; its marks: "
+                         + ", ".join(listed) + (f", … and {more} more" if more else ""))
+    return max(0.0, found.seconds(mark) - MARK_LEAD_S), mark
 
 
 def _span_ns(path: Path) -> int | None:
@@ -300,8 +359,10 @@ def add_parser(sub: Subparsers) -> None:
                         ", and those gzipped)")
     parser.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
     parser.add_argument("--loop", action="store_true", help="start again at the end")
-    parser.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
-                        help="skip this many seconds of the drive")
+    parser.add_argument("--start", default="0", metavar="SECONDS|mark:N|mark:TEXT",
+                        help="skip this many seconds of the drive; or start "
+                        f"{MARK_LEAD_S:g} s before a mark of a recorded drive: its number, or "
+                        "the first whose text contains TEXT")
     add_run_for(parser)
     add_stage_options(parser, profile_default=None)
     parser.add_argument("--rederive", action="store_true",
@@ -318,6 +379,15 @@ def run(args: argparse.Namespace) -> int:
     mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
     if mcap and len(args.files) > 1:
         raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
+    named, seconds = args.start, start_seconds(args.start)
+    note = None
+    if seconds is None:  # a mark
+        if not mcap:
+            raise UsageError(f"--start {named}: CAN logs have no marks (a drive tankviz "
+                             "recorded, .mcap, has)")
+        seconds, mark = mark_start_s(mcap[0], named)
+        note = f"starting {MARK_LEAD_S:g} s before {describe(mark)}, at {seconds:.3f} s"
+    args.start, args.start_note = seconds, note
     if not mcap:
         stages = options.stages(args)
         return _serve(args, mcap, stages, hints.layout_hint(
@@ -489,6 +559,8 @@ def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
     print(*hints.connection_lines(server.host, server.urls), sep="\n")
     if hint is not None:
         hint.say()
+    if getattr(args, "start_note", None):  # --start mark:N
+        print(args.start_note)
     sys.stdout.flush()
     try:
         if stages is None:
