@@ -67,10 +67,10 @@ from bridge.io.buses import (
 from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
 from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
-from bridge.pipeline.marks import Marks, describe
+from bridge.pipeline.marks import MarkAsked, Marks, describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
-from bridge.sinks.server import ClientStats, LiveServer
+from bridge.sinks.server import ClientStats, LiveServer, ViewerMark
 from bridge.topics import LOG_TOPIC, MARKS_TOPIC, TopicMessage, bus_segment
 
 
@@ -152,6 +152,8 @@ class Live:
         self.pipeline = self.drive.pipeline
         #: the marks of this drive: :meth:`Marks.ask` from any thread, made in the loop
         self.marks = self.pipeline.marks = Marks()
+        if server is not None:
+            server.on_mark = self._viewer_mark
         self.pipeline.advertise(names)
         self.stopping = threading.Event()
         self._down: dict[str, Gap] = {}
@@ -248,6 +250,8 @@ class Live:
             for link in self.links:
                 link.close()
             self._receive_state()
+            if self.server is not None:
+                self.server.on_mark = None  # (the drive ends: viewers are told)
             if pipeline.last_ns is not None:
                 self._take_marks(pipeline.last_ns)
             self.drive.finish()
@@ -259,6 +263,10 @@ class Live:
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
                           self.recorder.gaps if self.recorder else [],
                           sum(s.dropped for s in viewers), viewers, dict(self.receive))
+
+    def _viewer_mark(self, mark: ViewerMark) -> None:
+        """A mark a viewer published (the server's thread): taken at the loop's next turn."""
+        self.marks.ask(MarkAsked(mark.text, mark.category, "viewer", mark.by))
 
     def _take_marks(self, t_ns: int) -> None:
         """The marks asked for since the last call, made at ``t_ns`` (the drive's clock now),
