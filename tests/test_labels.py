@@ -70,8 +70,9 @@ def test_near_labels_are_drawn_in_full() -> None:
 
 
 #: The 3D panels of the generated layouts as Foxglove Studio draws them (width, height px), by
-#: view: tank-viz's two and engineer's chase view, in 1280 x 800 and 1920 x 1080 windows.
-PANELS = {"chase": [(676, 693), (442, 498), (1028, 973), (673, 702)],
+#: view: tank-viz's two (its chase view above the Mark button) and engineer's chase view, in
+#: 1280 x 800 and 1920 x 1080 windows.
+PANELS = {"chase": [(676, 585), (442, 498), (1028, 823), (673, 702)],
           "range": [(553, 693), (841, 973)]}
 VIEWS = {"chase": chase_camera(), "range": CAMERA}
 

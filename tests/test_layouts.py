@@ -120,8 +120,8 @@ def test_the_bundled_layouts_with_their_previews() -> None:
         assert b.preview == LAYOUTS / f"{b.name}.png", f"{b.name}: no preview picture"
         data = b.preview.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, f"{b.preview}: not a screenshot"
-    assert found["tank-viz"].summary == "2 3D panels"
-    assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, 14 Indicator panels"
+    assert found["tank-viz"].summary == "2 3D panels, Publish"
+    assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, Publish, 14 Indicator panels"
     assert (found["can-debug"].summary
             == "9 plots, 2 Indicator panels, 2 Raw Messages panels, Data Source Info")
     assert (found["bring-up"].summary
@@ -430,3 +430,33 @@ def test_listing() -> None:
     assert [b.name for b in select_layouts(["tank-viz", "engineer"])] == ["tank-viz", "engineer"]
     with pytest.raises(BridgeError, match="no bundled layout 'x'"):
         select_layouts(["x"])
+
+
+@pytest.mark.parametrize("name, views", [("tank-viz", ["3D!tankviz", "3D!tankviz-range"]),
+                                         ("engineer", ["3D!engineer"])])
+def test_a_click_on_the_mark_button_marks_and_every_3d_view_shows_marks(
+        name: str, views: list[str], made: Produced) -> None:
+    """The Publish panel sends its template to /marks as it is, a JSON object of
+    tankviz.Mark's fields; the 3D views show /scene/marks (the mark's text for a few seconds)."""
+    data = layout(name)
+    mark = data["configById"]["Publish!mark"]
+    assert mark["topicName"] == "/marks" and mark["datatype"] == "tankviz.Mark"
+    assert json.loads(mark["value"]) == {"text": "mark", "category": ""}
+    assert mark["buttonText"] == "Mark" and mark["advancedView"] is False
+    for view in views:
+        assert data["configById"][view]["topics"]["/scene/marks"] == {"visible": True}
+
+
+@pytest.mark.parametrize("edit, problem", [
+    ({"topicName": "/cmd_vel"}, "Publish!mark.topicName: '/cmd_vel': a viewer may publish to "
+                                "/marks only"),
+    ({"value": "{text: mark}"}, "Publish!mark.value: not JSON"),
+    ({"value": '{"words": "x"}'}, "Publish!mark.value: expected an object of tankviz.Mark's "
+                                  "fields"),
+])
+def test_a_publish_panel_that_cannot_mark_is_named(edit: dict[str, str], problem: str,
+                                                   made: Produced) -> None:
+    data = copy.deepcopy(layout("engineer"))
+    data["configById"]["Publish!mark"].update(edit)
+    (found,) = check_layout(data, made)
+    assert found.startswith(problem), found

@@ -224,7 +224,7 @@ def test_a_two_bus_car_without_camera_or_lead(two_bus: tuple[Path, list[str]]) -
         assert check_layout(data, made) == []
     view = layouts["tank-viz"]["configById"]["3D!tankviz-range"]
     assert set(view["topics"]) == {"/scene/ego", "/scene/lanes", "/scene/slots",
-                                   "/scene/health", "/scene/labels/range"}
+                                   "/scene/health", "/scene/labels/range", "/scene/marks"}
     assert set(view["transforms"]) == {"frame:vehicle", "frame:front"}
     engineer = layouts["engineer"]
     assert indicated(engineer) == ["front.silent", "front.rate", "ego.silent", "ego.rate",
@@ -284,7 +284,7 @@ def test_the_command_exports_the_layouts_of_a_profile(
     assert main(["layouts", "--profile", str(path), *(a for d in dbcs
                                                        for a in ("--dbc", d))]) == 0
     listing = capsys.readouterr().out
-    assert re.search(r"^engineer\s+3D, 4 plots, Log, 8 Indicator panels$", listing, re.M)
+    assert re.search(r"^engineer\s+3D, 4 plots, Log, Publish, 8 Indicator panels$", listing, re.M)
     # A profile that does not exist is one line.
     assert main(["layouts", "--profile", str(tmp_path / "nope.toml"), "--export",
                  str(out)]) == 1

@@ -41,8 +41,9 @@ BEHIND_M = 6.0
 BEYOND = 0.16
 #: The smallest panel of each view (height px, width-to-height ratio): Foxglove Studio's 3D
 #: panels of the generated layouts in a 1280 x 800 window, measured a little under. The range
-#: view: tank-viz's right panel, 553 x 693. The chase view: engineer's, 442 x 498 (tank-viz's
-#: is 676 x 693). In a 1920 x 1080 window they are 841 x 973, 673 x 702 and 1028 x 973.
+#: view: tank-viz's right panel, 553 x 693. The chase view: engineer's, 442 x 498 (tank-viz's,
+#: above its Mark button, is 676 x 585). In a 1920 x 1080 window they are 841 x 973, 673 x 702
+#: and 1028 x 823.
 RANGE_PANEL = (680.0, 0.79)
 CHASE_PANEL = (490.0, 0.88)
 #: The chase view's camera: close behind and above the vehicle, 30 degrees down to a target

@@ -31,7 +31,7 @@ from typing import Any
 from google.protobuf.descriptor import FieldDescriptor
 
 from bridge.errors import BridgeError
-from bridge.topics import LOG_TOPIC
+from bridge.topics import LOG_TOPIC, MARKS_TOPIC
 from bridge.view.paths import NUMERIC_TYPES, resolve_path, split_topic
 from bridge.view.produced import Produced
 
@@ -52,6 +52,7 @@ PANEL_NAMES = {
     "Tab": "Tab",
     "ImageViewPanel": "Image",
     "GlobalVariableSliderPanel": "Variable Slider",
+    "Publish": "Publish",
 }
 
 #: Message types the 3D panel draws (topics it can show).
@@ -297,6 +298,26 @@ def _check_slider(panel_id: str, config: Mapping[str, Any],
         yield f"{panel_id}.sliderProps: expected min < max, not {low!r} and {high!r}"
 
 
+def _check_publish(panel_id: str, config: Mapping[str, Any], where: Produced) -> Iterator[str]:
+    """The Publish panel sends to /marks, the one topic a viewer may publish to, a JSON object
+    whose fields /marks has."""
+    topic = config.get("topicName")
+    if topic != MARKS_TOPIC:
+        yield f"{panel_id}.topicName: {topic!r}: a viewer may publish to {MARKS_TOPIC} only"
+        return
+    try:
+        value = json.loads(config.get("value", ""))
+    except ValueError as exc:
+        yield f"{panel_id}.value: not JSON ({exc}): the panel's button stays disabled"
+        return
+    descriptor = where.topics.get(MARKS_TOPIC)
+    if descriptor is None:
+        yield f"{panel_id}.topicName: {MARKS_TOPIC} is not produced"
+    elif not isinstance(value, dict) or not set(value) <= set(descriptor.fields_by_name):
+        yield (f"{panel_id}.value: expected an object of {descriptor.full_name}'s fields "
+               f"({', '.join(descriptor.fields_by_name)})")
+
+
 def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
     """Everything a layout names that the bridge does not produce (empty when all resolve)."""
     problems = check_format(layout)
@@ -313,6 +334,8 @@ def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
             problems += _check_image(panel_id, config, where)
         if kind == "GlobalVariableSliderPanel":
             problems += _check_slider(panel_id, config, layout["globalVariables"])
+        if kind == "Publish":
+            problems += _check_publish(panel_id, config, where)
         leaf = None
         for place, path, numeric in _paths_of(panel_id, config):
             if scripts and path.startswith(USER_SCRIPT_PREFIX):

@@ -36,12 +36,14 @@ written so).
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 from bridge.decode.decoder import Decoder
 from bridge.health.alarms import AlarmKind, alarm_id
+from bridge.pb.marks_pb2 import Mark
 from bridge.profile.model import Field, ObjectGroup, Profile
 from bridge.scene.camera import VIEWS, camera_for, chase_camera, view_range
 from bridge.scene.entities import label_category
@@ -50,6 +52,7 @@ from bridge.topics import (
     HEALTH_TOPIC,
     LEAD_TOPIC,
     LOG_TOPIC,
+    MARKS_TOPIC,
     VEHICLE_FRAME,
     frames_topic,
     message_topic,
@@ -71,6 +74,8 @@ LAYOUT_NAMES = ("tank-viz", "engineer", "can-debug", BRINGUP_NAME)
 DEFAULT_BUS = "can0"
 #: Indicator colours: an active alarm, a cleared one, no /health yet.
 ALARM_RED, OK_GREEN, NO_DATA_GREY = "#d93025", "#1e8e3e", "#9e9e9e"
+#: The Mark button's colour (the scene's orange of attention, as the MIO check's ring).
+MARK_COLOUR = "#e8710a"
 #: Colours of the rate plot: a dark (actual) and a light (expected) shade per family.
 RATE_COLOURS = (("#1f77b4", "#9ecae1"), ("#e6550d", "#fdae6b"), ("#31a354", "#a1d99b"),
                 ("#756bb1", "#bcbddc"), ("#636363", "#bdbdbd"), ("#d6616b", "#e7969c"))
@@ -167,10 +172,30 @@ def view_3d(made: Produced, profile: Profile, *, whole_range: bool = False) -> d
 
 def tank_viz(made: Produced, profile: Profile) -> dict[str, Any]:
     """The tank-viz layout: the chase view (near objects readable) beside the range view
-    (everything up to the sensors' reach in view)."""
+    (everything up to the sensors' reach in view); under the chase view, the Mark button (the
+    chase view's labels are laid out for a smaller panel: the engineer layout's)."""
     return _layout({"3D!tankviz": view_3d(made, profile),
-                    "3D!tankviz-range": view_3d(made, profile, whole_range=True)},
-                   split("3D!tankviz", "3D!tankviz-range", "row", CHASE_SHARE))
+                    "3D!tankviz-range": view_3d(made, profile, whole_range=True),
+                    "Publish!mark": mark_panel()},
+                   split(split("3D!tankviz", "Publish!mark", "column", MARK_BUTTON_SHARE),
+                         "3D!tankviz-range", "row", CHASE_SHARE))
+
+
+#: The share of the chase view's column the tank-viz layout's Mark button leaves it: room for
+#: the button in a 1280 x 800 window.
+MARK_BUTTON_SHARE = 85.0
+
+
+def mark_panel() -> dict[str, Any]:
+    """A Publish panel that marks the moment: a click sends its template to /marks as it is
+    ("mark"). Its button alone fits a laptop's window; the panel's Editing mode (its settings)
+    shows the JSON, to type a word into before sending."""
+    return {"foxglovePanelTitle": f"Mark the moment ({MARKS_TOPIC})", "topicName": MARKS_TOPIC,
+            "datatype": Mark.DESCRIPTOR.full_name, "buttonText": "Mark",
+            "buttonTooltip": "mark this moment of the drive: tankviz inspect, catalog and "
+            "replay --start mark:N find it", "buttonColor": MARK_COLOUR,
+            "advancedView": False,
+            "value": json.dumps({"text": "mark", "category": ""}, indent=2)}
 
 
 def alarm_path(alarm: str) -> str:
@@ -250,10 +275,12 @@ def engineer(made: Produced, profile: Profile) -> dict[str, Any]:
     if profile.lead is not None:
         configs["RawMessages!lead"] = raw_messages("Lead vehicle and MIO check", LEAD_TOPIC)
         right.append("RawMessages!lead")
-    configs["RosOut!alarms"] = {"foxglovePanelTitle": "Alarms raised and cleared (/log)",
+    configs["RosOut!alarms"] = {"foxglovePanelTitle": "Alarms and marks (/log)",
                                 "topicToRender": LOG_TOPIC, "minLogLevel": 1,
                                 "searchTerms": []}
     right.append("RosOut!alarms")
+    configs["Publish!mark"] = mark_panel()
+    right.append("Publish!mark")
     alarms = [a.id for a in health.alarms]
     for alarm in alarms:
         configs[f"Indicator!{alarm}"] = indicator(alarm)

@@ -3,8 +3,8 @@
 :func:`produced` assembles the drive (:class:`~bridge.pipeline.drive.Drive`) with one sink that
 keeps what the live pipeline announces (:meth:`~bridge.pipeline.pipeline.Pipeline.advertise`), so
 the topics are every topic the live pipeline advertises (and records): the scene, perception and
-health topics, /log, and per bus the raw frames and every message its databases define, each with
-the protobuf message descriptor built from the FileDescriptorSet it is advertised with
+health topics, /log, /marks, and per bus the raw frames and every message its databases define,
+each with the protobuf message descriptor built from the FileDescriptorSet it is advertised with
 (:func:`descriptor_of`). The frames are the vehicle frame of :mod:`bridge.topics` and the profile's
 sensors. The samples hold, for a topic whose repeated elements are known in advance, one message to
 check message path filters against: ``/health`` as the pipeline's own health monitor reports it once
@@ -27,6 +27,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool
 from bridge.errors import BridgeError
 from bridge.frame import Frame
 from bridge.pipeline.drive import Drive, Stages, load_stages
+from bridge.pipeline.marks import Marks
 from bridge.sinks.base import Channel, Sink
 from bridge.topics import HEALTH_TOPIC, VEHICLE_FRAME
 
@@ -92,6 +93,7 @@ def produced(decoder: Any, profile: Any, buses: Iterable[str] = ("can0",)) -> Pr
     buses = list(buses)
     announcements = _Announcements()
     drive = Drive(Stages(decoder, profile), [announcements])
+    drive.pipeline.marks = Marks()  # as live takes them
     drive.pipeline.advertise(buses)
     out = Produced(frames={VEHICLE_FRAME})
     if profile is not None:
