@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -16,19 +17,20 @@ import can
 import pytest
 from conftest import timeout_scale
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from waiting import wait_for
 
 from bridge.cli import main
 from bridge.frame import NS, Frame, timestamp
 from bridge.io.buses import BusSpec
-from bridge.io.drives import mark_time
+from bridge.io.drives import drive_marks, mark_time
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.live import Live
 from bridge.pipeline.marks import MarkAsked, describe
 from bridge.sim.ecocar import simulate
-from bridge.sinks.base import Serialized
+from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.mcap import Recorder
 from bridge.topics import LOG_TOPIC, MARKS_TOPIC
 
@@ -246,3 +248,154 @@ def test_replay_of_a_recorded_drive_starts_before_its_mark(
     start, chosen = mark_start_s(drive, "mark:lanes")
     assert (start, chosen.number) == (0.0, 2)
     assert chosen == made[1]
+
+
+# --- convert DRIVE.mcap (re-derive) and recover ------------------------------------------------
+
+def recorded_messages(path: Path, topic: str) -> list[tuple[int, bytes]]:
+    with path.open("rb") as f:
+        return [(m.log_time, m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
+
+
+def check_marks_kept(path: Path, made: list[Mark]) -> None:
+    """``path`` holds ``made`` on /marks (the same numbers, texts and times), each once, with
+    its /log line and its text in the scene at its time."""
+    marks = [Mark.FromString(data) for _, data in recorded_messages(path, MARKS_TOPIC)]
+    assert marks == made
+    assert [t for t, _ in recorded_messages(path, MARKS_TOPIC)] == [mark_time(m) for m in made]
+    said = [(t, Log.FromString(data).message) for t, data in recorded_messages(path, LOG_TOPIC)]
+    assert [s for s in said if s[1].startswith("MARK ")] == [(mark_time(m), describe(m))
+                                                             for m in made]
+    shown = [(t, [(e.id, [x.text for x in e.texts]) for e in SceneUpdate.FromString(data).entities])
+             for t, data in recorded_messages(path, "/scene/marks")]
+    assert shown == [(mark_time(m), [(f"mark-{m.number}", [describe(m)])]) for m in made]
+
+
+def test_a_rederived_drive_keeps_its_marks(recorded: tuple[Path, list[Mark]],
+                                           tmp_path: Path) -> None:
+    drive, made = recorded
+    check_marks_kept(drive, made)  # (as live recorded them)
+    again = tmp_path / "again.mcap"
+    assert main(["convert", str(drive), "-o", str(again), "--quiet"]) == 0
+    check_marks_kept(again, made)
+    # and once more, without the second process reading ahead: the same bytes
+    once_more = tmp_path / "once_more.mcap"
+    assert main(["convert", str(again), "-o", str(once_more), "--quiet",
+                 "--no-read-ahead"]) == 0
+    check_marks_kept(once_more, made)
+
+
+def test_a_rederived_drive_without_marks_has_no_marks_topics(tmp_path: Path) -> None:
+    drive = tmp_path / "sim.mcap"
+    assert main(["simulate", "-o", str(drive), "--duration", "0.5"]) == 0
+    again = tmp_path / "again.mcap"
+    assert main(["convert", str(drive), "-o", str(again), "--quiet"]) == 0
+    with again.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert not {MARKS_TOPIC, "/scene/marks"} & {c.topic for c in summary.channels.values()}
+
+
+def cut_after_the_marks(drive: Path, to: Path) -> Path:
+    """``drive`` cut as a power loss cuts it: in the middle of its last chunk, which holds no
+    mark (the chunks before it all come whole)."""
+    with drive.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    (marks_id,) = [c.id for c in summary.channels.values() if c.topic == MARKS_TOPIC]
+    last = max(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    assert marks_id not in last.message_index_offsets
+    data = drive.read_bytes()
+    to.write_bytes(data[:last.chunk_start_offset + last.chunk_length // 2])
+    return to
+
+
+def test_recover_keeps_the_marks_of_a_cut_drive(recorded: tuple[Path, list[Mark]],
+                                                 tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    drive, made = recorded
+    cut = cut_after_the_marks(drive, tmp_path / "cut.mcap")
+    fixed = tmp_path / "fixed.mcap"
+    assert main(["recover", str(cut), "-o", str(fixed), "--quiet"]) == 0
+    check_marks_kept(fixed, made)
+    capsys.readouterr()
+    assert main(["inspect", str(fixed)]) == 0
+    assert "marks (3; seconds from the drive's start):" in capsys.readouterr().out
+
+
+def test_a_cut_drive_rederived_keeps_its_marks(recorded: tuple[Path, list[Mark]],
+                                               tmp_path: Path) -> None:
+    drive, made = recorded
+    cut = cut_after_the_marks(drive, tmp_path / "cut.mcap")
+    assert [m.number for m in drive_marks(cut).marks] == [1, 2, 3]
+    again = tmp_path / "again.mcap"
+    assert main(["convert", str(cut), "-o", str(again), "--quiet"]) == 0
+    check_marks_kept(again, made)
+
+
+class Collected(Sink):
+    """A sink that keeps what it is given in order: decoded frames' times, and messages; with
+    what a replay asks of its server."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, int]] = []
+
+    def on_decoded_many(self, run: Sequence[tuple[int, Any]], /) -> None:
+        self.events += [("frame", t) for t, _ in run]
+
+    def on_decoded(self, t_ns: int, decoded: Any, /) -> None:
+        self.events.append(("frame", t_ns))
+
+    def on_messages(self, messages: Sequence[Serialized], /) -> None:
+        self.events += [(m.topic, m.t_ns) for m in messages if m.topic == MARKS_TOPIC]
+
+    def flush(self) -> None:
+        pass
+
+    def broadcast_time(self, t_ns: int) -> None:
+        pass
+
+
+def check_between_their_frames(events: list[tuple[str, int]], made: list[Mark]) -> None:
+    """Each mark comes after every frame stamped before it and before every frame after it."""
+    at = [i for i, (what, _) in enumerate(events) if what == MARKS_TOPIC]
+    assert [events[i][1] for i in at] == [mark_time(m) for m in made]
+    for i in at:
+        t = events[i][1]
+        assert all(u < t for what, u in events[:i] if what == "frame")
+        assert all(u >= t for what, u in events[i + 1:] if what == "frame")
+
+
+def test_carried_marks_come_between_the_frames_before_and_after_them() -> None:
+    from bridge.block import blocks
+    from bridge.pipeline.drive import Drive
+    from bridge.pipeline.rederive import CarriedMarks
+
+    frames = list(simulate(duration_s=1.0))
+    start, end = frames[0].timestamp_ns, frames[-1].timestamp_ns
+    made = [Mark(timestamp=timestamp(t), number=n, text=f"m{n}") for n, t in enumerate(
+        [start, start + 1, (start + end) // 2, (start + end) // 2, end, end + NS], 1)]
+    for cut in (64, 4096):  # marks inside blocks, and at their edges
+        sink = Collected()
+        drive = Drive(load_stages([], "ecocar"), [sink])
+        carried = CarriedMarks(made, drive.pipeline)
+        assert drive.run_blocks(carried.blocks(
+            b for i in range(0, len(frames), cut) for b in blocks(frames[i:i + cut]))) == len(
+            frames)
+        carried.finish()
+        check_between_their_frames(sink.events, made)
+        assert drive.pipeline.marks is not None
+        assert drive.pipeline.marks.made == made
+
+
+def test_a_drive_replayed_rederived_makes_its_marks_again(
+        recorded: tuple[Path, list[Mark]], tmp_path: Path) -> None:
+    from bridge.apps.replay import replay_drive
+    from bridge.io.drives import read_drive
+    from bridge.pipeline.rederive import rederive_stages
+
+    drive, made = recorded
+    stages = rederive_stages(read_drive(drive), [], None, tmp_path)
+    served = Collected()
+    replay_drive(drive, stages, served, speed=50)  # type: ignore[arg-type]
+    check_between_their_frames(served.events, made)

@@ -72,7 +72,12 @@ from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.marks import describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
-from bridge.pipeline.rederive import describe_rederive, recorded_scene_rate, rederive_stages
+from bridge.pipeline.rederive import (
+    CarriedMarks,
+    describe_rederive,
+    recorded_scene_rate,
+    rederive_stages,
+)
 from bridge.resources import layouts_dir
 from bridge.sinks.server import LiveServer
 from bridge.view.bringup import bringup_layout
@@ -302,14 +307,17 @@ def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
     (``on_unknown``, ``bring_up``: as :func:`replay_log`)."""
     return _replay_frames(lambda: [ArchiveSource(path)], stages, server, scene_rate=scene_rate,
                           speed=speed, loop=loop, start_s=start_s, stopping=stopping,
-                          on_unknown=on_unknown, bring_up=bring_up)
+                          on_unknown=on_unknown, bring_up=bring_up,
+                          marks=drive_marks(path).marks)
 
 
 def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
                    server: LiveServer, *, scene_rate: float, speed: float, loop: bool,
                    start_s: float, stopping: threading.Event | None,
                    on_unknown: Callable[[str, int], None] | None = None,
-                   bring_up: bool = True) -> ReplayReport:
+                   bring_up: bool = True, marks: Sequence[Mark] = ()) -> ReplayReport:
+    """Frames through a pipeline in real time, served (``marks``: a re-derived drive's, made
+    again where its frames reach them, those before ``start_s`` left out)."""
     _check(speed, start_s)
     stopping = stopping or threading.Event()
     skip_ns = round(start_s * NS)
@@ -320,6 +328,7 @@ def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
         if on_unknown is not None:
             hints.watch_unknown(drive, on_unknown)
         process = drive.pipeline.process
+        carried = CarriedMarks(marks, drive.pipeline) if marks else None
         clock = Clock(speed, stopping, server.flush)
         first_ns: int | None = None
         last_ns = last_time_ns = 0
@@ -330,14 +339,20 @@ def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
                 first_ns = t
             if t - first_ns < skip_ns:
                 last_ns = max(last_ns, t)
+                if carried is not None:
+                    carried.before(t, emit=False)
                 continue
             if not clock.wait(t):
                 break
             if t - last_time_ns >= TIME_EVERY_NS:
                 server.broadcast_time(t)
                 last_time_ns = t
+            if carried is not None:
+                carried.before(t)
             process(frame)
             given += 1
+        if carried is not None and not stopping.is_set():
+            carried.finish()
         drive.finish()
         if not given and first_ns is not None and not stopping.is_set():
             raise _past_end(start_s, last_ns - first_ns)

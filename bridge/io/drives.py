@@ -11,9 +11,9 @@ business.
 
 - :func:`is_drive`: a path with the ``.mcap`` suffix is read as a drive, not as a CAN log.
 - :func:`read_drive`: the drive's attachments (name → bytes, in file order), its ``tankviz``
-  metadata (JSON values decoded; empty for a file cut short before it was finished), its size
-  and SHA-256. A file that is not an MCAP, or an MCAP without raw-frame topics, is an
-  :class:`~bridge.errors.InputError` naming the file and what it lacks.
+  metadata (JSON values decoded; empty for a file cut short before it was finished), its marks
+  (:func:`read_marks`), its size and SHA-256. A file that is not an MCAP, or an MCAP without
+  raw-frame topics, is an :class:`~bridge.errors.InputError` naming the file and what it lacks.
 - :class:`ArchiveSource`: every raw frame in the order it was recorded (the order the pipeline saw
   them when the drive was made: log-time order, with any step back of the clock where it
   happened, so re-deriving reproduces the drive; blocks are merged back into that order by
@@ -84,6 +84,10 @@ class ArchiveContents:
     attachments: dict[str, bytes] = field(repr=False)
     #: whether the file was finished (it has its summary and footer)
     complete: bool = True
+    #: its marks (``/marks``), in the order of their numbers
+    marks: list[Mark] = field(default_factory=list, repr=False)
+    #: ``/marks`` messages that are not a ``tankviz.Mark`` (left out of ``marks``)
+    unreadable_marks: int = 0
 
 
 def _values(record: Metadata) -> dict[str, Any]:
@@ -121,6 +125,8 @@ def read_drive(path: Path | str) -> ArchiveContents:
     metadata: dict[str, Any] = {}
     topics: set[str] = set()
     complete = True
+    marks: list[Mark] = []
+    unreadable = 0
     with _open(path) as stream:
         sha = hashlib.sha256()
         while chunk := stream.read(1 << 20):
@@ -138,11 +144,14 @@ def read_drive(path: Path | str) -> ArchiveContents:
             for m in reader.iter_metadata():
                 if m.name == METADATA_NAME:
                     metadata = _values(m)
+            marks, unreadable = read_marks(reader)
         except Exception:  # a file cut short or damaged: mcap raises many types
             complete = False
             stream.seek(0)
+            found = _MarksFound()
             try:
                 for record in StreamReader(stream).records:
+                    found.see(record)
                     if isinstance(record, Attachment):
                         attachments.setdefault(record.name, bytes(record.data))
                     elif isinstance(record, Metadata) and record.name == METADATA_NAME:
@@ -153,6 +162,7 @@ def read_drive(path: Path | str) -> ArchiveContents:
                         break
             except Exception:  # the end of what can be read: ArchiveSource reports it
                 pass
+            marks, unreadable = by_number(found.marks), found.unreadable
     if not any(FRAMES_TOPIC.fullmatch(t) for t in topics):
         if not complete:
             raise InputError(path, "cut short or damaged before any raw CAN frame "
@@ -160,7 +170,8 @@ def read_drive(path: Path | str) -> ArchiveContents:
                              "(tankviz recover salvages what is complete)")
         raise InputError(path, "not a tankviz drive: it has no raw CAN frames "
                          "(/can/<bus>/frames), so there is nothing to decode again")
-    return ArchiveContents(path, size, digest, metadata, attachments, complete)
+    return ArchiveContents(path, size, digest, metadata, attachments, complete, marks,
+                           unreadable)
 
 
 @dataclass
@@ -451,24 +462,35 @@ def drive_marks(path: Path | str) -> DriveMarks:
             return DriveMarks(marks, stats.message_start_time if stats.message_count else None,
                               unreadable)
         stream.seek(0)
-        found: list[Mark] = []
-        unreadable = 0
-        start: int | None = None
-        ids: set[int] = set()
+        found = _MarksFound()
         try:
             for record in StreamReader(stream).records:
-                if isinstance(record, Message):
-                    start = record.log_time if start is None else min(start, record.log_time)
-                    if record.channel_id in ids:
-                        mark = parse_mark(record.data, record.log_time)
-                        if mark is None:
-                            unreadable += 1
-                        else:
-                            found.append(mark)
-                elif isinstance(record, Channel) and record.topic == MARKS_TOPIC:
-                    ids.add(record.id)
-                elif isinstance(record, (DataEnd, Footer)):
+                found.see(record)
+                if isinstance(record, (DataEnd, Footer)):
                     break
         except Exception:  # where the file is cut: what came before it counts
             pass
-        return DriveMarks(by_number(found), start, unreadable)
+        return DriveMarks(by_number(found.marks), found.start_ns, found.unreadable)
+
+
+@dataclass
+class _MarksFound:
+    """The marks of a drive read record by record (one cut short), and its first time."""
+
+    marks: list[Mark] = field(default_factory=list)
+    unreadable: int = 0
+    start_ns: int | None = None
+    _channels: set[int] = field(default_factory=set)
+
+    def see(self, record: object) -> None:
+        if isinstance(record, Message):
+            t = record.log_time
+            self.start_ns = t if self.start_ns is None else min(self.start_ns, t)
+            if record.channel_id in self._channels:
+                mark = parse_mark(record.data, t)
+                if mark is None:
+                    self.unreadable += 1
+                else:
+                    self.marks.append(mark)
+        elif isinstance(record, Channel) and record.topic == MARKS_TOPIC:
+            self._channels.add(record.id)

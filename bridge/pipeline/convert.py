@@ -51,13 +51,16 @@ from bridge.errors import BridgeError, InputError, OutputError
 from bridge.io.drives import ArchiveSource, is_drive, read_drive
 from bridge.io.logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.readahead import ReadAhead
+from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import (
+    CarriedMarks,
     describe_rederive,
     recorded_scene_rate,
     rederive_stages,
     source_record,
+    unreadable_marks,
 )
 from bridge.profile.model import Profile
 from bridge.sinks.outputs import atomic_output, check_output, refuse_inputs, same_file
@@ -161,7 +164,8 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
                  extra: Mapping[str, Any] | None = None,
                  attachment_time_ns: int | None = None,
                  read_ahead: bool = True,
-                 input_warnings: Iterable[str] = (), bring_up: bool = True) -> ConvertReport:
+                 input_warnings: Iterable[str] = (), bring_up: bool = True,
+                 marks: Sequence[Mark] = ()) -> ConvertReport:
     """Convert ``sources`` into an MCAP written to the open binary ``output``.
 
     With a profile, the drive also gets the scene and perception topics at ``scene_rate``.
@@ -170,6 +174,8 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     ``read_ahead``: a second process reads the sources where it can
     (:class:`~bridge.io.readahead.ReadAhead`); the output is the same either way.
     ``bring_up``: the bring-up topics (:mod:`bridge.bringup.monitor`).
+    ``marks``: a re-derived drive's marks, made again where its frames reach them
+    (:class:`~bridge.pipeline.rederive.CarriedMarks`).
     """
     started = time.perf_counter()
     drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra,
@@ -182,8 +188,12 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
         done, total = reading.progress()
         progress(frames, done / total if total else None)
 
-    frames = drive.run_blocks(reading.blocks(), progress=report_progress if progress else None,
+    carried = CarriedMarks(marks, drive.pipeline) if marks else None
+    blocks = reading.blocks() if carried is None else carried.blocks(reading.blocks())
+    frames = drive.run_blocks(blocks, progress=report_progress if progress else None,
                               every=every)
+    if carried is not None:
+        carried.finish()
     if progress is not None:
         progress(frames, 1.0)
     issues = [i for s in sources for i in s.issues]
@@ -264,7 +274,8 @@ def rederive(drive_path: Path | str, output: Path | str, dbc_options: Sequence[s
             report = record_drive(sources, stages.decoder, stream, profile=stages.profile,
                                   scene_rate=rate, progress=progress,
                                   extra=source_record(drive), attachment_time_ns=0,
-                                  read_ahead=read_ahead, bring_up=bring_up)
+                                  read_ahead=read_ahead, bring_up=bring_up,
+                                  input_warnings=unreadable_marks(drive), marks=drive.marks)
     report.output = output
     report.rederived = describe_rederive(drive, stages, dbc_options, profile)
     return report

@@ -14,19 +14,29 @@ of the one it was re-derived from (``source``: file, size, SHA-256, whether comp
 metadata), and keeps its ``created`` (where it has one), so that the same drive re-derived with
 the same databases and profile gives the same bytes. :func:`recorded_scene_rate` is the rate the
 drive was drawn at, which a re-derived drive keeps unless another is given.
+
+A drive's marks (``/marks``) are inputs, as its frames are: :class:`CarriedMarks` gives each
+back to the pipeline before the first frame stamped at or after it (in the order of their
+numbers), with the same number, text and time, its ``/log`` line and its text in the scene made
+again (:func:`~bridge.pipeline.marks.mark_messages`); those after the last frame come at the end.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from bridge.block import FrameBlock
 from bridge.decode.decoder import DatabaseFile, Decoder, database_warnings, load_database
 from bridge.errors import DatabaseError, InputError
-from bridge.io.drives import ArchiveContents
+from bridge.io.drives import ArchiveContents, mark_time
+from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
+from bridge.pipeline.marks import Marks, mark_messages
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline.pipeline import Pipeline
 from bridge.profile.loader import load_profile, resolve_profile
 from bridge.profile.model import ProfileError
 
@@ -134,3 +144,57 @@ def recorded_scene_rate(drive: ArchiveContents) -> float:
     described = drive.metadata.get("profile")
     rate = described.get("scene_rate_hz") if isinstance(described, dict) else None
     return float(rate) if isinstance(rate, (int, float)) and rate > 0 else DEFAULT_SCENE_RATE
+
+
+def unreadable_marks(drive: ArchiveContents) -> list[str]:
+    """The warning of a drive whose ``/marks`` messages are not all a ``tankviz.Mark``."""
+    if not drive.unreadable_marks:
+        return []
+    return [f"{drive.path}: {drive.unreadable_marks} /marks messages are not a tankviz.Mark: "
+            "left out of the re-derived drive"]
+
+
+class CarriedMarks:
+    """The marks of a drive re-derived by ``pipeline``, given back to it where its frames reach
+    them (the pipeline's :attr:`~bridge.pipeline.pipeline.Pipeline.marks` then lists them)."""
+
+    def __init__(self, marks: Sequence[Mark], pipeline: Pipeline) -> None:
+        self._pending = deque(marks)
+        self._pipeline = pipeline
+        self._made = Marks()
+        pipeline.marks = self._made
+
+    def before(self, t_ns: int, *, emit: bool = True) -> None:
+        """Every mark still to come that is at or before ``t_ns`` (a frame's time), made now;
+        not ``emit``: passed over (a replay that starts later)."""
+        pending = self._pending
+        while pending and mark_time(pending[0]) <= t_ns:
+            mark = pending.popleft()
+            if emit:
+                self._made.made.append(mark)
+                self._pipeline.emit(mark_messages(mark, mark_time(mark)))
+
+    def blocks(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
+        """``blocks`` cut where a mark comes, each mark made between the two parts (when the
+        pipeline asks for the part after it: the frames before it have gone through)."""
+        pending = self._pending
+        for block in blocks:
+            ts, i, n = block.t, 0, len(block)
+            while pending and i < n:
+                due = mark_time(pending[0])
+                if max(ts) < due:  # (most blocks: no frame reaches the mark)
+                    break
+                j = next((k for k in range(i, n) if ts[k] >= due), n)
+                if j == n:
+                    break
+                if j > i:
+                    yield block.slice(i, j)
+                self.before(ts[j])
+                i = j
+            if i < n:
+                yield block if i == 0 else block.slice(i, n)
+
+    def finish(self) -> None:
+        """The marks after the last frame (live took them as it stopped)."""
+        while self._pending:
+            self.before(mark_time(self._pending[-1]))
