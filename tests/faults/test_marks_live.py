@@ -61,11 +61,13 @@ def hours_off() -> Iterator[tuple[float, Any]]:
     return until_told()
 
 
-def drive_until_told(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, script: str,
+def drive_until_told(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, inject: str,
                      *live_args: str) -> tuple[LiveCar, Path]:
+    """tankviz live with the car ``inject`` (``FILE.py:FUNC``, of :func:`until_told`), and
+    the file that stops it once it exists."""
     stop = tmp_path / "stop"
     monkeypatch.setenv(STOP_FILE, str(stop))
-    return start(tmp_path, f"{__file__}:{script}", *live_args), stop
+    return start(tmp_path, inject, *live_args), stop
 
 
 async def three_marks(url: str) -> tuple[Marker, list[int]]:
@@ -91,7 +93,7 @@ async def three_marks(url: str) -> tuple[Marker, list[int]]:
 
 def test_a_viewers_marks_land_at_the_drives_clock_hours_off_the_laptops(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    car, stop = drive_until_told(tmp_path, monkeypatch, "hours_off")
+    car, stop = drive_until_told(tmp_path, monkeypatch, f"{__file__}:hours_off")
     viewer = Viewer(car.url)  # another viewer, watching
     try:
         marker, published = asyncio.run(three_marks(car.url))
