@@ -449,7 +449,7 @@ def test_databases_must_exist(error: Callable[[str], str], car: Path, databases:
     pytest.param(
         "[vehicle]", "[vehicel]",
         "vehicel: unknown key; closest: vehicle "
-        "(allowed: buses, ego, lanes, lead, objects, profile, sensors, vehicle)",
+        "(allowed: buses, ego, lanes, lead, marks, objects, profile, sensors, vehicle)",
         id="top-level"),
     pytest.param(
         'name = "ecocar"', 'nam = "ecocar"',

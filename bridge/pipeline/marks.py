@@ -6,19 +6,24 @@ pipeline's thread (:meth:`Marks.take`), stamped with the drive's clock at that m
 it lands where the frames of that moment are whatever the computer's clock says. Each mark is
 numbered (1, 2, … in the drive) and becomes three messages: ``/marks`` (``tankviz.Mark``, what
 inspect, catalog and replay find), a line on ``/log`` and a text in the scene
-(``/scene/marks``) for :data:`SHOWN_S` seconds.
+(``/scene/marks``) for :data:`SHOWN_S` seconds. A profile's ``[marks]`` rules are watched by
+:class:`MarkWatch` on each decoded frame of the messages they read: a rule that becomes true
+marks the drive at that frame's time (the car's marks: made at once, never asked).
 """
 
 from __future__ import annotations
 
 import queue
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bridge.frame import timestamp
 from bridge.pb.marks_pb2 import Mark
+from bridge.profile.model import MarkRule
 from bridge.scene.entities import add_text, entity
 from bridge.topics import LOG_TOPIC, MARKS_CATEGORY, MARKS_TOPIC, TopicMessage, scene_topic
 
@@ -73,10 +78,47 @@ class Marks:
         return mark_messages(mark, t_ns)
 
 
+class MarkWatch:
+    """A profile's ``[marks]`` rules, each evaluated on every decoded frame of a message it
+    reads, a signal keeping its latest value until its message brings another: a rule that
+    becomes true (it was false, or could not be evaluated: a signal not there yet) asks for a
+    mark, ``source`` "car", ``by`` the rule as written; while it stays true, nothing more."""
+
+    def __init__(self, rules: Sequence[MarkRule]) -> None:
+        self.rules = tuple(rules)
+        #: every message a rule reads: only their frames are watched
+        self.messages = frozenset(m for rule in self.rules for m in rule.messages)
+        #: per message, each rule that reads it: (its index, (name, signal) of what it reads there)
+        self._reads: dict[str, list[tuple[int, tuple[tuple[str, str], ...]]]] = {}
+        for i, rule in enumerate(self.rules):
+            for message in sorted(rule.messages):
+                self._reads.setdefault(message, []).append(
+                    (i, tuple((name, signal) for name, m, signal in rule.reads if m == message)))
+        self._values: list[dict[str, Any]] = [{} for _ in self.rules]
+        self._held = [False] * len(self.rules)
+        self._asked = [MarkAsked(r.text, r.category, "car", r.when) for r in self.rules]
+
+    def on_message(self, message: str, signals: Mapping[str, Any]) -> list[MarkAsked]:
+        """The marks a decoded frame of ``message`` asks for: one per rule it makes true."""
+        out: list[MarkAsked] = []
+        for i, reads in self._reads[message]:
+            values = self._values[i]
+            for name, signal in reads:
+                value = signals.get(signal)
+                if value is not None:
+                    values[name] = value
+            holds = self.rules[i].expression.test(values)
+            if holds and not self._held[i]:
+                out.append(self._asked[i])
+            self._held[i] = holds
+        return out
+
+
 def describe(mark: Mark) -> str:
-    """A mark in one line: ``MARK 3: ghost [radar] (viewer 192.168.1.4)``."""
+    """A mark in one line: ``MARK 3: ghost [radar] (viewer 192.168.1.4)`` (who only once: ``MARK
+    4: STEER_BUTTON == 1 (car)``, a car's rule that is its own text)."""
     category = f" [{mark.category}]" if mark.category else ""
-    by = f" {mark.by}" if mark.by else ""
+    by = f" {mark.by}" if mark.by and mark.by != mark.text else ""
     return f"MARK {mark.number}: {mark.text}{category} ({mark.source}{by})"
 
 

@@ -15,17 +15,19 @@ sinks; the live server itself sends raw frames and decoded signals only to viewe
 subscribed to them. The bring-up stage (:attr:`Pipeline.bringup`,
 :mod:`bridge.bringup.monitor`) is fed every frame like health and ticked with it; the sinks that
 record files (:attr:`~bridge.sinks.base.Sink.records`) get fewer of its messages than the
-others.
+others. A profile's ``[marks]`` rules are evaluated on each decoded frame of the messages they
+read (:class:`~bridge.pipeline.marks.MarkWatch`), and a mark is made and emitted at the frame
+that makes a rule true; the frames of other messages do not see them.
 """
 
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from functools import partial
 from itertools import islice
 from operator import le, sub
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -39,7 +41,7 @@ from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.clock import ClockStep, StepDetector
-from bridge.pipeline.marks import Marks
+from bridge.pipeline.marks import Marks, MarkWatch
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
@@ -57,6 +59,10 @@ from bridge.topics import (
 
 if TYPE_CHECKING:  # (bring-up brings numpy: a drive without it does not import it)
     from bridge.bringup.monitor import BringUpMonitor
+
+#: What a codec's decoded messages are fed to (message name, signals, time): perception, the
+#: mark watch, or both.
+Feed = Callable[[str, Mapping[str, Any], int], None]
 
 
 class Pipeline:
@@ -79,8 +85,13 @@ class Pipeline:
         if bringup is not None:
             bringup.envelope = Serialized
         self._wanted = self.perception.messages if self.perception is not None else frozenset()
-        #: whether perception takes a codec's messages (filled as they come)
-        self._fed: dict[MessageCodec, bool] = {}
+        #: the profile's [marks] rules, watched on the frames of the messages they read (set
+        #: None before the first frame to make none of their marks: a re-derived drive's
+        #: recorded marks have them)
+        self.mark_watch = (MarkWatch(profile.marks) if profile is not None and profile.marks
+                           else None)
+        #: what each codec's messages are fed to (filled as they come; False: nothing)
+        self._fed: dict[MessageCodec, Feed | Literal[False]] = {}
         self._next_tick = (NEVER_NS if self.perception is not None or health is not None
                            or bringup is not None else END_NS)
         self.frames = 0
@@ -100,9 +111,10 @@ class Pipeline:
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
-        #: the drive's marks, where it takes them (live; a drive re-derived with its marks):
-        #: its channels then have /marks and /scene/marks
-        self.marks: Marks | None = None
+        #: the drive's marks, where it takes them (live; a drive re-derived with its marks; a
+        #: profile with [marks] rules, whose marks it makes): its channels then have /marks and
+        #: /scene/marks
+        self.marks: Marks | None = Marks() if self.mark_watch is not None else None
 
     def add_sink(self, sink: Sink) -> None:
         """One more sink, after those there are (before the first frame)."""
@@ -252,16 +264,40 @@ class Pipeline:
         sinks at once, and to perception in order."""
         for sink in self.sinks:
             sink.on_decoded_many(run)
-        perception = self.perception
-        if perception is not None:
-            fed_of, wanted = self._fed, self._wanted
+        if self.perception is not None:  # (there are [marks] rules only with a profile)
+            fed_of = self._fed
             for t, d in run:
                 codec = d.codec
-                fed = fed_of.get(codec)
-                if fed is None:
-                    fed = fed_of[codec] = codec.message.name in wanted
-                if fed:
-                    perception.feed(codec.message.name, d.signals, t)
+                feed = fed_of.get(codec)
+                if feed is None:
+                    feed = fed_of[codec] = self._feed_of(codec)
+                if feed:
+                    feed(codec.message.name, d.signals, t)
+
+    def _feed_of(self, codec: MessageCodec) -> Feed | Literal[False]:
+        """What a codec's decoded messages are fed to: perception, the mark watch, both, or
+        nothing (False)."""
+        name = codec.message.name
+        perceived = self.perception is not None and name in self._wanted
+        watch = self.mark_watch
+        marked = watch is not None and name in watch.messages
+        if perceived and marked:
+            return self._perceive_and_mark
+        if perceived:
+            assert self.perception is not None
+            return self.perception.feed
+        return self._mark if marked else False
+
+    def _mark(self, message: str, signals: Mapping[str, Any], t_ns: int) -> None:
+        """A decoded frame of a message a [marks] rule reads: the marks it makes, emitted."""
+        assert self.mark_watch is not None and self.marks is not None
+        for asked in self.mark_watch.on_message(message, signals):
+            self.emit(self.marks.make(asked, t_ns))
+
+    def _perceive_and_mark(self, message: str, signals: Mapping[str, Any], t_ns: int) -> None:
+        assert self.perception is not None
+        self.perception.feed(message, signals, t_ns)
+        self._mark(message, signals, t_ns)
 
     def _hand_made(self, bringup: BringUpMonitor) -> None:
         """Bring-up's ``/can/<bus>/unknown`` messages made since the last hand-over: all of them
@@ -298,11 +334,11 @@ class Pipeline:
             for on_decoded in self._on_decoded:
                 on_decoded(t, decoded)
             codec = decoded.codec
-            fed = self._fed.get(codec)
-            if fed is None:
-                fed = self._fed[codec] = codec.message.name in self._wanted
-            if fed and self.perception is not None:
-                self.perception.feed(codec.message.name, decoded.signals, t)
+            feed = self._fed.get(codec)
+            if feed is None:
+                feed = self._fed[codec] = self._feed_of(codec)
+            if feed:
+                feed(codec.message.name, decoded.signals, t)
         self.frames += 1
         self.last_ns = t
 

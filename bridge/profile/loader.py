@@ -15,7 +15,8 @@ name (it has an operator, a space or a parenthesis) or ``{ value = "...", scale 
 .. }`` is an expression (:mod:`bridge.profile.expr`), parsed once here and its names resolved as a
 validity rule's are (:meth:`_Loader.resolve`): plain names must be signals of exactly one of the
 group's messages (of the lane line's message), ``Message.Signal`` names one of them; an ego value
-names ``Message.Signal`` of any message.
+names ``Message.Signal`` of any message; a ``[marks]`` rule too, or a plain name that is a signal
+of exactly one message of the databases.
 
 Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
 value of the wrong type or out of range (:mod:`bridge.profile.values` reads each value and
@@ -50,6 +51,7 @@ from bridge.profile.model import (
     LaneLine,
     LaneSpec,
     LeadSpec,
+    MarkRule,
     Mount,
     ObjectClass,
     ObjectGroup,
@@ -85,7 +87,8 @@ else:  # pragma: no cover - Python 3.10
 _RESERVED_GROUPS = {"ego", "health", "lanes", "lead", "marks", "mio"}
 #: What an object group is (``[objects.GROUP] role``).
 _ROLES = ("detections", "tracks")
-_TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego"}
+_TOP_KEYS = {"profile", "vehicle", "buses", "sensors", "objects", "lead", "lanes", "ego",
+             "marks"}
 _CLASS_NAMES = {c.value: c for c in ObjectClass}
 #: The mapped fields of an object (``[objects.GROUP] x = ...``), in the order they are read.
 _GROUP_FIELDS = ("x", "y", "range", "azimuth", "vx", "vy", "probability", "class", "id")
@@ -239,10 +242,12 @@ class _Loader(ValueReader):
         return expression
 
     def resolve(self, expression: Expression, key: str, messages: Sequence[DbcMessage] | None,
-                *, rule: bool = False) -> tuple[tuple[str, str, str], ...]:
+                *, rule: bool = False,
+                anywhere: bool = False) -> tuple[tuple[str, str, str], ...]:
         """(name, message, signal) for every name the expression reads: a plain name must be a
         signal of exactly one of ``messages``, ``Message.Signal`` name one of them; without
-        ``messages`` (an ego value) every name is ``Message.Signal`` of any message. The errors
+        ``messages`` (an ego value) every name is ``Message.Signal`` of any message (or, with
+        ``anywhere``, a plain name a signal of exactly one message of the databases). The errors
         of a validity rule (``rule``) name what it reads; those of a value, the column."""
         text = expression.text
         columns = expression.columns
@@ -251,7 +256,7 @@ class _Loader(ValueReader):
             expression.names, key=lambda n: (columns.get(n, 0), n))
         for name in names:
             try:
-                message, signal = self.read(name, messages)
+                message, signal = self.read(name, messages, anywhere)
             except _Unread as why:
                 if rule:
                     raise self.fail(key, f"rule {text!r} reads {name!r}, {why.as_rule}") from None
@@ -260,18 +265,20 @@ class _Loader(ValueReader):
             reads.append((name, message, signal))
         return tuple(reads)
 
-    def read(self, name: str, messages: Sequence[DbcMessage] | None) -> tuple[str, str]:
+    def read(self, name: str, messages: Sequence[DbcMessage] | None,
+             anywhere: bool = False) -> tuple[str, str]:
         """The message and signal a name of an expression reads (:meth:`resolve`)."""
-        where = ", ".join(m.name for m in messages or ())
+        where = ", ".join(m.name for m in messages) if messages is not None else "the databases"
         message_name, _, signal_name = name.rpartition(".")
         if messages is None:
-            if not message_name:
+            if not message_name and not anywhere:
                 raise _Unread("", f"write Message.Signal for {name!r}: ego values may come from "
                               "any message")
-            if message_name not in self.messages:
+            if message_name and message_name not in self.messages:
                 raise _Unread("", f"no message {message_name!r} in the databases"
                               f"{closest(message_name, self.messages)}")
-            candidates = [self.messages[message_name]]
+            candidates = ([self.messages[message_name]] if message_name
+                          else list(self.messages.values()))
         elif message_name:
             candidates = [m for m in messages if m.name == message_name]
             if not candidates:
@@ -415,7 +422,24 @@ class _Loader(ValueReader):
         return Profile(name=name, path=self.path, vehicle=vehicle, sensors=sensors,
                        groups=groups, lead=lead, lanes=lanes, ego=ego,
                        databases=self.databases(), bitrates=bitrates,
-                       data_bitrates=data_bitrates)
+                       data_bitrates=data_bitrates, marks=self.marks(doc.get("marks", [])))
+
+    def marks(self, value: Any) -> tuple[MarkRule, ...]:
+        """``[marks]``, one rule, or ``[[marks]]``, several (keys ``marks[1]``, ``marks[2]``…)."""
+        if isinstance(value, list):
+            return tuple(self.mark(v, f"marks[{n}]") for n, v in enumerate(value, 1))
+        return (self.mark(value, "marks"),)
+
+    def mark(self, value: Any, key: str) -> MarkRule:
+        """A rule over signals of any message (plain names of one message only), that marks the
+        drive each time it becomes true; its text (default: the rule) and category."""
+        t = self.table(value, key, {"when", "text", "category"}, required=["when"])
+        when = self.string(t, key, "when")
+        expression = self.parse(when, f"{key}.when")
+        if not expression.names:
+            raise self.fail(f"{key}.when", f"rule {when!r} reads no signal: it would never mark")
+        return MarkRule(expression, self.resolve(expression, f"{key}.when", None, anywhere=True),
+                        self.string(t, key, "text", when), self.string(t, key, "category", ""))
 
     def buses(self, value: Any) -> tuple[dict[str, int], dict[str, int]]:
         """``[buses.NAME] bitrate = …, data_bitrate = …``: for the bus load in /health."""

@@ -1,9 +1,10 @@
 """Vehicle profiles: what the DBC signals of one car *mean*; this module is the model.
 
 A profile names the sensors (mounting pose and conventions), the object groups (detections or
-tracks, by each group's role) bound to families of DBC messages, the lead vehicle, the lane lines
-and the ego signals. Its parts are frozen dataclasses (and the enumerations :class:`ObjectClass` and
-:class:`SensorKind`) that check nothing themselves: a :class:`Profile` comes from
+tracks, by each group's role) bound to families of DBC messages, the lead vehicle, the lane lines,
+the ego signals and the rules that mark the drive (:class:`MarkRule`). Its parts are frozen
+dataclasses (and the enumerations :class:`ObjectClass` and :class:`SensorKind`) that check
+nothing themselves: a :class:`Profile` comes from
 :func:`bridge.profile.loader.load_profile`, which has checked every name in it against the loaded
 databases, and a profile that cannot be used is a :class:`ProfileError` naming the file, the key
 (if any) and what is wrong.
@@ -280,6 +281,29 @@ class Rule:
 
 
 @dataclass(frozen=True)
+class MarkRule:
+    """``[marks]``: a rule over signals of any message (``reads`` resolves each name it reads
+    to its message and signal); each time it becomes true, the drive is marked with ``text``
+    (default: the rule itself) and ``category``."""
+
+    expression: Expression
+    #: (name in the rule, message, signal) for every name it reads
+    reads: tuple[tuple[str, str, str], ...]
+    text: str
+    category: str = ""
+
+    @property
+    def when(self) -> str:
+        """The rule as written."""
+        return self.expression.text
+
+    @property
+    def messages(self) -> frozenset[str]:
+        """Every message the rule reads: a frame of one of them may make a mark."""
+        return frozenset(message for _, message, _ in self.reads)
+
+
+@dataclass(frozen=True)
 class FamilyMember:
     """One message of an object family and the object index it carries."""
 
@@ -431,6 +455,8 @@ class Profile:
     #: Nominal bitrate per bus (bit/s), for the bus load; and the CAN FD data bitrate.
     bitrates: Mapping[str, int] = field(default_factory=dict)
     data_bitrates: Mapping[str, int] = field(default_factory=dict)
+    #: The rules that mark the drive when they become true (``[marks]``).
+    marks: tuple[MarkRule, ...] = ()
 
     def message_names(self) -> set[str]:
         """Every DBC message the profile reads."""
@@ -442,4 +468,6 @@ class Profile:
         for ref in (self.ego.speed, self.ego.yaw_rate, self.ego.steering_wheel_angle):
             if ref is not None:
                 names.update(ref.messages)
+        for rule in self.marks:
+            names |= rule.messages
         return names

@@ -11,9 +11,10 @@ buses, encoded with cantools against the bundled databases:
   VALID = 0 and every other signal 0 but the cycle counter and the checksum. A cycle whose last
   frame would fall at or after the end of the run is not sent (no cycle is cut short).
 - ``can0``, the car bus (``highway_car.dbc``): ``KINEMATICS`` (yaw rate, accelerations) and
-  ``STEER_ANGLE_SENSOR`` (STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION in 0.1 deg steps)
-  every 10 ms, ``WHEEL_SPEEDS`` (four wheels, km/h) every 12 ms, ``SPEED`` (the speedometer,
-  km/h, 1.5 % high) every 20 ms.
+  ``STEER_ANGLE_SENSOR`` (STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION in 0.1 deg steps;
+  STEER_BUTTON, a button on the wheel, 1 while pressed: :data:`BUTTON_PRESSES`, 10.0 to
+  10.3 s and 40.0 to 40.3 s) every 10 ms, ``WHEEL_SPEEDS`` (four wheels, km/h) every 12 ms,
+  ``SPEED`` (the speedometer, km/h, 1.5 % high) every 20 ms.
 - ids the databases do not define, as a real car has (bring-up's work): 0x2C4 (brake switch,
   speedometer, yaw rate), 0x3B7 and 0x4C8 on ``can0``, 0x2E0 on ``can1``; their layouts and
   ground truth (the brake pressed at 14 to 17 s and 45 to 48 s) in :mod:`bridge.sim.highway_body`.
@@ -114,9 +115,9 @@ from bridge.sim.highway_world import (
 )
 from bridge.sim.scenario import DEFAULT_START_NS
 
-__all__ = ["CAR_BUS", "HIGHWAY", "RADAR_BUS", "ROADS", "EgoTruth", "Highway", "ObjectTruth",
-           "SlotTruth", "ego_at", "lead_at", "objects_at", "simulate_highway", "slots_at",
-           "twins_at"]
+__all__ = ["BUTTON_PRESSES", "CAR_BUS", "HIGHWAY", "RADAR_BUS", "ROADS", "EgoTruth", "Highway",
+           "ObjectTruth", "SlotTruth", "button_at", "ego_at", "lead_at", "objects_at",
+           "simulate_highway", "slots_at", "twins_at"]
 
 #: The buses of the highway car: the radar's and the car's own.
 RADAR_BUS = "can1"
@@ -126,6 +127,15 @@ SPEEDOMETER_GAIN = 1.015
 #: Each wheel's rolling radius against the mean (FL, FR, RL, RR): their mean is 1.
 _TYRES = (1.002, 0.999, 1.001, 0.998)
 KMH = 3.6
+#: The button on the wheel (STEER_ANGLE_SENSOR.STEER_BUTTON) is pressed from the first to the
+#: second time (seconds after the start): the engineer marks two moments (``[marks]`` of the
+#: highway profile).
+BUTTON_PRESSES: tuple[tuple[float, float], ...] = ((10.0, 10.3), (40.0, 40.3))
+
+
+def button_at(t: float) -> bool:
+    """Whether the button on the wheel is pressed at ``t`` seconds after the start."""
+    return any(start <= t < end for start, end in BUTTON_PRESSES)
 
 
 @functools.lru_cache(maxsize=2)
@@ -257,7 +267,7 @@ def _steering(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, 
     rate = math.degrees(ego_at(ego.t + 0.01, highway).steering_wheel_angle
                         - ego_at(ego.t - 0.01, highway).steering_wheel_angle) / 0.02
     return {"STEER_ANGLE": coarse * 1.5, "STEER_FRACTION": (tenths - 15 * coarse) / 10,
-            "STEER_RATE": rate + rng.gauss(0.0, 0.5)}
+            "STEER_RATE": rate + rng.gauss(0.0, 0.5), "STEER_BUTTON": int(button_at(ego.t))}
 
 
 def _wheel_speeds(ego: EgoTruth, rng: random.Random, highway: Highway) -> dict[str, float]:
