@@ -26,7 +26,7 @@ from mcap.writer import Writer
 
 from bridge.cli import main
 from bridge.errors import UsageError
-from bridge.fleet import catalog
+from bridge.fleet import catalog, questions
 from bridge.fleet.catalog import DriveRows, index, read_here
 from bridge.frame import NS
 from bridge.io.drives import ArchiveSource
@@ -132,7 +132,7 @@ def health_alarm_spans(path: str, alarm: str) -> tuple[list[tuple[int, int | Non
 
 
 def rows(catalogue: Path, sql: str, *params: Any) -> list[tuple[Any, ...]]:
-    return catalog.query(catalogue, sql, params).rows
+    return questions.query(catalogue, sql, params).rows
 
 
 # --- the example queries of docs/commands.md ------------------------------------------------------

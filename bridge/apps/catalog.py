@@ -20,7 +20,7 @@ from pathlib import Path
 
 from bridge.apps.options import Subparsers
 from bridge.errors import UsageError, shown
-from bridge.fleet import catalog
+from bridge.fleet import catalog, questions
 
 USAGE = """tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]
        tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] [--between T1 T2]"""
@@ -126,13 +126,13 @@ def _query(args: argparse.Namespace, rest: list[str]) -> int:
     if sql is not None:
         if between is not None:
             raise UsageError("--between narrows --alarm and --topic; write it into the SQL")
-        answer = catalog.query(path, sql)
+        answer = questions.query(path, sql)
     elif args.alarm is not None:
-        answer = catalog.alarm_query(path, args.alarm, between)
+        answer = questions.alarm_query(path, args.alarm, between)
     elif args.topic is not None:
-        answer = catalog.topic_query(path, args.topic, between)
+        answer = questions.topic_query(path, args.topic, between)
     else:
         assert between is not None
-        answer = catalog.between_query(path, between)
-    print(catalog.format_answer(answer))
+        answer = questions.between_query(path, between)
+    print(questions.format_answer(answer))
     return 0

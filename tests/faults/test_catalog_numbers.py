@@ -16,7 +16,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from bridge.apps.recover import recover_file
-from bridge.fleet import catalog
+from bridge.fleet import catalog, questions
 from bridge.fleet.catalog import index, read_drive
 from bridge.io.drives import ArchiveSource
 from bridge.pipeline.drive import Drive, load_stages
@@ -110,7 +110,7 @@ def test_one_drive_named_through_dotdot_or_a_link_is_indexed_once(tmp_path: Path
     report = index(out, [str(folder), str(tmp_path / "x" / ".." / "drives" / "drv.mcap"),
                          str(tmp_path / "link")])
     assert report.new == [str((folder / "drv.mcap").resolve())]
-    assert catalog.query(out, "SELECT path FROM drives").rows == [
+    assert questions.query(out, "SELECT path FROM drives").rows == [
         (str((folder / "drv.mcap").resolve()),)]
     again = index(out, [str(tmp_path / "link" / "drv.mcap")])
     assert again.unchanged == [str((folder / "drv.mcap").resolve())] and not again.new
