@@ -13,6 +13,10 @@ error: one line, exit 1, nothing recorded. A bus that had opened and fails is sa
 is back) as the run goes. python-can's own log lines are said once per cause, then counted
 (:class:`~bridge.io.buses.CanLogLimiter`).
 
+In a terminal (standard input is one), Enter marks the moment, named by what was typed before it
+(:class:`TerminalMarks`); viewers mark with Foxglove's Publish panel (the server's marks). Each
+mark is said on the console as it is made (:mod:`bridge.pipeline.marks`).
+
 SIGINT, SIGTERM and SIGHUP (the terminal or SSH session went away) stop the run and finish the
 drive. Output to a terminal or pipe that is gone (EIO, EPIPE) never stops the run or the drive's
 finishing: from then on it goes nowhere (:func:`output_may_vanish`).
@@ -35,6 +39,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import select
 import shlex
 import signal
 import sys
@@ -56,8 +61,10 @@ from bridge.errors import UsageError
 from bridge.io.buses import BusSpec, ReceiveCounts, limit_can_logs
 from bridge.pipeline.drive import Stages
 from bridge.pipeline.live import Live
+from bridge.pipeline.marks import MarkAsked
 from bridge.resources import layouts_dir
 from bridge.sinks.server import ClientStats
+from bridge.sinks.server.viewer_input import TEXT_CHARS, UNNAMED
 from bridge.view.bringup import bringup_layout
 from bridge.view.generate import DEFAULT_BUS, generate_layouts, layout_text
 
@@ -169,6 +176,75 @@ def output_may_vanish() -> Iterator[None]:
         sys.stdout, sys.stderr = out, err
 
 
+def terminal_text(line: str) -> str:
+    """A mark's text from a line typed in the terminal: what was typed, without control
+    characters (an arrow key's escape), at most ``TEXT_CHARS``; nothing (or just ``m``) is
+    ``mark``."""
+    text = "".join(c for c in line if c.isprintable()).strip()[:TEXT_CHARS].strip()
+    return UNNAMED if text in ("", "m") else text
+
+
+class TerminalMarks:
+    """Marks from live's terminal: each line typed (Enter) marks the moment, named by
+    :func:`terminal_text`. Nothing is read unless standard input (``fd``) is a terminal, and
+    only while this process is in its foreground (``tankviz live &`` would stop at a read); the
+    descriptor is read directly, never through ``sys.stdin`` (whose lock a thread blocked in a
+    read would hold when the interpreter exits). The input's end (Ctrl+D, a terminal gone) ends
+    the reading."""
+
+    def __init__(self, ask: Callable[[MarkAsked], None], fd: int = 0) -> None:
+        self.ask = ask
+        self.fd = fd
+        #: the terminal's name (``/dev/pts/3``): the marks' ``by``
+        self.by = ""
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> bool:
+        """Start reading, if standard input is a terminal (whether it is)."""
+        try:
+            if not os.isatty(self.fd):
+                return False
+            self.by = os.ttyname(self.fd)
+        except OSError:
+            return False
+        self._thread = threading.Thread(target=self._run, name="tankviz-terminal", daemon=True)
+        self._thread.start()
+        return True
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
+
+    def _foreground(self) -> bool:
+        try:
+            return os.tcgetpgrp(self.fd) == os.getpgrp()
+        except OSError:  # not this process's controlling terminal: reading it stops nobody
+            return True
+
+    def _run(self) -> None:
+        pending = b""
+        while not self._stop.is_set():
+            try:
+                if not self._foreground():
+                    self._stop.wait(0.5)
+                    continue
+                if not select.select([self.fd], [], [], 0.2)[0]:
+                    continue
+                chunk = os.read(self.fd, 4096)
+            except (OSError, ValueError):  # the terminal went away
+                return
+            if not chunk:
+                if not self._stop.is_set():
+                    print("the terminal's input ended: Enter marks no more", flush=True)
+                return
+            *lines, pending = (pending + chunk).split(b"\n")
+            for line in lines:
+                text = terminal_text(line.decode("utf-8", errors="replace"))
+                self.ask(MarkAsked(text, "", "terminal", self.by))
+
+
 def install_hangup(stop: Callable[[], None]) -> None:
     """SIGHUP (the terminal or SSH session went away) stops the run as SIGTERM does: the drive
     is finished."""
@@ -229,6 +305,7 @@ def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
         raise UsageError(f"--min-free {args.min_free:g}: must be 0 or more (MB)")
     server = None if args.no_server else options.start_server(args)
     limiter = limit_can_logs(lambda text: print(text, file=sys.stderr, flush=True))
+    terminal = TerminalMarks(lambda asked: live.marks.ask(asked))
     try:
         live = Live(buses, stages, scene_rate=options.scene_rate(args),
                     drives=None if args.no_record else args.drives, server=server,
@@ -270,8 +347,11 @@ def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
               "Ctrl+C stops.", flush=True)
         if start_feed is not None:
             start_feed()
+        if terminal.start():
+            print("Enter marks the moment (type a word first to name it).", flush=True)
         report = live.run()
     finally:
+        terminal.stop()
         if server is not None:
             server.stop()
         limiter.finish()
