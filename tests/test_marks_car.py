@@ -3,6 +3,7 @@ the time of the frame that makes it true, in convert, replay and live alike."""
 
 from __future__ import annotations
 
+import re
 import threading
 from collections.abc import Iterable
 from functools import partial
@@ -226,12 +227,18 @@ def read_marks(path: Path) -> tuple[list[tuple[int, Any]], list[str]]:
     return marks, lines
 
 
-def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_button(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    log = tmp_path / "highway.blf"
+@pytest.fixture(scope="module")
+def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """42 s of the simulated highway drive: both presses of the button."""
+    log = tmp_path_factory.mktemp("highway") / "highway.blf"
     assert main(["simulate", "--car", "highway", "-o", str(log), "--duration", "42"]) == 0
+    return log
+
+
+def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_button(
+        tmp_path: Path, highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     output = tmp_path / "highway.mcap"
-    assert main(["convert", str(log), "-o", str(output), "--profile", "highway"]) == 0
+    assert main(["convert", str(highway_log), "-o", str(output), "--profile", "highway"]) == 0
     capsys.readouterr()
     marks, lines = read_marks(output)
     pressed = first_pressed(simulate_highway(duration_s=42.0))
@@ -243,6 +250,42 @@ def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_bu
     assert [(m.number, m.text, m.category, m.source, m.by) for _, m in marks] == [
         (n, "STEER_BUTTON == 1", "", "car", "STEER_BUTTON == 1") for n in (1, 2)]
     assert lines == ["MARK 1: STEER_BUTTON == 1 (car)", "MARK 2: STEER_BUTTON == 1 (car)"]
+
+
+def test_profile_check_says_what_the_rules_read_and_which_marks_a_log_made(
+        highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["profile", "check", "highway", str(highway_log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "marks: when STEER_BUTTON == 1 (STEER_ANGLE_SENSOR.STEER_BUTTON)" in out
+    first = min(f.timestamp_ns for f in simulate_highway(duration_s=0.1))
+    at = [(t - first) / NS for t in first_pressed(simulate_highway(duration_s=42.0))]
+    assert out[-3:] == ["marks: 2 made (s after the first frame):",
+                        f"  MARK 1: STEER_BUTTON == 1 (car) at {at[0]:.3f} s",
+                        f"  MARK 2: STEER_BUTTON == 1 (car) at {at[1]:.3f} s"]
+
+
+def test_profile_check_lists_the_first_marks_of_a_rule_true_too_often(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = tmp_path / "highway.blf"
+    assert main(["simulate", "--car", "highway", "-o", str(log), "--duration", "2"]) == 0
+    profile = tmp_path / "car.toml"
+    profile.write_text(HEAD + '[[marks]]\nwhen = "STEER_BUTTON == 1"\n'
+                       '[[marks]]\nwhen = "KINEMATICS.YAW_RATE < 0"\ntext = "noise"\n'
+                       'category = "yaw"\n')
+    assert main(["profile", "check", str(profile)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2:] == ["marks: when STEER_BUTTON == 1 (STEER_ANGLE_SENSOR.STEER_BUTTON)",
+                        "marks: when KINEMATICS.YAW_RATE < 0 (KINEMATICS.YAW_RATE), "
+                        "text 'noise' [yaw]"]
+    assert main(["profile", "check", str(profile), str(log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    made = next(i for i, line in enumerate(out) if line.startswith("marks: ") and "made" in line)
+    assert re.fullmatch(r"marks: \d\d+ made \(s after the first frame\):", out[made])
+    assert all(re.fullmatch(r"  MARK \d+: noise \[yaw\] \(car KINEMATICS.YAW_RATE < 0\) at "
+                            r"[01]\.\d\d\d s", line) for line in out[made + 1:made + 11])
+    assert re.fullmatch(r"  … \d+ more", out[made + 11])
+    assert main(["profile", "check", "highway", str(log)]) == 0  # no press in 2 s
+    assert capsys.readouterr().out.splitlines()[-1] == "marks: none made: no rule became true"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -10,12 +10,13 @@
 - ``tankviz profile check car.toml [--dbc ...] [LOG ...]`` loads the profile against the
   databases (``--dbc``, else the profile's own; a bad name is the loader's one-line error with
   the closest names) and prints what it maps (:func:`format_mapping`: sensors, object groups
-  with sensor, role, messages, index range and fields, ego, lanes, lead). Given logs (any format
-  ``tankviz convert`` reads), it runs them through the one drive assembly,
+  with sensor, role, messages, index range and fields, ego, lanes, lead, marks). Given logs
+  (any format ``tankviz convert`` reads), it runs them through the one drive assembly,
   :class:`~bridge.pipeline.drive.Drive`, with no recording sink, and prints per object group
   how many objects were valid (distinct ids and observations), their x and y ranges in the
   vehicle frame, and per sensor the lateral-sign verdict of the drive's health monitor
-  (:class:`~bridge.world.lateral.LateralSignCheck`; :class:`GroupStats`, :func:`format_stats`).
+  (:class:`~bridge.world.lateral.LateralSignCheck`; :class:`GroupStats`, :func:`format_stats`),
+  and the marks its ``[marks]`` rules made, with their times (:func:`format_marks`).
   Last come the warnings ``tankviz convert`` prints
   (:meth:`~bridge.decode.decoder.Decoder.warnings`: a message cantools cannot decode; given logs,
   a ``--dbc BUS=`` for a bus no log has), one ``warning: …`` line each, so that check is the one
@@ -29,15 +30,18 @@ from __future__ import annotations
 import argparse
 import os
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bridge.apps.options import Subparsers, dbc_option
 from bridge.errors import BridgeError
+from bridge.frame import NS, Frame
 from bridge.io.logs import LogSource, merge
+from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, Stages, load_stages
+from bridge.pipeline.marks import describe
 from bridge.pipeline.perception import Perception
 from bridge.profile.draft import TODO, draft_profile
 from bridge.profile.loader import load_profile
@@ -181,7 +185,30 @@ def format_mapping(profile: Profile, databases: Sequence[str]) -> str:
         lines.append("lead: chosen: the closest valid track inside the ego lane")
     else:
         lines += ["lead: from its own messages:", *_group_lines("lead", lead.group)]
+    for rule in profile.marks:
+        reads = ", ".join(f"{message}.{signal}" for _, message, signal in rule.reads)
+        said = f", text {rule.text!r}" if rule.text != rule.when else ""
+        lines.append(f"marks: when {rule.when} ({reads}){said}"
+                     + (f" [{rule.category}]" if rule.category else ""))
     return "\n".join(lines)
+
+
+#: How many marks ``profile check`` lists (a rule that is true too often makes many).
+MARKS_LISTED = 10
+
+
+def format_marks(made: Sequence[Mark], start_ns: int | None) -> list[str]:
+    """The marks the ``[marks]`` rules made in the logs, each with its time after the first
+    frame (``start_ns``)."""
+    if not made:
+        return ["marks: none made: no rule became true"]
+    lines = [f"marks: {len(made):,} made (s after the first frame):"]
+    for mark in made[:MARKS_LISTED]:
+        at = (mark.timestamp.ToNanoseconds() - (start_ns or 0)) / NS
+        lines.append(f"  {describe(mark)} at {at:.3f} s")
+    if len(made) > MARKS_LISTED:
+        lines.append(f"  … {len(made) - MARKS_LISTED:,} more")
+    return lines
 
 
 @dataclass
@@ -358,7 +385,16 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
     rules: dict[str, RuleStats] = {}
     observer.watch(lambda group, made, rule, values: rules.setdefault(
         group.name, RuleStats()).note(made, rule, values))
-    frames = drive.run(merge(sources))
+    first: list[int] = []
+
+    def noted(frames: Iterator[Frame]) -> Iterator[Frame]:  # (the first frame's time)
+        for frame in frames:
+            first.append(frame.timestamp_ns)
+            yield frame
+            break
+        yield from frames
+
+    frames = drive.run(noted(iter(merge(sources))))
     drive.finish()
     observer.close()
     pages = observer.page_stats()
@@ -370,9 +406,11 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
     # the health monitor runs the lateral sign check of every drive (bridge.world.lateral)
     lateral = drive.health.lateral
     verdicts = lateral.verdicts() if lateral is not None else []
-    return _with_warnings(out + "\n" + format_stats(
+    made = drive.pipeline.marks.made if drive.pipeline.marks is not None else []
+    marks = format_marks(made, first[0] if first else None) if profile.marks else []
+    return _with_warnings("\n".join([out, format_stats(
         frames, sink.groups, verdicts, profile, decoded=sum(c.decoded for c in codecs),
-        why=why, pages=pages), stages.decoder.warnings())
+        why=why, pages=pages), *marks]), stages.decoder.warnings())
 
 
 def _with_warnings(text: str, warnings: Sequence[str]) -> str:
