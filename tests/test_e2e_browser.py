@@ -975,18 +975,26 @@ def conformance(*args: str, timeout: float = 120 * SCALE) -> dict[str, Any]:
     return findings
 
 
-def test_live_demo_with_foxglove_ws_protocol_client() -> None:
+def test_live_demo_with_foxglove_ws_protocol_client(tmp_path: Path) -> None:
     """@foxglove/ws-protocol's FoxgloveClient subscribes to every channel of `tankviz demo`,
-    parses every schema (base64 FileDescriptorSet) and decodes every message with protobufjs."""
+    parses every schema (base64 FileDescriptorSet) and decodes every message with protobufjs.
+    It also advertises /marks and publishes three marks (#34), as Studio's Publish panel does:
+    they are in the recorded drive at the drive's time when they came, in `inspect`, and
+    `replay --start mark:2` starts before the second."""
+    from mcap.reader import make_reader
+
+    from bridge.pb.marks_pb2 import Mark
     from bridge.view.produced import bundled_produced
 
-    demo = start_tankviz("demo", "--port", "0", "--no-record")
+    drives = tmp_path / "drives"
+    demo = start_tankviz("demo", "--port", "0", "--drives", str(drives))
     try:
-        found = conformance("live", demo.url, "--seconds", "30")
+        found = conformance("live", demo.url, "--seconds", "30", "--marks", "3")
     finally:
         stop(demo)
     assert found["ok"], json.dumps({k: v for k, v in found.items() if k != "channels"})[:3000]
     assert found["serverInfo"]["name"] == "tankviz"
+    assert "clientPublish" in found["serverInfo"]["capabilities"]
     channels = found["channels"]
     # Every topic the bundled profile produces is advertised, and nothing else.
     assert set(channels) == set(bundled_produced().topics)
@@ -999,6 +1007,30 @@ def test_live_demo_with_foxglove_ws_protocol_client() -> None:
             assert not channel.get("decodeErrors"), topic
     assert channels["/scene/lanes"]["schemaName"] == "foxglove.SceneUpdate"
     assert channels["/can/can0/frames"]["schemaName"] == "tankviz.CanFrameBlock"
+
+    # The marks: in the drive at the drive's time when each came (after the scene the client
+    # had seen when it published, where the scene after its /log line is), numbered in order.
+    (drive,) = drives.glob("*.mcap")
+    with drive.open("rb") as f:
+        recorded = [(m.log_time, Mark.FromString(m.data)) for _, _, m
+                    in make_reader(f).iter_messages(topics=["/marks"])]
+    sent = found["marks"]
+    assert [(m.number, m.text, m.category, m.source, m.by) for _, m in recorded] == [
+        (n, f"conformance {n}", "ws-protocol", "viewer", sent[0]["by"]) for n in (1, 2, 3)]
+    for (t, mark), published in zip(recorded, sent, strict=True):
+        assert t == mark.timestamp.seconds * 1_000_000_000 + mark.timestamp.nanos
+        assert t == int(published["loggedNs"]) >= int(published["sceneBeforeNs"])
+        assert abs(t - int(published["sceneAfterNs"])) <= 100_000_000, published
+    inspected = subprocess.run([sys.executable, "-m", "bridge", "inspect", str(drive)],
+                               cwd=ROOT, capture_output=True, text=True, timeout=WAIT_S)
+    assert inspected.returncode == 0, inspected.stderr
+    assert "marks (3; seconds from the drive's start):" in inspected.stdout
+    assert f"MARK 2: conformance 2 [ws-protocol] (viewer {sent[0]['by']})" in inspected.stdout
+    replayed = subprocess.run([sys.executable, "-m", "bridge", "replay", str(drive), "--port",
+                               "0", "--speed", "100", "--start", "mark:2"], cwd=ROOT,
+                              capture_output=True, text=True, timeout=WAIT_S)
+    assert replayed.returncode == 0, replayed.stderr
+    assert "before MARK 2: conformance 2 [ws-protocol]" in replayed.stdout, replayed.stdout
 
 
 def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:

@@ -1,10 +1,15 @@
 #!/usr/bin/env node
 // Conformance of tankviz's output with Foxglove's own client libraries.
 //
-//   node tools/conformance.mjs live ws://127.0.0.1:8765 [--seconds 20]
+//   node tools/conformance.mjs live ws://127.0.0.1:8765 [--seconds 20] [--marks N]
 //       connects with @foxglove/ws-protocol's FoxgloveClient (the client Foxglove Studio uses),
 //       subscribes to every channel, parses each channel's schema (a base64 protobuf
-//       FileDescriptorSet) with protobufjs and decodes every message it receives.
+//       FileDescriptorSet) with protobufjs and decodes every message it receives. With --marks,
+//       it advertises /marks (json, tankviz.Mark) as Studio's Publish panel does and publishes N
+//       marks ("conformance 1", ... category "ws-protocol"), one every 1.5 s once the channels
+//       settled, each after the one before came back on /log; findings.marks has, for each, the
+//       log time of the latest scene before it was sent, of its /log line and of the first scene
+//       after that line.
 //   node tools/conformance.mjs mcap DRIVE.mcap
 //       reads a drive with @mcap/core's indexed reader (summary, statistics, chunk indexes,
 //       message indexes, CRCs) and its stream reader (every record in file order), checks that
@@ -52,7 +57,7 @@ function schemaDecoder() {
 
 // --- live ----------------------------------------------------------------------------------------
 
-async function live(url, seconds) {
+async function live(url, seconds, marks = 0) {
   const protocol = await load("@foxglove/ws-protocol");
   const FoxgloveClient = protocol.FoxgloveClient ?? protocol.default?.FoxgloveClient;
   const wsModule = await load("ws");
@@ -67,7 +72,11 @@ async function live(url, seconds) {
     decodeErrors: [],
     protocolErrors: [],
     timeMessages: 0,
+    marks: [],
+    statuses: [],
   };
+  const marking = {
+    channel: undefined, waiting: false, sentAt: 0, latestScene: undefined, echoed: undefined };
   const byId = new Map();
   const bySubscription = new Map();
   const client = new FoxgloveClient({
@@ -80,14 +89,40 @@ async function live(url, seconds) {
       // Done when every channel (but /log, which speaks only when something happens) has
       // carried messages and nothing new came for a second.
       const channels = Object.values(findings.channels).filter((c) => c.topic !== "/log");
+      const marked = findings.marks.length === marks && !marking.waiting && !marking.echoed;
       const settled = channels.length > 0 && channels.every((c) => c.messages > 0) &&
-        Date.now() - lastNew > 1000;
+        Date.now() - lastNew > 1000 && marked;
+      // Marks once no channel carried its first message for a second (what came first was
+      // behind the drive)
+      if (findings.marks.length < marks && !marking.waiting && Date.now() - lastNew > 1000 &&
+          marking.latestScene !== undefined && Date.now() - marking.sentAt > 1500) {
+        mark();
+      }
       if (settled || Date.now() - started > seconds * 1000) {
         clearInterval(timer);
         resolve();
       }
     }, 100);
   });
+  /** Publishes the next mark, as Studio's Publish panel does (JSON on a client channel). */
+  function mark() {
+    if (marking.channel === undefined) {
+      if (!findings.serverInfo?.capabilities?.includes("clientPublish")) {
+        findings.protocolErrors.push("--marks: the server does not advertise clientPublish");
+        marks = findings.marks.length;
+        return;
+      }
+      marking.channel = client.advertise({
+        topic: "/marks", encoding: "json", schemaName: "tankviz.Mark" });
+    }
+    const text = `conformance ${findings.marks.length + 1}`;
+    findings.marks.push({ text, sceneBeforeNs: String(marking.latestScene) });
+    client.sendMessage(marking.channel,
+      new TextEncoder().encode(JSON.stringify({ text, category: "ws-protocol" })));
+    marking.waiting = true;
+    marking.sentAt = Date.now();
+  }
+  client.on("status", (status) => findings.statuses.push(status));
   client.on("error", (error) => findings.protocolErrors.push(String(error?.message ?? error)));
   client.on("serverInfo", (info) => {
     findings.serverInfo = info;
@@ -132,7 +167,23 @@ async function live(url, seconds) {
     try {
       const bytes = new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
       const message = type.decode(bytes);
-      type.toObject(message, { longs: String, enums: String, bytes: String, defaults: true });
+      const object = type.toObject(message,
+        { longs: String, enums: String, bytes: String, defaults: true });
+      if (channel.topic === "/scene/ego") {
+        marking.latestScene = timestamp;
+        if (marking.echoed) {
+          marking.echoed.sceneAfterNs = String(timestamp);
+          marking.echoed = undefined;
+        }
+      }
+      const said = channel.topic === "/log" &&
+        /^MARK (\d+): (conformance \d+) \[ws-protocol\] \(viewer (.+)\)$/.exec(object.message);
+      const sent = said && findings.marks.find((m) => m.text === said[2]);
+      if (sent) {
+        Object.assign(sent, { number: Number(said[1]), by: said[3], loggedNs: String(timestamp) });
+        marking.waiting = false;
+        marking.echoed = sent;
+      }
     } catch (error) {
       if (findings.decodeErrors.length < 20) {
         findings.decodeErrors.push(`${channel.topic}: ${error.message}`);
@@ -149,7 +200,8 @@ async function live(url, seconds) {
   client.close();
   findings.ok = Boolean(findings.serverInfo) && findings.schemaErrors.length === 0 &&
     findings.decodeErrors.length === 0 && findings.protocolErrors.length === 0 &&
-    Object.keys(findings.channels).length > 0;
+    Object.keys(findings.channels).length > 0 &&
+    findings.marks.filter((m) => m.loggedNs !== undefined).length === marks;
   return findings;
 }
 
@@ -317,10 +369,13 @@ async function mcap(file) {
 const [mode, target, ...rest] = process.argv.slice(2);
 const secondsAt = rest.indexOf("--seconds");
 const seconds = secondsAt >= 0 ? Number(rest[secondsAt + 1]) : 20;
+const marksAt = rest.indexOf("--marks");
+const marks = marksAt >= 0 ? Number(rest[marksAt + 1]) : 0;
 if (!target || !["live", "mcap"].includes(mode)) {
-  console.error("usage: node tools/conformance.mjs live ws://HOST:PORT [--seconds S] | mcap FILE.mcap");
+  console.error("usage: node tools/conformance.mjs live ws://HOST:PORT [--seconds S] " +
+    "[--marks N] | mcap FILE.mcap");
   process.exit(2);
 }
-const findings = mode === "live" ? await live(target, seconds) : await mcap(target);
+const findings = mode === "live" ? await live(target, seconds, marks) : await mcap(target);
 process.stdout.write(`${JSON.stringify(findings, (_, v) => (typeof v === "bigint" ? String(v) : v))}\n`);
 process.exit(findings.ok ? 0 : 1);
