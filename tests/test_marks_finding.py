@@ -124,7 +124,7 @@ def test_inspect_lists_each_mark_with_its_seconds_from_the_drives_start(
                 for m in made]
     assert lines[at + 1:at + 4] == expected
     assert "MARK 1: ghost on the left [radar] (viewer 192.168.1.4:53211)" in expected[0]
-    assert "MARK 2: lanes jumped [lanes] (terminal terminal)" in expected[1]
+    assert "MARK 2: lanes jumped [lanes] (terminal)" in expected[1]
     assert "MARK 3: Ghost again (car MARK_BTN == 1)" in expected[2]
     assert 0 < mark_time(made[0]) - stats.message_start_time < mark_time(made[2]) - \
         stats.message_start_time

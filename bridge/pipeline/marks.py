@@ -116,9 +116,10 @@ class MarkWatch:
 
 def describe(mark: Mark) -> str:
     """A mark in one line: ``MARK 3: ghost [radar] (viewer 192.168.1.4)`` (who only once: ``MARK
-    4: STEER_BUTTON == 1 (car)``, a car's rule that is its own text)."""
+    4: STEER_BUTTON == 1 (car)``, a car's rule that is its own text; ``MARK 5: mark
+    (terminal)``)."""
     category = f" [{mark.category}]" if mark.category else ""
-    by = f" {mark.by}" if mark.by and mark.by != mark.text else ""
+    by = f" {mark.by}" if mark.by and mark.by not in (mark.text, mark.source) else ""
     return f"MARK {mark.number}: {mark.text}{category} ({mark.source}{by})"
 
 
