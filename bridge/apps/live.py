@@ -195,18 +195,12 @@ class TerminalMarks:
     def __init__(self, ask: Callable[[MarkAsked], None], fd: int = 0) -> None:
         self.ask = ask
         self.fd = fd
-        #: the terminal's name (``/dev/pts/3``): the marks' ``by``
-        self.by = ""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> bool:
         """Start reading, if standard input is a terminal (whether it is)."""
-        try:
-            if not os.isatty(self.fd):
-                return False
-            self.by = os.ttyname(self.fd)
-        except OSError:
+        if not os.isatty(self.fd):
             return False
         self._thread = threading.Thread(target=self._run, name="tankviz-terminal", daemon=True)
         self._thread.start()
@@ -242,7 +236,7 @@ class TerminalMarks:
             *lines, pending = (pending + chunk).split(b"\n")
             for line in lines:
                 text = terminal_text(line.decode("utf-8", errors="replace"))
-                self.ask(MarkAsked(text, "", "terminal", self.by))
+                self.ask(MarkAsked(text, "", "terminal", "terminal"))
 
 
 def install_hangup(stop: Callable[[], None]) -> None:

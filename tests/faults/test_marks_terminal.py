@@ -61,7 +61,6 @@ class Terminal:
 
 def test_enter_in_the_terminal_marks_the_moment(tmp_path: Path) -> None:
     master, slave = os.openpty()
-    name = os.ttyname(slave)
     process = subprocess.Popen(demo(tmp_path), stdin=slave, stdout=slave, stderr=slave,
                                cwd=tmp_path, start_new_session=True,
                                preexec_fn=controlled_by_the_terminal)
@@ -71,9 +70,9 @@ def test_enter_in_the_terminal_marks_the_moment(tmp_path: Path) -> None:
         terminal.until(b"Enter marks the moment (type a word first to name it).")
         terminal.until(b"Ctrl+C stops")
         terminal.type(b"\n")
-        terminal.until(f"MARK 1: mark (terminal {name})".encode())
+        terminal.until(b"MARK 1: mark (terminal)")
         terminal.type("ghost ahead 👻\n".encode())
-        terminal.until(f"MARK 2: ghost ahead 👻 (terminal {name})".encode())
+        terminal.until("MARK 2: ghost ahead 👻 (terminal)".encode())
         terminal.type(b"m\n")  # (as Enter alone)
         terminal.until(b"MARK 3: mark (terminal")
         terminal.type(b"\x1b[A lane\x07 \n")  # an arrow key's escape, a bell: not in the text
@@ -90,8 +89,8 @@ def test_enter_in_the_terminal_marks_the_moment(tmp_path: Path) -> None:
     assert b"Traceback" not in terminal.seen
     marks = recorded(tmp_path / "drives")["/marks"]
     assert [(m.number, m.text, m.source, m.by) for m in marks] == [
-        (1, "mark", "terminal", name), (2, "ghost ahead 👻", "terminal", name),
-        (3, "mark", "terminal", name), (4, "[A lane", "terminal", name)]
+        (1, "mark", "terminal", "terminal"), (2, "ghost ahead 👻", "terminal", "terminal"),
+        (3, "mark", "terminal", "terminal"), (4, "[A lane", "terminal", "terminal")]
     times = [m.timestamp.seconds * NS + m.timestamp.nanos for m in marks]
     blocks = block_times(tmp_path / "drives")
     # on the drive's clock, in the order typed, while frames came (the last one at most a read
