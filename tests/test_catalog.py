@@ -502,13 +502,17 @@ def test_the_usage_says_both_forms_and_query_help_is_the_querys(
     out = capsys.readouterr().out
     assert out.startswith(
         "usage: tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]\n"
-        '       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] '
-        "[--between T1 T2]\n")
+        '       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T | --mark '
+        "TEXT]\n                             [--between T1 T2]\n")
     assert "DRIVES | query" not in out and "--workers" in out
+    # the examples, as written: every mark with 'ghost' in the fleet (#34)
+    assert ("""\n      "SELECT drive, mark, t_s, text FROM marks WHERE text ILIKE '%ghost%'"\n"""
+            in out)
     with pytest.raises(SystemExit) as done:
         main(["catalog", "query", "--help"])
     assert done.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith('usage: tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | '
-                          "--topic T] [--between T1 T2]\n")
+                          "--topic T | --mark TEXT] [--between T1 T2]\n")
+    assert "every mark with 'ghost' in the fleet:" in out
     assert "--alarm ID" in out and "--workers" not in out and "-o CATALOG" not in out

@@ -98,6 +98,7 @@ def write_drive(path: Path, marks: list[Mark], *, seconds: int = 40,
         recorder.on_messages([Serialized(MARKS_TOPIC, Mark, m.SerializeToString(),
                                          mark_time(m)) for m in marks])
         recorder.on_messages(list(extra))
+        recorder.add_metadata({"tankviz_version": "test", "alarms": []})
         recorder.finish()
     return path
 
@@ -399,3 +400,96 @@ def test_a_drive_replayed_rederived_makes_its_marks_again(
     served = Collected()
     replay_drive(drive, stages, served, speed=50)  # type: ignore[arg-type]
     check_between_their_frames(served.events, made)
+
+
+# --- catalog ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def catalogued(recorded: tuple[Path, list[Mark]], tmp_path_factory: pytest.TempPathFactory
+               ) -> tuple[Path, Path, Path]:
+    """A catalogue of the recorded drive and of one with marks far apart: (it, them)."""
+    pytest.importorskip("duckdb")
+    folder = tmp_path_factory.mktemp("fleet")
+    live = folder / "live.mcap"
+    live.write_bytes(recorded[0].read_bytes())
+    far = write_drive(folder / "far.mcap", FAR)
+    out = folder / "catalog.duckdb"
+    assert main(["catalog", str(live), str(far), "-o", str(out)]) == 0
+    return out, live, far
+
+
+def test_the_catalogue_has_every_mark_of_every_drive(
+        catalogued: tuple[Path, Path, Path], recorded: tuple[Path, list[Mark]]) -> None:
+    from bridge.fleet.catalog import SCHEMA
+    from bridge.fleet.questions import query
+
+    out, live, far = catalogued
+    assert [c for c, _ in SCHEMA["marks"]] == [
+        "drive", "mark", "time", "t_ns", "t_s", "text", "category", "source", "marked_by"]
+    rows = query(out, "SELECT * FROM marks ORDER BY drive, mark").rows
+    start = query(out, "SELECT start_ns FROM drives WHERE path = ?", [str(live)]).rows[0][0]
+    assert [r[:2] + r[3:] for r in rows] == [
+        (str(far), 1, T0 + 12_500_000_000, 12.5, "ghost target here", "radar", "viewer",
+         "192.168.1.4:53211"),
+        (str(far), 2, T0 + 30 * NS, 30.0, "lanes jumped", "lanes", "terminal", "terminal"),
+        (str(far), 3, T0 + 31 * NS, 31.0, "Ghost again", "", "viewer", ""),
+        *[(str(live), m.number, mark_time(m), (mark_time(m) - start) / NS, m.text, m.category,
+           m.source, m.by) for m in recorded[1]]]
+    assert str(rows[0][2]) == "2026-01-01 12:00:12.500000"
+
+
+def test_every_mark_with_ghost_in_the_fleet(catalogued: tuple[Path, Path, Path],
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    out, live, far = catalogued
+    capsys.readouterr()
+    assert main(["catalog", "query", str(out), "SELECT drive, mark, t_s, text FROM marks "
+                 "WHERE text ILIKE '%ghost%' ORDER BY drive, mark"]) == 0
+    printed = capsys.readouterr().out
+    assert "(4 rows)" in printed
+    hints = printed.split("open:\n")[1].splitlines()
+    assert [h.split("    #")[0].strip() for h in hints] == [
+        f"tankviz replay {far} --start mark:1", f"tankviz replay {far} --start mark:3",
+        f"tankviz replay {live} --start mark:1", f"tankviz replay {live} --start mark:3"]
+    # with its time, the hint says where to jump in Foxglove too
+    assert main(["catalog", "query", str(out), "SELECT drive, mark, t_ns FROM marks "
+                 f"WHERE drive = '{far}' AND mark = 2"]) == 0
+    assert (f"  tankviz replay {far} --start mark:2    # Foxglove: jump to "
+            "2026-01-01T12:00:30.000+00:00 (log time 1767268830.000000000)"
+            ) in capsys.readouterr().out
+
+
+def test_the_mark_question_finds_marks_by_their_text(catalogued: tuple[Path, Path, Path],
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    out = catalogued[0]
+    capsys.readouterr()
+    assert main(["catalog", "query", str(out), "--mark", "GHOST"]) == 0
+    printed = capsys.readouterr().out
+    assert "(4 rows)" in printed and "lanes jumped" not in printed
+    assert main(["catalog", "query", str(out), "--mark", "fog"]) == 0
+    assert "(0 rows)" in capsys.readouterr().out
+    assert main(["catalog", "query", str(out), "--mark", "ghost", "--between", "2026-01-01",
+                 "2026-01-01"]) == 0
+    assert "(2 rows)" in capsys.readouterr().out  # the far drive's alone
+
+
+def test_a_catalogue_made_before_marks_gets_them_at_its_next_index(
+        recorded: tuple[Path, list[Mark]], tmp_path: Path) -> None:
+    """A catalogue an older tankviz made (no marks table) re-reads the drives that have marks,
+    once; the others stay unchanged."""
+    duckdb = pytest.importorskip("duckdb")
+    from bridge.fleet.catalog import index
+    from bridge.fleet.questions import query
+
+    live = tmp_path / "live.mcap"
+    live.write_bytes(recorded[0].read_bytes())
+    plain = write_drive(tmp_path / "plain.mcap", [])
+    out = tmp_path / "catalog.duckdb"
+    index(out, [str(live), str(plain)])
+    con = duckdb.connect(str(out))
+    con.execute("DROP TABLE marks")
+    con.close()
+    report = index(out, [str(live), str(plain)])
+    assert (report.changed, report.unchanged) == ([str(live)], [str(plain)])
+    assert len(query(out, "SELECT * FROM marks").rows) == 3
+    again = index(out, [str(live), str(plain)])
+    assert again.changed == [] and len(again.unchanged) == 2

@@ -5,7 +5,8 @@ new or changed drives are read; ``--workers N`` or ``--scheduler ADDRESS`` read 
 prints one line per drive that could not be indexed (``skipped: <error>``), one per drive a
 recording is writing (``skipped <drive>: being recorded ...``, read once it is finished) and a
 summary line; exit status 1 when a drive was not indexed (one being recorded is not a failure).
-``tankviz catalog query CATALOG "SQL"`` (or ``--alarm ID``, ``--topic T``, ``--between T1 T2``)
+``tankviz catalog query CATALOG "SQL"`` (or ``--alarm ID``, ``--topic T``, ``--mark TEXT``,
+``--between T1 T2``)
 prints the answer as a table, then, for every row with a drive and a log time, the ``tankviz
 replay`` command and the Foxglove time to open it. (A drive file named ``query`` is given as
 ``./query``.) ``tankviz catalog --help`` shows the indexing options, ``tankviz catalog query
@@ -23,9 +24,21 @@ from bridge.errors import UsageError, shown
 from bridge.fleet import catalog, questions
 
 USAGE = """tankviz catalog DRIVES... -o CATALOG.duckdb [--workers N | --scheduler ADDRESS]
-       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] [--between T1 T2]"""
-QUERY_USAGE = ('tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T] '
-               "[--between T1 T2]")
+       tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T | --mark TEXT]
+                             [--between T1 T2]"""
+QUERY_USAGE = ('tankviz catalog query CATALOG.duckdb ["SQL" | --alarm ID | --topic T | '
+               "--mark TEXT] [--between T1 T2]")
+#: Questions the help shows (as written, after the options).
+EXAMPLES = """examples:
+  every mark with 'ghost' in the fleet:
+    tankviz catalog query catalog.duckdb \\
+      "SELECT drive, mark, t_s, text FROM marks WHERE text ILIKE '%ghost%'"
+    (or: tankviz catalog query catalog.duckdb --mark ghost)
+  every time an alarm was raised:
+    tankviz catalog query catalog.duckdb --alarm radar-camera.misaligned
+  cut-ins within 20 m:
+    tankviz catalog query catalog.duckdb \\
+      "SELECT drive, t_ns, distance_m FROM lead_changes WHERE cut_in AND distance_m < 20\""""
 
 
 def query_parser() -> argparse.ArgumentParser:
@@ -33,8 +46,9 @@ def query_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tankviz catalog query", usage=QUERY_USAGE,
         description="Ask a catalogue: SQL on its tables (drives, databases, alarms, topics, "
-        "objects_summary, lead_changes), or a canned question; each answer row with a drive "
-        "and a log time comes with the tankviz replay command that opens it there.")
+        "objects_summary, lead_changes, marks), or a canned question; each answer row with a "
+        "drive and a log time (or a mark) comes with the tankviz replay command that opens it "
+        "there.", epilog=EXAMPLES, formatter_class=_Formatter)
     parser.add_argument("catalog", metavar="CATALOG.duckdb", help="the catalogue to ask")
     parser.add_argument("sql", nargs="?", metavar="SQL", help="a query (read only)")
     _add_query_options(parser)
@@ -44,9 +58,20 @@ def query_parser() -> argparse.ArgumentParser:
 def _add_query_options(parser: argparse.ArgumentParser, prefix: str = "") -> None:
     parser.add_argument("--alarm", metavar="ID", help=f"{prefix}every time alarm ID was raised")
     parser.add_argument("--topic", metavar="T", help=f"{prefix}every drive with topic T")
+    parser.add_argument("--mark", metavar="TEXT",
+                        help=f"{prefix}every mark whose text contains TEXT (in any case)")
     parser.add_argument("--between", nargs=2, metavar=("T1", "T2"),
                         help=f"{prefix}drives recorded between two UTC times (2026-01-01 or "
-                        "2026-01-01T12:00:00); narrows --alarm and --topic")
+                        "2026-01-01T12:00:00); narrows --alarm, --topic and --mark")
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse's, but :data:`EXAMPLES` as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith("examples:"):
+            return text
+        return super()._fill_text(text, width, indent)
 
 
 class _Help(argparse.Action):
@@ -66,11 +91,12 @@ class _Help(argparse.Action):
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
         "catalog", help="index drives into a DuckDB catalogue, or query it", usage=USAGE,
-        add_help=False,
+        add_help=False, epilog=EXAMPLES, formatter_class=_Formatter,
         description="tankviz catalog DRIVES... -o CATALOG.duckdb: (re)index drives (files, "
         "folders searched recursively for *.mcap, globs); only new or changed drives are read. "
-        "tankviz catalog query CATALOG.duckdb \"SQL\" (or --alarm/--topic/--between): ask it, "
-        "with the tankviz replay command that opens each answer (tankviz catalog query --help).")
+        "tankviz catalog query CATALOG.duckdb \"SQL\" (or --alarm/--topic/--mark/--between): "
+        "ask it, with the tankviz replay command that opens each answer (tankviz catalog query "
+        "--help).")
     parser.add_argument("-h", "--help", action=_Help)
     parser.add_argument("items", nargs="+", metavar="DRIVES",
                         help="drive files, folders (searched recursively for *.mcap) or globs; "
@@ -90,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     items: list[str] = args.items
     if items[0] == "query":
         return _query(args, items[1:])
-    for option in ("alarm", "topic", "between"):
+    for option in ("alarm", "topic", "mark", "between"):
         if getattr(args, option) is not None:
             raise UsageError(f"--{option} asks a catalogue: tankviz catalog query CATALOG "
                              f"--{option} ...")
@@ -119,18 +145,23 @@ def _query(args: argparse.Namespace, rest: list[str]) -> int:
     sql = rest[1] if len(rest) == 2 else None
     between: tuple[str, str] | None = (
         None if args.between is None else (args.between[0], args.between[1]))
-    if sum(x is not None for x in (sql, args.alarm, args.topic)) != 1 and not (
-            sql is None and args.alarm is None and args.topic is None and between is not None):
-        raise UsageError('ask one thing: "SQL", --alarm ID or --topic T (each may be narrowed '
-                         "with --between T1 T2, except SQL), or --between T1 T2 alone")
+    asked = (sql, args.alarm, args.topic, args.mark)
+    if sum(x is not None for x in asked) != 1 and not (
+            all(x is None for x in asked) and between is not None):
+        raise UsageError('ask one thing: "SQL", --alarm ID, --topic T or --mark TEXT (each may '
+                         "be narrowed with --between T1 T2, except SQL), or --between T1 T2 "
+                         "alone")
     if sql is not None:
         if between is not None:
-            raise UsageError("--between narrows --alarm and --topic; write it into the SQL")
+            raise UsageError("--between narrows --alarm, --topic and --mark; write it into the "
+                             "SQL")
         answer = questions.query(path, sql)
     elif args.alarm is not None:
         answer = questions.alarm_query(path, args.alarm, between)
     elif args.topic is not None:
         answer = questions.topic_query(path, args.topic, between)
+    elif args.mark is not None:
+        answer = questions.mark_query(path, args.mark, between)
     else:
         assert between is not None
         answer = questions.between_query(path, between)

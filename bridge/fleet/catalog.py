@@ -2,22 +2,22 @@
 
 :func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table
 (:class:`DriveRows`). It reads the file's summary (times, topics and their message counts: on
-``/can/<bus>/frames`` blocks of frames, :mod:`bridge.sinks.raw`), the
-``tankviz`` metadata record (:meth:`bridge.pipeline.drive.Drive.describe`: version, profile,
-databases with their SHA-256, decode statistics, alarm events) and the messages of the
-perception topics (``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``);
-nothing is decoded again. A drive without the ``tankviz`` record (one cut short and recovered)
-takes what it holds from the file instead (:mod:`bridge.fleet.held`): its alarms from the
-``/log`` messages of the health monitor (``ALARM <id>: ...``, ``cleared <id> ...``), its frames
-per bus from its raw-frame channels (``/can/<bus>/frames``: the rows of their blocks, or their
-message counts in a drive of one frame a message), its databases (name,
-SHA-256; buses unknown: empty) and profile from its attachments, and what ``tankviz recover``
-says of it (its ``tankviz.recover`` record) into ``statistics`` (``recovered``). A recovered
-drive that kept its ``tankviz`` record counts its frames per bus the same way (the record counts
-those cut off too). A file that is not MCAP, has no summary (``tankviz recover`` makes one) or
-is not a tankviz drive (neither the metadata record nor a ``tankviz.Health`` channel) is an
-:class:`~bridge.errors.InputError` naming it, with why it cannot be read
-(:func:`bridge.io.unreadable.why_unreadable`: empty, not MCAP, cut at which byte, …).
+``/can/<bus>/frames`` blocks of frames, :mod:`bridge.sinks.raw`), the ``tankviz`` metadata record
+(:meth:`bridge.pipeline.drive.Drive.describe`: version, profile, databases with their SHA-256,
+decode statistics, alarm events), the messages of the perception topics
+(``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``) and the drive's marks
+(``/marks``: :func:`bridge.io.drives.read_marks`, only the chunks that hold them); nothing is
+decoded again. A drive without the ``tankviz`` record (one cut short and recovered) takes what it
+holds from the file instead (:mod:`bridge.fleet.held`): its alarms from the ``/log`` messages of the
+health monitor (``ALARM <id>: ...``, ``cleared <id> ...``), its frames per bus from its raw-frame
+channels (``/can/<bus>/frames``: the rows of their blocks, or their message counts in a drive of one
+frame a message), its databases (name, SHA-256; buses unknown: empty) and profile from its
+attachments, and what ``tankviz recover`` says of it (its ``tankviz.recover`` record) into
+``statistics`` (``recovered``). A recovered drive that kept its ``tankviz`` record counts its frames
+per bus the same way (the record counts those cut off too). A file that is not MCAP, has no summary
+(``tankviz recover`` makes one) or is not a tankviz drive (neither the metadata record nor a
+``tankviz.Health`` channel) is an :class:`~bridge.errors.InputError` naming it, with why it cannot
+be read (:func:`bridge.io.unreadable.why_unreadable`: empty, not MCAP, cut at which byte, …).
 
 A drive is keyed by its resolved path (symbolic links and ``..`` followed), so one file named two
 ways is indexed once; a name that is not UTF-8 as shown (``bad\\xe9.mcap``:
@@ -39,15 +39,18 @@ Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since 
 - ``lead_changes``: every real lead change (a lead appears, or another object becomes the lead:
   ``/perception/lead``'s ``lead_number`` goes up; a twin taking over the lead's slot is none;
   in a drive recorded before that field, every change of the lead's id), with its distance;
-  ``cut_in`` when it replaced a lead that was present a moment before and is closer.
+  ``cut_in`` when it replaced a lead that was present a moment before and is closer;
+- ``marks``: every mark (``mark`` its number in the drive; ``marked_by`` the Mark's ``by``).
 
 :func:`index` (re)indexes a catalogue incrementally: a drive is read again only when it is new or
 its size or modification time (ns) changed; a catalogued drive whose file no longer exists is
-removed. Drives are read in this process, or by Dask workers (``workers``: a local cluster of
-that many processes; ``scheduler``: an existing cluster whose workers see the same paths): each
-worker reads drives into rows, this process alone writes the DuckDB file, one transaction per
-drive. A drive that cannot be read is reported with its one-line error and the others are
-indexed. Dask is imported only then; without it the error says what to install.
+removed. A catalogue an older tankviz made gets the tables it lacks, and the drives that hold their
+topic (``/marks`` for ``marks``) are read again, once. Drives are read in this process, or by Dask
+workers (``workers``: a local cluster of that many processes; ``scheduler``: an existing cluster
+whose workers see the same paths): each worker reads drives into rows, this process alone writes the
+DuckDB file, one transaction per drive. A drive that cannot be read is reported with its one-line
+error and the others are indexed. Dask is imported only then; without it the error says what to
+install.
 
 The questions asked of a catalogue are in :mod:`bridge.fleet.questions`.
 """
@@ -80,12 +83,12 @@ from bridge.errors import (
 )
 from bridge.fleet.held import RECOVER_RECORD, held_metadata
 from bridge.frame import NS
-from bridge.io.drives import raw_frame_counts
+from bridge.io.drives import mark_time, raw_frame_counts, read_marks
 from bridge.io.unreadable import why_unreadable
 from bridge.pb import perception_pb2
 from bridge.sinks.mcap import METADATA_NAME
 from bridge.sinks.outputs import being_written
-from bridge.topics import LOG_TOPIC
+from bridge.topics import LOG_TOPIC, MARKS_TOPIC
 
 #: The one-line advice when Dask or DuckDB is missing.
 FLEET_EXTRA = "pip install 'tankviz[fleet]'"
@@ -124,7 +127,14 @@ SCHEMA: dict[str, tuple[tuple[str, str], ...]] = {
         ("drive", "VARCHAR"), ("time", "TIMESTAMP"), ("t_ns", "BIGINT"), ("t_s", "DOUBLE"),
         ("previous_id", "BIGINT"), ("lead_id", "BIGINT"), ("distance_m", "DOUBLE"),
         ("previous_distance_m", "DOUBLE"), ("cut_in", "BOOLEAN")),
+    "marks": (
+        ("drive", "VARCHAR"), ("mark", "BIGINT"), ("time", "TIMESTAMP"), ("t_ns", "BIGINT"),
+        ("t_s", "DOUBLE"), ("text", "VARCHAR"), ("category", "VARCHAR"), ("source", "VARCHAR"),
+        ("marked_by", "VARCHAR")),
 }
+#: The topic of each table that came after the others: a catalogue made before it has no rows
+#: of the drives that hold it, which are read again (:func:`index`).
+ADDED_TABLES = {"marks": MARKS_TOPIC}
 
 Row = tuple[Any, ...]
 
@@ -329,6 +339,8 @@ def _read(drive: str, size: int, mtime_ns: int, stream: Any) -> DriveRows:
         "topics": topics,
         "objects_summary": objects_rows,
         "lead_changes": lead.rows,
+        "marks": [(drive, m.number, _utc(t), t, (t - start_ns) / NS, m.text, m.category,
+                   m.source, m.by) for m in read_marks(reader)[0] for t in (mark_time(m),)],
     })
 
 
@@ -468,7 +480,8 @@ def dask_reader(*, workers: int | None = None, scheduler: str | None = None) -> 
 # The DuckDB file
 
 def connect(catalog: Path | str, *, create: bool = False) -> Any:
-    """A DuckDB connection to ``catalog`` (its tables made when ``create``)."""
+    """A DuckDB connection to ``catalog`` (made and written when ``create``; its tables:
+    :func:`make_tables`)."""
     try:
         import duckdb
     except ImportError:
@@ -485,11 +498,17 @@ def connect(catalog: Path | str, *, create: bool = False) -> Any:
     except duckdb.Error as exc:
         raise InputError(catalog, f"cannot open as a DuckDB catalogue: "
                          f"{' '.join(str(exc).split())}") from None
-    if create:
-        for table, columns in SCHEMA.items():
-            con.execute(f"CREATE TABLE IF NOT EXISTS {table} ("
-                        + ", ".join(f'"{name}" {kind}' for name, kind in columns) + ")")
     return con
+
+
+def make_tables(con: Any) -> set[str]:
+    """Every table of :data:`SCHEMA` that the catalogue lacks, made; their names."""
+    had = {name for (name,) in con.execute(
+        "SELECT table_name FROM information_schema.tables").fetchall()}
+    for table, columns in SCHEMA.items():
+        con.execute(f"CREATE TABLE IF NOT EXISTS {table} ("
+                    + ", ".join(f'"{name}" {kind}' for name, kind in columns) + ")")
+    return set(SCHEMA) - had
 
 
 @dataclass
@@ -526,8 +545,13 @@ def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_h
     con = connect(catalog, create=True)
     report = IndexReport()
     try:
+        added = make_tables(con)
         known = {p: (size, mtime) for p, size, mtime in
                  con.execute("SELECT path, size, mtime_ns FROM drives").fetchall()}
+        # a table an older catalogue lacked: the drives that hold its topic are read again
+        again = {p for table in added & set(ADDED_TABLES) for (p,) in con.execute(
+            "SELECT drive FROM topics WHERE topic = ? AND count > 0", [ADDED_TABLES[table]]
+        ).fetchall()}
         to_read: list[str] = []  # (the files' own paths: the keys show them, :func:`shown`)
         for f in files:
             key = shown(f)
@@ -535,7 +559,8 @@ def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_h
                 stat = f.stat()
             except OSError:  # (a link to nothing: reading it says so)
                 stat = None
-            if stat is None or known.get(key) != (stat.st_size, stat.st_mtime_ns):
+            if (stat is None or known.get(key) != (stat.st_size, stat.st_mtime_ns)
+                    or key in again):
                 to_read.append(str(f))
             else:
                 report.unchanged.append(key)

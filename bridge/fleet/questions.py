@@ -2,9 +2,11 @@
 questions, and how to open each answer.
 
 :func:`query` runs SQL on a catalogue (:mod:`bridge.fleet.catalog`) that writes nothing: only
-:data:`READING_STATEMENTS`. :func:`alarm_query`, :func:`topic_query` and :func:`between_query`
-are the canned questions. :func:`open_hints` says, for every answer row with a drive and a log
-time, how to open it: the ``tankviz replay`` command and the MCAP time to jump to in Foxglove.
+:data:`READING_STATEMENTS`. :func:`alarm_query`, :func:`topic_query`, :func:`mark_query` and
+:func:`between_query` are the canned questions. :func:`open_hints` says, for every answer row with
+a drive and a log time or a mark, how to open it: the ``tankviz replay`` command (``--start
+mark:N`` for a row of a mark, its ``mark`` column; else the seconds into the drive) and the MCAP
+time to jump to in Foxglove.
 """
 
 from __future__ import annotations
@@ -128,6 +130,16 @@ def topic_query(catalog: Path | str, topic: str, between: tuple[str, str] | None
                  + where + " ORDER BY d.start_ns", [topic, *params])
 
 
+def mark_query(catalog: Path | str, text: str, between: tuple[str, str] | None = None
+               ) -> Answer:
+    """Every mark whose text contains ``text`` (in any case), in the order they were made."""
+    where, params = _between_sql("m.time", between)
+    return query(catalog, "SELECT m.drive, m.mark, m.time, m.t_s, m.text, m.category, m.source, "
+                 "m.marked_by, m.t_ns FROM marks m JOIN drives d ON m.drive = d.path "
+                 "WHERE contains(lower(m.text), lower(?))" + where
+                 + " ORDER BY d.start_ns, m.mark", [text, *params])
+
+
 def between_query(catalog: Path | str, between: tuple[str, str]) -> Answer:
     """Every drive recorded (in part) between two times."""
     return query(catalog, "SELECT path AS drive, start_time, end_time, duration_s, profile, "
@@ -137,16 +149,21 @@ def between_query(catalog: Path | str, between: tuple[str, str]) -> Answer:
 
 @dataclass(frozen=True)
 class OpenHint:
-    """How to open one answer: the drive, seconds into it, the log time."""
+    """How to open one answer: the drive, seconds into it or the mark (its number) to start a
+    few seconds before, the log time (None: not in the answer)."""
 
     drive: str
     start_s: float
-    t_ns: int
+    t_ns: int | None
+    mark: int | None = None
 
     def command(self) -> str:
-        return f"tankviz replay {_quote(self.drive)} --start {self.start_s:.3f}"
+        start = f"mark:{self.mark}" if self.mark is not None else f"{self.start_s:.3f}"
+        return f"tankviz replay {_quote(self.drive)} --start {start}"
 
     def line(self) -> str:
+        if self.t_ns is None:
+            return self.command()
         return (f"{self.command()}    # Foxglove: jump to {format_time(self.t_ns)} "
                 f"(log time {self.t_ns // NS}.{self.t_ns % NS:09d})")
 
@@ -166,16 +183,23 @@ def _quote(path: str) -> str:
 
 def open_hints(answer: Answer) -> list[OpenHint | None]:
     """For each row with a drive (column ``drive`` or ``path``, a catalogued drive) and a log
-    time (its first ``*_ns`` column): how to open it there; None for the other rows."""
-    drive_col = next((i for i, c in enumerate(answer.columns) if c in ("drive", "path")), None)
-    time_col = next((i for i, c in enumerate(answer.columns) if c.endswith("_ns")), None)
+    time (its first ``*_ns`` column) or a mark (column ``mark``, its number: ``--start mark:N``):
+    how to open it there; None for the other rows."""
+    columns = answer.columns
+    drive_col = next((i for i, c in enumerate(columns) if c in ("drive", "path")), None)
+    time_col = next((i for i, c in enumerate(columns) if c.endswith("_ns")), None)
+    mark_col = columns.index("mark") if "mark" in columns else None
     hints: list[OpenHint | None] = []
     for row in answer.rows:
         drive = row[drive_col] if drive_col is not None else None
         t_ns = row[time_col] if time_col is not None else None
-        if isinstance(drive, str) and drive in answer.starts and isinstance(t_ns, int):
+        t_ns = t_ns if isinstance(t_ns, int) else None
+        mark = row[mark_col] if mark_col is not None else None
+        mark = mark if isinstance(mark, int) else None
+        if isinstance(drive, str) and drive in answer.starts and (t_ns, mark) != (None, None):
             start = answer.starts[drive]
-            hints.append(OpenHint(drive, max(0.0, (t_ns - start) // 1_000_000 / 1000), t_ns))
+            seconds = 0.0 if t_ns is None else max(0.0, (t_ns - start) // 1_000_000 / 1000)
+            hints.append(OpenHint(drive, seconds, t_ns, mark))
         else:
             hints.append(None)
     return hints
