@@ -253,3 +253,24 @@ def test_a_replay_takes_no_marks() -> None:
     assert ['op "advertise" is not taken here' in statuses[0]["message"],
             "this server takes none" in statuses[1]["message"]] == [True, True]
     assert marks == []
+
+
+def test_a_message_over_a_mebibyte_closes_its_viewers_connection_only() -> None:
+    from bridge.sinks.server.live import VIEWER_MESSAGE_BYTES
+
+    async def too_big(url: str) -> int | None:
+        async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
+            await ws.recv()
+            await ws.send(data(1, b"x" * VIEWER_MESSAGE_BYTES))
+            try:
+                while True:
+                    await asyncio.wait_for(ws.recv(), 10.0)
+            except websockets.ConnectionClosed as closed:
+                return closed.rcvd.code if closed.rcvd else None
+
+    with LiveServer(port=0) as server:
+        marks: list[ViewerMark] = []
+        server.on_mark = marks.append
+        assert asyncio.run(too_big(server.url)) == 1009  # (websockets: message too big)
+        asyncio.run(mark_once(server.url, {"text": "still here"}))
+    assert [m.text for m in marks] == ["still here"]

@@ -72,6 +72,8 @@ DRAIN_INTERVAL_S = 0.1
 BATCH_S = 0.02
 #: How long the server waits for a viewer's part of a closing handshake (s; websockets: 10).
 CLOSE_TIMEOUT_S = 1.0
+#: The largest message a viewer may send (bytes); a larger one closes its connection (1009).
+VIEWER_MESSAGE_BYTES = 2**20
 #: Kernel send buffer per connection: about half a second of a busy scene, 25 MB/s at 20 ms
 #: round trip (the kernel doubles it for its bookkeeping).
 SEND_BUFFER_BYTES = 256 * 1024
@@ -226,6 +228,7 @@ class LiveServer(Sink):
                                   # No keepalive pings: websockets' legacy protocol cannot have a
                                   # ping and our sender wait on one full socket at the same time.
                                   server_kwargs={"compression": None, "sock": sock,
+                                                 "max_size": VIEWER_MESSAGE_BYTES,
                                                  "ping_interval": None,
                                                  "create_protocol": internals.Connection,
                                                  "close_timeout": CLOSE_TIMEOUT_S})
