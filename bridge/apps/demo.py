@@ -2,8 +2,9 @@
 
 The simulated car (:class:`bridge.sim.car.SimulatedCar`) plays its drive onto a python-can
 ``virtual`` bus in real time, and ``tankviz live`` runs on that bus: it serves Foxglove and
-records to ./drives, exactly as in a car. On stop, the car stops first, so that every frame it
-sent is read and recorded. SIGHUP stops it as SIGTERM does (the drive is finished).
+records to ./drives, exactly as in a car (marks too: the Mark button, Enter in its terminal). On
+stop, the car stops first, so that every frame it sent is read and recorded. SIGHUP stops it as
+SIGTERM does (the drive is finished).
 """
 
 from __future__ import annotations

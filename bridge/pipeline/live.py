@@ -25,6 +25,11 @@ A full disk (or free space below ``min_free``) stops the recording, not the driv
 finished, ``recorder.disk_full`` is raised on ``/log`` and ``/health``, viewers are still served
 and recording resumes in a new part when there is room (:mod:`bridge.sinks.drives`).
 
+Marks (:mod:`bridge.pipeline.marks`) asked from any thread — a viewer's (the server's
+:attr:`~bridge.sinks.server.LiveServer.on_mark`, while the drive runs), the terminal's, the
+profile's rule — are made at the loop's next turn at the drive's clock then, recorded, served and
+said on the console.
+
 Log time is the frames' clock (:class:`~bridge.io.buses.ReadSchedule` follows it with the wall
 clock). When it steps (:mod:`bridge.pipeline.clock`: a frame stamped more than a second before log
 time, or more than two seconds after it), the pipeline re-bases its scene ticks, health windows
