@@ -979,8 +979,8 @@ def test_live_demo_with_foxglove_ws_protocol_client(tmp_path: Path) -> None:
     """@foxglove/ws-protocol's FoxgloveClient subscribes to every channel of `tankviz demo`,
     parses every schema (base64 FileDescriptorSet) and decodes every message with protobufjs.
     It also advertises /marks and publishes three marks (#34), as Studio's Publish panel does:
-    they are in the recorded drive at the drive's time when they came, in `inspect`, and
-    `replay --start mark:2` starts before the second."""
+    they are in the recorded drive at the drive's time when they came, in `inspect` and the
+    catalogue, and `replay --start mark:2` starts before the second."""
     from mcap.reader import make_reader
 
     from bridge.pb.marks_pb2 import Mark
@@ -1031,6 +1031,16 @@ def test_live_demo_with_foxglove_ws_protocol_client(tmp_path: Path) -> None:
                               capture_output=True, text=True, timeout=WAIT_S)
     assert replayed.returncode == 0, replayed.stderr
     assert "before MARK 2: conformance 2 [ws-protocol]" in replayed.stdout, replayed.stdout
+    # in the catalogue, whose answer opens each with replay --start mark:N
+    pytest.importorskip("duckdb")
+    catalog = tmp_path / "catalog.duckdb"
+    for command in (["catalog", str(drive), "-o", str(catalog)],
+                    ["catalog", "query", str(catalog), "--mark", "CONFORMANCE"]):
+        done = subprocess.run([sys.executable, "-m", "bridge", *command], cwd=ROOT,
+                              capture_output=True, text=True, timeout=WAIT_S)
+        assert done.returncode == 0, done.stderr
+    assert "(3 rows)" in done.stdout, done.stdout
+    assert f"tankviz replay {drive} --start mark:2" in done.stdout, done.stdout
 
 
 def test_recorded_drives_with_mcap_core(tmp_path: Path) -> None:
