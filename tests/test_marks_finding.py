@@ -493,3 +493,41 @@ def test_a_catalogue_made_before_marks_gets_them_at_its_next_index(
     assert len(query(out, "SELECT * FROM marks").rows) == 3
     again = index(out, [str(live), str(plain)])
     assert again.changed == [] and len(again.unchanged) == 2
+
+
+@pytest.fixture(scope="module")
+def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """11 s of the simulated highway car: its wheel button pressed once (at 10 s)."""
+    log = tmp_path_factory.mktemp("highway") / "highway.blf"
+    assert main(["simulate", "--car", "highway", "-o", str(log), "--duration", "11"]) == 0
+    return log
+
+
+def test_a_drive_with_the_cars_marks_rederived_has_each_once(highway_log: Path,
+                                                             tmp_path: Path) -> None:
+    """The profile's [marks] rule marked the drive when it was recorded: re-derived, the drive
+    keeps those marks, and the rule does not make them again."""
+    drive, again = tmp_path / "drive.mcap", tmp_path / "again.mcap"
+    assert main(["convert", str(highway_log), "-o", str(drive), "--profile", "highway",
+                 "--quiet"]) == 0
+    made = [Mark.FromString(data) for _, data in recorded_messages(drive, MARKS_TOPIC)]
+    assert [(m.number, m.source) for m in made] == [(1, "car")]
+    assert main(["convert", str(drive), "-o", str(again), "--quiet"]) == 0
+    check_marks_kept(again, made)
+
+
+def test_a_drive_without_marks_rederived_with_a_marking_profile_gets_its_marks(
+        highway_log: Path, tmp_path: Path) -> None:
+    """A drive recorded before its profile had a [marks] rule (or without a profile): re-derived
+    with one, the rule marks it as it would mark the log."""
+    from bridge.resources import data_dir
+
+    drive, again, direct = (tmp_path / n for n in ("drive.mcap", "again.mcap", "direct.mcap"))
+    assert main(["convert", str(highway_log), "-o", str(drive), "--quiet",
+                 "--dbc", f"can0={data_dir() / 'highway_car.dbc'}",
+                 "--dbc", f"can1={data_dir() / 'highway_radar.dbc'}"]) == 0
+    assert recorded_messages(drive, MARKS_TOPIC) == []
+    assert main(["convert", str(drive), "-o", str(again), "--profile", "highway", "--quiet"]) == 0
+    assert main(["convert", str(highway_log), "-o", str(direct), "--profile", "highway",
+                 "--quiet"]) == 0
+    assert recorded_messages(again, MARKS_TOPIC) == recorded_messages(direct, MARKS_TOPIC) != []

@@ -19,6 +19,9 @@ A drive's marks (``/marks``) are inputs, as its frames are: :class:`CarriedMarks
 back to the pipeline before the first frame stamped at or after it (in the order of their
 numbers), with the same number, text and time, its ``/log`` line and its text in the scene made
 again (:func:`~bridge.pipeline.marks.mark_messages`); those after the last frame come at the end.
+A drive's recorded marks are its marks: the car's among them were made by its profile's
+``[marks]`` rules when it was recorded, so the rules make none again (they would double them).
+A drive that has no marks is marked by the rules of the profile it is re-derived with, as a log is.
 """
 
 from __future__ import annotations
@@ -163,6 +166,7 @@ class CarriedMarks:
         self._pipeline = pipeline
         self._made = Marks()
         pipeline.marks = self._made
+        pipeline.mark_watch = None  # (the car's marks are among those recorded)
 
     def before(self, t_ns: int, *, emit: bool = True) -> None:
         """Every mark still to come that is at or before ``t_ns`` (a frame's time), made now;
