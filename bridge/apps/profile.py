@@ -340,10 +340,11 @@ def why_none(group: ObjectGroup, rules: RuleStats | None, pages: PageStats | Non
 def format_stats(frames: int, stats: dict[str, GroupStats], verdicts: Sequence[LateralVerdict],
                  profile: Profile, *, decoded: int | None = None,
                  why: Mapping[str, str] | None = None,
-                 pages: Mapping[str, PageStats] | None = None) -> str:
+                 pages: Mapping[str, PageStats] | None = None,
+                 marks: Sequence[str] = ()) -> str:
     """Per group: valid objects and their x/y ranges (none: ``why``; pages that lacked some:
-    ``pages``); per sensor: the lateral sign verdict. A log none of whose frames ``decoded``
-    says so: the wrong log, or the wrong bus."""
+    ``pages``); the lines of the ``marks`` made; per sensor: the lateral sign verdict. A log
+    none of whose frames ``decoded`` says so: the wrong log, or the wrong bus."""
     head = f"log: {frames:,} frames"
     if decoded == 0 and frames:
         head += (", 0 decoded: none of their ids is in the databases (the wrong log, or the "
@@ -359,6 +360,7 @@ def format_stats(frames: int, stats: dict[str, GroupStats], verdicts: Sequence[L
         paged = (pages or {}).get(name)
         if paged is not None and paged.incomplete:
             lines.append(f"    {_pages_line(profile.groups[name], paged)}")
+    lines += marks
     lines.append("lateral sign:")
     lines += [f"  {v.message}" for v in verdicts]
     if not verdicts:
@@ -408,9 +410,9 @@ def check_profile(profile_path: str, dbc_options: Sequence[str], logs: Sequence[
     verdicts = lateral.verdicts() if lateral is not None else []
     made = drive.pipeline.marks.made if drive.pipeline.marks is not None else []
     marks = format_marks(made, first[0] if first else None) if profile.marks else []
-    return _with_warnings("\n".join([out, format_stats(
+    return _with_warnings(out + "\n" + format_stats(
         frames, sink.groups, verdicts, profile, decoded=sum(c.decoded for c in codecs),
-        why=why, pages=pages), *marks]), stages.decoder.warnings())
+        why=why, pages=pages, marks=marks), stages.decoder.warnings())
 
 
 def _with_warnings(text: str, warnings: Sequence[str]) -> str:
