@@ -85,7 +85,7 @@ def test_hostile_marking_viewers_get_a_status_and_a_limit_and_every_frame_is_rec
                                                          "polite"))
 
     assert [s["message"] for s in other.statuses] == [
-        'advertise: "/cmd_vel": only /marks is taken here (marks); its messages are ignored']
+        '"/cmd_vel": only /marks is taken here (marks); this channel\'s messages are ignored']
     assert "/cmd_vel" not in recording
     size = len(mark_json("x" * 1_000_000))
     assert [s["message"] for s in big.statuses] == [

@@ -9,14 +9,15 @@ to set and are ignored; any other field, a control character, a message over
 :data:`MARK_BYTES` is refused. One viewer's marks are taken :data:`MARKS_AT_ONCE` at once, then
 :data:`MARKS_PER_S` a second.
 
-Anything else — text that is not JSON, JSON that is not such a message, another op, a channel
-of another topic or encoding, a binary message that is not a mark — is refused with a
+Anything else — text that is not JSON, JSON that is not such a message, another op, a message
+on a channel of another topic or encoding, a binary message that is not a mark — is refused with a
 :class:`ViewerInputError` saying in one line what was wrong, before foxglove-websocket sees it
 (:mod:`bridge.sinks.server.internals` answers it with a status; :class:`ViewerInput` says which
 refusals are told: a status at most :data:`STATUSES_AT_ONCE` at once, then
 :data:`STATUSES_PER_S` a second; too many marks once per run of them; console lines at most
-:data:`REFUSALS_LOGGED`). A channel refused when advertised is told once: its messages are
-ignored without a word.
+:data:`REFUSALS_LOGGED`). A channel of another topic is taken in silence when advertised (Foxglove
+Studio's 3D panel advertises its click topics to every server that takes publishing); its first
+message is refused, the next ones are ignored without a word.
 """
 
 from __future__ import annotations
@@ -180,7 +181,9 @@ class ViewerInput:
     name: str
     marks: bool
     clock: Callable[[], float]
-    channels: dict[int, bool] = field(default_factory=dict)
+    #: its channels: True (marks), or why its messages are refused (a text, until the first
+    #: message is refused with it: then None)
+    channels: dict[int, bool | str | None] = field(default_factory=dict)
     mark_budget: Budget = field(default_factory=lambda: Budget(MARKS_AT_ONCE, MARKS_PER_S))
     status_budget: Budget = field(default_factory=lambda: Budget(STATUSES_AT_ONCE,
                                                                  STATUSES_PER_S))
@@ -188,7 +191,7 @@ class ViewerInput:
     #: marks refused as too many, and whether the latest mark was one (told once per run)
     too_many: int = 0
     in_too_many: bool = False
-    #: messages on channels refused when advertised (ignored without a word)
+    #: messages on refused channels (the first of each told, the others ignored without a word)
     ignored: int = 0
 
     def text(self, raw: str) -> dict[str, Any] | None:
@@ -215,12 +218,15 @@ class ViewerInput:
         if opcode != 1:
             raise ViewerInputError(f"binary opcode {opcode}: only 1 (a message on an "
                                    "advertised channel) is taken here (no services)")
-        taken = self.channels.get(channel)
-        if taken is None:
+        if channel not in self.channels:
             raise ViewerInputError(f"a message on channel {channel}, which it did not advertise")
-        if not taken:
+        taken = self.channels[channel]
+        if taken is not True:
             self.ignored += 1
-            return None
+            if taken is None:
+                return None
+            self.channels[channel] = None  # told once
+            raise ViewerInputError(taken)
         size = len(raw) - _CLIENT_MESSAGE.size
         if size > MARK_BYTES:  # (before any other work)
             raise ViewerInputError(f"a mark of {size:,} bytes: at most {MARK_BYTES:,}")
@@ -250,14 +256,13 @@ class ViewerInput:
             elif len(self.channels) >= CHANNELS_PER_VIEWER:
                 problems.append(f"channel {channel_id}: at most {CHANNELS_PER_VIEWER} channels "
                                 "at a time")
-            elif topic != MARKS_TOPIC:
-                self.channels[channel_id] = False
-                problems.append(f"{_shown(topic)}: only {MARKS_TOPIC} is taken here (marks); "
-                                "its messages are ignored")
+            elif topic != MARKS_TOPIC:  # (Studio's 3D panel advertises its click topics)
+                self.channels[channel_id] = (f"{_shown(topic)}: only {MARKS_TOPIC} is taken "
+                                             "here (marks); this channel's messages are ignored")
             elif encoding != MARK_ENCODING:
-                self.channels[channel_id] = False
-                problems.append(f"{MARKS_TOPIC} in {_shown(encoding)}: marks are "
-                                f"{MARK_ENCODING!r}; its messages are ignored")
+                self.channels[channel_id] = (f"{MARKS_TOPIC} in {_shown(encoding)}: marks are "
+                                             f"{MARK_ENCODING!r}; this channel's messages are "
+                                             "ignored")
             else:
                 self.channels[channel_id] = True
         if problems:
