@@ -369,8 +369,9 @@ def test_a_wrong_signal_in_marks_stops_convert_with_one_error_line(
 
 def test_live_marks_the_drive_when_the_button_is_pressed_on_the_bus(tmp_path: Path) -> None:
     channel = f"marks-car-{threading.get_ident()}"
+    said: list[str] = []
     live = Live([BusSpec("can0", "virtual", channel)], load_stages([], "highway"),
-                drives=tmp_path)
+                drives=tmp_path, say=said.append)
     live.start()
     runner = threading.Thread(target=live.run)
     runner.start()
@@ -401,3 +402,4 @@ def test_live_marks_the_drive_when_the_button_is_pressed_on_the_bus(tmp_path: Pa
     ((_, mark),) = marks
     assert (mark.number, mark.source, mark.by) == (1, "car", "STEER_BUTTON == 1")
     assert lines == ["MARK 1: STEER_BUTTON == 1 (car)"]
+    assert [line for line in said if "MARK" in line] == lines  # echoed on the console once

@@ -76,7 +76,7 @@ from bridge.pipeline.marks import MarkAsked, Marks, describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
 from bridge.sinks.server import ClientStats, LiveServer, ViewerMark
-from bridge.topics import LOG_TOPIC, MARKS_TOPIC, TopicMessage, bus_segment
+from bridge.topics import LOG_TOPIC, TopicMessage, bus_segment
 
 
 def log_message(t_ns: int, level: Any, text: str) -> TopicMessage:
@@ -157,6 +157,7 @@ class Live:
         self.pipeline = self.drive.pipeline
         #: the marks of this drive: :meth:`Marks.ask` from any thread, made in the loop
         self.marks = self.pipeline.marks = Marks()
+        self._said = 0  # the marks said on the console
         if server is not None:
             server.on_mark = self._viewer_mark
         self.pipeline.advertise(names)
@@ -275,13 +276,14 @@ class Live:
 
     def _take_marks(self, t_ns: int) -> None:
         """The marks asked for since the last call, made at ``t_ns`` (the drive's clock now),
-        recorded, shown and said on the console."""
+        recorded and shown; every mark made since the last call (the car's too, made by the
+        pipeline as it decodes) said on the console."""
         made = self.marks.take(t_ns)
         if made:
             self.pipeline.emit(made)
-            for message in made:
-                if message.topic == MARKS_TOPIC:
-                    self.say(describe(message.message))
+        for mark in self.marks.made[self._said:]:
+            self.say(describe(mark))
+        self._said = len(self.marks.made)
 
     def _receive_state(self) -> None:
         """What each bus's reading mended or lost, when it changed: to the health monitor
