@@ -532,6 +532,14 @@ def e2e(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
              "ocr": [label_pattern(text) for text in highway_labels],
              "screenshot": str(out / "highway.png")},
             *windows,
+            # The engineer in the car clicks the Mark button (a laptop's window): the mark is
+            # in the log panel and, for a few seconds, in the scene.
+            {"name": "mark", "source": {"serve": "demo"}, "via": "preload",
+             "layout": str(LAYOUTS / "engineer.json"), "viewport": {"width": 1280, "height": 800},
+             "clicks": [{"panel": "Publish!mark", "button": "Mark"}],
+             "scene": {"panel": "3D!engineer", "expect": ["ego"]},
+             "panelText": {"RosOut!alarms": ["MARK 1: mark (viewer"]},
+             "ocr": [r"MARK\s*1"], "screenshot": str(out / "mark.png")},
         ],
     }
     (out / "plan.json").write_text(json.dumps(plan, indent=2), encoding="utf-8")
@@ -712,6 +720,18 @@ def test_labels_stay_whole_and_apart_on_a_laptop_and_a_large_window(
         unavailable("tesseract is not installed (apt-get install tesseract-ocr)")
     missing = [p for p in ocr["wanted"] if p not in ocr["found"]]
     assert not missing, (missing, ocr["text"])
+
+
+def test_a_click_on_the_mark_button_marks_the_moment(e2e: dict[str, Any]) -> None:
+    """In Foxglove Studio, the engineer layout's Mark button (a Publish panel) publishes a mark to
+    the live demo: it comes back at once, in the log panel and as a text in the 3D view."""
+    shot = shot_named(e2e, "mark")
+    assert shot["ok"], explain(shot)
+    assert "clicked Publish!mark" in shot["steps"]
+    ocr = shot.get("ocr")
+    if not ocr or not ocr.get("available"):
+        unavailable("tesseract is not installed (apt-get install tesseract-ocr)")
+    assert ocr["found"] == ocr["wanted"], ocr["text"]
 
 
 def highway_profile() -> Any:

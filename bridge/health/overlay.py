@@ -3,9 +3,9 @@
 Both take the active alarms as :class:`~bridge.health.alarms.AlarmInfo` (what
 :meth:`bridge.health.monitor.HealthMonitor.active_alarms` returns), not the monitor:
 
-- :func:`alarm_entities`: a red text above the ego (entity ``health-alarms``) listing the active
-  alarms, ``HEALTH: <n> ALARM(S)`` and then ``<id>: <message>`` for each; nothing when there are
-  none;
+- :func:`alarm_entities`: a red text above the ego (entity ``health-alarms``) naming the active
+  alarms, ``HEALTH: <n> ALARM(S)`` and then their ids, in lines a laptop's panel holds; nothing
+  when there are none;
 - :func:`fov_entities`: each sensor's field of view from the profile (every sensor with both a
   range and an azimuth) as an outline on the ground (entity ``fov-<sensor>``): thin and dim grey
   when healthy, thick, red and labelled with the alarm ids when an active alarm concerns the
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
 
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
@@ -34,6 +35,9 @@ ALARM_COLOR: RGBA = (1.0, 0.15, 0.1, 1.0)  # signal red
 FOV_COLOR: RGBA = (0.75, 0.75, 0.75, 0.25)  # dim grey
 FOV_ALARM_COLOR: RGBA = (1.0, 0.1, 0.1, 0.9)
 ALARM_FONT_SIZE = 18.0
+#: The alarm ids are drawn in lines of at most this many characters: a laptop's narrowest 3D
+#: panel holds them (what each alarm says is in /log, /health and the engineer layout).
+ALARM_LINE_CHARS = 34
 FOV_THICKNESS = 0.05  # m
 FOV_ALARM_THICKNESS = 0.15
 
@@ -45,7 +49,8 @@ def alarm_entities(alarms: Sequence[AlarmInfo], t_ns: int, *, x: float = 0.0, y:
         return []
     e = entity(t_ns, "health-alarms", lifetime_s)
     lines = [f"HEALTH: {len(alarms)} ALARM{'S' if len(alarms) > 1 else ''}"]
-    lines += [f"{a.id}: {a.message}" for a in alarms]
+    lines += textwrap.wrap(", ".join(a.id for a in alarms), ALARM_LINE_CHARS,
+                           break_on_hyphens=False)
     label = text(x, y, z, "\n".join(lines))
     label.font_size = ALARM_FONT_SIZE
     label.color.CopyFrom(color(ALARM_COLOR))

@@ -45,6 +45,8 @@
 //                                        image with at least that many bright orange pixels (the
 //                                        bit map's flipping bits; white ones are counted apart: a
 //                                        panel without an image is white too), as image
+//     "clicks": [{"panel": "Publish!mark", "button": "Mark"}],  buttons clicked once the panels
+//                                        show, each when it is enabled
 //     "viewport": {"width": 1280, "height": 800},  this shot's window (default: the plan's)
 //     "screenshot": "/abs/out.png"
 //   }]
@@ -595,6 +597,16 @@ async function runShot(ctx, base, shot, plan) {
     }, { missing: () => `not on screen: ${absent.join(", ")}` });
     await closeSidebar(page, nav, timeoutMs);
     mark("panels");
+    // Buttons to click, once each is enabled (a Publish panel's, once the source takes
+    // publishing).
+    for (const click of shot.clicks ?? []) {
+      const button = page.locator(
+        `[data-testid="panel-mouseenter-container ${click.panel}"] button:has-text("${click.button}")`);
+      await wait(`${click.panel}: "${click.button}" enabled`, async () =>
+        (await button.count()) > 0 && (await button.first().isEnabled()));
+      await button.first().click();
+      mark(`clicked ${click.panel}`);
+    }
 
     // Wait (polling screenshots and the DOM) until everything the shot expects is on screen.
     const scene = shot.scene;
