@@ -144,11 +144,18 @@ def remove_stale_partials(path: Path) -> list[Path]:
     return removed
 
 
-def _create_partial(path: Path) -> tuple[Path, IO[bytes]]:
-    """A new partial file of its own for ``path``, locked (:func:`remove_stale_partials`)."""
+def _create_partial(path: Path, made: list[Path]) -> tuple[Path, IO[bytes]]:
+    """A new partial file of its own for ``path``, locked (:func:`remove_stale_partials`). Its
+    name is in ``made`` before the file is, so that the caller removes it whenever it is
+    interrupted (a signal's handler runs between any two bytecodes)."""
     while True:
         partial = path.with_name(partial_name(path.name, f"{os.getpid()}-{secrets.token_hex(4)}"))
-        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        made.append(partial)
+        try:
+            fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:  # (another's: not ours to remove)
+            made.pop()
+            continue
         try:
             locked = lock(fd, wait=True)
             # Another run's cleanup may have taken it between its creation and its lock.
@@ -208,21 +215,24 @@ def atomic_output(path: Path, *, force: bool | None = None) -> Iterator[IO[bytes
     """
     replace = os.path.lexists(path) if force is None else force
     remove_stale_partials(path)
-    partial: Path | None = None
+    made: list[Path] = []  # the partial files this run made (one, unless a race took one)
     try:
-        partial, stream = _create_partial(path)
+        partial, stream = _create_partial(path, made)
         with stream:  # closed (its lock released) only once it has its name
             yield stream
             stream.flush()
             publish(partial, path, replace=replace)
     except OSError as exc:
-        if partial is not None:
-            partial.unlink(missing_ok=True)
+        _remove(made)
         raise OutputError(path, f"cannot write: {exc.strerror or exc}") from exc
     except BaseException:
-        if partial is not None:
-            partial.unlink(missing_ok=True)
+        _remove(made)
         raise
+
+
+def _remove(partials: Iterable[Path]) -> None:
+    for partial in partials:
+        partial.unlink(missing_ok=True)
 
 
 def refuse_inputs(path: Path, inputs: Iterable[Path | str]) -> None:

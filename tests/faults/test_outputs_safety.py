@@ -296,3 +296,22 @@ def test_the_sample_is_not_merged_into_a_log(log: Path, tmp_path: Path,
         f"error: convert: --sample converts the bundled sample drive alone; it cannot be "
         f"merged into {log} (convert each on its own)")
     assert not out.exists()
+
+
+def test_a_signal_the_moment_the_partial_file_is_made_leaves_nothing_behind(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Python runs a signal's handler between two bytecodes: right after the partial file was
+    made and before its name was kept, a SIGHUP's Stopped left it behind (a convert stopped
+    by a signal in CI, under load)."""
+    from bridge.sinks import outputs
+
+    made = outputs._create_partial
+
+    def interrupted(*args: object) -> object:
+        made(*args)  # made, then the signal's handler raises before the caller keeps it
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs, "_create_partial", interrupted)
+    with pytest.raises(KeyboardInterrupt), outputs.atomic_output(tmp_path / "drive.mcap"):
+        pass
+    assert list(tmp_path.iterdir()) == []
