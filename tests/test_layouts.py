@@ -121,7 +121,8 @@ def test_the_bundled_layouts_with_their_previews() -> None:
         data = b.preview.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, f"{b.preview}: not a screenshot"
     assert found["tank-viz"].summary == "2 3D panels, Publish"
-    assert found["engineer"].summary == "3D, 5 plots, Raw Messages, Log, Publish, 14 Indicator panels"
+    assert (found["engineer"].summary
+            == "3D, 5 plots, Raw Messages, Log, Publish, 14 Indicator panels")
     assert (found["can-debug"].summary
             == "9 plots, 2 Indicator panels, 2 Raw Messages panels, Data Source Info")
     assert (found["bring-up"].summary
