@@ -41,7 +41,9 @@ def is_pdu1(frame_id: int) -> bool:
 
 
 def pgn_key(frame_id: int) -> int:
-    """The PGN of a 29-bit id, its destination address masked for a PDU1 group."""
+    """The PGN of a 29-bit id, its destination address masked for a PDU1 group: cantools'
+    ``j1939.pgn_from_frame_id`` (a test holds them equal) in bit operations, for the per-frame
+    path."""
     pgn = (frame_id >> 8) & 0x3FFFF
     return pgn & 0x3FF00 if is_pdu1(frame_id) else pgn
 
@@ -49,7 +51,6 @@ def pgn_key(frame_id: int) -> int:
 def address_fields(message: DbcMessage) -> tuple[str, ...]:
     """The addresses a J1939 message's decoded message keeps, in field order."""
     return (SOURCE, DESTINATION) if is_pdu1(message.frame_id) else (SOURCE,)
-
 
 
 def address_suffix(frame_id: int, numbers: tuple[int, ...]) -> bytes:

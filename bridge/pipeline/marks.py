@@ -29,7 +29,8 @@ from bridge.topics import LOG_TOPIC, MARKS_CATEGORY, MARKS_TOPIC, TopicMessage, 
 
 #: How long a mark's text stays in the scene (s of log time).
 SHOWN_S = 5.0
-#: Where a mark's text stands in the scene: ahead of and above the ego vehicle (vehicle frame, m).
+#: Where a mark's text stands in the scene: above the ego vehicle, over the alarm overlay
+#: (vehicle frame, m).
 SHOWN_AT = (0.0, 0.0, 8.0)
 #: The sources of marks (``Mark.source``).
 SOURCES = ("viewer", "car", "terminal")

@@ -164,3 +164,16 @@ def test_convert_decodes_every_source_and_bring_up_calls_none_unknown(
     rows = by_topic["/can/can0/ids"][-1].rows
     assert len(rows) == len({f.arbitration_id for f in frames()})
     assert [row.message for row in rows if row.message not in ("EEC1", "CCVS1", "TSC1")] == []
+
+
+def test_a_frames_pgn_is_cantools_own() -> None:
+    """pgn_key is cantools' pgn_from_frame_id (PDU1's destination masked) written as bit
+    operations: it runs for every frame of an id no database names on a J1939 bus."""
+    from cantools.j1939 import pgn_from_frame_id
+
+    from bridge.decode.j1939 import pgn_key
+
+    rng = random.Random(1939)
+    for frame_id in [0, 0x1FFFFFFF, 0x0CF00400, 0x18FEF100, 0x18EAFF00,
+                     *(rng.getrandbits(29) for _ in range(20_000))]:
+        assert pgn_key(frame_id) == pgn_from_frame_id(frame_id), hex(frame_id)
