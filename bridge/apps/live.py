@@ -1,37 +1,15 @@
 """``tankviz live``: CAN buses in, Foxglove live, every drive recorded.
 
-The engine is :class:`bridge.pipeline.live.Live` (how the buses are read, opened and reopened,
-recorded and served; what their reading mends or loses; the disk filling; clock steps; the
-garbage collector): see :mod:`bridge.pipeline.live`. This command builds it from its options,
-runs it and prints what it did.
-
-Every bus is opened before anything is printed: a bus that cannot work at all (an unknown
-interface, a NAME without python-can configuration) is an error at once, never retried; a bus
-that does not open is retried for at most :data:`~bridge.io.buses.OPEN_WAIT_S` seconds (15; less
-if the run is stopped first: ``--for``, Ctrl+C), and if it has never opened by then it is an
-error: one line, exit 1, nothing recorded. A bus that had opened and fails is said (and when it
-is back) as the run goes. python-can's own log lines are said once per cause, then counted
-(:class:`~bridge.io.buses.CanLogLimiter`).
-
-In a terminal (standard input is one), Enter marks the moment, named by what was typed before it
-(:class:`TerminalMarks`); viewers mark with Foxglove's Publish panel (the server's marks). Each
-mark is said on the console as it is made (:mod:`bridge.pipeline.marks`).
-
-SIGINT, SIGTERM and SIGHUP (the terminal or SSH session went away) stop the run and finish the
-drive. Output to a terminal or pipe that is gone (EIO, EPIPE) never stops the run or the drive's
-finishing: from then on it goes nowhere (:func:`output_may_vanish`).
-
-At the end it prints the files recorded, what the buses' reading mended or lost
-(:func:`receive_report`) and how many messages slow viewers lost: which viewers, and of which
-topics (the few that lost most, the rest counted: :func:`dropped_report`); a run that got no
-frame says so (and, on a ``virtual`` bus, that only the same process can send onto it:
-:func:`nothing_came`).
-
-At start it names the layout to import (:func:`layout_hint`): the bundled one for the bundled
-ecocar profile; for another profile the layouts made for it and these buses, written into
-``DRIVES/layouts/<profile>/`` when recording (never over a file, never failing the drive), else
-the ``tankviz layouts`` command that writes them. When a bus first carries an id no database
-knows, one line names the bring-up layout (:func:`bringup_hint`).
+This command builds the engine, :class:`bridge.pipeline.live.Live`, from its options, runs it and
+prints what it did. Every bus is opened before anything is printed: a bus that cannot work at
+all is an error at once; one that does not open within :data:`~bridge.io.buses.OPEN_WAIT_S` is
+an error too (one line, exit 1, nothing recorded); one that fails later is said, and when it is
+back. Enter in a terminal marks the moment (:class:`TerminalMarks`), and every mark is said on
+the console. SIGINT, SIGTERM and SIGHUP stop the run and finish the drive; an output that is
+gone (EIO, EPIPE) never stops either (:func:`output_may_vanish`). It names the layout to import
+at start (:func:`layout_hint`, :func:`bringup_hint`) and at the end the files recorded, what the
+buses' reading mended or lost (:func:`receive_report`) and what slow viewers lost
+(:func:`dropped_report`).
 """
 
 from __future__ import annotations

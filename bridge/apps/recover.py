@@ -1,64 +1,15 @@
 """``tankviz recover``: salvage what a power cut or a killed recorder left of a drive.
 
-The recorder writes zstd chunks and flushes at least every second, so a drive cut by a power loss
-or a SIGKILL is a valid header, a run of complete records (chunks, each followed by its message
-indexes; metadata and attachments between them) and a partial last record, with no summary and no
-footer; a file system may also leave zero bytes where the last data never reached the disk.
-:func:`recover` reads such a file record by record with mcap's :class:`StreamReader`, steps over
-damaged records where it can (below), stops cleanly at the first record it cannot read, and
-writes every schema, channel, message (log time, publish time, sequence and data unchanged, in
-file order), metadata record and attachment it found into a complete new MCAP (zstd chunks, with
-a summary), plus a ``tankviz.recover`` metadata record saying what was recovered and where and why
-reading stopped.
-
-How a record is read. Before mcap parses a record, its 9-byte header (opcode, length) is checked:
-a known opcode, and a length that fits in what is left of the file (so a cut record is recognised
-without reading it, and a damaged length cannot make us allocate gigabytes). While mcap parses it,
-no read goes past its declared end, and a record whose fields do not take exactly its length is
-damaged (MCAP lets later versions append fields to a record, but the records tankviz copies have
-none: extra bytes mean a damaged length, and skipping them would skip records unseen). Message
-index records are not needed (the writer builds new ones): their fields are checked against their
-length, and they are only counted; a file cut right after a chunk keeps every message of the chunk.
-Where the file ends, where the disk cannot read it, or where the bytes are damaged and nothing
-intact follows, reading stops: the record's offset and the reason are the report's ``stopped_at``
-and ``stopped``.
-
-A damaged record is stepped over, and reading goes on, wherever the file says where the next
-record starts (only a file that can seek). If the file still has an intact summary (it ends with
-a footer and the magic), its chunk, attachment and metadata indexes give where each of those
-records, and each chunk's run of message indexes, starts and ends: a chunk, attachment or metadata
-record whose header is damaged is read again with the opcode and length its index gives it (the
-report's ``repaired``), and any other damaged record is stepped over to the end of what the index
-says it is in (a damaged message index: to the end of its chunk's message indexes, losing no
-message), or to the next record the indexes know. Without a summary (a drive cut before its end)
-the next chunk, attachment, metadata or data end record that proves itself intact is searched for
-byte by byte (a chunk or an attachment by its CRC, every one by fields that take exactly its
-length). A record cut by the end of the file has nothing intact after it, so a cut file is read up
-to its cut record exactly as before. So a cut never leads to a skip, and damage that is not a cut
-(a byte changed on the disk or in a copy) loses only the damaged record.
-
-A chunk whose CRC fails (or that does not decompress) is skipped and reading goes on: its record
-framing being intact (known opcode, length within the file, its fields add up to exactly its
-length), the damage is confined to the compressed payload that the CRC covers, the next record
-starts where the length says, and every later chunk carries its own CRC: skipping loses the
-messages of that one chunk (counted from the message indexes after it) instead of the rest of the
-drive, which is what ``mcap recover`` does too. An attachment whose CRC fails is skipped the same
-way. Messages whose channel was defined only in a skipped chunk are dropped and counted, unless
-the file still has its summary, whose copies of the schemas and channels then stand in. Skipped
-records are listed in the report (``skipped``, each with its offset, what was wrong and where
-reading went on); a cut file never has any, so what it recovers is exactly a prefix of its
-messages. Metadata records and attachments are copied wherever they are read intact: tankviz
-writes a drive's databases and profile as attachments at its start, so a cut drive keeps them.
-
-A file that does not start with the whole MCAP magic (an empty file, another format) is not
-recovered: :class:`~bridge.errors.InputError`, and nothing is written.
-
-The input is only ever read. The output is written as a hidden partial file of its own beside it
-(:func:`bridge.sinks.outputs.atomic_output`) and renamed when the new MCAP is complete.
-
-This module has the command, :func:`recover`, :func:`recover_file` and :func:`format_report`;
-:mod:`bridge.apps.recover_salvage` reads and copies the records (its ``_Salvage``), and
-:mod:`bridge.apps.recover_records` has the report (:class:`RecoverReport`, imported here) and the
+:func:`recover` reads a cut or damaged MCAP record by record and writes every schema, channel,
+message (unchanged, in file order), metadata record and attachment it can read into a complete
+new MCAP, with a ``tankviz.recover`` record saying what was recovered, what was skipped and where
+and why reading stopped. A cut file gives exactly a prefix of its messages; damage that is not a
+cut loses only the damaged record (a chunk whose CRC fails: that chunk's messages, counted), the
+file's own indexes repairing or bounding it where the summary survived. A file that does not
+start with the MCAP magic is an :class:`~bridge.errors.InputError`, and nothing is written. The
+input is only read; the output appears only complete
+(:func:`bridge.sinks.outputs.atomic_output`). :mod:`bridge.apps.recover_salvage` reads and copies
+the records, :mod:`bridge.apps.recover_records` has the report (:class:`RecoverReport`) and the
 checks of a record.
 """
 

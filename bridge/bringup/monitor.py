@@ -1,38 +1,15 @@
 """The bring-up stage: what every id of every bus sends, published while a drive goes on.
 
-:class:`BringUpMonitor` is fed like the health monitor: every frame live
-(:meth:`~BringUpMonitor.on_frame`: the frame is kept for the next count, and a data frame of an id
-no database of its bus defines gets its ``/unknown`` message), a block's rows offline
-(:meth:`~BringUpMonitor.on_rows`: the same, from the block's columns); and it is ticked on log
-time, on the grid of whole seconds (:meth:`~BringUpMonitor.advance`; after a gap in the log, at
-the first tick due only; at the end, :meth:`~BringUpMonitor.finish`). At a tick the frames since
-the last count go into the :class:`~bridge.bringup.census.Census` in one piece (the same pieces
-one by one, in reads or in blocks: the same figures), and it publishes
-
-- ``/can/<bus>/ids`` (``tankviz.CanIds``, schemas/bringup.proto) per bus: a row per id, sorted:
-  frames, median period and jitter (p95 - p5) of its gaps of the latest :data:`WINDOW_S` s or
-  so, lengths, message (:data:`UNKNOWN` for none), changing bits, unexplained bits (those no
-  signal covers: all of an unknown id's), bits changed in the last second;
-- ``/can/bits`` and ``/can/bits/labels``: the bit-change map of every id
-  (:mod:`bridge.bringup.bitmap`);
-
-and ``/can/<bus>/unknown`` (``tankviz.CanPayload``, :mod:`bridge.bringup.payload`) carries the
-data frames of unknown ids at their own log time.
-
-The sinks that record no file (live viewers, replay's server) get all of it: every publication,
-once a second, and every frame of the unknown ids. The sinks that record files
-(:attr:`bridge.sinks.base.Sink.records`) get less: on ``/can/<bus>/unknown`` at most
-:data:`FILE_HZ` frames a second per id, the first of the id in each ``1 / FILE_HZ`` s of log
-time, and the publications on the grid of :data:`FILE_PERIOD_S` and the last one, at the end of
-the drive (DEVELOPING.md says why). A drive whose sinks all record files (convert) makes only
-what they get: it counts and draws once a minute (the bits changed, and the map's shares of
-flips, of the second before).
-
-A clock step (:meth:`~BringUpMonitor.rebase`) counts the frames before it, moves every id's times
-with the clock (no gap across the step) and makes the next tick the next of the grid.
-:attr:`BringUpMonitor.on_unknown` is told ``(bus, frame key)`` once per bus, at the
-first frame of an id no database of the bus defines (:attr:`~BringUpMonitor.first_unknown` keeps
-them).
+:class:`BringUpMonitor` is fed like the health monitor (every frame live, a block's rows
+offline: the same figures either way) and ticked on log time at whole seconds. It publishes
+``/can/<bus>/ids`` (``tankviz.CanIds``: a row per id, sorted), ``/can/bits`` and
+``/can/bits/labels`` (the bit-change map, :mod:`bridge.bringup.bitmap`), and on
+``/can/<bus>/unknown`` (:mod:`bridge.bringup.payload`) the data frames of ids no database of
+their bus defines. Sinks that record no file get all of it; sinks that record files
+(:attr:`bridge.sinks.base.Sink.records`) get at most :data:`FILE_HZ` unknown frames a second per
+id and the tables every :data:`FILE_PERIOD_S` and at the end. A clock step
+(:meth:`~BringUpMonitor.rebase`) leaves no gap; :attr:`BringUpMonitor.on_unknown` is told each
+unknown ``(bus, frame key)`` once.
 """
 
 from __future__ import annotations

@@ -1,46 +1,16 @@
 """Many drives at once: which files make one drive, what each output is called, and the run of
 one conversion per drive on a Dask cluster (``tankviz batch``).
 
-- **Inputs** (:func:`find_inputs`): files, folders (searched recursively) and globs, keeping the
-  files whose suffix is one of the formats asked for (CAN logs, or ``.mcap`` drives). Paths only:
-  a URL (``s3://…``, any fsspec scheme but ``file://``) is refused with one line, since the
-  readers open local files; storage every worker sees must be mounted (NFS, SMB, s3fs, …). A
-  file that cannot be read as one (a symbolic link to nothing, a FIFO) is a drive that fails,
-  saying why (:func:`refused_inputs`). A name that is not UTF-8 is carried as the file's own
-  path, and shown (Dask keys and events, results, lines) as ``\\xNN``
-  (:func:`bridge.errors.shown`): msgpack refuses the surrogates Python holds it with.
-- **Drives** (:func:`group_drives`): files in one folder whose names have the same *drive stem*
-  (:func:`drive_stem`: the name without its format suffix and without trailing bus or part
-  suffixes: ``_can1``, ``-CAN2``, ``_bus3``, ``_ch4``, ``_canfd0``, ``_part002``, ``.001``) are
-  one drive where their time spans overlap or are at most :data:`ADJACENT_NS` apart (one file per
-  bus, a logger's split parts); a stem whose files lie further apart in time is several drives.
-  A file's span comes from the BLF header or the MCAP summary where the file has one, else from
-  reading the file through (only files that share a stem are read for it). tankviz drives
-  (``.mcap``, for ``rederive``) are not merged: each is a drive of its own, since ``tankviz
-  convert`` re-derives one drive at a time.
-- **Outputs** (:func:`plan_jobs`): ``OUT/<subfolder>/<stem>.mcap``, the subfolder being where the
-  drive sits under a folder given as input; a stem that is several drives names each after its
-  UTC start (``<stem>_2026-10-02T08-15-00Z.mcap``). Two drives with one output name, or an output
-  that is one of the inputs by any name (the same real path, or a hard link: the same device and
-  inode), are refused before anything runs.
-- **The run** (:func:`run_batch`): one Dask task per drive, without retries, each calling the
-  conversion function it is given (``tankviz convert``'s own, :func:`convert_task`) with the
-  drive's inputs, which writes the output atomically (and refuses one file given twice: see
-  :mod:`bridge.pipeline.convert`). A drive whose files are one log saved twice (``trip.blf``
-  and ``trip.asc``) is refused, naming both (:func:`one_log_twice`): it would hold every frame
-  twice. A drive that fails (an error of its input or database, any
-  exception, its worker dying) gives a :class:`JobResult` with its one-line error; the others
-  go on. A drive written from inputs with issues (damaged or unreadable parts skipped, times
-  that jump back) gives how many and the first (the batch's summary names each such drive:
-  :func:`input_issue_lines`). Outputs that exist already
-  are skipped (:func:`finished`) unless forced, so a batch that was interrupted resumes. Each
-  task tells its progress (frames, fraction of its input read) as Dask events on a topic of its
-  batch (``Worker.log_event``), the first as it starts, which the client subscribes to for the
-  batch's progress line (:func:`progress_line`). That line names the drives under way that take
-  far longer than their size allows (:func:`slow_drives`).
-
-Dask (``distributed``) is imported only to run (:func:`dask_client`); without it the error says
-what to install (:data:`MISSING_DASK`).
+:func:`find_inputs` takes files, folders and globs (local paths only: a URL is refused);
+:func:`group_drives` makes files in one folder with the same :func:`drive_stem` one drive where
+their times overlap or are within :data:`ADJACENT_NS` (``.mcap`` drives are never merged);
+:func:`plan_jobs` names each output ``OUT/<subfolder>/<stem>.mcap`` (with its UTC start when a
+stem is several drives) and refuses two drives with one output, or an output that is an input,
+before anything runs. :func:`run_batch` runs one Dask task per drive, without retries: a drive
+that fails gives a :class:`JobResult` with its one-line error and the others go on; finished
+outputs are skipped unless forced, so an interrupted batch resumes; progress comes back as Dask
+events (:func:`progress_line`). Dask is imported only to run (:func:`dask_client`); without it
+the error says what to install.
 """
 
 from __future__ import annotations

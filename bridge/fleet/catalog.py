@@ -1,30 +1,11 @@
 """The drive catalogue: what an archive of recorded drives holds, as one DuckDB file.
 
 :func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table
-(:class:`DriveRows`). It reads the file's summary (times, topics and their message counts: on
-``/can/<bus>/frames`` blocks of frames, :mod:`bridge.sinks.raw`), the ``tankviz`` metadata record
-(:meth:`bridge.pipeline.drive.Drive.describe`: version, profile, databases with their SHA-256,
-decode statistics, alarm events), the messages of the perception topics
-(``tankviz.PerceivedObjects`` of every object group, ``tankviz.LeadVehicle``) and the drive's marks
-(``/marks``: :func:`bridge.io.drives.read_marks`, only the chunks that hold them); nothing is
-decoded again. A drive without the ``tankviz`` record (one cut short and recovered) takes what it
-holds from the file instead (:mod:`bridge.fleet.held`): its alarms from the ``/log`` messages of the
-health monitor (``ALARM <id>: ...``, ``cleared <id> ...``), its frames per bus from its raw-frame
-channels (``/can/<bus>/frames``: the rows of their blocks, or their message counts in a drive of one
-frame a message), its databases (name, SHA-256; buses unknown: empty) and profile from its
-attachments, and what ``tankviz recover`` says of it (its ``tankviz.recover`` record) into
-``statistics`` (``recovered``). A recovered drive that kept its ``tankviz`` record counts its frames
-per bus the same way (the record counts those cut off too). A file that is not MCAP, has no summary
-(``tankviz recover`` makes one) or is not a tankviz drive (neither the metadata record nor a
-``tankviz.Health`` channel) is an :class:`~bridge.errors.InputError` naming it, with why it cannot
-be read (:func:`bridge.io.unreadable.why_unreadable`: empty, not MCAP, cut at which byte, …).
-
-A drive is keyed by its resolved path (symbolic links and ``..`` followed), so one file named two
-ways is indexed once; a name that is not UTF-8 as shown (``bad\\xe9.mcap``:
-:func:`bridge.errors.shown`), which DuckDB takes, and its open hint is bash's ``$'...'``. A drive
-a recording is writing (``tankviz live`` locks each part while it writes it) is not read, nor
-called cut: :class:`BeingRecorded`, indexed on a later run. A symbolic link to nothing in a
-folder is not indexed, saying so.
+(:class:`DriveRows`), from its summary, ``tankviz`` metadata record, perception topics and marks;
+nothing is decoded again. A drive without the metadata record (recovered) takes what it holds
+from the file instead (:mod:`bridge.fleet.held`). A file that is not a readable tankviz drive is
+an :class:`~bridge.errors.InputError` saying why; one being recorded is :class:`BeingRecorded`,
+indexed on a later run. A drive is keyed by its resolved path.
 
 Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since the epoch,
 ``*_s`` seconds since the drive's first message, which is ``tankviz replay --start``):
@@ -36,23 +17,17 @@ Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since 
 - ``objects_summary``: per object group (``/perception/<group>``, and ``lead`` for the lead
   vehicle): messages, valid objects seen in them, the largest count at once, the smallest
   distance and when;
-- ``lead_changes``: every real lead change (a lead appears, or another object becomes the lead:
-  ``/perception/lead``'s ``lead_number`` goes up; a twin taking over the lead's slot is none;
-  in a drive recorded before that field, every change of the lead's id), with its distance;
-  ``cut_in`` when it replaced a lead that was present a moment before and is closer;
+- ``lead_changes``: every real lead change (``/perception/lead``'s ``lead_number`` goes up; in
+  a drive without that field, every change of the lead's id), with its distance; ``cut_in`` when
+  it replaced a lead that was present a moment before and is closer;
 - ``marks``: every mark (``mark`` its number in the drive; ``marked_by`` the Mark's ``by``).
 
 :func:`index` (re)indexes a catalogue incrementally: a drive is read again only when it is new or
-its size or modification time (ns) changed; a catalogued drive whose file no longer exists is
-removed. A catalogue an older tankviz made gets the tables it lacks, and the drives that hold their
-topic (``/marks`` for ``marks``) are read again, once. Drives are read in this process, or by Dask
-workers (``workers``: a local cluster of that many processes; ``scheduler``: an existing cluster
-whose workers see the same paths): each worker reads drives into rows, this process alone writes the
+its size or modification time changed; a drive whose file is gone is removed; a catalogue missing
+newer tables gets them. Drives are read here or by Dask workers; this process alone writes the
 DuckDB file, one transaction per drive. A drive that cannot be read is reported with its one-line
-error and the others are indexed. Dask is imported only then; without it the error says what to
-install.
-
-The questions asked of a catalogue are in :mod:`bridge.fleet.questions`.
+error and the others are indexed. The questions asked of a catalogue are in
+:mod:`bridge.fleet.questions`.
 """
 
 from __future__ import annotations

@@ -1,42 +1,19 @@
 """Read ahead: the frames of several sources, read and merged in a second process.
 
-Reading a log is a third of a conversion's time (python-can parses every object or line into a
-``can.Message``, tankviz makes a :class:`~bridge.frame.Frame` of it). :class:`ReadAhead` moves it
-to a child process, so that it runs on the second core while this process decodes, draws and
-records: the child iterates :func:`~bridge.io.logs.merge` of the sources and sends the frames in
-blocks of :data:`BATCH` through a pipe, each a :class:`~bridge.block.FrameBlock` as one buffer
-(:meth:`~bridge.block.FrameBlock.to_bytes`: its columns, no per-frame object pickled), with the
-bytes each source has read so far. The pipe holds about one block, so the child is never more
-than two blocks ahead and memory stays flat. :meth:`ReadAhead.blocks` gives the blocks as they
-come (when the sources are read here, blocks of :data:`BATCH` made of the merged frames), about
-0.04 µs a frame here; iterating gives their frames (about 0.4 µs a frame, as unpickling tuples
-did), the same :class:`~bridge.frame.Frame` tuples either way. Packing a block takes the child
-about 0.85x the time pickling the frames as tuples took (``tools/bench_readahead.py``). A frame
-no block can hold (beyond :mod:`bridge.block`'s bounds: an id or a time too large for its
-column, which no log reader makes) ends the reading as any exception of the child does.
+:class:`ReadAhead` reads :func:`~bridge.io.can_logs.merge` of the sources in a forked child, which
+sends them through a pipe as :class:`~bridge.block.FrameBlock` blocks of :data:`BATCH` frames
+(:meth:`ReadAhead.blocks`; iterating gives their frames), never more than two blocks ahead, so
+memory stays flat; :meth:`progress` tells the bytes read. The results are those of reading here:
+each source's ``issues``, ``frames`` and ``backwards`` come back from the child; an
+:class:`~bridge.errors.InputError` it meets is raised here after the frames before it; a bug in
+the child is a :class:`RuntimeError` with its traceback, a child that dies without a word a
+one-line :class:`~bridge.errors.BridgeError`. Stopped early, the child is ended with it (SIGTERM,
+then SIGKILL). Where forking is not safe or not worth it (no ``fork``, other threads, a daemonic
+process, inputs under :data:`MIN_BYTES`), the sources are read here, in the same order.
 
-What the sources note while they are read is brought back: at the end, each source's
-``issues``, ``frames`` and ``backwards`` are those the child's copy of it counted, as if it had
-been read here; an :class:`~bridge.errors.InputError` the child meets (``--strict``, a log with
-no frame) is raised here after the frames before it, as reading here would raise it; an
-exception in the child is a :class:`RuntimeError` with the child's traceback (a bug), and a
-child that dies without a word (the kernel's out-of-memory killer) a one-line
-:class:`~bridge.errors.BridgeError`. :meth:`progress` tells the bytes the child has read.
-Stopped early (an error here, Ctrl+C, SIGTERM), the child is
-ended with it: it holds no read end of the pipe, so a write it is blocked in fails once this
-side closes its end, and it is sent SIGTERM, then SIGKILL if it is still there a second later.
-
-The child is forked (it inherits the loaded databases and readers: no start-up). Where forking
-is not safe or not worth it, the sources are read here, in the same order, with the same
-results: on systems without ``fork``, in a process with other threads (a Dask worker, a live
-server), in a daemonic process (which may not have children), and for inputs smaller than
-:data:`MIN_BYTES`, where starting a process costs more than it saves.
-
-:func:`read_in_thread` reads in a thread of this process instead, for a consumer that must keep
-its stop (``replay``'s ``--for``, SIGTERM) whatever the reading does: the consumer waits for each
-item at most :data:`POLL_S` at a time and looks at its stop in between, so a read that is slow,
-never returns or spins cannot keep it; the thread, stuck in such a read, is left behind (a
-daemon: it ends with the process). It holds at most :data:`THREAD_ITEMS` items ahead.
+:func:`read_in_thread` reads in a daemon thread instead, for a consumer that must keep its stop
+whatever the reading does: it waits at most :data:`POLL_S` at a time, and holds at most
+:data:`THREAD_ITEMS` items ahead.
 """
 
 from __future__ import annotations

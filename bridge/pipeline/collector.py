@@ -1,29 +1,11 @@
-"""The garbage collector's settings for a live process: a steady stream of short-lived objects.
+"""The garbage collector's settings for a live process, a steady stream of short-lived objects.
 
-Live makes millions of short-lived objects a minute (frames, tuples, decoded messages, protobuf
-bytes) and no reference cycles per frame: reference counting frees them (``gc.DEBUG_SAVEALL``
-over 60,000 frames of the ecocar traffic finds 8 cyclic objects, all made once). CPython's
-defaults (thresholds 700, 10, 10) were made for the opposite: a young collection every 700
-surviving allocations, which promotes whatever lives for one scene period (frames and messages
-waiting for a flush) into the older generations, and a full collection every hundred young
-ones, each walking every tracked object: pauses of tens of ms, three a minute (issue #15),
-during which the pipeline and the server (one GIL) stand still. :func:`steady_stream` sets, for
-the time it runs:
-
-* :func:`gc.freeze` of what start-up loaded (databases, profile, schemas, libraries): it lives as
-  long as the process, so no collection walks it again;
-* young and middle collections a little rarer than the defaults (:data:`LIVE_THRESHOLDS`), but
-  still small: a young collection walks what survived since the last one, so its pause grows
-  with the threshold (at 50,000 one young collection of the benchmark's traffic took 22 ms of
-  CPU, more than a full one: long-lived caches filling up survive it);
-* no automatic full collection (its threshold is out of reach): :meth:`Steady.quiet`, called by
-  the live loop where it would sleep until the next read, runs one every
-  :data:`FULL_EVERY_S` seconds, so cycles (a viewer that left, an exception's traceback) are
-  still freed and memory stays flat.
-
-On the way out the process's own settings come back (and the freeze is undone when there was
-none before). Convert needs none of this: :meth:`bridge.pipeline.drive.Drive.run` turns the
-collector off for its loop, which ends.
+:func:`steady_stream` sets, for the time it runs: :func:`gc.freeze` of what start-up loaded;
+young and middle collections a little rarer than the defaults (:data:`LIVE_THRESHOLDS`); no
+automatic full collection, but one every :data:`FULL_EVERY_S` seconds from :meth:`Steady.quiet`,
+which the live loop calls where it would sleep, so cycles are still freed and memory stays flat.
+On the way out the process's own settings come back. Convert needs none of this
+(:meth:`bridge.pipeline.drive.Drive.run` turns the collector off for its loop).
 """
 
 from __future__ import annotations

@@ -1,38 +1,16 @@
 """CAN logs (or a recorded drive) to one decoded, self-contained MCAP drive archive: the engine
-of ``tankviz convert`` (:func:`convert`, the command's function, which ``tankviz batch`` runs per
-drive) and :func:`record_drive`, the conversion of open sources into an open output.
+of ``tankviz convert`` (:func:`convert`, which ``tankviz batch`` runs per drive) and
+:func:`record_drive`, the conversion of open sources into an open output.
 
-The archive holds every raw frame (``/can/<bus>/frames``), every decoded message
-(``/can/<bus>/<Message>``), the bring-up topics unless ``bring_up=False``
-(:mod:`bridge.bringup.monitor`), a ``tankviz`` metadata record (version, inputs, databases with
-their SHA-256, bus → database map, frame and decode statistics, what was skipped in the inputs)
-and every database file as an attachment, so a drive can be decoded again from the MCAP alone.
-What silences a message (a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input
-has) is told when the databases are loaded (``warn``), kept in the report and in the metadata
-(``warnings``).
-
-Re-deriving a drive: an input ending in ``.mcap`` is a drive tankviz recorded
-(:mod:`bridge.io.drives`): its raw frames (``/can/<bus>/frames``, in the order recorded) go through
-the whole pipeline again (:class:`~bridge.pipeline.drive.Drive`): new decode, new scene, new
-health. Without ``--dbc`` the drive's attached databases decode it, on the buses its metadata
-records (every bus for a drive cut short before its metadata); without ``--profile`` its attached
-profile says what the signals mean (a profile given without ``--dbc`` is checked against the
-attached databases, whatever its ``databases`` say). The new ``tankviz`` metadata keeps the
-drive's own under ``source`` (with its file name, size and SHA-256) and its ``created``, and the
-attachments carry a fixed time: the same drive with the same databases and profile gives the same
-bytes. One drive at a time, without logs beside it.
-
-The output is an MCAP: its name must end in ``.mcap``. It is never one of the inputs, by any
-name (a symbolic or hard link), with ``--force`` or not (:func:`bridge.sinks.outputs.check_output`).
-One file given twice (by the same name or another: the same real path or inode) is refused: its
-frames would be recorded twice. Inputs that are one log twice over (the same drive saved as BLF
-and as ASC: their first :data:`OVERLAP_FRAMES` frames, all of them for a shorter log, match one
-for one in id, extended flag and data, with times at most :data:`OVERLAP_TOLERANCE_NS` apart)
-are converted, with a warning naming both (told, in the report and in the metadata's
-``warnings``). The check is cheap (only the first frames of each input are read for it), and the
-bus files or parts of one drive never meet it: they do not start with the same frames.
-
-A conversion that fails leaves no output file (:func:`bridge.sinks.outputs.atomic_output`).
+The archive holds every raw frame, every decoded message, the bring-up topics unless
+``bring_up=False``, a ``tankviz`` metadata record and every database file as an attachment, so a
+drive can be decoded again from the MCAP alone. An input ending in ``.mcap`` is a recorded drive,
+re-derived through the whole pipeline with its attached databases and profile unless others are
+given (:mod:`bridge.pipeline.rederive`); the same drive, databases and profile give the same
+bytes. The output must end in ``.mcap`` and is never one of the inputs by any name; one file
+given twice is refused, one log saved twice (its first :data:`OVERLAP_FRAMES` frames match) is
+converted with a warning. A conversion that fails leaves no output file
+(:func:`bridge.sinks.outputs.atomic_output`).
 """
 
 from __future__ import annotations

@@ -1,46 +1,15 @@
 """A starting profile drafted from the databases alone: what ``tankviz profile new`` writes.
 
 :func:`draft_profile` is a pure function, databases (as cantools loaded them, and the buses they
-are for) -> TOML text. It guesses, by name and unit, what a profile would map, and says on every
-line why. The guessing is in its own modules; this one writes the commented TOML:
-
-- :mod:`bridge.profile.families`: the numbered message families (``RadarPoint{i}_A``,
-  ``TRACK_A_{i}``) and their companions, one object per index.
-- :mod:`bridge.profile.plan`: which groups of families are objects, and their sensors (kind,
-  name) and object groups (tracks, detections).
-- :mod:`bridge.profile.guess`: which signal of a group is position, velocity, existence
-  probability, class, id and validity; units and their factors to SI.
-- :mod:`bridge.profile.ego`: speed, yaw rate, steering wheel angle and lane signals among the
-  other messages.
-
-What it writes:
-
-- **Databases**: ``[profile] databases`` as one list, or a table per bus when buses are given
-  (``{ can0 = [...], can1 = [...] }``), and then ``[buses.BUS] bitrate`` for each (the
-  database's own, else :data:`BITRATE`, a ``TODO (optional)``).
-- **Object groups**: ``[sensors.NAME]`` and ``[objects.GROUP]`` (one or two, see
-  :mod:`bridge.profile.plan`) per group of companion families; the families that do not look
-  like objects are only listed in a comment. With a group of role ``tracks``, ``[lead] source =
-  "tracks"`` chooses the lead among them (no message of the databases gives one).
-- **Sensor placement and sign**: a radar whose distance cannot be negative (by its minimum, else
-  its raw value and scale) looks forward: it is mounted at the front of the drafted car
-  (``length - rear_overhang`` ahead of its rear-axle origin, :data:`CAR`), and the comment says
-  to move it with them; other sensors at the origin. Which way positive lateral values point is
-  taken from the DBC's comment on the signal where it says (``positive to the right``); else the
-  draft says plainly that it is unknown, and that ``tankviz profile check PROFILE DRIVE`` judges
-  it, above ``lateral = "left"`` (the default, not a guess).
-- **Vehicle**: a typical car's length, width, height, origin (the rear axle) and rear overhang,
-  and with a steering angle its wheelbase and steering ratio (:data:`CAR`), each a ``TODO
-  (optional)`` saying what it is used for.
-- **Ego**: speed (the four wheels' mean, with the other speed signal found, a speedometer say,
-  named as the alternative), yaw rate and steering wheel angle (both parts where it comes in
-  two), all converted to SI by ``scale``; ``[lanes]`` steering-only when there is a steering
-  angle (camera lane signals, where some are found, are a TODO).
-
-Every guess carries a comment (``# guessed from the name LatDist and unit m``). What could not be
-found is a comment line ``# TODO: …`` when the profile needs it (an object group without a full
-position: the profile then does not load, and :func:`bridge.profile.loader.load_profile` names
-that line instead of a confusing error) and ``# TODO (optional): …`` otherwise.
+are for) -> commented TOML text: ``[profile] databases`` (per bus when buses are given) and each
+bus's bitrate, ``[sensors]`` and ``[objects]`` per group of companion families, ``[lead]`` from
+the tracks, the sensors' placement and lateral sign (from the DBC's comment where it says, else
+``lateral = "left"`` marked unknown), a typical car's ``[vehicle]``, the ego signals converted to
+SI, and steering-only ``[lanes]``. Every guess says on its line why (``# guessed from the name
+LatDist and unit m``); what could not be found is a ``# TODO: …`` line when the profile needs it
+(:func:`bridge.profile.loader.load_profile` then names that line) and ``# TODO (optional): …``
+otherwise. The guessing is in :mod:`bridge.profile.families`, :mod:`bridge.profile.plan`,
+:mod:`bridge.profile.guess` and :mod:`bridge.profile.ego`.
 """
 
 from __future__ import annotations

@@ -1,45 +1,16 @@
 """Per-drive files: one MCAP per drive in a folder, split into complete parts, flushed often.
 
-A drive is named by its UTC start time (:func:`drive_name`); parts after the first get
-``_partNNN``. :class:`PartsRecorder` is the pipeline's :class:`~bridge.sinks.base.Sink` for
-``tankviz live``: it opens the first part at the first frame, starts each part with the drive's
-attachments (databases, profile: a part cut short still has them), describes and finishes each
-part when it is closed, and notes the bus gaps of the drive. A part's decode statistics
-(``statistics``: frames per bus, decoded messages, unknown ids, …) count that part alone: what
-the describe callback gives (counted from the drive's start) less what the part before ended
-with, so summing over the parts gives the drive.
-
-A full disk never stops the drive. The drives folder is checked when the recorder is made (a
-folder that cannot be written is an :class:`~bridge.errors.OutputError`), and a reserve file
-(``.tankviz-reserve``) is kept in it: ``reserve`` bytes (8 MiB), or half the free space above
-``min_free`` when that is less than twice the reserve. A write that finds the disk full frees the
-reserve and is retried, so the part is then finished cleanly (its summary fits in the reserve);
-so is it, now and then (every ``check_interval_s``), when the free space is below ``min_free``.
-Recording then stops (:attr:`PartsRecorder.disk_full` says why, and
-:meth:`PartsRecorder.take_notices` the lines to tell), nothing is raised to the pipeline, and the
-raw frames that come meanwhile are kept in memory (at most ``backlog_limit``, the oldest not
-recorded and counted; they are kept in their blocks, :mod:`bridge.sinks.raw`).
-
-The rules, with the default reserve (8 MiB) and ``resume_margin`` (1 MiB):
-
-- recording starts when the free space is at least ``min_free`` (``--min-free``), however little
-  is above it (the reserve is then smaller);
-- it stops when the free space is below ``min_free``, or when the disk is full;
-- it resumes, in a new part, when the free space is above ``min_free`` + 9 MiB (the reserve
-  plus the margin). The reserve made again is then at least 4.5 MiB, and that much is recorded
-  before it could stop again: stopping frees the reserve, which never makes the room to resume,
-  so it never flaps. The new part starts with the frames kept; decoded messages and scenes of
-  the pause are not recorded (a ``convert`` of the frames makes them again);
-- when the drive ends while recording is stopped, the frames kept are written into a last part
-  if the free space is above ``min_free`` + ``resume_margin``; else they are not recorded, and
-  the notice says how many.
-
-Each part's metadata lists the pauses so far (``recording_gaps``: ``from_ns``, ``to_ns``,
-``reason``, ``resumed_in`` (the part recording resumed in), ``frames_kept`` (received during the
-pause, recorded at the start of that part), ``frames_not_recorded`` (dropped from a full backlog)
-and ``messages_not_recorded`` (decoded messages and scenes); in the part finished when a pause
-began, ``to_ns`` and the counts are None: not known yet), and the part before and after a pause
-say so on ``/log``.
+:class:`PartsRecorder` is ``tankviz live``'s recorder: a drive is named by its UTC start
+(:func:`drive_name`), parts after the first get ``_partNNN``, and every part starts with the
+drive's attachments and ends described, its decode statistics counting that part alone (they sum
+to the drive's). A full disk never stops the drive: a reserve file (``.tankviz-reserve``) is
+freed so the part finishes cleanly; recording stops below ``min_free`` (nothing is raised; the
+raw frames are kept in memory, at most ``backlog_limit``, the rest counted), resumes in a new
+part above ``min_free`` + the reserve + ``resume_margin`` (so it never flaps), and each part's
+metadata lists the pauses (``recording_gaps``: ``from_ns``, ``to_ns``, ``reason``,
+``resumed_in``, ``frames_kept``, ``frames_not_recorded``, ``messages_not_recorded``).
+:attr:`PartsRecorder.disk_full` says why, :meth:`PartsRecorder.take_notices` the lines to tell.
+A drives folder that cannot be written is an error at once, when the recorder is made.
 """
 
 from __future__ import annotations
@@ -190,12 +161,36 @@ class PartsRecorder(Sink):
     ``attach`` is called with each part's recorder as the part is opened, before its first
     message; ``describe`` is called with each part's recorder and the part's own metadata entries
     (``drive_start``, ``part``, ``bus_gaps``, ``recording_gaps``) just before the part is
-    finished (the decode statistics it writes are made the part's own: module docstring).
+    finished (the decode statistics it writes are made the part's own).
     :meth:`tick` (called often) flushes the current chunk to disk every ``flush_interval``
     seconds, so a power cut loses about that much; a file cut that way is salvaged with
     ``tankviz recover``. A due flush waits for the next scene to be written (at most
     ``flush_wait_s`` more): writing a busy second's chunk takes ~10 ms, and just after a scene
     it delays no scene.
+
+    A full disk, with the default reserve (``reserve``, 8 MiB, or half the free space above
+    ``min_free`` when that is less than twice the reserve) and ``resume_margin`` (1 MiB):
+
+    - a write that finds the disk full frees the reserve and is retried, so the part is finished
+      cleanly (its summary fits in the reserve); so is it, now and then (every
+      ``check_interval_s``), when the free space is below ``min_free``;
+    - recording starts when the free space is at least ``min_free`` (``--min-free``), however
+      little is above it (the reserve is then smaller);
+    - it stops when the free space is below ``min_free``, or when the disk is full; the raw
+      frames that come meanwhile are kept in memory in their blocks (at most ``backlog_limit``,
+      the oldest not recorded and counted);
+    - it resumes, in a new part, when the free space is above ``min_free`` + 9 MiB (the reserve
+      plus the margin). The reserve made again is then at least 4.5 MiB, and that much is
+      recorded before it could stop again: stopping frees the reserve, which never makes the
+      room to resume, so it never flaps. The new part starts with the frames kept; decoded
+      messages and scenes of the pause are not recorded (a ``convert`` of the frames makes them
+      again);
+    - when the drive ends while recording is stopped, the frames kept are written into a last
+      part if the free space is above ``min_free`` + ``resume_margin``; else they are not
+      recorded, and the notice says how many.
+
+    In the part finished when a pause began, ``recording_gaps``' ``to_ns`` and counts are None
+    (not known yet); the parts before and after a pause say so on ``/log``.
     """
 
     records: ClassVar[bool] = True
@@ -219,7 +214,7 @@ class PartsRecorder(Sink):
     backlog_limit: int = 1_000_000
     #: why recording is stopped (the disk is full), None while it records
     disk_full: str | None = None
-    #: recording pauses that ended (module docstring)
+    #: recording pauses that ended (the class docstring)
     recording_gaps: list[dict[str, Any]] = field(default_factory=list)
     frames_dropped: int = 0  # received while stopped and not recorded
     files: list[Path] = field(default_factory=list)
@@ -356,7 +351,7 @@ class PartsRecorder(Sink):
         self._stop(reason)
 
     def _resume(self, *, last: bool = False) -> None:
-        """Recording again, in a new part, if there is room (module docstring; ``last``: the
+        """Recording again, in a new part, if there is room (the class docstring; ``last``: the
         drive ends, any room above ``min_free`` and the margin will do): the frames kept go
         first."""
         free = self.free_space(self.folder)
@@ -494,7 +489,7 @@ class PartsRecorder(Sink):
 
     def finish(self) -> None:
         """Describe and finish the current part (after a last try to record the frames kept
-        while the disk was full: module docstring); the reserve is removed."""
+        while the disk was full: the class docstring); the reserve is removed."""
         if self.disk_full is not None and self._backlog:
             self._resume(last=True)
         self._close()

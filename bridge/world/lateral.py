@@ -2,88 +2,19 @@
 do the vehicles ahead lean into the curves?
 
 A profile's ``lateral = "left" | "right"`` says which way a sensor's positive lateral distance
-(and azimuth) points; a radar DBC rarely says, and a wrong sign mirrors the sensor's whole scene.
-:class:`LateralSignCheck` catches it from a drive, without a camera to compare with, by two
-kinds of evidence: stationary objects while the ego turns clearly (3 deg/s: a city corner, a
-roundabout), and vehicles driving ahead as the road curves (a highway's 1 or 2 deg/s).
-
-**Physics.** The ego drives at speed v (m/s) and turns at yaw rate ω (rad/s, left positive). An
-object standing still in the world at (x, y) in the vehicle frame (x forward, y left) moves in
-that frame at ẋ = -v + ω·y, ẏ = -ω·x: turning left, an object ahead sweeps to the right (its y
-decreases), turning right to the left. A sensor whose lateral sign is wrong reports -y, so its
-stationary objects sweep WITH the turn. Without a yaw rate in the profile, ω is the speed times
-the path curvature of the steering wheel angle through ``[vehicle]`` wheelbase and steering ratio
-(:func:`bridge.world.model.steering_curvature`); without a speed, nothing is judged.
-
-**Stationary.** An object is taken as standing still when its own motion says so: over its
-baseline (below) dx/dt is within ``max(1 m/s, 10 % of v) + |ω·y|`` of -v (the ω·y term allowed
-both ways, since y may be the mirrored one). That alone decides for a group without velocity or
-class (a post, a guard-rail echo, a parked car; a car driving along moves far less, an oncoming
-one twice as fast); it also drops a slot that changed owner (the new object is elsewhere). Where
-the group has more, it must agree too, by the first of:
-
-1. a relative velocity ``vx`` (mapped and observed): vx within the same tolerance of -v;
-2. a class signal: the object's class is ``stationary``.
-
-The lateral sign changes none of these, so a wrong sign cannot hide its own evidence.
-
-**Sweeping.** At each scene tick (:meth:`LateralSignCheck.update`, with the world after
-:meth:`World.expire <bridge.world.model.World.expire>`) each valid object of each group
-(detections or tracks; not the lead vehicle's own messages) is followed by its id. Its motion
-is measured over a baseline of ``baseline_s`` of its own observation times (long enough that a
-radar's position noise does not decide, short enough that the turn is still the same): at the
-end of each baseline, its lateral rate dy/dt over it is compared with the expected -ω·x (x the
-mean over the baseline), and the next baseline starts. It counts as a sample only while the ego
-moves (``speed ≥ min_speed``), turns clearly (``|ω| ≥ min_yaw_rate``), the object stands still
-(above) and the expected sweep is clear (``|ω·x| ≥ min_sweep``); it is *against* the turn (as it
-must be) when dy/dt has the expected sign, *with* it when the opposite; a rate smaller than a
-quarter of the expected one is no sample either way. An object not observed for ``max_gap_s``,
-or whose time jumps back (a clock step), starts its baseline again.
-
-**Leaning.** A vehicle driving along the road x metres ahead, ``d`` to the side of the ego's
-lane, sits at y = d + κ·x²/2 in the vehicle frame, κ = ω/v the road's curvature (the ego
-following its lane): on the inside of the curve. Its d is not known, but it keeps it: as the
-curve comes or goes, its y changes by the change of κ·x²/2, towards the inside of the new curve
-(*into* the curve, as it must); a sensor whose sign is wrong shows it leaning *out* of every
-curve. While the ego drives at ``lean_min_speed`` or more, each valid object with
-``0 < x ≤ lean_max_x`` and ``|κ|·x ≤ lean_max_heading`` (the parabola holds) is followed by its id;
-its observations are averaged over blocks of ``lean_block_s`` (y, the expected lean κ·x²/2 and
-|ω|). A block counts when the object drives along (its dx/dt over the block, and its vx when
-mapped, at least -v/2: not standing, not oncoming) and the yaw rate held steady over the last
-``lean_hold_s`` (within ``lean_steady_share`` of its mean or ``lean_steady_rate``, whichever is
-more: a curve's or a straight road's turn, not a lane change's, whose heading swing would move
-every vehicle ahead). Each block is compared with the latest earlier one of the object within
-``lean_window_s`` whose expected lean differs by ``min_lean`` or more, one of the two turning at
-``lean_min_yaw_rate`` or more: a sample *into* the curve when the object's y moved the expected
-way, *out of* it when the other, none when it moved less than a quarter of the expected change;
-the object's comparisons then start again from this block. An object not observed for
-``max_gap_s`` (or a clock step), one not driving along, and every object while the ego is slower
-or without a yaw rate, start again.
-
-**Verdict** per sensor (all its groups together), from each kind of evidence: ``"ok"`` when
-``agreement`` of at least ``min_samples`` stationary samples are against the turn, or of at least
-``min_lean_samples`` lean samples into the curves; ``"flipped"`` when as many are with the turn,
-or out of the curves. The two together give the verdict when one of them has one, or both the
-same; ``"unknown"`` when neither has one, or they disagree. A straight road (turns below
-``lean_min_yaw_rate``, or not held: lane changes) and a standstill give no samples, so never a
-verdict. :meth:`LateralSignCheck.verdicts` gives each sensor's :class:`LateralVerdict` with a
-one-line message, e.g. ``radar: stationary objects sweep WITH the turn in 412 of 430 samples:
-lateral = "left" looks wrong, try lateral = "right"``, ``radar: vehicles ahead lean into the
-curves in 44 of 44 samples: lateral = "right" agrees``, and when it cannot judge, why, with the
-figures: ``radar: lateral sign not judged: 0 samples of stationary objects while turning (50
-needed): turned at most 2.3°/s (2.9°/s needed) over 60 s; 4 samples of vehicles ahead in curves
-(20 needed)`` (or ``...: no vehicle ahead in a curve (a turn of 0.6°/s or more held for 2 s)``,
-``...: no vehicle driving ahead within 100 m at 10 m/s or more``).
-
-What a verdict not given says of the turns is over the ticks at ``min_speed`` or more: the
-fastest yaw rate then, and their time.
-
-Use: ``check = LateralSignCheck(profile)``; ``check.update(t_ns, world)`` at every scene tick
-(cost: a few float operations per object and a look at the last 2 s of yaw rates, no per-frame
-work); ``check.verdicts()`` at any time, e.g. at the end. The health monitor
-(:mod:`bridge.health.monitor`) runs one per drive, says a ``flipped`` verdict on ``/log`` and
-the drive's metadata carries the final verdicts (``lateral_sign``, shown by ``tankviz
-inspect``).
+points, and a wrong one mirrors the sensor's scene. :class:`LateralSignCheck` judges it from a
+drive, without a camera: turning at yaw rate ω (or the speed times the steering's curvature,
+:func:`bridge.world.model.steering_curvature`), an object standing still at (x, y) must move at
+dy/dt = -ω·x (against the turn), and a vehicle driving ahead in a curve of curvature κ sits at
+y = d + κ·x²/2 (leaning into it); a flipped sensor shows the opposite. Which objects stand
+still is decided from their own motion (and vx or class where mapped), so a wrong sign cannot
+hide its evidence. ``check.update(t_ns, world)`` at every scene tick (no per-frame work);
+``check.verdicts()`` gives each sensor's :class:`LateralVerdict`: ``"ok"`` or ``"flipped"``
+when ``agreement`` of at least ``min_samples`` stationary or ``min_lean_samples`` lean samples
+say so, else ``"unknown"``, always with a one-line message with the figures (what was missing
+when not judged). A straight road, lane changes and a standstill never give a verdict. The
+health monitor (:mod:`bridge.health.monitor`) runs one per drive; docs/profiles.md
+("Lateral sign") tells users the rest.
 """
 
 from __future__ import annotations
@@ -103,7 +34,7 @@ _Held = tuple[int, float, float, int]
 
 @dataclass(frozen=True)
 class LateralSettings:
-    """Thresholds of the lateral sign check (see the module documentation)."""
+    """Thresholds of the lateral sign check (see :class:`LateralSignCheck`)."""
 
     #: m/s: below it the ego is taken as standing (no sample)
     min_speed: float = 3.0
@@ -119,7 +50,7 @@ class LateralSettings:
     baseline_s: float = 0.4
     #: s: an object not observed for longer than this starts its baseline again
     max_gap_s: float = 0.5
-    # vehicles ahead leaning into the curves (the module documentation, "Leaning")
+    # vehicles ahead leaning into the curves (:class:`LateralSignCheck`, "Leaning")
     #: m/s: below it no vehicle ahead is taken as following the road's curves
     lean_min_speed: float = 10.0
     #: rad/s (about 0.6 deg/s): one end of a comparison must turn at least this
@@ -210,7 +141,79 @@ class _Lean:
 
 
 class LateralSignCheck:
-    """Per sensor with object groups: is its lateral sign right? (see the module documentation)"""
+    """Per sensor with object groups: is its lateral sign right?
+
+    **Physics.** The ego drives at speed v (m/s) and turns at yaw rate ω (rad/s, left positive). An
+    object standing still in the world at (x, y) in the vehicle frame (x forward, y left) moves in
+    that frame at ẋ = -v + ω·y, ẏ = -ω·x: turning left, an object ahead sweeps to the right (its y
+    decreases), turning right to the left. A sensor whose lateral sign is wrong reports -y, so its
+    stationary objects sweep WITH the turn. Without a yaw rate in the profile, ω is the speed times
+    the path curvature of the steering wheel angle through ``[vehicle]`` wheelbase and steering
+    ratio (:func:`bridge.world.model.steering_curvature`); without a speed, nothing is judged.
+
+    **Stationary.** An object is taken as standing still when its own motion says so: over its
+    baseline (below) dx/dt is within ``max(1 m/s, 10 % of v) + |ω·y|`` of -v (the ω·y term allowed
+    both ways, since y may be the mirrored one). That alone decides for a group without velocity or
+    class (a post, a guard-rail echo, a parked car; a car driving along moves far less, an oncoming
+    one twice as fast); it also drops a slot that changed owner (the new object is elsewhere). Where
+    the group has more, it must agree too, by the first of:
+
+    1. a relative velocity ``vx`` (mapped and observed): vx within the same tolerance of -v;
+    2. a class signal: the object's class is ``stationary``.
+
+    The lateral sign changes none of these, so a wrong sign cannot hide its own evidence.
+
+    **Sweeping.** At each scene tick (:meth:`LateralSignCheck.update`, with the world after
+    :meth:`World.expire <bridge.world.model.World.expire>`) each valid object of each group
+    (detections or tracks; not the lead vehicle's own messages) is followed by its id. Its motion is
+    measured over a baseline of ``baseline_s`` of its own observation times (long enough that a
+    radar's position noise does not decide, short enough that the turn is still the same): at the
+    end of each baseline, its lateral rate dy/dt over it is compared with the expected -ω·x (x the
+    mean over the baseline), and the next baseline starts. It counts as a sample only while the ego
+    moves (``speed ≥ min_speed``), turns clearly (``|ω| ≥ min_yaw_rate``), the object stands still
+    (above) and the expected sweep is clear (``|ω·x| ≥ min_sweep``); it is *against* the turn (as it
+    must be) when dy/dt has the expected sign, *with* it when the opposite; a rate smaller than a
+    quarter of the expected one is no sample either way. An object not observed for ``max_gap_s``,
+    or whose time jumps back (a clock step), starts its baseline again.
+
+    **Leaning.** A vehicle driving along the road x metres ahead, ``d`` to the side of the ego's
+    lane, sits at y = d + κ·x²/2 in the vehicle frame, κ = ω/v the road's curvature (the ego
+    following its lane): on the inside of the curve. Its d is not known, but it keeps it: as the
+    curve comes or goes, its y changes by the change of κ·x²/2, towards the inside of the new curve
+    (*into* the curve, as it must); a sensor whose sign is wrong shows it leaning *out* of every
+    curve. While the ego drives at ``lean_min_speed`` or more, each valid object with ``0 < x ≤
+    lean_max_x`` and ``|κ|·x ≤ lean_max_heading`` (the parabola holds) is followed by its id; its
+    observations are averaged over blocks of ``lean_block_s`` (y, the expected lean κ·x²/2 and |ω|).
+    A block counts when the object drives along (its dx/dt over the block, and its vx when mapped,
+    at least -v/2: not standing, not oncoming) and the yaw rate held steady over the last
+    ``lean_hold_s`` (within ``lean_steady_share`` of its mean or ``lean_steady_rate``, whichever is
+    more: a curve's or a straight road's turn, not a lane change's, whose heading swing would move
+    every vehicle ahead). Each block is compared with the latest earlier one of the object within
+    ``lean_window_s`` whose expected lean differs by ``min_lean`` or more, one of the two turning at
+    ``lean_min_yaw_rate`` or more: a sample *into* the curve when the object's y moved the expected
+    way, *out of* it when the other, none when it moved less than a quarter of the expected change;
+    the object's comparisons then start again from this block. An object not observed for
+    ``max_gap_s`` (or a clock step), one not driving along, and every object while the ego is slower
+    or without a yaw rate, start again.
+
+    **Verdict** per sensor (all its groups together), from each kind of evidence: ``"ok"`` when
+    ``agreement`` of at least ``min_samples`` stationary samples are against the turn, or of at
+    least ``min_lean_samples`` lean samples into the curves; ``"flipped"`` when as many are with the
+    turn, or out of the curves. The two together give the verdict when one of them has one, or both
+    the same; ``"unknown"`` when neither has one, or they disagree. A straight road (turns below
+    ``lean_min_yaw_rate``, or not held: lane changes) and a standstill give no samples, so never a
+    verdict. :meth:`LateralSignCheck.verdicts` gives each sensor's :class:`LateralVerdict` with a
+    one-line message, e.g. ``radar: stationary objects sweep WITH the turn in 412 of 430 samples:
+    lateral = "left" looks wrong, try lateral = "right"``, ``radar: vehicles ahead lean into the
+    curves in 44 of 44 samples: lateral = "right" agrees``, and when it cannot judge, why, with the
+    figures: ``radar: lateral sign not judged: 0 samples of stationary objects while turning (50
+    needed): turned at most 2.3°/s (2.9°/s needed) over 60 s; 4 samples of vehicles ahead in curves
+    (20 needed)`` (or ``...: no vehicle ahead in a curve (a turn of 0.6°/s or more held for 2 s)``,
+    ``...: no vehicle driving ahead within 100 m at 10 m/s or more``).
+
+    What a verdict not given says of the turns is over the ticks at ``min_speed`` or more: the
+    fastest yaw rate then, and their time.
+    """
 
     def __init__(self, profile: Profile, settings: LateralSettings | None = None) -> None:
         self.profile = profile

@@ -1,40 +1,15 @@
 """Twins and a steady lead: one object seen in two slots is one object, and the lead changes
 only when another object clearly is the lead.
 
-**Twins.** A radar often reports one object in two track slots at once (a real Denso radar:
-56 % of its detections have a twin within a metre). Two objects of one group at one tick are
-twins when they lie within :data:`TWIN_DISTANCE_M` of each other in the ground plane and, where
-both report a longitudinal velocity, their velocities differ by at most :data:`TWIN_SPEED_MPS`
-(two cars side by side in adjacent lanes are 3 m or more apart; a car passing a standing one
-differs in speed). Twins are grouped transitively: :func:`twin_sets` gives each object of a set
-of two or more the ids of the whole set. The world keeps every object; the scene draws a set as
-one object and ``/perception`` says which objects are twins.
-
-**A steady lead** (``[lead] source = "tracks"``: the lead is chosen from the tracks).
-:class:`LeadKeeper` keeps the lead it has until another object clearly is the lead:
-
-- the lead is followed through its twins: when its slot goes and a twin of it stays (within
-  :data:`TWIN_DISTANCE_M` of where the lead would be by its velocity, at the same speed), the
-  lead is that twin, with the same serial number (not a change);
-- it **left the ego lane**: its centre is more than :data:`LEAVE_MARGIN_M` outside the lane
-  lines;
-- it **vanished**: no observation of it (nor of a twin) for more than :data:`GRACE_S`; until
-  then the last observation stands for it;
-- **another object is nearer** by more than :func:`nearer_margin` (:data:`NEARER_MARGIN_M`, or
-  :data:`NEARER_SHARE` of the lead's distance, whichever is larger) in the ego lane, for
-  :data:`NEARER_S` without a break (a car cutting in; a twin of the lead never counts).
-
-Then the new lead is the closest valid track ahead in the ego lane, and the serial number goes
+:func:`twin_sets` groups, transitively, the objects of one group at one tick that lie within
+:data:`TWIN_DISTANCE_M` of each other and, where both have one, differ in longitudinal velocity
+by at most :data:`TWIN_SPEED_MPS`; the world keeps every object, the scene draws a set as one.
+:class:`LeadKeeper` (``[lead] source = "tracks"``) keeps its lead, followed through its twins,
+until it leaves the ego lane (by :data:`LEAVE_MARGIN_M`), vanishes for more than
+:data:`GRACE_S`, or another in-lane object (not a twin) is nearer by :func:`nearer_margin` for
+:data:`NEARER_S`; the new lead is then the closest valid in-lane track, and its ``serial`` goes
 up by one: every change of ``serial`` is a real lead change (``/perception/lead``'s
-``lead_number``, the catalogue's ``lead_changes`` and cut-ins). With no lead, the closest
-in-lane track becomes the lead at once.
-
-The margins were chosen on the simulated highway drive (``tankviz simulate --car highway``,
-modelled on the real radar): its twins lie within 1 m and 0.3 m/s of each other, a cut-in car is
-20 m nearer than the lead it replaces, and a slot drops out for up to a few radar cycles (50 ms
-each). 0.5 s of grace bridges such dropouts and a twin's hand-over; 0.5 s of being nearer by
-5 m is long enough that a twin's jitter (cm) or a car touching the lane line once never takes
-the lead, short enough that the box follows a cut-in while it happens.
+``lead_number``, the catalogue's ``lead_changes`` and cut-ins).
 """
 
 from __future__ import annotations

@@ -3,41 +3,13 @@
 The profile stage of the data path. :class:`Observer` routes each decoded message to what it
 means (an object of a group, a lane line, the lead vehicle, ego motion) and converts positions
 from the sensor's conventions (polar or cartesian, lateral sign, units, mounting pose) into the
-one vehicle frame: x forward, y left, z up.
-
-Every mapped field is read through one interface, whether it is one signal or a value computed
-from several (:data:`bridge.profile.model.Field`): its value from the latest messages. An object's
-fields read its family's latest messages; a lane coefficient its line's message; an ego value the
-latest of the messages it reads, observed whenever one of them comes (a value whose messages have
-not all come yet is left out, as a missing signal is). A field the profile does not map is left
-out of the observation (``None``), never read as 0: a radar that reports vx and no vy gives
-objects without vy, in any lateral sign and mount yaw (:func:`velocity`), and /perception
-carries them without it. A computed value that reads as missing
-(``none``, e.g. a distance whose zero means "no object") leaves the object out, and is no error.
-
-A value that is not finite (+inf, -inf or NaN from an IEEE float signal, or a conversion that
-overflows) never reaches the world: an object without a finite position, a lane line without
-finite coefficients make no observation (the world keeps what it had, until it goes stale); any
-other field (velocity, probability, class, id, an ego signal) is left out of its observation. The
-decoder counts such values (:mod:`bridge.decode.decoder`).
-
-An object is evaluated (its fields read, its computed values and validity rule evaluated) only
-when one of the signals it reads changed since its last observation: a message of its family that
-repeats them (a standing target, an empty slot, a frame whose rolling counter or checksum alone
-changed) makes an observation with the fields, validity and rule error of the last one at the
-time of the newest position. Values equal by ``==`` make the same observation (a field is read
-as value·scale + offset, so -0.0 reads as 0.0; a class or id as an int; a rule compares), and a
-value that is not equal to itself (NaN) is evaluated every time.
-
-The pages of a multiplexed message of an object family (:attr:`ObjectGroup.pages
-<bridge.profile.model.ObjectGroup.pages>`) are merged per object and cycle first
-(:mod:`bridge.world.pages`); each merged cycle is observed as one message. Such messages are
-observed frame by frame (:attr:`Observer.every_frame`).
-
-A validity rule that cannot be evaluated (a division by zero: :meth:`Rule.judge
-<bridge.profile.model.Rule.judge>`) leaves the object or lane line out, as a rule that does
-not hold does; its observation says why in ``rule_error``, and the world counts it per group
-(:class:`bridge.world.model.World`).
+vehicle frame: x forward, y left, z up. A field the profile does not map, or a value that is not
+finite, is left out of the observation (``None``), never read as 0; an object without a finite
+position, or whose computed value reads ``none``, makes no observation. An object is evaluated
+again only when a signal it reads changed (equal by ``==``); otherwise it repeats its last
+observation at the newest time. Multiplexed pages are merged per object and cycle first
+(:mod:`bridge.world.pages`). A validity rule that cannot be evaluated leaves the object out, as a
+rule that does not hold does, and says why in ``rule_error``.
 """
 
 from __future__ import annotations
