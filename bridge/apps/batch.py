@@ -1,25 +1,12 @@
 """``tankviz batch``: the work of ``tankviz convert`` over many drives at once, on Dask.
 
 ``tankviz batch convert INPUTS… --out DIR`` converts CAN logs, ``tankviz batch rederive DRIVES…
---out DIR`` converts tankviz drives (``.mcap``) again, e.g. with a fixed profile. Which files
-make one drive and what its output is called: :mod:`bridge.fleet.batch`. Each drive is one Dask
-task running :func:`bridge.pipeline.convert.convert`, the very function of ``tankviz convert``, on a
-local cluster (``--workers`` processes, one per core by default) or on the cluster at
-``--scheduler``.
-
-It prints one line per drive (``wrote``, with the count of its input issues (a damaged BLF
-container skipped, a line python-can cannot parse, ...); ``skipped``: finished already;
-``failed`` with its one-line error: also a drive whose files are one log saved twice, or a file
-that cannot be read as one, a link to nothing) and a summary
-on stdout, which names every drive with input issues, with their count, the first and
-``tankviz inspect OUTPUT`` for all of them
-(:func:`~bridge.fleet.batch.input_issue_lines`); on stderr where the work runs, the Dask
-dashboard's link and, on a terminal, one progress line for the batch (drives done, frames/s
-overall, ETA by input bytes, and the drives under way that take far longer than their size
-allows: :func:`~bridge.fleet.batch.slow_drives`), fed by the drives' results and by the progress
-events of the drives under way. An output that is one of the inputs by any name is refused
-before anything runs. The exit status is 0 when every drive is written or skipped, else 1 after
-``error: N of M drives failed``.
+--out DIR`` tankviz drives again; each drive (grouped and named by :mod:`bridge.fleet.batch`) is
+one Dask task running :func:`bridge.pipeline.convert.convert`, on a local cluster
+(``--workers``) or at ``--scheduler``. It prints one line per drive (``wrote``, ``skipped``,
+``failed`` with its one-line error) and a summary naming every drive with input issues; on a
+terminal, one progress line. An output that is one of the inputs is refused before anything
+runs. Exit status 0 when every drive is written or skipped, else 1.
 """
 
 from __future__ import annotations

@@ -1,28 +1,14 @@
 """``tankviz profile``: start a vehicle profile from the databases, and check one.
 
-- ``tankviz profile new --dbc [BUS=]PATH [--dbc ...] -o car.toml`` writes the commented starting
-  profile that :func:`bridge.profile.draft.draft_profile` drafts from the databases (loaded with
-  cantools as :mod:`bridge.decode` loads them, each on its bus: an id defined differently on two
-  buses is no conflict), naming them in ``[profile] databases`` relative to the output file, a
-  bundled one by its name (``ecocar.dbc``) (a table per bus, ``{ can0 = [...], can1 = [...] }``,
-  when buses are given; a list otherwise), and says whether it loads as written or which
-  ``# TODO:`` line stops it. An existing file is not overwritten unless ``--force``.
-- ``tankviz profile check car.toml [--dbc ...] [LOG ...]`` loads the profile against the
-  databases (``--dbc``, else the profile's own; a bad name is the loader's one-line error with
-  the closest names) and prints what it maps (:func:`format_mapping`: sensors, object groups
-  with sensor, role, messages, index range and fields, ego, lanes, lead, marks). Given logs
-  (any format ``tankviz convert`` reads), it runs them through the one drive assembly,
-  :class:`~bridge.pipeline.drive.Drive`, with no recording sink, and prints per object group
-  how many objects were valid (distinct ids and observations), their x and y ranges in the
-  vehicle frame, and per sensor the lateral-sign verdict of the drive's health monitor
-  (:class:`~bridge.world.lateral.LateralSignCheck`; :class:`GroupStats`, :func:`format_stats`),
-  and the marks its ``[marks]`` rules made, with their times (:func:`format_marks`).
-  Last come the warnings ``tankviz convert`` prints
-  (:meth:`~bridge.decode.decoder.Decoder.warnings`: a message cantools cannot decode; given logs,
-  a ``--dbc BUS=`` for a bus no log has), one ``warning: …`` line each, so that check is the one
-  place to see everything.
-
-Exit status 0 when the profile is usable, 1 with the error otherwise.
+``tankviz profile new --dbc [BUS=]PATH ... -o car.toml`` writes the commented starting profile
+:func:`bridge.profile.draft.draft_profile` drafts (never over a file unless ``--force``) and says
+whether it loads or which ``# TODO:`` line stops it. ``tankviz profile check car.toml [--dbc
+...] [LOG ...]`` loads it and prints what it maps (:func:`format_mapping`); given logs, it runs
+them through a :class:`~bridge.pipeline.drive.Drive` without recording and prints per object
+group what was seen, per sensor the lateral-sign verdict, and the marks made
+(:func:`format_stats`, :func:`format_marks`); last come the warnings ``tankviz convert`` prints,
+so check is the one place to see everything. Exit status 0 when the profile is usable, 1 with
+the error otherwise.
 """
 
 from __future__ import annotations

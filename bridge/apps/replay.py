@@ -1,27 +1,14 @@
 """``tankviz replay``: a recorded drive (MCAP) or any CAN log, served live in real time.
 
-An MCAP is served as recorded: every channel with its schema, every message at its log time. A
-CAN log goes through the pipeline (decode, profile, scene) as if it came from the bus. A drive
-(MCAP) given with ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live: its raw frames
-(:class:`~bridge.io.drives.ArchiveSource`) go through the pipeline as a log's do, decoded with the
-given databases and profile or else the attached ones (as ``tankviz convert DRIVE.mcap`` does,
-:func:`bridge.pipeline.rederive.rederive_stages`). Either way the server publishes its time (the
-protocol's ``time`` capability), so viewers follow log time.
-
-The input is read in a thread (:func:`~bridge.io.readahead.read_in_thread`): ``--for`` and
-SIGTERM/SIGINT end a replay within a twentieth of a second even while a read is slow or never
-returns. ``--start`` past the end of the drive is a :class:`~bridge.errors.UsageError` naming the
-drive's length (known before serving for an MCAP with its summary, after reading through it for
-CAN logs and a drive cut short). ``--start mark:N`` (the mark numbered N) or ``--start mark:TEXT``
-(the first mark, by number, whose text contains TEXT, in any case) starts :data:`MARK_LEAD_S`
-seconds before one of the drive's marks (:func:`mark_start_s`; at its start for a mark sooner);
-a mark that is not there is one line naming the drive's marks, and CAN logs have none.
-
-The layout to import is named as live names it (:func:`bridge.apps.hints.layout_hint`); for a
-drive (:func:`drive_layout_hint`), those made for its profile beside it in ``layouts/<profile>/``
-when they are there, else the ``tankviz layouts`` command with what the drive was recorded with.
-When a bus first carries an id no database knows, one line names the bring-up layout
-(:func:`bringup_hint`).
+An MCAP is served as recorded; a CAN log goes through the pipeline as if it came from the bus;
+a drive given ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live
+(:func:`bridge.pipeline.rederive.rederive_stages`). The server publishes its time, so viewers
+follow log time. The input is read in a thread (:func:`~bridge.io.readahead.read_in_thread`), so
+``--for`` and SIGTERM/SIGINT end a replay within a twentieth of a second whatever a read does.
+``--start`` past the end is a :class:`~bridge.errors.UsageError` naming the drive's length;
+``--start mark:N`` or ``mark:TEXT`` starts :data:`MARK_LEAD_S` before that mark
+(:func:`mark_start_s`), and a mark not there is one line naming the drive's marks. It names the
+layout to import (:func:`drive_layout_hint`) and, at a first unknown id, the bring-up layout.
 """
 
 from __future__ import annotations

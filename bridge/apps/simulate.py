@@ -1,29 +1,13 @@
 """``tankviz simulate``: a simulated drive written as a file.
 
-``--car`` chooses the car (:data:`CARS`): ``ecocar`` (the default: the student test car, one bus
-``can0``, :func:`bridge.sim.ecocar.simulate`) or ``highway`` (a production car at highway range,
-radar bus ``can1`` and car bus ``can0``, :func:`bridge.sim.highway.simulate_highway`), on the
-road ``--road`` names (the highway car only: one curve, winding, straight, weaving).
-``.mcap`` is the drive converted as ``tankviz convert`` would convert it (with the car's bundled
-profile, the simulation's seed and duration, and a car other than ecocar, in the metadata); any
-other suffix that python-can writes (.blf .asc .log .csv .db, the text formats also gzipped) is a
-CAN log of the same frames, each of them: read back, the log gives exactly the frames written, as
-many as the command says, on the same buses (a bus ``can<N>`` is log channel N, which BLF, ASC
-and TRC number from 1). CSV and SQLite have no channel column: a drive on two buses reads back as
-one ``can0``, and the command warns about it.
-
-A format that cannot hold the drive is refused before anything is simulated, saying why
-(:data:`CANNOT_HOLD`: python-can cannot gzip BLF; :data:`CANNOT_HOLD_FD`: python-can's TRC writer
-skips the ecocar's CAN FD frames).
-CSV and SQLite have no column for the CAN FD flags: their frames keep id, time and every data
-byte, and the command warns about the flags it leaves out. The output is checked before anything
-is simulated and appears only complete: a log is written under a hidden name of the run's own
-(``.NAME_partial_<pid>-<random>.SUFFIX``) and given its name when python-can has written every
-frame (:func:`bridge.sinks.logs.write_log`; an MCAP: :func:`bridge.sinks.outputs.atomic_output`).
-Two runs writing one output never mix their bytes: with ``--force`` the last to finish wins,
-without it the second keeps the first's file and fails saying so
-(:func:`bridge.sinks.outputs.publish`). Stopped by SIGTERM or SIGHUP, it leaves nothing behind, as
-on Ctrl+C. On a terminal it shows its progress as ``convert`` does (:func:`with_progress`).
+``--car`` chooses the car (:data:`CARS`: ``ecocar``, one bus, or ``highway``, two buses, on the
+road ``--road`` names). ``.mcap`` is the drive converted as ``tankviz convert`` would, with the
+car's bundled profile; any suffix python-can writes is a CAN log that reads back exactly the
+frames written, on the same buses (CSV and SQLite: one bus and no CAN FD flags, with a warning).
+A format that cannot hold the drive (:data:`CANNOT_HOLD`, :data:`CANNOT_HOLD_FD`) is refused,
+and the output checked, before anything is simulated. The output appears only complete, two runs
+never mix their bytes (:func:`bridge.sinks.outputs.publish`), and a run stopped by Ctrl+C,
+SIGTERM or SIGHUP leaves nothing behind.
 """
 
 from __future__ import annotations

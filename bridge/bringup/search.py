@@ -1,32 +1,13 @@
 """Find the field of unknown ids that follows a known quantity: every start bit, length (1 to
 32 bits), byte order and sign of each id's payloads, fitted against a reference.
 
-The reference (a signal decoded from the same source, or a CSV of times and values) is
-interpolated to each frame's time; frames outside its span are left out. A field's values are
-fitted as ``reference ≈ scale * raw + offset`` by least squares, and fields are ranked by the
-fit's R² (the share of the reference's variance it explains). An id with more than
-:data:`MAX_ROWS` frames inside the span is sampled evenly (every k-th frame) to that many.
-
-What must not win, and why it cannot:
-
-- a constant field (a constant byte, a bit never set) explains nothing: it has no variance and
-  is never a candidate;
-- a field whose lowest bit never changes is the same field shifted, and a field with constant
-  bits on top is the same values: only the variant whose lowest bit changes is searched, and of
-  equal fits the one with a length that is a whole number of bytes, unsigned, then the shortest
-  is kept (a 16-bit word whose top bits are always 0 is told as the 16-bit word);
-- a counter steps by the same amount (mod its range) from frame to frame: a field whose most
-  common step is not 0 and is taken in :data:`COUNTER_SHARE` of the frames is refused;
-- a checksum (or any field that jumps across its range from frame to frame) is refused where
-  its median step between frames is over :data:`NOISE_STEP` of its range: a physical quantity
-  sampled faster than it changes moves little between frames;
-- a flag (two values at most) is refused unless the reference takes two values at most too;
-- a field that takes in the bits of another below its own lowest bit (a brake switch under a
-  speed word) may fit a hair better by chance: a smooth quantity's lowest bits flip most, so a
-  field whose lowest bit flips less than :data:`LOW_BIT_SHARE` of its busiest bit is refused.
-
-Of the fields left, one per place is told: a field that shares a bit with a better one on the
-same id is a variant of it.
+The reference (a decoded signal, or a CSV of times and values) is interpolated to each frame's
+time; a field is fitted as ``reference ≈ scale * raw + offset`` by least squares and ranked by
+R². Constant fields, shifted or padded variants of a field, counters (:data:`COUNTER_SHARE`),
+checksums and other jumping fields (:data:`NOISE_STEP`), flags (unless the reference has two
+values) and fields that swallow a lower neighbour's bits (:data:`LOW_BIT_SHARE`) never win; of
+fields sharing a bit, only the best is told. An id with more than :data:`MAX_ROWS` frames in the
+reference's span is sampled evenly.
 """
 
 from __future__ import annotations

@@ -1,29 +1,14 @@
 """What a live bus's reading mended or lost before its frames reached the pipeline, and how the
 health monitor (:mod:`bridge.health.monitor`) says so.
 
-:class:`~bridge.io.buses.ReceiveCounts` is one bus's count since the run began (live's
-:class:`bridge.io.buses.BusLink` keeps it):
-
-- ``bad_timestamps``: frames python-can gave with a stamp that is not a time (NaN, infinite,
-  before 1970 or after 2262: a socketcand server sending ``nan``); each was stamped with the time
-  it was received (on the bus's own clock) and kept, so it is recorded; ``last_bad_timestamp``
-  is the latest such stamp as python-can gave it;
-- ``unreadable``: what python-can gave that is not a CAN frame at all, or a datagram a
-  udp_multicast bus could not unpack (skipped, counted, the latest reason in
-  ``last_unreadable``);
-- ``kernel_drops``: frames the kernel dropped because its receive buffer was full (the bridge
-  read too late): the socket's own drop counter, the one ``SO_RXQ_OVFL`` reports, read where
-  python-can exposes the socket (socketcan, udp_multicast); ``receive_buffer_bytes`` is that
-  buffer's size once raised (0: no socket to read);
-- ``missed_estimate``: about how many frames the bus missed while it was down (lost and back):
-  an estimate, its frame rate while up times how long it was down (none before it was up a
-  second); live says each on ``/log`` when the bus is back.
-
-:class:`ReceiveWatch` turns the counts into what the monitor says, in log time: a ``/log``
-warning when a count first grows and then at most every ``REPORT_S`` seconds while it goes on
-(with the count so far), and the alarms ``bus.<bus>.bad_timestamps`` and
-``bus.<bus>.frames_lost``, which hold while their count grew within the last window, are raised
-at once and cleared after the clear time (their message carries the count, so ``/health`` has it).
+:class:`~bridge.io.buses.ReceiveCounts` (kept by live's :class:`bridge.io.buses.BusLink`) counts
+per bus since the run began: ``bad_timestamps`` (stamps that are not a time: restamped with the
+receive time and recorded), ``unreadable`` (skipped), ``kernel_drops`` (the socket's own drop
+counter, where python-can exposes the socket) and ``missed_estimate`` (frames missed while the
+bus was down, an estimate). :class:`ReceiveWatch` says them in log time: a ``/log`` warning when
+a count first grows, then at most every ``REPORT_S`` seconds while it goes on, and the alarms
+``bus.<bus>.bad_timestamps`` and ``bus.<bus>.frames_lost``, raised at once and cleared after the
+clear time.
 """
 
 from __future__ import annotations

@@ -1,34 +1,14 @@
 """Sources: the raw CAN frames of a recorded drive (an MCAP tankviz wrote), and what it holds.
 
-A drive that ``tankviz convert``, ``live`` or ``simulate`` recorded keeps every raw frame on
-``/can/<bus>/frames`` (in blocks, ``tankviz.CanFrameBlock``: :mod:`bridge.sinks.raw`; drives
-recorded before blocks, one ``tankviz.CanFrame`` a message), its databases and profile as
-attachments at the start of the file, and the ``tankviz`` metadata record at its end. With them
-the whole pipeline can run again on the drive (``tankviz convert DRIVE.mcap``, ``tankviz replay
-DRIVE.mcap --profile P``). This module only reads: it gives frames, raw attachment bytes and the
-metadata values; loading databases and a profile from them is the pipeline's and the apps'
-business.
-
-- :func:`is_drive`: a path with the ``.mcap`` suffix is read as a drive, not as a CAN log.
-- :func:`read_drive`: the drive's attachments (name → bytes, in file order), its ``tankviz``
-  metadata (JSON values decoded; empty for a file cut short before it was finished), its marks
-  (:func:`read_marks`), its size and SHA-256. A file that is not an MCAP, or an MCAP without
-  raw-frame topics, is an :class:`~bridge.errors.InputError` naming the file and what it lacks.
-- :class:`ArchiveSource`: every raw frame in the order it was recorded (the order the pipeline saw
-  them when the drive was made: log-time order, with any step back of the clock where it
-  happened, so re-deriving reproduces the drive; blocks are merged back into that order by
-  :class:`BlockMerger`, exact for each bus). The file is streamed record by record, so a drive
-  cut short (a power loss) gives every frame of its complete chunks; where reading stops is one
-  :class:`~bridge.io.logs.SourceIssue` that points to ``tankviz recover``. A block (or frame)
-  whose bytes are not a ``tankviz.CanFrameBlock`` (``tankviz.CanFrame``), and a frame no bus
-  carries (an id of more than 29 bits, a time before 1970 or after 2262, as a log's are
-  skipped), is skipped and reported; the others go on.
-- :func:`raw_frame_counts`: frames per bus a finished drive holds, counted from its blocks.
-- :func:`read_marks` and :func:`drive_marks`: the marks a drive recorded (``/marks``,
-  ``tankviz.Mark``: :mod:`bridge.pipeline.marks`) in the order of their numbers, read through
-  the file's indexes (only the chunks that hold ``/marks`` are read, however long the drive), or
-  streamed from a drive cut short; a ``/marks`` message that is not a ``tankviz.Mark`` is counted
-  and skipped.
+This module only reads. :func:`is_drive` tells a drive by its ``.mcap`` suffix; :func:`read_drive`
+gives its attachments (in file order), its ``tankviz`` metadata (empty for a file cut short), its
+marks, size and SHA-256, and a file that is not a drive is an :class:`~bridge.errors.InputError`
+saying what it lacks. :class:`ArchiveSource` gives every raw frame (``/can/<bus>/frames``, blocks
+or one frame a message) in the order it was recorded, so re-deriving reproduces the drive; a
+drive cut short gives every frame of its complete chunks and one issue pointing to ``tankviz
+recover``; a block or frame that cannot be read, or that no bus carries, is skipped and reported.
+:func:`raw_frame_counts` counts frames per bus; :func:`read_marks` and :func:`drive_marks` read
+``/marks`` in number order, through the indexes where the file has them.
 """
 
 from __future__ import annotations

@@ -1,25 +1,10 @@
 """Why an MCAP file cannot be read, in words a user can act on.
 
-:func:`why_unreadable` is what ``tankviz catalog``, ``inspect`` and ``replay`` say (after the
-file's path) when mcap cannot read a file, instead of what mcap's reader raised (``unknown
-(opcode 111) record has length 1492…``, or nothing at all for an empty file). It looks at the
-file itself, and only reads it:
-
-- ``not a readable MCAP file: empty file``;
-- ``not a readable MCAP file: it starts with b'LOGG\\x0c\\x00\\x00\\x00'…, not with the MCAP
-  magic``, and
-  ``only N bytes, the start of the MCAP magic``;
-- ``not a readable MCAP file: cut at byte N of M (tankviz recover FILE -o FIXED.mcap salvages
-  it)``: N is where the last complete record ends (a recording cut by a power loss or a kill
-  before it wrote its summary);
-- ``… zero bytes from byte N of M (data that never reached the disk) …`` and ``… damaged at
-  byte N of M: no MCAP record starts there …``, with the same advice;
-- a file whose records and footer are all there, but whose summary or a chunk is damaged:
-  ``damaged inside (…)``, with what mcap's error says in a few words; without an error, ``it has
-  no summary``.
-
-The file is walked record by record (headers only) only when it does not end with a footer and
-the closing magic.
+:func:`why_unreadable` is what ``tankviz catalog``, ``inspect`` and ``replay`` say after the
+file's path when mcap cannot read a file: empty, not MCAP (what it starts with), cut at byte N
+of M, zero bytes or damage from byte N, each with the ``tankviz recover`` advice, or damaged
+inside (its summary or a chunk). It only reads the file, and walks its record headers only when
+the file does not end with a footer and the closing magic.
 """
 
 from __future__ import annotations

@@ -1,29 +1,14 @@
 """The one place a drive is assembled: stages from databases and a profile, a pipeline, sinks.
 
-Every command makes its drive here: ``convert`` and ``simulate`` record into a file, ``live``
-and ``demo`` serve viewers and record into a drives folder, ``replay`` serves viewers, the
-layout checks collect what a profile produces. None of them wires stages by hand.
-
-- :func:`load_stages`: the decoder (``--dbc [BUS=]PATH`` options; without any, the profile's own
-  databases) and the profile, every name in the profile checked against the databases.
-- :class:`Drive`: the health monitor, the bring-up stage (:attr:`Drive.bringup`: the
-  ``/can/<bus>/ids``, ``/can/<bus>/unknown`` and ``/can/bits`` topics, on unless
-  ``bring_up=False``) and the :class:`~bridge.pipeline.pipeline.Pipeline` of one drive, its
-  sinks in the order they are added (add the live server first: viewers wait for a scene, the
-  recorder does not), :meth:`Drive.run` for frames (:meth:`Drive.run_blocks` for
-  frames in blocks, as convert reads them), and :meth:`Drive.finish`, which emits what is still
-  due and finishes every sink.
-- :meth:`Drive.attach` and :meth:`Drive.describe`: what makes a recorded drive self-contained:
-  every database and the profile as attachments, and the ``tankviz`` metadata record (version,
-  profile, databases with their SHA-256, bus → database map, the decoder's warnings
-  (``warnings``: what silences a message), decode statistics (with a profile,
-  also the validity rules that could not be evaluated, per group), the alarms raised, each
-  sensor's lateral sign verdict (``lateral_sign``: :mod:`bridge.world.lateral`), the clock
-  steps (``clock_steps``: from and to which log time the frame stamps jumped), and what the
-  command adds in :attr:`Drive.extra`). A file sink made with :meth:`Drive.record`
-  or :meth:`Drive.record_parts` gets the attachments when it starts (each part of a drive: a file
-  cut short by a power loss still has its databases and profile) and is described just before it
-  is finished.
+Every command makes its drive here; none wires stages by hand. :func:`load_stages` loads the
+decoder and the profile, every name checked against the databases. :class:`Drive` holds the
+health monitor, the bring-up stage (on unless ``bring_up=False``) and the
+:class:`~bridge.pipeline.pipeline.Pipeline`, its sinks in the order they are added (the live
+server first: viewers wait for a scene, the recorder does not); :meth:`Drive.run` and
+:meth:`Drive.run_blocks` feed it, :meth:`Drive.finish` emits what is due and finishes every sink.
+A file sink made with :meth:`Drive.record` or :meth:`Drive.record_parts` gets every database and
+the profile as attachments when it (each part) starts, and the ``tankviz`` metadata record
+(:meth:`Drive.describe`, plus :attr:`Drive.extra`) just before it is finished.
 """
 
 from __future__ import annotations

@@ -1,35 +1,15 @@
 """Perception: decoded messages → observations → world → scene and semantic topics, in log time.
 
-:class:`Perception` runs the profile, world and scene stages for convert, replay and live alike.
-It is driven by frame times: call :meth:`advance` with each frame's time (cheap unless a scene
-tick is due) and :meth:`feed` with each decoded message. At each tick of the scene rate it emits
-the scene (``/scene/*``), the semantic topics and the sensor frames for that tick's log time,
-from everything observed before it. Every tick of log time is made, also the ticks of a gap (a
-quiet log, a live pipeline that fell behind on a loaded machine), up to a minute of them; a clock
-step is re-based at once (:meth:`Perception.rebase`, :mod:`bridge.pipeline.clock`), never waited
-out.
-
-Between two ticks :meth:`feed` only notes the newest message of each name; the tick observes
-them. The world keeps the newest observation of each object, lane line and ego signal, and an
-observation always reads the newest values of every message of its family, so the world at the
-tick is the same as if every message had been observed on arrival: the observations in between
-would have been overwritten unseen. (One exception, by design: when a sensor renumbers an object
-twice between two ticks, the number it had in between never shows.) On a busy bus this saves
-observing a message many times per tick, and an object once per message of its family; and an
-object whose signals did not change since its last observation is not evaluated again, only its
-time moves on (:mod:`bridge.world.observe`). The messages of a group without an index range are
-the exception: each frame may be another object (an object list sent one object per frame, its
-id signal says which), so every one of their frames is observed at the tick, in order; so are
-multiplexed object messages, whose pages are merged per object (:mod:`bridge.world.pages`).
-Health counts and decoding stay per frame. Each 3D view gets its own labels
-(``/scene/labels/<view>``, :func:`bridge.scene.camera.view_cameras`).
-
-Two groups that read the same fields of the same messages (one radar's slots as detections and
-as tracks) are observed once (:class:`bridge.world.observe.Observer`); at the tick the second
-takes the first's twins while its objects stand where the first's do
-(:func:`bridge.world.lead.same_twins`), and the first's /perception message, under its own
-name, while they are the very same observations (:func:`bridge.world.observe.copies`): its
-other lifetime can keep an object the first no longer has.
+:class:`Perception` runs the profile, world and scene stages for convert, replay and live alike,
+driven by frame times: :meth:`advance` with each frame's time, :meth:`feed` with each decoded
+message. At each tick of the scene rate it emits the scene (``/scene/*``, labels per 3D view),
+the semantic topics and the sensor frames for that tick's log time, from everything observed
+before it; every tick is made, also a gap's (up to a minute of them), and a clock step is
+re-based at once (:meth:`rebase`). Between ticks only the newest message of each name is kept,
+and the world at a tick is the same as if every message had been observed on arrival (except an
+object renumbered twice between two ticks); a group without an index range and multiplexed
+object messages are observed frame by frame. Two groups that read the same fields of the same
+messages are observed once (:func:`bridge.world.observe.copies`).
 """
 
 from __future__ import annotations

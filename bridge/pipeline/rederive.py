@@ -1,27 +1,14 @@
 """Re-deriving a recorded drive: the stages that decode and draw its raw frames again.
 
-A drive tankviz recorded carries its databases and profile as attachments
-(:meth:`Drive.attach <bridge.pipeline.drive.Drive.attach>`) and, in its ``tankviz`` metadata, the
-buses each database was for (:meth:`Drive.describe <bridge.pipeline.drive.Drive.describe>`).
-:func:`rederive_stages` gives the stages that run it again (``tankviz convert DRIVE.mcap``,
-``tankviz replay DRIVE.mcap --rederive``): the databases of ``--dbc`` options, else the attached
-ones on the buses recorded (on every bus where none are recorded: a drive cut short before its
-metadata); the profile given, else the attached one. A profile is checked against those
-databases, its own ``[profile] databases`` set aside (they were beside it when the drive was
-recorded). An attachment that does not load is named as ``DRIVE.mcap (attached NAME)``, never by
-the temporary file it was written to. :func:`source_record` is what the new drive's metadata says
-of the one it was re-derived from (``source``: file, size, SHA-256, whether complete, and its
-metadata), and keeps its ``created`` (where it has one), so that the same drive re-derived with
-the same databases and profile gives the same bytes. :func:`recorded_scene_rate` is the rate the
-drive was drawn at, which a re-derived drive keeps unless another is given.
-
-A drive's marks (``/marks``) are inputs, as its frames are: :class:`CarriedMarks` gives each
-back to the pipeline before the first frame stamped at or after it (in the order of their
-numbers), with the same number, text and time, its ``/log`` line and its text in the scene made
-again (:func:`~bridge.pipeline.marks.mark_messages`); those after the last frame come at the end.
-A drive's recorded marks are its marks: the car's among them were made by its profile's
-``[marks]`` rules when it was recorded, so the rules make none again (they would double them).
-A drive that has no marks is marked by the rules of the profile it is re-derived with, as a log is.
+:func:`rederive_stages` gives the stages that run a recorded drive again (``tankviz convert
+DRIVE.mcap``, ``tankviz replay DRIVE.mcap --rederive``): the ``--dbc`` databases, else the
+attached ones on the buses recorded; the profile given, else the attached one, checked against
+those databases. An attachment that does not load is named ``DRIVE.mcap (attached NAME)``.
+:func:`source_record` is what the new drive's metadata says of its source, keeping its
+``created``, so the same drive with the same databases and profile gives the same bytes;
+:func:`recorded_scene_rate` is kept unless another is given. :class:`CarriedMarks` gives the
+drive's recorded marks back to the pipeline in time order, with their numbers and texts; the
+profile's ``[marks]`` rules then make none again, unless the drive has no marks.
 """
 
 from __future__ import annotations

@@ -1,26 +1,12 @@
 """Which signal of an object group means what, guessed from its name and unit.
 
-Names are split into lower-case words (:func:`tokens`: ``LongDist`` -> long, dist) and units are
-read by kind (:data:`LENGTH`, :data:`SPEED`, :data:`ANGLE`, :data:`RATE`: each unit's factor to
-metres, m/s, radians, rad/s; :func:`unit_of`). Each pick scores the signals whose words and unit
-fit and takes the best, the first of them on a tie:
-
-- **Position** (:func:`position`): x/y (``LongDist``/``LatDist``, ``X_Rel``) or range + angle
-  (polar; an x-like distance with an angle and no lateral signal is taken as the range). A
-  signal with a unit of another kind, or with words that say it is not a position (sigma,
-  accel, width, offset, …), is none.
-- **Velocity** ``vx``/``vy`` (:func:`pick_velocity`); in a cartesian group, a relative speed with
-  no axis in its name, ``REL_SPEED``, is ``vx`` (:func:`pick_unaxed_velocity`).
-- **Existence probability** (:func:`pick_probability`): ``%``, or a score of 0..100.
-- **Class** (:func:`pick_class`), with ``classes`` from the labels of its value table
-  (:func:`classes_of`: car, pedestrian, two_wheeler, stationary, else unknown).
-- **Id** (:func:`pick_id`): a stable object id.
-- **Validity** (:func:`pick_validity`): a valid flag, a status with a value table, else the
-  distance > 0.
-
-Every pick says why (:func:`guessed_from`: ``guessed from the name LatDist and unit m``). What
-could not be found is a line :data:`TODO` when the profile needs it and :data:`TODO_OPTIONAL`
-otherwise.
+Names are split into lower-case words (:func:`tokens`) and units read by kind with their factor
+to SI (:func:`unit_of`); each pick scores the signals whose words and unit fit and takes the
+best, the first on a tie: position (:func:`position`: cartesian or polar), velocity
+(:func:`pick_velocity`, :func:`pick_unaxed_velocity`), existence probability, class (with
+:func:`classes_of` from its value table), id and validity. Every pick says why
+(:func:`guessed_from`); what could not be found is a :data:`TODO` line when the profile needs it,
+:data:`TODO_OPTIONAL` otherwise.
 """
 
 from __future__ import annotations

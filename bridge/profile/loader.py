@@ -1,31 +1,14 @@
 """Reading and checking a vehicle profile: a TOML file that declares what the DBC signals of one
 car mean, read into a :class:`~bridge.profile.model.Profile` and checked on load.
 
-A team with another car writes a profile, not Python. The format is documented in docs/profiles.md
-("Vehicle profiles"); bridge/data/ecocar.toml is a complete example.
-
-:func:`resolve_profile` takes the path of a profile file or the name of a bundled profile
-(``ecocar`` is bridge/data/ecocar.toml: :func:`bundled_profile`). :func:`load_profile` reads it
-and checks every key, type, value, message and signal name (against the loaded databases);
-:func:`read_profile_databases` reads only the databases the profile names (``[profile]
-databases``: files beside the profile, else bundled ones), so that they can be loaded first.
-
-A mapped field is one signal or a value computed from several: a string that is more than one
-name (it has an operator, a space or a parenthesis) or ``{ value = "...", scale = .., offset =
-.. }`` is an expression (:mod:`bridge.profile.expr`), parsed once here and its names resolved as a
-validity rule's are (:meth:`_Loader.resolve`): plain names must be signals of exactly one of the
-group's messages (of the lane line's message), ``Message.Signal`` names one of them; an ego value
-names ``Message.Signal`` of any message; a ``[marks]`` rule too, or a plain name that is a signal
-of exactly one message of the databases.
-
-Whatever is wrong (no such file or bundled profile, a file that is not TOML, an unknown key, a
-value of the wrong type or out of range (:mod:`bridge.profile.values` reads each value and
-says its limits), a message or signal not in the databases) raises
-:class:`~bridge.profile.model.ProfileError` naming the profile file, the key (for an error in
-one), the bad name and, when some are close, the closest existing names. A profile drafted by
-``tankviz profile new`` (:mod:`bridge.profile.draft`) that fails while it still has ``# TODO:``
-lines (something it needs that the draft could not find) names the first of them instead:
-``car.toml: line 23: TODO: no lateral position found for objects.radar (signals: …)``.
+The format is documented in docs/profiles.md; bridge/data/ecocar.toml is a complete example.
+:func:`resolve_profile` takes a path or a bundled profile's name; :func:`read_profile_databases`
+reads only the databases the profile names, to load them first; :func:`load_profile` checks
+every key, type, value, message and signal name against them, and parses computed values and
+rules once (:mod:`bridge.profile.expr`). Whatever is wrong raises
+:class:`~bridge.profile.model.ProfileError` naming the file, the key, the bad name and the
+closest existing names; a draft (``tankviz profile new``) that fails while it still has ``#
+TODO:`` lines names the first of them instead.
 """
 
 from __future__ import annotations

@@ -1,27 +1,14 @@
 """Vehicle profiles: what the DBC signals of one car *mean*; this module is the model.
 
-A profile names the sensors (mounting pose and conventions), the object groups (detections or
-tracks, by each group's role) bound to families of DBC messages, the lead vehicle, the lane lines,
-the ego signals and the rules that mark the drive (:class:`MarkRule`). Its parts are frozen
-dataclasses (and the enumerations :class:`ObjectClass` and :class:`SensorKind`) that check
-nothing themselves: a :class:`Profile` comes from
-:func:`bridge.profile.loader.load_profile`, which has checked every name in it against the loaded
-databases, and a profile that cannot be used is a :class:`ProfileError` naming the file, the key
-(if any) and what is wrong.
-
-In an object group, message and signal names are templates: ``{i}``, or ``{i:0Nd}`` with a width N
-of one or two digits (zero-padded), stands for the object index (:data:`INDEX_PLACEHOLDER`).
-:func:`expand` fills it in and :meth:`SignalRef.at` gives the reference of one object. A
-:class:`SignalRef` converts linearly, value·scale + offset, and reads as None when its signal is
-missing.
-
-A mapped field (an object's position, velocity, probability, class or id; an ego signal; a lane
-coefficient) is a :data:`Field`: one signal (:class:`SignalRef`) or a value computed from several
-(:class:`Computed`: an expression of :mod:`bridge.profile.expr`, compiled once when the profile
-loads, its names resolved to message and signal as a validity rule's are). Both answer the same
-questions, so that the world reads them alike: :meth:`~SignalRef.value` of the latest decoded
-messages (message name -> signal values), a finite float or None; the ``messages`` it reads; and,
-in an object group, :meth:`~SignalRef.at` an object index.
+A :class:`Profile` names the sensors, the object groups bound to families of DBC messages, the
+lead vehicle, the lane lines, the ego signals and the rules that mark the drive
+(:class:`MarkRule`). Its parts are frozen dataclasses that check nothing themselves: a profile
+comes from :func:`bridge.profile.loader.load_profile`, which has checked every name, and one that
+cannot be used is a :class:`ProfileError`. In a group, names are templates: ``{i}`` or
+``{i:0Nd}`` (:data:`INDEX_PLACEHOLDER`) stands for the object index (:func:`expand`,
+:meth:`SignalRef.at`). A mapped :data:`Field` is one signal (:class:`SignalRef`,
+value·scale + offset) or a value computed from several (:class:`Computed`); both give
+:meth:`~SignalRef.value` of the latest messages as a finite float or None.
 """
 
 from __future__ import annotations

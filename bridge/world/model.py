@@ -1,26 +1,13 @@
 """World: the latest observations with their times, expiring in log time, and what follows.
 
-The world keeps the newest valid observation of each object (per group and object id), the newest
-valid lane lines and the ego state. Objects expire after their group's lifetime, measured in log
-time, so conversion, replay and live agree; when the clock steps, every time held is shifted with
-it (:meth:`World.shift`). From that state it derives the lane model (camera
-lanes while they are fresh, otherwise, and always for a profile without camera lines, lanes
-extrapolated from the steering angle) and the MIO
-check: is the lead vehicle the closest valid track inside the ego lane?
-
-A lane line is drawn from x = 0 to length - 1 m as a polyline within :data:`LANE_TOLERANCE_M`
-(1 cm) of its cubic, with as few points as that needs (:func:`lane_xs`: 2 for a straight line,
-about 20 on a main road's bends). A line whose coefficients (camera) or curvature (steering) are
-the same as at the last tick is that tick's :class:`LaneCurve` object again, not computed anew;
-nothing is rounded to make it so.
-
-Nothing non-finite enters or leaves it: the observer makes no observation with a non-finite position
-or coefficient and leaves non-finite values out (:mod:`bridge.world.observe`), and a lane line whose
-points or coefficients overflow (absurd but finite coefficients, a steering angle at the tangent's
-pole) is not drawn, so the scene never gets a non-finite coordinate. An observation whose validity
-rule could not be evaluated is applied as invalid (the object or line is left out) and counted per
-group in :attr:`World.rule_errors` (lane lines under ``lanes``), with the latest reason in
-:attr:`World.last_rule_error`.
+:class:`World` keeps the newest valid observation of each object (per group and id), the newest
+valid lane lines and the ego state; objects expire after their group's lifetime in log time, so
+convert, replay and live agree, and a clock step shifts every time held (:meth:`World.shift`).
+From it come the lane model (camera lanes while fresh, else lanes extrapolated from the steering
+angle), drawn within :data:`LANE_TOLERANCE_M` of their cubic with as few points as that needs
+(:func:`lane_xs`), and the MIO check. Nothing non-finite enters or leaves it: the scene never gets
+a non-finite coordinate. An observation whose rule could not be evaluated is applied as invalid
+and counted in :attr:`World.rule_errors`.
 """
 
 from __future__ import annotations
