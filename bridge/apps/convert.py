@@ -1,20 +1,10 @@
 """``tankviz convert``: CAN logs to one decoded, self-contained MCAP drive archive.
 
-The conversion itself, and what it checks, writes and re-derives, is
-:func:`bridge.pipeline.convert.convert` (see :mod:`bridge.pipeline.convert`): the archive with
-every raw frame, every decoded message, the ``tankviz`` metadata and the databases attached; a
-recorded drive (``.mcap``) re-derived; the output an MCAP that is never one of the inputs; a file
-given twice refused; inputs that are one log twice over converted with a warning; no output file
-left by a conversion that fails. ``from bridge.apps.convert import convert`` is that function.
-
-The command checks its inputs and output before it prints any warning. What silences a message
-(a message cantools cannot decode, a ``--dbc BUS=`` for a bus no input has) is printed as a
-warning when the databases are loaded and at the end of the summary (:func:`format_report`), as
-are inputs that are one log twice over. ``--sample`` converts the bundled sample drive alone:
-with logs it is refused.
-
-Stopped by SIGTERM or SIGHUP, it unwinds as Ctrl+C does (:class:`~bridge.apps.options.Stopped`): no
-file is left behind, and the command says so and exits with 128 + the signal's number.
+The conversion is :func:`bridge.pipeline.convert.convert` (``from bridge.apps.convert import
+convert`` is that function); this command checks its inputs and output before it prints any
+warning, prints the warnings when the databases load and again in its summary
+(:func:`format_report`), refuses ``--sample`` with logs, and stopped by SIGTERM or SIGHUP unwinds
+as Ctrl+C does: no file left behind, exit status 128 + the signal's number.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
-Besides times, the drive's marks (``/marks``, each with its seconds from the drive's start:
-read through the file's indexes, only the chunks that hold them), topics (raw frames are counted
-in blocks there, and in frames under the decode statistics), attachments and the decode
-statistics it prints what the ``tankviz``
-metadata record says of the drive: inputs, databases, clock steps, bus gaps (a bus lost and back,
-live), recording pauses (the disk was full: when, why, and what was not recorded), warnings, the
-alarms raised and cleared, each sensor's lateral sign verdict (``ok``, ``flipped`` or
-``unknown``, one line per sensor: :mod:`bridge.world.lateral`) and what the inputs could not give
-(:func:`bridge.io.issues.summarize_issues`: a stop first, repeated issues counted together).
-Other metadata records (``tankviz.recover``'s) are printed one entry a line, a JSON map (every
-item) or list as a line per item. Every list that is cut short ends with ``… and N more``.
-
-A file that is missing, unreadable, a folder or not MCAP is an :class:`~bridge.errors.InputError`
-naming it and saying why (one line: :func:`bridge.io.unreadable.why_unreadable`).
+It prints the drive's times, marks, topics, attachments and decode statistics, and what its
+``tankviz`` metadata says (inputs, databases, clock steps, bus gaps, recording pauses, warnings,
+alarms, each sensor's lateral sign verdict, input issues told briefly by
+:func:`bridge.io.issues.summarize_issues`); other metadata records one entry a line. Every list
+cut short ends with ``… and N more``. A file that cannot be read is an
+:class:`~bridge.errors.InputError` saying why (:func:`bridge.io.unreadable.why_unreadable`).
 """
 
 from __future__ import annotations

@@ -1,20 +1,12 @@
-"""Foxglove layouts: the bundled ones (``layouts/*.json``) listed and copied out, layouts
-made for a profile (``tankviz layouts --profile P [--dbc ...] --export DIR``), and the bring-up
-layout of a car without a profile (``tankviz layouts --dbc ... [--bus NAME] [--plot BUS/ID]
---export DIR``: :mod:`bridge.view.bringup`).
+"""``tankviz layouts``: the bundled layouts (``layouts/*.json``) listed and copied out, layouts
+made for a profile (``--profile P``), and the bring-up layout of a car without one
+(``--dbc ...``: :mod:`bridge.view.bringup`).
 
-What ``tankviz layouts`` uses. :func:`bundled_layouts` lists the ``*.json`` files of
-``layouts/`` by name, each with the preview picture beside it if there is one (``tank-viz.png``
-for ``tank-viz.json``, taken by the end-to-end browser test) and its panels in words
-(:func:`summarize`: ``3D, 3 plots, Raw Messages``); :func:`select_layouts` picks some by name
-(an unknown name is an error) and :func:`format_listing` is one line per layout.
-:func:`export_layouts` copies them into a folder (created if needed), overwriting nothing
-unless forced.
-
-Every layout is read with :func:`load_layout`, which refuses (:class:`LayoutError`) a file that
-is missing, is not JSON or is not in Foxglove's layout format
-(:func:`bridge.view.check.check_format`). Whether the topics, frames and message paths a layout
-names are what the bridge produces is checked by :mod:`bridge.view.check`.
+:func:`bundled_layouts` lists the bundled ones with their previews and panels in words
+(:func:`summarize`), :func:`select_layouts` picks some by name (an unknown name is an error),
+:func:`export_layouts` copies them into a folder, overwriting nothing unless forced. Every
+layout is read with :func:`load_layout`, which refuses (:class:`LayoutError`) a file that is
+missing, not JSON or not in Foxglove's layout format (:func:`bridge.view.check.check_format`).
 """
 
 from __future__ import annotations

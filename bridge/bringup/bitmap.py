@@ -1,24 +1,12 @@
 """``/can/bits``: the bit-change map of every id of every bus as one PNG, and its labels.
 
-The image (``foxglove.CompressedImage``, format ``png``) has a header (what it shows, a legend
-of the colours, the bytes' numbers) and a row per (bus, id), sorted by bus and id, named at its
-left (``can0 0x2C4 unknown`` in amber, ``can0 0x0B4 SPEED`` in white), and a column per bit:
-byte 0's bits 7 to 0 (as the byte is written, most significant on the left, so that a
-big-endian field reads from left to right), then byte 1's, up to byte :data:`MAX_BYTES` - 1, a
-thin gap between two bytes. A cell is :data:`CELL` pixels across and :data:`ROW` down, with a
-pixel of gap; its colour is the share of the id's frames in the last second that flipped the
-bit (each frame compared with the id's frame before it): near black for none, dim orange for a
-few, up to white for every frame; bits that never changed since the start are dark blue, and
-bits past an id's payload are the background. The labels are in the image's own pixels
-(:mod:`bridge.bringup.font`): every viewer shows them, at any size. At most :data:`MAX_ROWS` ids
-are drawn (unknown ids first, then the others by bus and id; the header says how many are left
-out), so the image stays within 1200 x 2500 pixels.
-
-``/can/bits/labels`` (``foxglove.ImageAnnotations``, the image's timestamp) holds the same texts
-at their places, for a program (the bring-up layout does not show them: the image has them).
-
-The PNG is written with zlib and struct: 4-bit palette indices (two pixels a byte), each row
-filtered with "up" (a cell's rows after its first are all zeros), a few KB a map.
+The image (``foxglove.CompressedImage``, ``png``) has a header (legend, byte numbers) and a row
+per (bus, id), sorted, named at its left in the image's own pixels (:mod:`bridge.bringup.font`),
+and a column per bit: byte 0's bits 7 to 0, then byte 1's, up to :data:`MAX_BYTES`. A cell's
+colour is the share of the id's frames in the last second that flipped the bit, from near black
+(none) to white (every frame); bits that never changed are dark blue. At most :data:`MAX_ROWS`
+ids are drawn, unknown ones first, so the image stays within 1200 x 2500 pixels.
+``/can/bits/labels`` (``foxglove.ImageAnnotations``) holds the same texts at their places.
 """
 
 from __future__ import annotations

@@ -1,24 +1,12 @@
 """The bring-up layout: a new car's ids, which of them no database knows, and their bits
-(what ``tankviz layouts --dbc ... --export DIR`` writes as ``bring-up.json``, without a profile
-or beside the layouts made for one).
+(what ``tankviz layouts --dbc ... --export DIR`` writes as ``bring-up.json``).
 
-:func:`bringup_layout` makes it for some buses (:func:`bridge.view.generate.database_buses`
-of the databases unless told) from the bring-up topics the pipeline publishes on every drive,
-live or replayed:
-
-- a Table per bus of its ids (``/can/<bus>/ids.rows``: id, message or ``unknown``, frames,
-  period and jitter, lengths, changing bits, the changing bits no signal covers, the bits that
-  changed in the last second), once a second;
-- the bit-change map (an Image panel on ``/can/bits``, a row per bus and id, a column per bit,
-  its labels in the image's own pixels);
-- one unknown id of one bus followed: a Plot of its eight bytes, a Plot of its 16-bit words
-  (big- and little-endian) from one byte on, and its latest payload (Raw Messages). The id is
-  the layout variable ``unknown_id`` (:data:`ID_VARIABLE`) in a message path filter
-  (``/can/can0/unknown{id==$unknown_id}.bytes[3]``): set it in Foxglove's Variables sidebar
-  (``"0x2C4"``, quoted, as the table writes it, or the id in decimal, 708: Foxglove compares
-  loosely). The words' first byte is the variable ``word`` (:data:`WORD_VARIABLE`), set with a
-  slider panel. ``plot_id=(bus, id)`` picks the bus and the id at first (``tankviz layouts --plot
-  can0/0x2C4``); without it, the first bus and no id (the plots are empty until one is set).
+:func:`bringup_layout` makes it for some buses from the bring-up topics every drive publishes: a
+Table of each bus's ids (``/can/<bus>/ids``), the bit-change map (``/can/bits``) and one unknown
+id followed (Plots of its bytes and 16-bit words, its latest payload). The id is the layout
+variable ``unknown_id`` (:data:`ID_VARIABLE`, set in Foxglove's Variables sidebar as ``"0x2C4"``
+or 708), the words' first byte the variable ``word`` (:data:`WORD_VARIABLE`, a slider);
+``plot_id=(bus, id)`` (``--plot can0/0x2C4``) sets them at first.
 """
 
 from __future__ import annotations

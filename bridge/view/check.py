@@ -1,24 +1,15 @@
 """A layout's format, and every topic, frame and message path it names, checked against what
 the bridge produces.
 
-A layout is Foxglove Studio's import/export JSON: ``configById`` (panel id → panel settings,
-the id is ``<PanelType>!<name>``), ``layout`` (the mosaic tree of panel ids),
-``globalVariables``, ``userNodes`` and ``playbackConfig``. :func:`check_format` says what keeps
-data from being a layout Foxglove imports: missing or unknown keys, sections that are not
-objects, panel ids that are not ``<PanelType>!<name>`` or whose type is not one of
-:data:`PANEL_NAMES`, a mosaic tree (also in Tab panels) that is not splits of panel ids, a
-panel placed twice, not placed or without settings, a playback speed that is not positive.
-
-:func:`check_layout` resolves every topic, frame and message path a layout names against what
-the bridge produces for a profile (:mod:`bridge.view.produced`), message paths with
-:func:`~bridge.view.paths.resolve_path`: 3D panels must follow and place frames there are and
-show topics the 3D panel draws (:data:`DRAWABLE`); plots and gauges must read numbers;
-Indicator panels must read one value and have rules that can match it, Log panels must show a
-``foxglove.Log`` topic, Image panels an image with annotations over it; a layout variable a
-path names (``$unknown_id``) or a slider sets must be one of the layout's ``globalVariables``.
-In a layout with user scripts, paths on the topics they publish (:data:`USER_SCRIPT_PREFIX`) are
-not checked. :func:`referenced_topics` is every produced topic
-a layout reads.
+A layout is Foxglove Studio's import/export JSON (``configById``, ``layout``,
+``globalVariables``, ``userNodes``, ``playbackConfig``). :func:`check_format` says what keeps
+data from being a layout Foxglove imports (keys, panel ids of :data:`PANEL_NAMES`, the mosaic
+tree, panels placed once). :func:`check_layout` resolves every topic, frame and message path a
+layout names against what the bridge produces for a profile (:mod:`bridge.view.produced`,
+:func:`~bridge.view.paths.resolve_path`), and checks each panel reads what it can show (3D panels
+:data:`DRAWABLE` topics, plots numbers, Indicators one value their rules can match) and every
+variable a path names is defined; paths on user scripts' topics are not checked.
+:func:`referenced_topics` is every produced topic a layout reads.
 """
 
 from __future__ import annotations

@@ -1,37 +1,15 @@
 """Foxglove layouts made for a profile: profile + databases -> the tank-viz, engineer,
 can-debug and bring-up layouts (what ``tankviz layouts --profile P --export DIR`` writes).
 
-:func:`generate_layouts` builds the first three layouts from what the bridge produces for the
-profile on its buses (:func:`bridge.view.produced.produced`: the advertised topics, the frames and
-the health monitor's own ``/health`` with every alarm it checks), never from a list of ecocar's
-names. The look and panel settings are those of the Tank Viz view (:func:`view_3d`: camera
-behind and above the ``vehicle`` frame, dark background, a grid of 10 m cells):
-
-- ``tank-viz``: two 3D panels with every ``/scene/*`` topic the profile produces and every
-  sensor frame: the seed's close chase view, and beside it the range view, framed from just
-  behind the vehicle to the profile's largest sensor range;
-- ``engineer``: the chase view; plots of the lead vehicle (only with ``[lead]``; its
-  relative speed only where its objects have a velocity: :func:`lead_has_velocity`), of the ego
-  signals the profile maps (speed on its own plot, yaw rate and steering wheel angle on another:
-  no line, and no plot, for what it lacks),
-  of the valid objects of each object group and of each group's message rate, actual vs
-  expected; the lead vehicle and its MIO check (Raw Messages, only with ``[lead]``); the alarm
-  log; one Indicator per alarm the health monitor checks for this profile (:func:`indicator`),
-  in the monitor's order, five to a row;
-- ``can-debug``: plots of the decoded signals the profile reads (ego, the first object of each
-  group, the lane lines' offsets, the lead's own message; every signal a computed field reads)
-  on each bus whose databases define them; per bus a column of its health (its
-  ``bus.<bus>.silent`` and ``bus.<bus>.babbling`` Indicators, frames/s, load, error frames /
-  unknown ids / decode errors) and its raw frames; the Data Source Info panel;
-- ``bring-up``: the ids of each bus, the bit-change map and one unknown id's bytes
-  (:mod:`bridge.view.bringup`: it does not depend on the profile, only on the buses).
-
-The buses are those the databases are given for (``--dbc BUS=PATH``, a profile's
-``databases = { BUS = [...] }``); databases for every bus (``--dbc PATH``) mean ``can0``, the
-bus of a log without channels and of ``tankviz demo`` (:func:`database_buses`), unless
-:func:`generate_layouts` is given the buses. :func:`layout_text` is a layout as it is
-written to a file (the bundled ``layouts/*.json`` are :func:`generate_layouts` of ecocar,
-written so).
+:func:`generate_layouts` builds them from what the bridge produces for the profile on its buses
+(:func:`bridge.view.produced.produced`), never from a list of ecocar's names, so every panel
+reads a topic that exists and nothing the profile lacks is shown: ``tank-viz`` (the Tank Viz
+view, :func:`view_3d`: a chase view and a range view), ``engineer`` (the chase view, plots of the
+lead, the ego signals and the object groups, the alarm log and one Indicator per alarm the
+monitor checks, :func:`indicator`), ``can-debug`` (the decoded signals the profile reads and each
+bus's health and raw frames) and ``bring-up`` (:mod:`bridge.view.bringup`). Databases for every
+bus mean ``can0`` (:func:`database_buses`). :func:`layout_text` is a layout as written to a
+file; the bundled ``layouts/*.json`` are ecocar's, written so.
 """
 
 from __future__ import annotations

@@ -1,21 +1,12 @@
 """Foxglove message paths resolved against what the bridge produces.
 
-:func:`resolve_path` reads a path such as ``/perception/lead.object.x`` (a topic, then fields
-with indexes ``[0]``, slices ``[:]``, filters ``{id==3}`` or ``{id=="radar.silent"}``, and a
-trailing modifier like ``.@derivative``), takes the longest produced topic it starts with
-(:class:`~bridge.view.produced.Produced`), and walks the topic's protobuf descriptor field by
-field, so that a plot of ``/perception/lead.object.x`` is known to read a number of
-``tankviz.LeadVehicle``. It is an error (:class:`~bridge.errors.BridgeError`) when the path
-cannot be read, the topic or a field does not exist, a repeated field is not indexed or a
-single one is, a field is indexed twice, or a filter names no single field or compares it with
-a value of another type. The :class:`Resolved` path says its topic, schema and last field,
-whether a plot can draw it (:data:`NUMERIC_TYPES`) and whether it can give several values.
-
-On a topic with a sample message (``/health``, as the pipeline's own health monitor reports
-it), the path is also followed through the sample: an index past the end or a filter on one of
-:data:`~bridge.view.produced.SAMPLE_KEYS` that matches no element is an error, so a filter on
-``/health`` (``/health.alarms[:]{id=="radar.silent"}.active``) with an alarm id, bus or message
-family the bridge does not have is an error.
+:func:`resolve_path` reads a path such as ``/perception/lead.object.x`` (indexes, slices,
+filters, a trailing modifier), takes the longest produced topic it starts with and walks its
+protobuf descriptor field by field; the :class:`Resolved` path says its topic, schema and last
+field, whether a plot can draw it and whether it gives several values. A path that cannot be
+read, names a field that does not exist, indexes wrongly or filters on a field of another type
+is a :class:`~bridge.errors.BridgeError`; on a topic with a sample message (``/health``) a filter
+on :data:`~bridge.view.produced.SAMPLE_KEYS` that matches nothing is one too.
 """
 
 from __future__ import annotations

@@ -1,23 +1,12 @@
 """Pages: the frames of a multiplexed object message merged into one message per object and cycle.
 
-A radar may send each object in pages of one message (position on page 0, velocity and
-probability on page 1, the object's id in every page); a frame is one page, the value of its
-multiplexor signal(s) says which. :class:`PageMerger` merges the pages of one object (its id,
-or its slot's message in an indexed family) within one of the radar's cycles into one message:
-
-- a page none of whose signals the group reads (a diagnostics page) is left out;
-- a cycle is complete, and observed at once, when it has every signal the group reads;
-- a cycle ends without a page when a page it already has comes again, when the page that opens
-  the radar's cycles comes (the one after the longest pause in the object's frames: learned from
-  the frames, whatever its number) or another after as long a pause, or after
-  :data:`CYCLE_LIMIT_NS`;
-- a cycle that ended without a page is observed with what it has (the fields of the missing page
-  left out) when it has the position and every signal the validity rule reads; otherwise it is
-  not judged: no observation at all, so the world keeps the object's last one until its lifetime
-  ends, rather than passing it on another cycle's values or failing it for want of them.
-
-The time of a merged message is that of the page that carried the position. :class:`PageStats`
-counts the cycles, those that lacked a page and those not judged, for ``tankviz profile check``.
+:class:`PageMerger` merges the pages of one object (by its id, or its slot) within one of the
+radar's cycles into one message, timed by the page that carried the position. Pages the group
+does not read are left out; a cycle is observed at once when complete; a cycle that ends short
+(a page repeats, the cycle's opening page comes, :data:`CYCLE_LIMIT_NS`) is observed with what
+it has if it has the position and every signal the validity rule reads, else not judged at all,
+so the world keeps the object's last observation rather than mixing cycles.
+:class:`PageStats` counts the cycles, those short of a page and those not judged.
 """
 
 from __future__ import annotations
