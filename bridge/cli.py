@@ -1,17 +1,11 @@
 """The ``tankviz`` command line: the top-level parser, with each command's own parser and
-handler loaded from its module in :mod:`bridge.apps` (as cantools' subcommands are).
+handler loaded from its module in :mod:`bridge.apps`.
 
-Only the chosen command's module is imported (with the libraries it needs): ``tankviz --help``
-lists every command from :data:`SUMMARIES` and imports none of them, so a short command does not
-spend its time importing what another command uses (cantools, python-can, mcap, Dask, DuckDB).
-The ``TANKVIZ_*`` settings are checked first, for every command and for ``--help``
-(:func:`bridge.apps.options.check_environment`).
-
-Every user error is a :class:`~bridge.errors.BridgeError`, printed as one ``error: …`` line with
-exit status 1; ``--debug`` shows the traceback instead. So is an error of the system about a file
-(an ``OSError`` naming it: a name too long, no permission, …). A name that is not UTF-8 is shown
-with its bytes as ``\\xNN`` (:func:`~bridge.errors.shown`), in every line a command prints: its
-output streams encode so (:data:`~bridge.errors.SHOWN_ERRORS`).
+Only the chosen command's module is imported (``--help`` imports none: :data:`SUMMARIES`), after
+the ``TANKVIZ_*`` settings are checked (:func:`bridge.apps.options.check_environment`). Every
+user error (a :class:`~bridge.errors.BridgeError`, or an ``OSError`` naming a file) is one
+``error: …`` line with exit status 1 (``--debug``: the traceback); a name that is not UTF-8 is
+shown with its bytes as ``\\xNN`` in every line (:func:`~bridge.errors.shown`).
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """``tankviz catalog``: index an archive of drives into a DuckDB file, and ask it questions.
 
-``tankviz catalog DRIVES... -o CATALOG`` (re)indexes (:func:`bridge.fleet.catalog.index`: only
-new or changed drives are read; ``--workers N`` or ``--scheduler ADDRESS`` read them on Dask) and
-prints one line per drive that could not be indexed (``skipped: <error>``), one per drive a
-recording is writing (``skipped <drive>: being recorded ...``, read once it is finished) and a
-summary line; exit status 1 when a drive was not indexed (one being recorded is not a failure).
-``tankviz catalog query CATALOG "SQL"`` (or ``--alarm ID``, ``--topic T``, ``--mark TEXT``,
-``--between T1 T2``)
-prints the answer as a table, then, for every row with a drive and a log time, the ``tankviz
-replay`` command and the Foxglove time to open it. (A drive file named ``query`` is given as
-``./query``.) ``tankviz catalog --help`` shows the indexing options, ``tankviz catalog query
---help`` the query's.
+``tankviz catalog DRIVES... -o CATALOG`` (re)indexes them (:func:`bridge.fleet.catalog.index`),
+printing one line per drive not indexed and a summary; exit status 1 when a drive failed (one
+being recorded is no failure). ``tankviz catalog query CATALOG "SQL"`` (or a canned question)
+prints the answer as a table, with the ``tankviz replay`` command and Foxglove time that open
+each row's moment.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """What each (bus, id) of a source sends: frames, periods, lengths and how often each bit flips.
 
-A :class:`Census` is fed data frames as columns (:mod:`bridge.bringup.columns`) in their order,
-in as many pieces as come, and keeps per id a :class:`Tally`: how many frames, the gaps between
-them, the payload lengths seen, and per bit how many frames differ in it from the id's frame
-before (a flip). :meth:`Census.rows` tells each id as an :class:`IdRow`, with the message a
-database names it (or none) and the changing bits its signals do not cover.
-
-Gaps are kept whole (for a drive of an hour, 8 bytes a frame), or only those of the latest
-``history`` pieces, or those that end within ``window_ns`` of the id's latest frame (live: the
-latest seconds). A payload shorter than the id's widest counts its
-missing bytes as zeros. A clock stepping back gives no gap (the gap after a step forward is
-kept).
+A :class:`Census` is fed data frames as columns (:mod:`bridge.bringup.columns`) in as many
+pieces as come, and keeps per id a :class:`Tally`; :meth:`Census.rows` tells each id as an
+:class:`IdRow`, with its database message (or none) and the changing bits no signal covers. Gaps
+are kept whole, or those of the latest ``history`` pieces or ``window_ns``; a short payload
+counts its missing bytes as zeros; a clock stepping back gives no gap.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """What the health monitor (:mod:`bridge.health.monitor`) counts per bus and per message family,
 and the figures of ``/health`` it makes of those counts.
 
-- :class:`BusCounts`: one bus's frames, bits on the wire (:mod:`bridge.health.wire`), error
-  frames, unknown ids, decode errors, non-finite values, gaps and frames per id, since its first
-  frame; :func:`bus_figures` makes them ``tankviz.BusHealth`` over the last window (rates, load,
-  the busiest id) and :func:`bus_conditions` gives the bus alarms that hold
-  (``bus.<bus>.silent``, ``bus.<bus>.babbling``) with their reasons.
-- :class:`FamilyCounts`: one message family of the profile (an object group, the lead, the lane
-  lines, the ego signals): its frames, their times, valid objects and failed validity rules;
-  :func:`family_figures` makes them ``tankviz.FamilyHealth``.
-- :class:`Snapshot`: every count at one check; rates over a window are the counts now minus those
-  of the snapshot a window ago.
-
-Times are log time (integer nanoseconds): :data:`NEVER` is before every one, :data:`UNKNOWN` a
-gap threshold that is never exceeded.
+:class:`BusCounts` (frames, bits, errors, unknown ids, gaps, frames per id) becomes
+``tankviz.BusHealth`` by :func:`bus_figures` and the bus alarms that hold by
+:func:`bus_conditions`; :class:`FamilyCounts` becomes ``tankviz.FamilyHealth`` by
+:func:`family_figures`; rates over a window are the counts now less a :class:`Snapshot`'s a
+window ago. Times are log time in integer nanoseconds (:data:`NEVER`, :data:`UNKNOWN`).
 """
 
 from __future__ import annotations

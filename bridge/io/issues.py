@@ -1,19 +1,11 @@
 """What the inputs of a drive could not give, as a short list to print.
 
-:func:`summarize_issues` is a pure function from the issues of a drive's inputs (the
-:class:`~bridge.io.logs.SourceIssue` objects of a conversion, or their one-line texts as the
-``input_issues`` metadata keeps them) to the lines to print:
-
-- the gravest first: a stop (the reading of a file ended there: a file cut short, a record that
-  cannot be read) before a stretch of damage skipped, before one line or frame skipped, before a
-  note. An issue's ``kind`` says which; a text (or an issue without a kind) is a stop when it says
-  ``stopped``, ``cut`` or ``truncat…``, damage when it says ``damaged``, else a skip;
-- issues of one file, kind and family (an issue's ``group``, or its reason with the numbers and
-  quoted parts made ``…``) are one line: the family, how many times and where the first ones
-  are (``log.asc: skipped a line …: … (120 times: line 3, line 9, line 12, …)``); an issue
-  alone is its own text;
-- at most ``limit`` lines; a list that is cut ends with ``… and N more`` (N: the issues left
-  out, counting those ``total`` says there were beyond the ones given).
+:func:`summarize_issues` is a pure function from a drive's input issues (the
+:class:`~bridge.io.can_logs.SourceIssue` objects, or their texts as the ``input_issues``
+metadata keeps them) to at most ``limit`` lines: the gravest first (a stop, then damage skipped,
+then a line or frame skipped, then a note), the issues of one file, kind and family on one line
+with their count and first places (``log.asc: skipped a line …: … (120 times: line 3, …)``), and
+a cut list ending with ``… and N more``.
 """
 
 from __future__ import annotations

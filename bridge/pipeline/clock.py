@@ -1,18 +1,12 @@
 """Clock steps: a car's clocks jump (an NTP correction at boot, an adapter reset, a logger with a
 wrong date), and log time comes from the frames.
 
-:class:`StepDetector` is the one detector convert and live use alike. It follows log time: the
-newest frame stamp, and (live) the log time the pipeline's clock reached without a frame
-(:meth:`StepDetector.passed`). A frame stamped more than ``back_ns`` before it, or more than
-``forward_ns`` after it, is a step (:class:`ClockStep`): from the log time before to the frame's
-stamp. Live knows log time from the wall clock too, so a step a few seconds ahead is told from a
-quiet bus; a log has only its frames, so there a jump ahead is a step only when it is longer than
-any gap the checks catch up (a minute: :data:`LOG_FORWARD_NS`), and shorter ones are gaps.
-
-Everything that runs on log time re-bases at a step (the pipeline shifts its scene ticks, health
-windows and object lifetimes by :attr:`ClockStep.shift_ns`, as if no time had passed), never
-waiting for the log to catch up. Every frame keeps its own stamp; the step is said on ``/log``
-(:meth:`ClockStep.log`) and listed in the drive's metadata (:meth:`ClockStep.to_dict`).
+:class:`StepDetector`, the one detector of convert and live, calls a frame stamped more than
+``back_ns`` before log time, or more than ``forward_ns`` after it, a step (:class:`ClockStep`);
+in a log, a jump ahead is a step only beyond :data:`LOG_FORWARD_NS`, shorter ones are gaps.
+Everything on log time re-bases at a step by :attr:`ClockStep.shift_ns`, never waiting for the
+log to catch up; every frame keeps its own stamp, and the step is said on ``/log`` and listed in
+the drive's metadata.
 """
 
 from __future__ import annotations

@@ -1,17 +1,11 @@
 """Numbered message families and their companions: the object slots a database sends.
 
-A **family** is messages whose names differ only by one number and whose signals have the same
-names (``RadarPoint{i}_A``, ``Target{i}``, ``Object_{i:02d}``, ``RADAR_TRACK_{i}`` with
-361..366): at least :data:`MIN_FAMILY` of them, the longest run of consecutive numbers
-(:func:`find_families`). A number repeated inside signal names (``FwdVsnRngTrk{i}Rev``) is part
-of the template, where that makes more members alike; a zero-padded family (``Object_{i:02d}``)
-also holds its unpadded members of the same width (``Object_10``). Where two candidate families
-claim the same message, the one with the wider span of numbers keeps it.
-
-Families with the same numbers whose names differ only after the number (``Obj{i}_A`` and
-``Obj{i}_B``) or in a one-letter part before it (``TRACK_A_{i}`` and ``TRACK_B_{i}``:
-:func:`stem`) are **companions**, one group (:func:`group_families`): the messages of one index
-are one object.
+A **family** (:func:`find_families`) is at least :data:`MIN_FAMILY` messages whose names differ
+only by one number, the longest run of consecutive numbers, whose signals have the same names
+(``RadarPoint{i}_A``, ``Object_{i:02d}``); where two claim a message, the wider span keeps it.
+Families with the same numbers whose names differ only after the number or in a one-letter part
+before it (:func:`stem`: ``TRACK_A_{i}``, ``TRACK_B_{i}``) are **companions**
+(:func:`group_families`): the messages of one index are one object.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """What the drafted profile's sensors and object groups are, from the groups of companion families.
 
-- **Object groups** (:func:`object_groups`): a group of companion families is one of objects when
-  it has a position-like signal or its name says objects (``TRACK``, ``Obj``, ``Target``, …);
-  the others (battery cells, say) are only listed in a comment. Each is named after the name
-  before its index in snake case (``ego_objects`` where that is a table of the profile), the
-  family with the position first. Its signals are written plain where only one family has
-  them, else as ``Message.Signal`` (:class:`Group`).
-- **Sensors** (:func:`plan_sensors`): one per group, its kind from the names (vision/camera,
-  fusion, else radar), named ``radar`` when the names say only "objects" (``TRACK``,
-  ``Target``, ``Object``). Where the names say track or an object id signal is found, the
-  group's role is ``tracks``; a radar's track slots are then also a detections group beside
-  it, named after the sensor (or ``GROUP_detections``).
+:func:`object_groups` takes a group of companion families as objects when it has a position-like
+signal or its name says objects, and names it after its messages in snake case;
+:func:`plan_sensors` makes one sensor per group, its kind (camera, fusion, else radar) and role
+(``tracks`` where the names say so or an id signal is found, with a detections group beside a
+radar's tracks) from the names.
 """
 
 from __future__ import annotations

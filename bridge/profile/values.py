@@ -1,19 +1,12 @@
 """Reading the values of a profile's TOML: each of the right type and within its range, or one
 line naming the file, the key and what is wrong.
 
-:class:`ValueReader` holds the profile's path and reads a table (only the keys allowed, the
-required ones there: an unknown key names the closest allowed ones), a section (a table of
-names the user chooses), a number (finite; positive or not negative where asked; within the
-limits below where it is a time, a distance or a bitrate the drive computes with) and a string
-(one of its choices where it has some); every problem is a
-:class:`~bridge.profile.model.ProfileError` (:meth:`ValueReader.fail`). :func:`closest` names
-the likely meant names, :func:`type_name` what a wrong value is.
-
-The limits (a profile value past them is refused: a 1e10 s lifetime would overflow the scene's
-64-bit nanoseconds, a 1e10 m lane would never be drawn): times at most :data:`MAX_SECONDS`,
-distances :data:`MAX_METRES`, the vehicle's sizes and offsets :data:`MAX_VEHICLE_METRES`,
-bitrates :data:`MAX_BITRATE`; :data:`SECONDS`, :data:`DISTANCE`, :data:`VEHICLE` and
-:data:`BITRATE` are the keyword arguments of :meth:`ValueReader.number` that apply them.
+:class:`ValueReader` reads tables (only the allowed keys: an unknown one names the closest),
+sections, numbers (finite, of the sign asked, and within :data:`MAX_SECONDS`,
+:data:`MAX_METRES`, :data:`MAX_VEHICLE_METRES` or :data:`MAX_BITRATE` where the keyword
+:data:`SECONDS`, :data:`DISTANCE`, :data:`VEHICLE` or :data:`BITRATE` asks, so no value can
+overflow the drive's arithmetic) and strings (one of their choices); every problem is a
+:class:`~bridge.profile.model.ProfileError`.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """What the bridge produces for a profile: its topics with their schemas, its frames, and samples.
 
-:func:`produced` assembles the drive (:class:`~bridge.pipeline.drive.Drive`) with one sink that
-keeps what the live pipeline announces (:meth:`~bridge.pipeline.pipeline.Pipeline.advertise`), so
-the topics are every topic the live pipeline advertises (and records): the scene, perception and
-health topics, /log, /marks, and per bus the raw frames and every message its databases define,
-each with the protobuf message descriptor built from the FileDescriptorSet it is advertised with
-(:func:`descriptor_of`). The frames are the vehicle frame of :mod:`bridge.topics` and the profile's
-sensors. The samples hold, for a topic whose repeated elements are known in advance, one message to
-check message path filters against: ``/health`` as the pipeline's own health monitor reports it once
-every bus has carried a frame (:func:`health_sample`), with every bus, message family, sensor pair
-and alarm it has. :data:`SAMPLE_KEYS` names the fields that say which element of a sample's repeated
-field an element is.
-
-:func:`bundled_produced` is what the bundled profile produces on bus can0 (the bus of the
-simulated car and ``tankviz demo``).
+:func:`produced` assembles the drive (:class:`~bridge.pipeline.drive.Drive`) and keeps what the
+live pipeline advertises: every topic it records, with its protobuf descriptor
+(:func:`descriptor_of`), the vehicle frame and the sensors' frames, and sample messages to check
+message path filters against (``/health`` with every bus, family, sensor pair and alarm:
+:func:`health_sample`, :data:`SAMPLE_KEYS`). :func:`bundled_produced` is the bundled profile's,
+on bus can0.
 """
 
 from __future__ import annotations
