@@ -1,13 +1,10 @@
 """Health alarms: the settings of the checks, what an alarm is about, and an alarm's hysteresis.
 
-:class:`HealthSettings` holds the thresholds and timing of every health check, in seconds of log
-time; each must be a positive number, ``rate_threshold`` below 1 and ``babble_share`` at most 1
-(else :class:`~bridge.errors.UsageError`).
-
-An alarm's id names its subject and its kind (:class:`AlarmKind`; ``tankviz.AlarmKind`` in
-``/health``): :func:`alarm_id` makes every id, and this is the one table of them. The subject is
-a sensor (or ``ego``, for the ego signals), a pair of sensors, ``lanes``, a bus or ``recorder``;
-the health monitor (:mod:`bridge.health.monitor`) checks when each condition holds:
+:class:`HealthSettings` holds the thresholds and timing of every check, in seconds of log time
+(a value out of range is a :class:`~bridge.errors.UsageError`). :func:`alarm_id` makes every
+alarm id, its subject and its kind (:class:`AlarmKind`, ``tankviz.AlarmKind`` in ``/health``);
+this is the one table of them, and the health monitor (:mod:`bridge.health.monitor`) checks when
+each holds (live's last two: :mod:`bridge.health.receive`):
 
 ============================  ==================  ================================================
 id                            kind                holds when
@@ -41,23 +38,13 @@ id                            kind                holds when
                                                   came within the last window
 ============================  ==================  ================================================
 
-The last two are live's (:mod:`bridge.health.receive`), raised at once and made when first
-needed; ``/health``'s ``BusHealth`` also has their counts since the start
-(``bad_timestamps_total``, ``receive_dropped_total``).
-
-What is told about an alarm outside the monitor's own ``/log`` lines (the recorder's
-``recorder.disk_full``) is a :class:`Notice`, a line with its ``/log`` level:
-:func:`alarm_notice` makes ``<id>: <what>`` (a warning) and ``<id> cleared: <what>`` (info).
-
-:class:`Alarm` is one alarm and its hysteresis, in log time. Fed its condition at each check
-(:meth:`Alarm.update`), it is raised once the condition has held for its raise time
-(``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``; at once for live's two) and cleared
-once the condition has been gone for its clear time (``clear_after_s``); a condition that stops
-holding before it raises, or comes back before it clears, starts that wait again. Its message
-is the latest reason the condition held. It counts how often it was raised and knows since when
-it is active (or, once cleared, since when it is not): :meth:`Alarm.to_pb` is it as
-``tankviz.Alarm`` for ``/health``, and :meth:`Alarm.info` as :class:`AlarmInfo`, which the monitor
-gives the scene overlay (:mod:`bridge.health.overlay`) for each active alarm.
+:class:`Alarm` is one alarm's hysteresis in log time: raised once its condition has held for its
+raise time (``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``; at once for live's two),
+cleared once it has been gone for ``clear_after_s``, either wait starting again when the
+condition flips back; it keeps its latest reason and how often it was raised, and gives itself as
+``tankviz.Alarm`` (:meth:`Alarm.to_pb`) and to the overlay (:meth:`Alarm.info`). An alarm told
+outside the monitor's ``/log`` (``recorder.disk_full``) is a :class:`Notice`
+(:func:`alarm_notice`).
 """
 
 from __future__ import annotations
