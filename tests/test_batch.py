@@ -37,10 +37,10 @@ from bridge.fleet.batch import (
     progress_line,
 )
 from bridge.frame import Frame
-from bridge.io.logs import supported_suffixes
+from bridge.io.can_logs import supported_suffixes
 from bridge.pipeline.convert import convert
 from bridge.sim.ecocar import simulate
-from bridge.sinks.logs import write_log as write_sim_log
+from bridge.sinks.can_log_writer import write_log as write_sim_log
 
 VENV_BIN = Path(sys.executable).parent
 LOGS = tuple(supported_suffixes())

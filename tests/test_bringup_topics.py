@@ -42,7 +42,7 @@ from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.highway import simulate_highway
 from bridge.sim.highway_body import BRAKE_ID, CAR_IDS, CONSTANT_ID, HEARTBEAT_ID, RADAR_IDS
 from bridge.sinks.base import Serialized, Sink
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 from bridge.topics import BITS_LABELS_TOPIC, BITS_TOPIC, ids_topic, unknown_topic
 
 UNKNOWN = {"can0": set(CAR_IDS), "can1": set(RADAR_IDS)}

@@ -19,8 +19,8 @@ from mcap_protobuf.decoder import DecoderFactory
 from bridge.apps.inspect import format_summary, summarize, summarize_file
 from bridge.errors import InputError, OutputError
 from bridge.frame import Frame
+from bridge.io.can_logs import LogSource
 from bridge.io.drives import BlockMerger, block_frames
-from bridge.io.logs import LogSource
 from bridge.pipeline.convert import convert, record_drive
 from bridge.pipeline.drive import build_decoder
 from bridge.topics import BITS_LABELS_TOPIC, BITS_TOPIC

@@ -24,7 +24,7 @@ from bridge.decode import decoder as decoder_module
 from bridge.decode.compiled import compile_column_decoder, compile_decoder
 from bridge.decode.decoder import Decoded, Decoder, load_database
 from bridge.frame import Frame
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 from bridge.resources import data_dir
 
 

@@ -28,7 +28,7 @@ from bridge.cli import main
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.resources import data_dir
 from bridge.sim.highway import ROADS, ego_at, simulate_highway
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 from bridge.world.lateral import LateralSettings, LateralVerdict
 
 FLIPPED = "left"  # the radar's LAT_DIST is positive to the right: "left" mirrors its scene

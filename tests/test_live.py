@@ -31,12 +31,12 @@ from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec, ReadSchedule, merge_batches
 from bridge.io.drives import ArchiveSource, raw_frame_counts
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.pipeline.live import Live
+from bridge.pipeline.live_engine import Live
 from bridge.sim.ecocar import simulate
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.drives import PartsRecorder, drive_name
 from bridge.sinks.raw import cut
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 
 
 def frames_recorded(path: Path) -> int:
@@ -266,7 +266,7 @@ def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it(tmp_path: Pat
     ego = [event[0] for event in events if event[1] == "/scene/ego"]
     assert len(ego) >= 2 * 3  # three ticks at least
     assert ego == ["served", "recorded"] * (len(ego) // 2)
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         live = Live([BusSpec("can0", "virtual", "order")], load_stages([], "ecocar"),
                     drives=tmp_path, server=server)
         assert live.pipeline.sinks == [server, live.recorder]
@@ -274,7 +274,7 @@ def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it(tmp_path: Pat
 
 def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
     """One viewer never reads, another gets the scene at the scene rate, every frame is kept."""
-    with LiveServer(port=0, queue_limit=50) as server:
+    with ViewerServer(port=0, queue_limit=50) as server:
         live, runner, channel = run_live_on_virtual_bus("stall", tmp_path, server=server,
                                                         scene_rate=50)
         scenes: list[bytes] = []

@@ -24,7 +24,7 @@ from bridge.io.buses import BusSpec
 from bridge.io.drives import ArchiveSource
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, load_stages
-from bridge.pipeline.live import Live
+from bridge.pipeline.live_engine import Live
 from bridge.pipeline.marks import MarkAsked, MarkWatch
 from bridge.pipeline.pipeline import Pipeline
 from bridge.profile.expr import parse

@@ -27,7 +27,7 @@ from bridge.io.buses import BusSpec
 from bridge.io.drives import drive_marks, mark_time
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import load_stages
-from bridge.pipeline.live import Live
+from bridge.pipeline.live_engine import Live
 from bridge.pipeline.marks import MarkAsked, describe
 from bridge.sim.ecocar import simulate
 from bridge.sinks.base import Serialized, Sink

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 import websockets
 
-from bridge.sinks.server import LiveServer, ViewerMark
+from bridge.sinks.server import ViewerMark, ViewerServer
 from bridge.sinks.server.viewer_input import (
     CHANNELS_PER_VIEWER,
     MARK_BYTES,
@@ -236,7 +236,7 @@ async def mark_once(url: str, content: Any) -> tuple[dict[str, Any], list[dict[s
 
 
 def test_a_live_server_hands_each_mark_to_the_drive_with_the_viewers_address() -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         marks: list[ViewerMark] = []
         server.on_mark = marks.append
         info, statuses, address = asyncio.run(mark_once(server.url, {"text": "ghost",
@@ -247,13 +247,13 @@ def test_a_live_server_hands_each_mark_to_the_drive_with_the_viewers_address() -
 
 
 def test_before_the_drive_takes_marks_a_mark_is_refused_with_a_status() -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         _, statuses, _ = asyncio.run(mark_once(server.url, {"text": "early"}))
     assert [s["message"] for s in statuses] == ["no drive is taking marks now"]
 
 
 def test_a_replay_takes_no_marks() -> None:
-    with LiveServer(port=0, server_time=True, mode="replay") as server:
+    with ViewerServer(port=0, server_time=True, mode="replay") as server:
         marks: list[ViewerMark] = []
         server.on_mark = marks.append
         info, statuses, _ = asyncio.run(mark_once(server.url, {"text": "ghost"}))
@@ -264,7 +264,7 @@ def test_a_replay_takes_no_marks() -> None:
 
 
 def test_a_message_over_a_mebibyte_closes_its_viewers_connection_only() -> None:
-    from bridge.sinks.server.live import VIEWER_MESSAGE_BYTES
+    from bridge.sinks.server.viewer_server import VIEWER_MESSAGE_BYTES
 
     async def too_big(url: str) -> int | None:
         async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
@@ -276,7 +276,7 @@ def test_a_message_over_a_mebibyte_closes_its_viewers_connection_only() -> None:
             except websockets.ConnectionClosed as closed:
                 return closed.rcvd.code if closed.rcvd else None
 
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         marks: list[ViewerMark] = []
         server.on_mark = marks.append
         assert asyncio.run(too_big(server.url)) == 1009  # (websockets: message too big)

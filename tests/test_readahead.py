@@ -21,7 +21,7 @@ from conftest import ECOCAR_DBC, T0, WriteLog, summary_counts
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
-from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.io.can_logs import LogSource, SourceIssue, merge
 from bridge.io.readahead import ReadAhead, can_fork
 from bridge.pipeline.convert import convert, record_drive
 from bridge.pipeline.drive import load_stages

@@ -18,7 +18,7 @@ from bridge.block import MAX_BUSES, FrameBlock
 from bridge.errors import InputError
 from bridge.frame import Frame
 from bridge.io import readahead
-from bridge.io.logs import LogSource, SourceIssue, merge
+from bridge.io.can_logs import LogSource, SourceIssue, merge
 from bridge.io.readahead import BATCH, ReadAhead
 
 

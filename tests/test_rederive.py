@@ -34,7 +34,7 @@ from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
 BOSCH = PROFILES / "bosch_radar.toml"
@@ -269,7 +269,7 @@ def test_replay_serves_the_re_derived_scene_live(bosch_drive: Path, shared_dbc: 
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
     stop = threading.Event()
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
         payloads = watch(server, "/scene/radar", stop, lambda: replay_drive(
             bosch_drive, stages, server, speed=4.0, loop=True, stopping=stop))
     ys = set()
@@ -279,7 +279,7 @@ def test_replay_serves_the_re_derived_scene_live(bosch_drive: Path, shared_dbc: 
     assert ys == {-2.0, 4.5, -0.75}  # mirrored: served from the frames, not as recorded
 
 
-def watch(server: LiveServer, topic: str, stop: threading.Event, run: Any,
+def watch(server: ViewerServer, topic: str, stop: threading.Event, run: Any,
           enough: int = 10) -> list[bytes]:
     """Run the replay (looping until ``stop``) in a thread; subscribe to ``topic`` once it is
     advertised; its first ``enough`` payloads."""

@@ -21,12 +21,12 @@ from bridge.errors import UsageError
 from bridge.frame import NS
 from bridge.pipeline.drive import load_stages
 from bridge.sim.ecocar import simulate
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 
 PROTO = [websockets.Subprotocol("foxglove.websocket.v1")]
 
 
-def watch(server: LiveServer, topic: str, run: Callable[[], object], *,
+def watch(server: ViewerServer, topic: str, run: Callable[[], object], *,
           enough: tuple[int, threading.Event] | None = None) -> tuple[list[int], list[int]]:
     """Run the replay in a thread, subscribe to ``topic`` once it is advertised, and collect
     the message times and the server times until the replay ends. ``enough``: (n, stop): the
@@ -74,7 +74,7 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_a_drive_is_served_in_log_time_with_server_time(drive: Path) -> None:
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
         started = time.monotonic()
         messages, times = watch(server, "/scene/ego", lambda: replay_mcap(
             drive, server, speed=1.5, start_s=1.0))
@@ -94,7 +94,7 @@ def test_a_can_log_goes_through_the_pipeline(tmp_path: Path) -> None:
                 timestamp=f.timestamp_ns / 1e9, arbitration_id=f.arbitration_id, data=f.data,
                 is_fd=f.is_fd, dlc=f.dlc, channel=0))
     stages = load_stages([], "ecocar")
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
         loops: list[int] = []
 
         def run() -> None:
@@ -115,7 +115,7 @@ def test_a_can_log_goes_through_the_pipeline(tmp_path: Path) -> None:
 
 
 def test_nonsense_speed_and_start_are_refused(drive: Path) -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         with pytest.raises(UsageError, match=r"--speed 0: must be above 0"):
             replay_mcap(drive, server, speed=0)
         with pytest.raises(UsageError, match=r"--start -1: must not be negative"):

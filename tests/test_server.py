@@ -25,14 +25,14 @@ from websockets.frames import Frame, Opcode
 from websockets.streams import StreamReader
 
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.sinks.server import SEND_BUFFER_BYTES, ClientStats, LiveServer, ServerError, internals
+from bridge.sinks.server import SEND_BUFFER_BYTES, ClientStats, ServerError, ViewerServer, internals
 from bridge.sinks.server.client import ClientQueue
 
 SUBPROTOCOL = websockets.Subprotocol("foxglove.websocket.v1")
 
 
 @asynccontextmanager
-async def client(server: LiveServer, **kwargs: Any) -> AsyncIterator[Any]:
+async def client(server: ViewerServer, **kwargs: Any) -> AsyncIterator[Any]:
     async with websockets.connect(server.url, subprotocols=[SUBPROTOCOL], **kwargs) as ws:
         yield ws
 
@@ -65,7 +65,7 @@ def decoder_for(channel: dict[str, Any]) -> Any:
 
 
 def test_the_protocol_from_hello_to_unsubscribe() -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         scene = server.channel("/scene/ego", SceneUpdate)
         frames = server.channel("/can/can0/frames", CanFrame)
 
@@ -104,7 +104,7 @@ def test_the_protocol_from_hello_to_unsubscribe() -> None:
 def test_messages_leave_at_once_without_nagle() -> None:
     """With Nagle's algorithm on, the end of a scene waited for the viewer's delayed ACK and
     came with the next scene (a scene period late): the server's sockets set TCP_NODELAY."""
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
 
         def connections() -> list[Any]:
             return list(server._server._clients) if server._server is not None else []
@@ -122,7 +122,7 @@ def test_messages_leave_at_once_without_nagle() -> None:
 def test_a_viewers_kernel_send_buffer_is_bounded() -> None:
     """A viewer that stops reading is seen to stall after SEND_BUFFER_BYTES, not after the
     4 MB Linux lets a send buffer grow to (tens of thousands of messages written for nobody)."""
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
 
         async def session() -> list[int]:
             async with client(server) as ws:
@@ -139,8 +139,9 @@ def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """Publishers flush (after a scene, before they wait): what they published leaves at once,
     not at the next DRAIN_INTERVAL_S (the safety net for what nobody flushed, which the protocol
     test above relies on)."""
-    monkeypatch.setattr("bridge.sinks.server.live.DRAIN_INTERVAL_S", 3600.0)  # no safety net
-    with LiveServer(port=0) as server:
+    # no safety net:
+    monkeypatch.setattr("bridge.sinks.server.viewer_server.DRAIN_INTERVAL_S", 3600.0)
+    with ViewerServer(port=0) as server:
         scene = server.channel("/scene/ego", SceneUpdate)
 
         async def session() -> tuple[int, int]:
@@ -160,7 +161,7 @@ def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
 
         async def session() -> None:
             async with client(server) as ws:
@@ -174,7 +175,7 @@ def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
 
 
 def test_server_time_for_replays() -> None:
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
         server.broadcast_time(41_000_000_000)
         scene = server.channel("/scene/ego", SceneUpdate)
 
@@ -198,7 +199,7 @@ def test_a_viewer_hears_the_time_before_the_first_channel() -> None:
     timeline, zero without a time: a replay advertising its channels before its first frame made
     a drive on a since-boot clock start at 0 and last 12 hours (#33). A server that publishes
     its time advertises no channel before its first time."""
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
 
         async def session() -> list[str | bytes]:
             async with client(server) as ws:
@@ -213,7 +214,7 @@ def test_a_viewer_hears_the_time_before_the_first_channel() -> None:
 
 
 def test_every_start_is_a_new_session() -> None:
-    with LiveServer(port=0) as a, LiveServer(port=0) as b:
+    with ViewerServer(port=0) as a, ViewerServer(port=0) as b:
         assert a.session_id != b.session_id
         assert a.port != b.port != 0
 
@@ -224,14 +225,14 @@ def test_a_taken_port_is_a_clear_error() -> None:
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(ServerError, match=rf"cannot serve on 127\.0\.0\.1:{port}: "):
-            LiveServer(port=port).start()
+            ViewerServer(port=port).start()
 
 
 def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> None:
     """One client never reads; another keeps receiving every message at the scene rate."""
     rate, seconds = 50, 3.0
     payload = b"x" * 200_000  # a big scene: the stalled client's buffers fill within a second
-    with LiveServer(port=0, queue_limit=100) as server:
+    with ViewerServer(port=0, queue_limit=100) as server:
         scene = server.channel("/scene/radar", SceneUpdate)
 
         async def session() -> tuple[list[int], float]:
@@ -366,9 +367,10 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
     from bridge.sinks.base import Channel, Serialized
     from bridge.sinks.raw import cut
 
-    monkeypatch.setattr("bridge.sinks.server.live.DRAIN_INTERVAL_S", 3600.0)  # no safety net
+    # no safety net:
+    monkeypatch.setattr("bridge.sinks.server.viewer_server.DRAIN_INTERVAL_S", 3600.0)
     frame = Frame(5, "radar", 0x100, b"\x01", dlc=1)
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b""),
                           Channel("/can/radar/frames", "tankviz.CanFrameBlock", lambda: b"")])
         server.advertise([Channel("/scene/ego", "foxglove.SceneUpdate", lambda: b"")])
@@ -394,7 +396,7 @@ def test_as_a_sink_the_server_sends_a_scene_at_once_and_frames_to_subscribers_on
 
 @pytest.mark.parametrize("mode", ["live", "replay"])
 def test_server_info_says_whether_it_is_live_or_a_replay(mode: str) -> None:
-    with LiveServer(port=0, mode=mode) as server:
+    with ViewerServer(port=0, mode=mode) as server:
         async def hello() -> dict[str, Any]:
             async with client(server) as ws:
                 info: dict[str, Any] = await next_json(ws, "serverInfo")
@@ -484,12 +486,12 @@ def test_what_is_published_between_scenes_waits_for_the_next_flush_but_not_long(
     """Live's raw frames and signals go with the next scene (flush_batched wakes the loop only
     if it was not woken within BATCH_S), and still leave at most BATCH_S after the last wake;
     a scene (flush) wakes it at once."""
-    from bridge.sinks.server import live
-    from bridge.sinks.server.live import BATCH_S
+    from bridge.sinks.server import viewer_server
+    from bridge.sinks.server.viewer_server import BATCH_S
 
     now = [1000.0]
-    monkeypatch.setattr(live, "time", SimpleNamespace(monotonic=lambda: now[0]))
-    with LiveServer(port=0) as server:
+    monkeypatch.setattr(viewer_server, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    with ViewerServer(port=0) as server:
         channel = server.channel("/can/can0/frames", CanFrame)
         server._wanted.add(channel)  # (as a subscriber would)
         wakes: list[float] = []

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 from bridge.cli import main
 from bridge.frame import NS, Frame
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 from bridge.pb import perception_pb2
 from bridge.pipeline.drive import load_stages
 from bridge.sim.highway import (

@@ -19,7 +19,7 @@ import pytest
 from cantools.database.namedsignalvalue import NamedSignalValue
 
 from bridge.frame import Frame
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 from bridge.sim.ecocar import simulate
 from bridge.sim.ego import STEERING_RATIO, WHEELBASE_M
 from bridge.sim.frames import load_ecocar

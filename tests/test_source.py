@@ -14,10 +14,10 @@ from conftest import ECOCAR_DBC, T0, WriteLog
 
 from bridge.errors import InputError
 from bridge.frame import Frame, to_ns
-from bridge.io.logs import LogSource, bus_name, merge, supported_suffixes
+from bridge.io.can_logs import LogSource, bus_name, merge, supported_suffixes
 from bridge.pipeline.convert import convert
 from bridge.sim.ecocar import simulate
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 
 
 def classic(i: int, channel: object = 0, t: float | None = None) -> can.Message:

@@ -151,7 +151,7 @@ def test_live_applies_the_collector_settings(tmp_path: Path) -> None:
     from bridge.frame import Frame
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
-    from bridge.pipeline.live import Live
+    from bridge.pipeline.live_engine import Live
 
     seen: list[tuple[int, int, int]] = []
     live = Live([BusSpec("can0", "virtual", f"startup-gc-{os.getpid()}")],

@@ -37,7 +37,7 @@ from bridge.fleet.batch import (
 from bridge.pipeline.convert import convert
 from bridge.sim.ecocar import simulate
 from bridge.sim.scenario import SCENARIOS
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 
 
 def make_drives(folder: Path, count: int, duration: float) -> list[Path]:

@@ -48,7 +48,7 @@ from bridge.pipeline.convert import convert  # noqa: E402
 from bridge.pipeline.drive import Drive, load_stages  # noqa: E402
 from bridge.sim.highway import simulate_highway  # noqa: E402
 from bridge.sinks.base import Sink  # noqa: E402
-from bridge.sinks.logs import write_log  # noqa: E402
+from bridge.sinks.can_log_writer import write_log  # noqa: E402
 from bridge.topics import BITS_LABELS_TOPIC, BITS_TOPIC  # noqa: E402
 
 #: The goals: growth of the archive, and of convert's CPU time, with the bring-up topics.

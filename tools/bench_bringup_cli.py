@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from bridge.frame import NS, Frame  # noqa: E402
 from bridge.resources import data_dir  # noqa: E402
 from bridge.sim.highway import simulate_highway  # noqa: E402
-from bridge.sinks.logs import write_log  # noqa: E402
+from bridge.sinks.can_log_writer import write_log  # noqa: E402
 
 #: Made-up ids: (bus, how many, first id, cycle ms).
 EXTRA = (("can0", 35, 0x300, 100), ("can2", 50, 0x100, 100), ("can3", 50, 0x400, 150))

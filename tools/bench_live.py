@@ -3,8 +3,8 @@
 
 Three python-can ``virtual`` buses (``radar``, ``camera``, ``chassis``) each carry 4,000 frames/s
 for ``--duration`` seconds (default 60, ``--quick``: 10) into the live bridge
-(:class:`bridge.pipeline.live.Live` + :class:`bridge.sinks.server.LiveServer`, the bundled ecocar
-profile, scene at 50 Hz, drives recorded into a temporary folder), while four
+(:class:`bridge.pipeline.live_engine.Live` + :class:`bridge.sinks.server.ViewerServer`, the
+bundled ecocar profile, scene at 50 Hz, drives recorded into a temporary folder), while four
 ``foxglove.websocket.v1`` clients watch: three subscribe to every ``/scene/*`` topic and read
 everything, one subscribes to every channel (raw frames and decoded signals included) and then never
 reads (``transport.pause_reading()``). It prints one table (metric, value, target, ok?), a
@@ -527,7 +527,7 @@ PROFILE_PARTS = (
     ("cut raw frames into blocks", "raw.py", "add"),
     ("record raw blocks", "mcap.py", "write_raw"),
     ("record decoded messages", "mcap.py", "write_decoded"),
-    ("publish to the server", "server/live.py", "publish"),
+    ("publish to the server", "server/viewer_server.py", "publish"),
     ("recorder tick (flush)", "drives.py", "tick"),
 )
 
@@ -553,8 +553,8 @@ def run(args: argparse.Namespace) -> None:
 
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
-    from bridge.pipeline.live import Live
-    from bridge.sinks.server import LiveServer
+    from bridge.pipeline.live_engine import Live
+    from bridge.sinks.server import ViewerServer
     from tests.waiting import wait_for
 
     duration = 10.0 if args.quick else args.duration
@@ -583,7 +583,7 @@ def run(args: argparse.Namespace) -> None:
     drives = Path(args.drives) if args.drives else Path(tmp.name)
     said: list[str] = []
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    server = LiveServer(port=0)
+    server = ViewerServer(port=0)
     server.start()
     pid = os.getpid()
     specs = [BusSpec(bus, "virtual", f"bench-live-{pid}-{bus}") for bus in BUSES]

@@ -60,7 +60,7 @@ from bench_convert import asc_copy, synthetic_log
 from bridge.block import FrameBlock
 from bridge.frame import Frame
 from bridge.io import readahead as new_module
-from bridge.io.logs import LogSource, SourceIssue
+from bridge.io.can_logs import LogSource, SourceIssue
 
 ROOT = Path(__file__).resolve().parents[1]
 

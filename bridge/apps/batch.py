@@ -43,7 +43,7 @@ from bridge.fleet.batch import (
     run_batch,
     slow_drives,
 )
-from bridge.io.logs import supported_suffixes
+from bridge.io.can_logs import supported_suffixes
 from bridge.pipeline.convert import convert
 
 

@@ -1,16 +1,15 @@
 """``tankviz live``: CAN buses in, Foxglove live, every drive recorded.
 
-This command builds the engine, :class:`bridge.pipeline.live.Live`, from its options, runs it and
-prints what it did. Every bus is opened before anything is printed: a bus that cannot work at
-all is an error at once; one that does not open within :data:`~bridge.io.buses.OPEN_WAIT_S` is
-an error too (one line, exit 1, nothing recorded); one that fails later is said, and when it is
-back. Enter in a terminal marks the moment (:class:`TerminalMarks`), and every mark is said on
-the console. SIGINT, SIGTERM and SIGHUP stop the run and finish the drive; an output that is
-gone (EIO, EPIPE) never stops either (:func:`output_may_vanish`). It names the layout to import
-at start (:func:`layout_hint`, :func:`bringup_hint`) and at the end the files recorded, what the
-buses' reading mended or lost (:func:`receive_report`) and what slow viewers lost
-(:func:`dropped_report`).
-"""
+This command builds the engine, :class:`bridge.pipeline.live_engine.Live`, from its options,
+runs it and prints what it did. Every bus is opened before anything is printed: a bus that
+cannot work at all is an error at once; one that does not open within
+:data:`~bridge.io.buses.OPEN_WAIT_S` is an error too (one line, exit 1, nothing recorded); one
+that fails later is said, and when it is back. Enter in a terminal marks the moment
+(:class:`TerminalMarks`), and every mark is said on the console. SIGINT, SIGTERM and SIGHUP stop
+the run and finish the drive; an output that is gone (EIO, EPIPE) never stops either
+(:func:`output_may_vanish`). It names the layout to import at start (:func:`layout_hint`,
+:func:`bringup_hint`) and at the end the files recorded, what the buses' reading mended or lost
+(:func:`receive_report`) and what slow viewers lost (:func:`dropped_report`). """
 
 from __future__ import annotations
 
@@ -38,7 +37,7 @@ from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import UsageError
 from bridge.io.buses import BusSpec, ReceiveCounts, limit_can_logs
 from bridge.pipeline.drive import Stages
-from bridge.pipeline.live import Live
+from bridge.pipeline.live_engine import Live
 from bridge.pipeline.marks import MarkAsked
 from bridge.resources import layouts_dir
 from bridge.sinks.server import ClientStats

@@ -1,9 +1,12 @@
 """Command-line options that several commands share, and what they turn into.
 
-Settings come from the command line, else the environment (``TANKVIZ_*``), else a default; a
-nonsensical environment value ends every command, even ``--help``, with one line and exit status
-1 (:func:`check_environment`). Imported by ``tankviz --help`` itself, it imports what the options
-turn into only when they are turned.
+Settings come from the command line, else the environment (``TANKVIZ_*``), else a default. The
+environment is read when the parser is built: a value that makes no sense there
+(``TANKVIZ_PORT=abc``) ends the command at once, even ``--help``, with one line naming the
+variable and exit status 1: :func:`check_environment` checks every one before any parser is built.
+
+This module is imported by ``tankviz --help`` itself: it imports what the options turn into
+(the decoder, the pipeline, the server) only where an option is turned into it.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from bridge.resources import bundled_database
 
 if TYPE_CHECKING:
     from bridge.pipeline.drive import Stages
-    from bridge.sinks.server import LiveServer
+    from bridge.sinks.server import ViewerServer
 
     Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
 else:
@@ -146,12 +149,12 @@ def add_server_options(parser: argparse.ArgumentParser) -> None:
 
 
 def start_server(args: argparse.Namespace, *, server_time: bool = False,
-                 mode: str = "live") -> LiveServer:
+                 mode: str = "live") -> ViewerServer:
     """The Foxglove server ``--host`` and ``--port`` name, started (``mode``: what it serves,
     told to viewers in serverInfo's metadata)."""
-    from bridge.sinks.server import LiveServer
+    from bridge.sinks.server import ViewerServer
 
-    server = LiveServer(host=args.host, port=args.port, server_time=server_time, mode=mode)
+    server = ViewerServer(host=args.host, port=args.port, server_time=server_time, mode=mode)
     server.start()
     return server
 

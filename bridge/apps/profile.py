@@ -24,7 +24,7 @@ from typing import Any
 from bridge.apps.options import Subparsers, dbc_option
 from bridge.errors import BridgeError
 from bridge.frame import NS, Frame
-from bridge.io.logs import LogSource, merge
+from bridge.io.can_logs import LogSource, merge
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.marks import describe

@@ -43,6 +43,7 @@ from bridge.apps.options import (
 from bridge.decode.decoder import parse_dbc_option
 from bridge.errors import BridgeError, InputError, UsageError, check_input_path
 from bridge.frame import NS
+from bridge.io.can_logs import LogSource, merge, supported_suffixes
 from bridge.io.drives import (
     METADATA_NAME,
     ArchiveContents,
@@ -50,7 +51,6 @@ from bridge.io.drives import (
     drive_marks,
     read_drive,
 )
-from bridge.io.logs import LogSource, merge, supported_suffixes
 from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import MAGIC, why_unreadable
 from bridge.pb.bringup_pb2 import CanPayload
@@ -66,7 +66,7 @@ from bridge.pipeline.rederive import (
     rederive_stages,
 )
 from bridge.resources import layouts_dir
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 from bridge.view.bringup import bringup_layout
 from bridge.view.generate import DEFAULT_BUS, database_buses, generate_layouts, layout_text
 
@@ -180,7 +180,7 @@ def _past_end(start_s: float, span_ns: int) -> UsageError:
     return UsageError(f"--start {start_s:g}: the drive is only {span_ns / NS:.1f} s long")
 
 
-def replay_mcap(path: Path, server: LiveServer, *, speed: float = 1.0, loop: bool = False,
+def replay_mcap(path: Path, server: ViewerServer, *, speed: float = 1.0, loop: bool = False,
                 start_s: float = 0.0, stopping: threading.Event | None = None,
                 on_loop: Callable[[int], None] | None = None,
                 on_unknown: Callable[[str, str], None] | None = None) -> ReplayReport:
@@ -270,7 +270,7 @@ def _mcap_messages(path: Path, start_s: float) -> Iterator[tuple[str, str, str, 
         raise InputError(path, why_unreadable(path, exc)) from None
 
 
-def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,
+def replay_log(paths: list[Path], stages: Stages, server: ViewerServer, *,
                scene_rate: float = DEFAULT_SCENE_RATE,
                speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
                stopping: threading.Event | None = None,
@@ -284,7 +284,7 @@ def replay_log(paths: list[Path], stages: Stages, server: LiveServer, *,
                           stopping=stopping, on_unknown=on_unknown, bring_up=bring_up)
 
 
-def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
+def replay_drive(path: Path, stages: Stages, server: ViewerServer, *,
                  scene_rate: float = DEFAULT_SCENE_RATE,
                  speed: float = 1.0, loop: bool = False, start_s: float = 0.0,
                  stopping: threading.Event | None = None,
@@ -299,7 +299,7 @@ def replay_drive(path: Path, stages: Stages, server: LiveServer, *,
 
 
 def _replay_frames(make_sources: Callable[[], Sequence[Source]], stages: Stages,
-                   server: LiveServer, *, scene_rate: float, speed: float, loop: bool,
+                   server: ViewerServer, *, scene_rate: float, speed: float, loop: bool,
                    start_s: float, stopping: threading.Event | None,
                    on_unknown: Callable[[str, int], None] | None = None,
                    bring_up: bool = True, marks: Sequence[Mark] = ()) -> ReplayReport:

@@ -27,11 +27,11 @@ from bridge.apps.options import (
 from bridge.apps.progress import ProgressBar
 from bridge.errors import OutputError, UsageError
 from bridge.frame import NS, Frame
-from bridge.io.logs import supported_suffixes
+from bridge.io.can_logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.ecocar import simulate
 from bridge.sim.highway import ROADS, simulate_highway
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 from bridge.sinks.outputs import atomic_output, check_output
 
 #: Log formats that cannot hold a simulated drive, and why.

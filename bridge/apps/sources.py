@@ -94,8 +94,8 @@ def frame_key_of(message: Any) -> int:
 def opened(args: argparse.Namespace) -> Iterator[Source]:
     """The source ``args`` name (inputs, ``--dbc``, ``--profile``), checked before any frame is
     read."""
+    from bridge.io.can_logs import LogSource
     from bridge.io.drives import ArchiveSource, is_drive, read_drive
-    from bridge.io.logs import LogSource
     from bridge.pipeline.convert import refuse_repeated
     from bridge.pipeline.drive import load_stages
     from bridge.pipeline.rederive import rederive_stages

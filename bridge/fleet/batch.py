@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from bridge.errors import BridgeError, UsageError, not_a_file, os_error_text, shown
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 
 if TYPE_CHECKING:
     from distributed import Client

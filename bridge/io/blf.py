@@ -17,7 +17,7 @@ from typing import IO, Literal
 import can
 from can.io import blf
 
-#: What a damage did to the reading (as :data:`bridge.io.logs.IssueKind` says it).
+#: What a damage did to the reading (as :data:`bridge.io.can_logs.IssueKind` says it).
 DamageKind = Literal["stop", "damage"]
 
 
@@ -37,7 +37,7 @@ class Bytes:
         return data
 
     def close(self) -> None:
-        """The underlying file is closed by :class:`~bridge.io.logs.LogSource`."""
+        """The underlying file is closed by :class:`~bridge.io.can_logs.LogSource`."""
 
 
 _OBJ = blf.OBJ_HEADER_BASE_STRUCT

@@ -7,10 +7,10 @@ interface python-can does not have, a ``NAME`` without configuration, options it
 retried. Any other failure to open (a socketcand server that is down, an address that is not one,
 an interface that is not there) is retried with backoff; live waits at most :data:`OPEN_WAIT_S`
 seconds (15) for every bus to open once, and a bus that has never opened by then is an error too
-(:class:`bridge.pipeline.live.Live`). Only a bus that opened once and then fails (adapter unplugged,
-interface down) is a lost bus: the link says so, retries with backoff for as long as the run
-goes on and says when it is back. Every reason is one line (:func:`one_line`: the exception's
-type and the first line of its message, never a traceback).
+(:class:`bridge.pipeline.live_engine.Live`). Only a bus that opened once and then fails
+(adapter unplugged, interface down) is a lost bus: the link says so, retries with backoff for as
+long as the run goes on and says when it is back. Every reason is one line (:func:`one_line`:
+the exception's type and the first line of its message, never a traceback).
 
 The pipeline's thread reads every bus itself, without waiting, a few times per scene period
 (:class:`ReadSchedule`): just after each scene tick and between; the frames of several buses are

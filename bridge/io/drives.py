@@ -30,7 +30,7 @@ from mcap.stream_reader import StreamReader
 
 from bridge.errors import InputError, check_input_path
 from bridge.frame import NEVER_NS, Frame
-from bridge.io.logs import IssueKind, SourceIssue
+from bridge.io.can_logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.topics import MARKS_TOPIC
@@ -158,7 +158,7 @@ def read_drive(path: Path | str) -> ArchiveContents:
 class ArchiveSource:
     """Every raw frame of a recorded drive, in the order it was recorded.
 
-    Iterate once. As :class:`~bridge.io.logs.LogSource`: ``issues`` lists what could not be read
+    Iterate once. As :class:`~bridge.io.can_logs.LogSource`: ``issues`` lists what could not be read
     and where, ``frames`` counts the frames, ``backwards`` the steps back of the time, and
     ``progress()`` how much of the file has been read.
     """
@@ -262,7 +262,7 @@ class ArchiveSource:
 
 
 #: A frame stamped at or after this (2262, 2^63 ns) or before 1970 cannot be held, nor an id of
-#: more than 29 bits (as :class:`~bridge.io.logs.LogSource` skips them in logs).
+#: more than 29 bits (as :class:`~bridge.io.can_logs.LogSource` skips them in logs).
 _LAST_NS = 1 << 63
 _ID_LIMIT = 1 << 29
 

@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-#: The kinds of issue, gravest first (as :data:`bridge.io.logs.ISSUE_KINDS`).
+#: The kinds of issue, gravest first (as :data:`bridge.io.can_logs.ISSUE_KINDS`).
 KINDS = ("stop", "damage", "skip", "note")
 _STOP_WORDS = re.compile(r"stopped|\bcut\b|truncat", re.IGNORECASE)
 _DAMAGE_WORDS = re.compile(r"\bdamaged\b", re.IGNORECASE)

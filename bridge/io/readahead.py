@@ -32,7 +32,7 @@ from typing import Any, Protocol, TypeVar
 from bridge.block import FrameBlock, blocks
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
-from bridge.io.logs import SourceIssue, merge
+from bridge.io.can_logs import SourceIssue, merge
 
 #: Frames per hand-over (per block): large enough that a block costs little per frame, small
 #: enough that the pipeline starts at once.
@@ -57,7 +57,7 @@ _T = TypeVar("_T")
 
 
 class Source(Protocol):
-    """What :class:`ReadAhead` reads: a :class:`~bridge.io.logs.LogSource` or a
+    """What :class:`ReadAhead` reads: a :class:`~bridge.io.can_logs.LogSource` or a
     :class:`~bridge.io.drives.ArchiveSource`."""
 
     issues: list[SourceIssue]

@@ -26,8 +26,8 @@ from typing import IO, Any
 
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError, InputError, OutputError
+from bridge.io.can_logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.drives import ArchiveSource, is_drive, read_drive
-from bridge.io.logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.readahead import ReadAhead
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, Stages, load_stages
@@ -113,7 +113,7 @@ def check_mcap_output(output: Path) -> None:
 def recorded_issues(issues: Sequence[SourceIssue]) -> dict[str, Any]:
     """The drive's ``input_issues`` metadata: how many, and the first
     :data:`MAX_ISSUES_RECORDED` of them, the gravest kind first (a stop is never left out for
-    the skips before it: :data:`~bridge.io.logs.ISSUE_KINDS`), each kind in file order."""
+    the skips before it: :data:`~bridge.io.can_logs.ISSUE_KINDS`), each kind in file order."""
     gravest = sorted(issues, key=lambda i: ISSUE_KINDS.index(i.kind))
     return {"count": len(issues), "first": [str(i) for i in gravest[:MAX_ISSUES_RECORDED]]}
 

@@ -250,7 +250,7 @@ class Recorder(Sink):
         self._writer.start(profile="", library=f"tankviz {__version__}")
         self.describe = describe
         self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}
         self._channel_schemas: dict[str, str] = {}
         self._payload_channels: dict[str, tuple[int, Any]] = {}
         self._frame_channels: dict[str, int] = {}
@@ -269,12 +269,12 @@ class Recorder(Sink):
 
     def channel(self, topic: str, schema_name: str, schema_data: bytes) -> int:
         """The id of a protobuf channel, registered on first use; a topic has one schema."""
-        channel_id = self._channels.get(topic)
+        channel_id = self._channel_ids.get(topic)
         if channel_id is None:
             channel_id = self._writer.register_channel(
                 topic, MessageEncoding.Protobuf, self._schema(schema_name, schema_data)
             )
-            self._channels[topic] = channel_id
+            self._channel_ids[topic] = channel_id
             self._channel_schemas[topic] = schema_name
         elif self._channel_schemas[topic] != schema_name:
             raise ValueError(f"topic {topic!r} has type {self._channel_schemas[topic]}, "

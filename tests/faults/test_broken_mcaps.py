@@ -19,13 +19,13 @@ from bridge.apps.inspect import DriveSummary, format_summary, summarize_file
 from bridge.apps.replay import replay_mcap
 from bridge.errors import InputError
 from bridge.fleet.catalog import read_drive
+from bridge.io.can_logs import SourceIssue
 from bridge.io.issues import summarize_issues
-from bridge.io.logs import SourceIssue
 from bridge.io.unreadable import why_unreadable
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.ecocar import simulate
 from bridge.sinks.outputs import atomic_output
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +45,7 @@ def both(path: Path) -> tuple[str, str]:
         read_drive(path)
     with pytest.raises(InputError) as caught_inspect:
         summarize_file(path)
-    with LiveServer(port=0) as server, pytest.raises(InputError) as caught_replay:
+    with ViewerServer(port=0) as server, pytest.raises(InputError) as caught_replay:
         replay_mcap(path, server, speed=1000)
     assert str(caught_replay.value) == str(caught_inspect.value)
     return str(caught_catalog.value), str(caught_inspect.value)

@@ -186,7 +186,7 @@ class SocketBus(can.BusABC):
 def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
         tmp_path: Path) -> None:
     from bridge.pipeline.drive import load_stages
-    from bridge.pipeline.live import Live
+    from bridge.pipeline.live_engine import Live
 
     messages = [can.Message(timestamp=time.time() + i * 0.001, arbitration_id=0x7FF,
                             data=b"\0" * 8) for i in range(3000)]

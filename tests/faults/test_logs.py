@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 from bridge.pipeline.convert import convert
 
 #: What reading one small damaged log may take at most: a hang fails, not freezes, the suite.

@@ -24,9 +24,9 @@ import pytest
 from conftest import timeout_scale
 
 from bridge.errors import InputError
-from bridge.io.logs import LogSource, supported_suffixes
+from bridge.io.can_logs import LogSource, supported_suffixes
 from bridge.sim.ecocar import simulate
-from bridge.sinks.logs import write_log
+from bridge.sinks.can_log_writer import write_log
 
 #: The bytes of each log cut: every length from 0 to this (the header and the first frames).
 CUT_BYTES = 600
@@ -56,7 +56,7 @@ CHILD = textwrap.dedent("""
     import json, resource, sys, traceback
     from pathlib import Path
     from bridge.errors import BridgeError
-    from bridge.io.logs import LogSource
+    from bridge.io.can_logs import LogSource
     limit = int(sys.argv[1])
     resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
     folder = Path(sys.argv[2])

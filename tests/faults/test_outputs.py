@@ -21,8 +21,8 @@ from mcap.reader import make_reader
 
 from bridge.cli import main
 from bridge.frame import Frame
+from bridge.io.can_logs import LogSource
 from bridge.io.drives import raw_frame_counts
-from bridge.io.logs import LogSource
 from bridge.sim.ecocar import simulate
 from bridge.topics import frames_topic
 

@@ -30,10 +30,10 @@ from bridge.cli import main
 from bridge.errors import OutputError, UsageError
 from bridge.fleet.batch import find_inputs, group_drives, plan_jobs
 from bridge.frame import Frame
-from bridge.io.logs import LogSource
+from bridge.io.can_logs import LogSource
 from bridge.pipeline.convert import convert, same_frames
 from bridge.sim.ecocar import simulate
-from bridge.sinks.logs import write_log as write_sim_log
+from bridge.sinks.can_log_writer import write_log as write_sim_log
 from bridge.sinks.outputs import atomic_output
 
 DRIVE_S = 2.0

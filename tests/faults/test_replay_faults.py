@@ -26,8 +26,8 @@ from bridge.cli import main
 from bridge.errors import InputError, UsageError
 from bridge.io.readahead import THREAD_ITEMS, read_in_thread
 from bridge.sim.ecocar import simulate
-from bridge.sinks.logs import write_log
-from bridge.sinks.server import LiveServer
+from bridge.sinks.can_log_writer import write_log
+from bridge.sinks.server import ViewerServer
 
 #: What a replay asked to stop may take at most to end: a hang fails, not freezes, the suite.
 LIMIT_S = 60.0
@@ -36,8 +36,8 @@ LIMIT_S = 60.0
 #: away does; it says "stuck" when they do.
 STUCK = """
 import sys, time
-from bridge.io import logs
-read = logs.LogSource.__iter__
+from bridge.io import can_logs
+read = can_logs.LogSource.__iter__
 def stuck(self):
     for n, frame in enumerate(read(self)):
         if n == 200:
@@ -45,7 +45,7 @@ def stuck(self):
             sys.stdout.flush()
             time.sleep(3600)
         yield frame
-logs.LogSource.__iter__ = stuck
+can_logs.LogSource.__iter__ = stuck
 from bridge.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -194,7 +194,7 @@ def unindexed_mcap(path: Path, seconds: list[float]) -> Path:
 
 def test_a_start_in_an_mcap_without_statistics_is_kept_and_checked(tmp_path: Path) -> None:
     path = unindexed_mcap(tmp_path / "plain.mcap", [100.0, 101.0, 102.0])
-    with LiveServer(port=0, server_time=True) as server:
+    with ViewerServer(port=0, server_time=True) as server:
         assert replay_mcap(path, server, speed=100, start_s=1.5).messages == 1
         with pytest.raises(UsageError, match=r"^--start 5: the drive is only 2\.0 s long$"):
             replay_mcap(path, server, speed=100, start_s=5)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from bridge.apps.convert import format_report
 from bridge.apps.inspect import DriveSummary, format_summary
+from bridge.io.can_logs import SourceIssue
 from bridge.io.issues import summarize_issues
-from bridge.io.logs import SourceIssue
 from bridge.pipeline.convert import MAX_ISSUES_RECORDED, ConvertReport, recorded_issues
 from bridge.sinks.mcap import METADATA_NAME
 

@@ -34,7 +34,7 @@ from harness import SUBPROTOCOL, Viewer, assert_survived, start
 
 from bridge.frame import NS, Frame
 from bridge.pb.can_frame_pb2 import CanFrame
-from bridge.sinks.server import LiveServer
+from bridge.sinks.server import ViewerServer
 
 try:
     from conftest import SHARED_DBC, timeout_scale
@@ -142,7 +142,7 @@ def test_garbage_from_a_viewer_gets_a_status_and_one_line_and_everyone_goes_on(
 
 # --- a viewer that leaves without reading ---------------------------------------------------
 
-def publish_until(server: LiveServer, channels: list[int], stop: threading.Event) -> None:
+def publish_until(server: ViewerServer, channels: list[int], stop: threading.Event) -> None:
     """A busy scene: 200 kB on every channel, 50 times a second, flushed as the pipeline does."""
     payload = b"x" * 200_000
     i = 0
@@ -155,9 +155,9 @@ def publish_until(server: LiveServer, channels: list[int], stop: threading.Event
 
 
 @contextlib.contextmanager
-def busy_server() -> Iterator[tuple[LiveServer, list[int]]]:
+def busy_server() -> Iterator[tuple[ViewerServer, list[int]]]:
     """A live server with two channels kept busy (:func:`publish_until`) while in the block."""
-    with LiveServer(port=0, queue_limit=100) as server:
+    with ViewerServer(port=0, queue_limit=100) as server:
         channels = [server.channel("/scene/radar", SceneUpdate),
                     server.channel("/can/radar/frames", CanFrame)]
         stop = threading.Event()
@@ -181,7 +181,7 @@ def test_a_viewer_that_leaves_without_reading_is_released_at_once(leaving: str) 
     assert released < 2.0 * timeout_scale(), f"released after {released:.1f} s"
 
 
-async def leave_without_reading(server: LiveServer, channels: list[int], leaving: str) -> float:
+async def leave_without_reading(server: ViewerServer, channels: list[int], leaving: str) -> float:
     """Seconds from the viewer's leaving until the server no longer counts it."""
     ws = await websockets.connect(server.url, subprotocols=[SUBPROTOCOL], max_size=None,
                                   max_queue=1, close_timeout=30.0)
@@ -224,7 +224,7 @@ def test_a_stalled_viewer_that_pings_stays_and_nothing_is_logged(
     assert not errors, [r.getMessage() for r in errors]
 
 
-async def ping_without_reading(server: LiveServer, channels: list[int]) -> None:
+async def ping_without_reading(server: ViewerServer, channels: list[int]) -> None:
     ws = await websockets.connect(server.url, subprotocols=[SUBPROTOCOL], max_size=None,
                                   max_queue=1, ping_interval=None)
     advertised: list[int] = []
@@ -252,7 +252,7 @@ async def ping_without_reading(server: LiveServer, channels: list[int]) -> None:
 def test_serving_every_address_prints_the_machines_addresses() -> None:
     """``--host 0.0.0.0``: ws://0.0.0.0 means nothing to a laptop. The server names each of the
     machine's own IPv4 addresses (not loopback) it can be reached on, and each one works."""
-    with LiveServer(host="0.0.0.0", port=0) as server:
+    with ViewerServer(host="0.0.0.0", port=0) as server:
         urls = server.urls
         if urls == [f"ws://localhost:{server.port}"]:
             pytest.skip("this machine has no network address but loopback")
@@ -267,7 +267,7 @@ def test_serving_every_address_prints_the_machines_addresses() -> None:
 
 
 def test_a_loopback_server_is_on_localhost() -> None:
-    with LiveServer(port=0) as server:
+    with ViewerServer(port=0) as server:
         assert server.urls == [f"ws://localhost:{server.port}"] == [server.url]
 
 

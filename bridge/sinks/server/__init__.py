@@ -1,16 +1,16 @@
 """The live sink: a Foxglove WebSocket server (foxglove-websocket, ``foxglove.websocket.v1``).
 
-:class:`LiveServer` runs its own asyncio loop in a thread; the pipeline publishes to it without
+:class:`ViewerServer` runs its own asyncio loop in a thread; the pipeline publishes to it without
 ever waiting, every viewer gets its own bounded queue (a slow one loses its own oldest messages,
 never anyone else's), and a viewer may only subscribe and unsubscribe (and, on a live server,
 publish marks). The protocol has no authentication: bind to 127.0.0.1 (the default) unless the
-network is trusted. Bound to every address (``0.0.0.0``, ``::``), :attr:`LiveServer.urls` names
+network is trusted. Bound to every address (``0.0.0.0``, ``::``), :attr:`ViewerServer.urls` names
 the machine's own addresses, which a laptop on the car's network can open.
 
 The package, one concern a module:
 
-- :mod:`~bridge.sinks.server.live`: :class:`LiveServer` (its thread, channels, the inbox and
-  its control messages, the listening socket).
+- :mod:`~bridge.sinks.server.viewer_server`: :class:`ViewerServer` (its thread, channels, the
+  inbox and its control messages, the listening socket).
 - :mod:`~bridge.sinks.server.client`: one viewer's bounded queue and sender task, and
   :class:`ClientStats` (what it was sent and lost).
 - :mod:`~bridge.sinks.server.viewer_input`: what a viewer may send (:func:`client_message`,
@@ -25,16 +25,26 @@ from __future__ import annotations
 
 from bridge.sinks.server.addresses import machine_addresses
 from bridge.sinks.server.client import ClientStats
-from bridge.sinks.server.live import (
+from bridge.sinks.server.viewer_input import ViewerInputError, ViewerMark, client_message
+from bridge.sinks.server.viewer_server import (
     DEFAULT_HOST,
     DEFAULT_PORT,
     DEFAULT_QUEUE_LIMIT,
     SEND_BUFFER_BYTES,
-    LiveServer,
     ServerError,
+    ViewerServer,
 )
-from bridge.sinks.server.viewer_input import ViewerInputError, ViewerMark, client_message
 
-__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "DEFAULT_QUEUE_LIMIT", "SEND_BUFFER_BYTES",
-           "ClientStats", "LiveServer", "ServerError", "ViewerInputError", "ViewerMark",
-           "client_message", "machine_addresses"]
+__all__ = [
+    "DEFAULT_HOST",
+    "DEFAULT_PORT",
+    "DEFAULT_QUEUE_LIMIT",
+    "SEND_BUFFER_BYTES",
+    "ClientStats",
+    "ServerError",
+    "ViewerInputError",
+    "ViewerMark",
+    "ViewerServer",
+    "client_message",
+    "machine_addresses",
+]

@@ -44,7 +44,7 @@ class ClientStats:
     sent: int = 0
     dropped: int = 0
     #: messages lost per topic (filled in by
-    #: :meth:`~bridge.sinks.server.live.LiveServer.client_stats`)
+    #: :meth:`~bridge.sinks.server.viewer_server.ViewerServer.client_stats`)
     topics: collections.Counter[str] = field(default_factory=collections.Counter)
     #: messages lost per channel id
     channels: collections.Counter[int] = field(default_factory=collections.Counter)

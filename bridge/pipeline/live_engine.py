@@ -26,7 +26,7 @@ finished, ``recorder.disk_full`` is raised on ``/log`` and ``/health``, viewers 
 and recording resumes in a new part when there is room (:mod:`bridge.sinks.drives`).
 
 Marks (:mod:`bridge.pipeline.marks`) asked from any thread — a viewer's (the server's
-:attr:`~bridge.sinks.server.LiveServer.on_mark`, while the drive runs), the terminal's, the
+:attr:`~bridge.sinks.server.ViewerServer.on_mark`, while the drive runs), the terminal's, the
 profile's rule — are made at the loop's next turn at the drive's clock then, recorded, served and
 said on the console.
 
@@ -75,7 +75,7 @@ from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.marks import MarkAsked, Marks, describe
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
-from bridge.sinks.server import ClientStats, LiveServer, ViewerMark
+from bridge.sinks.server import ClientStats, ViewerMark, ViewerServer
 from bridge.topics import LOG_TOPIC, TopicMessage, bus_segment
 
 
@@ -113,7 +113,7 @@ class Live:
 
     def __init__(self, buses: Sequence[BusSpec], stages: Stages, *,
                  scene_rate: float = DEFAULT_SCENE_RATE,
-                 drives: Path | None = Path("drives"), server: LiveServer | None = None,
+                 drives: Path | None = Path("drives"), server: ViewerServer | None = None,
                  split_size: int | None = None, split_duration_s: float | None = None,
                  min_free: int = 0,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,

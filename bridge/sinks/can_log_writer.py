@@ -46,7 +46,7 @@ class _CompleteSqliteWriter(can.SqliteWriter):
 
 def log_channel(bus: str) -> int | str:
     """The python-can channel a bus is written on: N for ``can<N>`` (read back as ``can<N>``:
-    :func:`bridge.io.logs.bus_name`), else the bus name itself."""
+    :func:`bridge.io.can_logs.bus_name`), else the bus name itself."""
     return int(bus[3:]) if re.fullmatch(r"can\d+", bus) else bus
 
 

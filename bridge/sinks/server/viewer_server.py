@@ -1,11 +1,11 @@
-"""The server itself: :class:`LiveServer`, its thread and loop, channels, the inbox.
+"""The server itself: :class:`ViewerServer`, its thread and loop, channels, the inbox.
 
 The server runs its asyncio loop in its own thread. The pipeline hands it messages with
-:meth:`LiveServer.publish`, which never blocks and costs next to nothing: it appends to an inbox
-that the loop empties at once after :meth:`LiveServer.flush` (the pipeline flushes after each
+:meth:`ViewerServer.publish`, which never blocks and costs next to nothing: it appends to an inbox
+that the loop empties at once after :meth:`ViewerServer.flush` (the pipeline flushes after each
 scene, replay before it waits), and at least every :data:`DRAIN_INTERVAL_S`. Live's raw frames
 and decoded signals go with the next scene: after each read of the buses live calls
-:meth:`LiveServer.flush_batched`, which wakes the loop only if it was not woken in the last
+:meth:`ViewerServer.flush_batched`, which wakes the loop only if it was not woken in the last
 :data:`BATCH_S` (20 ms). Waking the loop for every message would cost a system call each and
 hand the GIL back and forth thousands of times a second; waking it on a short timer costs
 hundreds of idle wake-ups a second; waking it at each read of the buses (150 a second at 50 Hz)
@@ -17,17 +17,17 @@ of a type of its own: :class:`AdvertiseChannel` and :class:`ServerTime`. Drainin
 client (:class:`~bridge.sinks.server.client.ClientQueue`) its share at once.
 
 Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is advertised to every
-client but its messages go only to the clients that subscribed; :meth:`LiveServer.wanted` tells
+client but its messages go only to the clients that subscribed; :meth:`ViewerServer.wanted` tells
 the pipeline whether anyone subscribed, so it can skip work nobody looks at.
 
 A live server (``mode`` live, not publishing its time) takes marks from its viewers: it
 advertises ``clientPublish`` with ``json`` and hands each mark taken
-(:mod:`~bridge.sinks.server.viewer_input` says which are) to :attr:`LiveServer.on_mark`, in the
+(:mod:`~bridge.sinks.server.viewer_input` says which are) to :attr:`ViewerServer.on_mark`, in the
 server's thread. A replay takes none.
 
 A viewer that left (:mod:`~bridge.sinks.server.internals` drops one that closes without reading
 at once, not after websockets' close timeout, :data:`CLOSE_TIMEOUT_S` here) is no longer counted
-(:meth:`LiveServer.viewers`) and its subscriptions no longer keep channels wanted.
+(:meth:`ViewerServer.viewers`) and its subscriptions no longer keep channels wanted.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ DEFAULT_QUEUE_LIMIT = 2000
 #: publishers flush.
 DRAIN_INTERVAL_S = 0.1
 #: The longest live's raw frames and decoded signals wait for a scene's flush to take them
-#: along (s): :meth:`LiveServer.flush_batched`.
+#: along (s): :meth:`ViewerServer.flush_batched`.
 BATCH_S = 0.02
 #: How long the server waits for a viewer's part of a closing handshake (s; websockets: 10).
 CLOSE_TIMEOUT_S = 1.0
@@ -114,7 +114,7 @@ class _Subscriptions(FoxgloveServerListener):  # type: ignore[misc]
         self.wanted.discard(channel_id)
 
 
-class LiveServer(Sink):
+class ViewerServer(Sink):
     """A Foxglove WebSocket server in a thread of its own; every public method is thread-safe
     and non-blocking apart from :meth:`start` and :meth:`stop`.
 
@@ -151,11 +151,11 @@ class LiveServer(Sink):
         self._woken = 0.0  # when the loop was last woken (time.monotonic)
         self._timer: asyncio.TimerHandle | None = None
         self._lock = threading.Lock()
-        self._channels: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}  # topic → channel id
         self._next_channel = 0
         self._wanted: set[int] = set()
         self._clients: dict[int, ClientQueue] = {}
-        self.finished: list[ClientStats] = []
+        self.departed: list[ClientStats] = []  # the stats of clients that left
         # the pipeline's channels, looked up once per bus and codec
         self._frame_channels: dict[str, int] = {}
         self._codec_channels: dict[MessageCodec, int] = {}
@@ -177,7 +177,7 @@ class LiveServer(Sink):
             self._loop.call_soon_threadsafe(self._stop.set)
             self._thread.join(timeout)
 
-    def __enter__(self) -> LiveServer:
+    def __enter__(self) -> ViewerServer:
         self.start()
         return self
 
@@ -269,10 +269,10 @@ class LiveServer(Sink):
                            encoding: str = "protobuf", schema_encoding: str = "protobuf") -> int:
         """The channel id of ``topic``; advertised once. Binary schemas are sent as base64."""
         with self._lock:
-            channel_id = self._channels.get(topic)
+            channel_id = self._channel_ids.get(topic)
             if channel_id is not None:
                 return channel_id
-            channel_id = self._channels[topic] = self._next_channel
+            channel_id = self._channel_ids[topic] = self._next_channel
             self._next_channel += 1
         text = (base64.b64encode(schema).decode("ascii") if schema_encoding == "protobuf"
                 else schema.decode("utf-8", errors="replace"))
@@ -330,9 +330,9 @@ class LiveServer(Sink):
 
     def on_messages(self, messages: Sequence[Serialized], /) -> None:
         """Published and sent at once: viewers wait for a scene."""
-        channels = self._channels
+        channel_ids = self._channel_ids
         for topic, message_class, payload, t_ns in messages:
-            channel = channels.get(topic)
+            channel = channel_ids.get(topic)
             if channel is None:
                 channel = self.channel(topic, message_class)
             self.publish(channel, t_ns, payload)
@@ -340,7 +340,7 @@ class LiveServer(Sink):
 
     def advertise(self, channels: Sequence[Channel], /) -> None:
         for channel in channels:
-            if channel.topic not in self._channels:
+            if channel.topic not in self._channel_ids:
                 self.channel_for_schema(channel.topic, channel.schema_name, channel.schema())
 
     def finish(self) -> None:
@@ -352,8 +352,8 @@ class LiveServer(Sink):
 
     def client_stats(self) -> list[ClientStats]:
         """Every client connected now and every one that left (with the topics it lost)."""
-        stats = [c.stats for c in list(self._clients.values())] + self.finished
-        topics = {channel: topic for topic, channel in list(self._channels.items())}
+        stats = [c.stats for c in list(self._clients.values())] + self.departed
+        topics = {channel: topic for topic, channel in list(self._channel_ids.items())}
         for s in stats:
             s.topics = collections.Counter({topics.get(c, f"channel {c}"): n
                                             for c, n in s.channels.items()})
@@ -378,7 +378,7 @@ class LiveServer(Sink):
             gone = self._clients.pop(key)
             if gone.task is not None:
                 gone.task.cancel()
-            self.finished.append(gone.stats)
+            self.departed.append(gone.stats)
         for key, state in current.items():
             if key not in self._clients:
                 client = ClientQueue(state, ClientStats(internals.viewer_name(state.connection)),
