@@ -1,14 +1,10 @@
 """The one CAN frame type that flows through the bridge, and its time base.
 
-Log time is integer nanoseconds: since the Unix epoch for logs and buses with absolute time, since
-the log's own start otherwise. :data:`NS` is one second of it; :func:`to_ns` converts python-can's
-float seconds (once, at the source); :func:`timestamp` makes it the stamp of a protobuf message,
-and :func:`format_time` prints it for people.
-
-A CAN id is known by its number and its format: :func:`frame_key` makes the two one int (an 11-bit
-id and a 29-bit id with the same number are different keys: the 29-bit one has
-:data:`EXTENDED_KEY` set), the key of the decoder's tables and of the health monitor's counts per
-id; :func:`key_id` gives the number back.
+Log time is integer nanoseconds (:data:`NS` a second), since the Unix epoch for sources with
+absolute time, else since the log's start: :func:`to_ns` converts python-can's float seconds
+once, at the source; :func:`timestamp` and :func:`format_time` give it to protobuf and to
+people. :func:`frame_key` makes an id's number and format one int (11- and 29-bit ids differ by
+:data:`EXTENDED_KEY`), the key of every per-id table; :func:`key_id` gives the number back.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """Command-line options that several commands share, and what they turn into.
 
-Settings come from the command line, else the environment (``TANKVIZ_*``), else a default. The
-environment is read when the parser is built: a value that makes no sense there
-(``TANKVIZ_PORT=abc``) ends the command at once, even ``--help``, with one line naming the
-variable and exit status 1: :func:`check_environment` checks every one before any parser is built.
-
-This module is imported by ``tankviz --help`` itself: it imports what the options turn into
-(the decoder, the pipeline, the server) only where an option is turned into it.
+Settings come from the command line, else the environment (``TANKVIZ_*``), else a default; a
+nonsensical environment value ends every command, even ``--help``, with one line and exit status
+1 (:func:`check_environment`). Imported by ``tankviz --help`` itself, it imports what the options
+turn into only when they are turned.
 """
 
 from __future__ import annotations

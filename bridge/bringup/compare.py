@@ -1,14 +1,10 @@
 """Bits that switch between two moments: steady in one window of time, steady at the other
 value in another ("always 0 while I did not press the brake, always 1 while I did").
 
-A :class:`Steadiness` is fed data frames as columns, in order, and keeps per id and window the
-AND and the OR of its payloads there: a bit is steady in a window where the two agree, and its
-value is theirs. An id must have at least :data:`MIN_FRAMES` frames in each window to count.
-
-A counter's bits are steady for a while too (bit 5 of a counter for 32 frames in a row), and
-switch between two windows by chance: a bit that flips at a steady rhythm over the whole source
-(at least :data:`RHYTHM_FLIPS` flips, every so many frames of its id within
-:data:`RHYTHM_SPREAD`) is a counter's and is not a switch.
+A :class:`Steadiness` keeps per id and window the AND and the OR of its payloads: a bit is
+steady where they agree. An id needs :data:`MIN_FRAMES` frames in each window, and a bit that
+flips at a steady rhythm over the whole source (:data:`RHYTHM_FLIPS`, :data:`RHYTHM_SPREAD`) is a
+counter's, never a switch.
 """
 
 from __future__ import annotations

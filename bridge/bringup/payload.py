@@ -1,11 +1,10 @@
 """``/can/<bus>/unknown``'s messages, ``tankviz.CanPayload`` (schemas/bringup.proto), written in
 protobuf's wire format by hand: byte for byte what ``SerializeToString`` gives
-(tests/test_bringup_topics.py), for about a microsecond a frame.
+(tests/test_bringup_topics.py).
 
 A message is its id field (made once per id), then the payload's bytes, its big-endian and its
-little-endian 16-bit words as packed fields of varints (each value's varint made once, when it
-first comes). An id's payloads that repeat (a counter and constants) are remembered: up to
-:data:`CACHE_SIZE` of them an id, then forgotten at once.
+little-endian 16-bit words as packed fields of varints. Up to :data:`CACHE_SIZE` repeating
+payloads an id are remembered, then forgotten at once.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """What a drive without its ``tankviz`` metadata record holds, as the catalogue reads it.
 
-A drive cut short (a power loss) and recovered with ``tankviz recover`` has no ``tankviz`` record
-(it is written when a drive is finished). :func:`held_metadata` makes the entries the catalogue
-reads of that record (:mod:`bridge.fleet.catalog`) from what the file holds: frames per bus from
-its raw-frame channels (``/can/<bus>/frames``: :func:`bridge.io.drives.raw_frame_counts`), its
-databases (name, SHA-256; the
-buses they were for are not known: empty) and profile from its attachments, and what the
-``tankviz.recover`` record says of it into ``statistics.recovered``.
+:func:`held_metadata` makes the entries the catalogue reads of that record (missing from a drive
+cut short and recovered) from what the file holds: frames per bus from its raw-frame channels,
+databases (buses unknown) and profile from its attachments, and the ``tankviz.recover`` record
+into ``statistics.recovered``.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """The questions of ``tankviz catalog query``: SQL on a catalogue, read only, the canned
 questions, and how to open each answer.
 
-:func:`query` runs SQL on a catalogue (:mod:`bridge.fleet.catalog`) that writes nothing: only
-:data:`READING_STATEMENTS`. :func:`alarm_query`, :func:`topic_query`, :func:`mark_query` and
-:func:`between_query` are the canned questions. :func:`open_hints` says, for every answer row with
-a drive and a log time or a mark, how to open it: the ``tankviz replay`` command (``--start
-mark:N`` for a row of a mark, its ``mark`` column; else the seconds into the drive) and the MCAP
-time to jump to in Foxglove.
+:func:`query` runs only :data:`READING_STATEMENTS`; :func:`alarm_query`, :func:`topic_query`,
+:func:`mark_query` and :func:`between_query` are the canned questions; :func:`open_hints` gives
+each answer row with a drive and a time or mark its ``tankviz replay`` command and MCAP time.
 """
 
 from __future__ import annotations

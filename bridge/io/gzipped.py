@@ -1,12 +1,9 @@
 """A gzip-compressed log unpacked up to where it is cut or damaged, every byte before kept.
 
-Python's :class:`gzip.GzipFile` raises at a cut (``EOFError``) or a failed check, and the bytes
-it had unpacked for the same read are lost with it: up to the 64 KiB a BLF reader asks for at a
-time, every frame of a small file. :class:`GzipReader` gives every byte the compressed data holds,
-then ends as a file ends; ``cut`` and ``problem`` then say why it ended early (a cut, damaged
-compressed data, a file that is no gzip), ``failed_check`` that a member's data does not match
-its trailer's check (its bytes are given all the same, and the reading goes on with the next
-member). It never raises for what is in the file.
+:class:`GzipReader` gives every byte the compressed data holds (where :class:`gzip.GzipFile`
+would lose a read's worth at a cut), then ends as a file ends; ``cut`` and ``problem`` say why it
+ended early, ``failed_check`` that a member's data failed its check (its bytes are given all the
+same). It never raises for what is in the file.
 """
 
 from __future__ import annotations

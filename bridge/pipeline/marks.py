@@ -1,14 +1,10 @@
 """Marks: moments somebody marked during a drive, made into the drive's messages.
 
-A mark is asked for from any thread (:meth:`Marks.ask`: the server's, for a viewer's Publish
-panel; the terminal's; the pipeline's own, for a profile's ``[marks]`` rule) and made in the
-pipeline's thread (:meth:`Marks.take`), stamped with the drive's clock at that moment, so that
-it lands where the frames of that moment are whatever the computer's clock says. Each mark is
-numbered (1, 2, … in the drive) and becomes three messages: ``/marks`` (``tankviz.Mark``, what
-inspect, catalog and replay find), a line on ``/log`` and a text in the scene
-(``/scene/marks``) for :data:`SHOWN_S` seconds. A profile's ``[marks]`` rules are watched by
-:class:`MarkWatch` on each decoded frame of the messages they read: a rule that becomes true
-marks the drive at that frame's time (the car's marks: made at once, never asked).
+A mark is asked for from any thread (:meth:`Marks.ask`: a viewer, the terminal) and made in the
+pipeline's thread (:meth:`Marks.take`), stamped with the drive's clock, so it lands among the
+frames of that moment; a profile's ``[marks]`` rule (:class:`MarkWatch`) marks at the frame that
+makes it true. Each mark is numbered in the drive and becomes ``/marks`` (``tankviz.Mark``), a
+``/log`` line and a text in the scene for :data:`SHOWN_S` seconds.
 """
 
 from __future__ import annotations

@@ -1,15 +1,10 @@
 """The ego's motion, from the messages of no family: speed, yaw rate, steering angle, lanes.
 
-- **Speed**: the mean of four wheel speeds of one message in a speed unit (:func:`wheel_mean`),
-  else a speed signal (m/s, km/h, mph; the vehicle's before a wheel's), else a wheel's angular
-  speed times a rolling radius to measure (:func:`pick_speed`).
-- **Yaw rate** (:func:`pick_yaw_rate`): a yaw signal in deg/s or rad/s.
-- **Steering wheel angle** (:func:`pick_steering`): a steering signal in deg or rad, with its fine
-  part where it comes in two (``STEER_ANGLE + STEER_FRACTION``: :func:`fraction`).
-- **Lanes** (:func:`lane_messages`): the messages with lane signals in a length unit, which the
-  draft names but does not map.
-
-Each pick comes with the scale that converts it to SI (m/s, rad/s, rad) and says why.
+Each pick comes with the scale that converts it to SI (m/s, rad/s, rad) and says why: speed
+(:func:`pick_speed`: four wheels' mean, :func:`wheel_mean`, else a speed signal, else a wheel's
+angular speed), yaw rate (:func:`pick_yaw_rate`), steering wheel angle (:func:`pick_steering`,
+with its fine part where it comes in two: :func:`fraction`), and the lane messages
+(:func:`lane_messages`), which the draft names but does not map.
 """
 
 from __future__ import annotations

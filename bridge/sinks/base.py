@@ -1,22 +1,13 @@
-"""The one output interface of the pipeline: a :class:`Sink` (python-can's ``Listener`` is the
-model: the pipeline calls each sink in turn; a sink never calls back).
+"""The one output interface of the pipeline: a :class:`Sink` (as python-can's ``Listener``: the
+pipeline calls each sink in turn; a sink never calls back, and must not block the pipeline).
 
-A drive's sinks get, in log time order:
-
-- the raw frames, in blocks: each closed window's :class:`~bridge.sinks.raw.RawBlock`, one per
-  bus, serialized once for all sinks (:mod:`bridge.sinks.raw`);
-- every decoded message (its codec knows its topic and schema; its payload is serialized);
-- the messages the pipeline makes at one log time (a scene tick, a health tick, a log line), as
-  one batch of :class:`Serialized` messages, each serialized once for all sinks;
-- before any frame, on live: every :class:`Channel` the drive can carry, so viewers see the
-  topics at once (a file sink ignores this: its channels are written when first used);
-- at the end, :meth:`Sink.finish`: a file is complete after it; a live server sends what is
-  left and goes on serving (the next drive, a replay's next pass).
-
-The recorder (:class:`bridge.sinks.mcap.Recorder`), a drive split into parts
-(:class:`bridge.sinks.drives.PartsRecorder`) and the live server
-(:class:`bridge.sinks.server.ViewerServer`) implement it, and so do test fakes. Subclass
-:class:`Sink` to inherit methods that do nothing; a sink must not block the pipeline.
+A drive's sinks get, in log time order: the raw frames in blocks (one
+:class:`~bridge.sinks.raw.RawBlock` per bus per closed window); every decoded message; the
+messages made at one log time (a scene tick, a health tick, a log line) as one batch of
+:class:`Serialized` messages; on live, before any frame, every :class:`Channel` the drive can
+carry; and at the end :meth:`Sink.finish`, after which a file is complete (a live server goes on
+serving). Everything is serialized once for all sinks. The recorders, the live server and test
+fakes implement it; :class:`Sink`'s own methods do nothing.
 """
 
 from __future__ import annotations

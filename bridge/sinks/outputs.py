@@ -1,15 +1,13 @@
 """Output files: every file a command writes appears only complete, and never over one of its
 inputs.
 
-:func:`check_output` refuses an output that is an input by any name (the same path, a symbolic
-or a hard link: :func:`same_file`), whatever ``--force`` says, one that exists (unless
-``--force``) and one that cannot be written. :func:`atomic_output` writes a partial file of the
-run's own (``.<name>.<pid>-<random>.partial``, locked while it is written; a long name is cut
-in it, so that any name a file may have can be written) and gives it its name when it is
-complete (:func:`publish`), so two runs writing one output never mix their bytes: with
-``--force`` the last to finish wins; without, the second keeps the first's file and fails
-saying so. Partial files that no run is writing any more (a killed run's) are removed by the
-next run (:func:`remove_stale_partials`).
+:func:`check_output` refuses an output that is an input by any name (:func:`same_file`), even
+with ``--force``, one that exists unless ``--force``, and one that cannot be written.
+:func:`atomic_output` writes a locked partial file of the run's own
+(``.<name>.<pid>-<random>.partial``) and gives it its name only when complete (:func:`publish`):
+two runs never mix their bytes; with ``--force`` the last to finish wins, without it the second
+fails saying so. A killed run's partial files are removed by the next run
+(:func:`remove_stale_partials`).
 """
 
 from __future__ import annotations

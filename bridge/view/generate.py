@@ -95,7 +95,7 @@ def generate_layouts(profile: Profile, decoder: Decoder,
 # --- panels --------------------------------------------------------------------------------------
 
 
-#: The seed's camera: close behind and above the vehicle, about 60 m of road in view.
+#: The Tank Viz view's camera: close behind and above the vehicle, about 60 m of road in view.
 CHASE_CAMERA = chase_camera().foxglove_state()
 #: Share of the tank-viz layout's width the chase view takes (the range view the rest).
 CHASE_SHARE = 55.0
@@ -106,7 +106,7 @@ def view_3d(made: Produced, profile: Profile, *, whole_range: bool = False) -> d
     profile's sensors), following the vehicle from behind and above, on a dark background with
     a grid of 10 m cells.
 
-    The chase view (default) has the seed's close camera and grid (160 m, 70 m ahead). The
+    The chase view (default) has the Tank Viz view's close camera and grid (160 m, 70 m ahead). The
     range view (``whole_range``) frames the road from just behind the vehicle to the profile's
     largest sensor range (:func:`bridge.scene.camera.camera_for`, the camera the scene keeps
     its marks visible for), on a grid from 10 m behind to beyond it. Each view shows the labels
