@@ -1,46 +1,22 @@
-"""The bridge's error hierarchy.
+"""The bridge's errors: one class per kind of failure a caller handles differently.
 
-Every error a user can cause is a :class:`BridgeError` whose message is one line naming the bad
-value and where it came from (file, line or record, message, signal). The CLI prints it as
-``error: <message>`` and exits non-zero; ``--debug`` shows the traceback.
-
-The whole tree; five classes live here, the others next to the code that raises them (each is
-still a :class:`BridgeError`, so the CLI reports it the same way)::
+Every error a user can cause is a :class:`BridgeError` whose message is one line, built by its
+class from fields, that names the bad value and where it came from (file, line or record,
+message, signal). The CLI prints it as ``error: <message>`` and exits non-zero; ``--debug``
+shows the traceback. The whole tree (each class says what its message looks like)::
 
     Exception
-    └── BridgeError                  bridge.errors
-        ├── InputError               bridge.errors
-        ├── DatabaseError            bridge.errors
-        ├── OutputError              bridge.errors
-        ├── UsageError               bridge.errors
-        ├── ProfileError             bridge.profile.model
-        ├── ExpressionError          bridge.profile.expr
-        ├── LayoutError              bridge.apps.layouts
-        ├── ServerError              bridge.sinks.server.live
-        └── ViewerInputError         bridge.sinks.server.viewer_input
-
-What each means:
-
-- :class:`BridgeError`: the base of every error the bridge reports to its user.
-- :class:`InputError`: a CAN log that is missing, of an unknown format, or unreadable at some
-  place (``path:where: reason``).
-- :class:`DatabaseError`: a DBC (or KCD/SYM/ARXML) file that cannot be loaded or that conflicts
-  with another (``path: reason``).
-- :class:`OutputError`: an output file that exists already or cannot be written
-  (``path: reason``).
-- :class:`UsageError`: a command-line argument or setting that does not make sense.
-- :class:`~bridge.profile.model.ProfileError`: a profile that cannot be used
-  (``path: key: reason``).
-- :class:`~bridge.profile.expr.ExpressionError`: a rule (an expression of a profile) that does
-  not parse: the rule, the column (1-based) and what was expected. The profile loader reports
-  it as a :class:`~bridge.profile.model.ProfileError` naming the file and key.
-- :class:`~bridge.apps.layouts.LayoutError`: a layout file that cannot be read or is not in
-  Foxglove's layout format (``path: reason``).
-- :class:`~bridge.sinks.server.ServerError`: the live server could not start (e.g. the port is
-  taken).
-- :class:`~bridge.sinks.server.ViewerInputError`: a message from a viewer that the server does
-  not take. It never reaches the CLI: the viewer gets the protocol's ``status`` message and the
-  console one warning line (:mod:`bridge.sinks.server.internals`).
+    └── BridgeError                  bridge.errors (never raised itself)
+        ├── FileError                bridge.errors: a file cannot be read or written as asked
+        │   ├── InputError           bridge.errors: an input (the others may be read on)
+        │   ├── DatabaseError        bridge.errors: a DBC (named anew when attached to a drive)
+        │   └── ProfileError         bridge.profile.model: a profile (a TODO line named instead)
+        ├── UsageError               bridge.errors: an argument or setting that makes no sense
+        ├── MessagePathError         bridge.errors: a layout's message path (a layout problem)
+        ├── ExpressionError          bridge.profile.expr: a rule (told as a ProfileError)
+        ├── ServerError              bridge.errors: the live server cannot start
+        └── ViewerInputError         bridge.errors: a viewer's message (told to the viewer)
+            └── TooManyMarks         bridge.sinks.server.viewer_input (told once per burst)
 
 Not in the tree, as they never reach the user as errors: ``bridge.apps.options.Stopped`` (a
 ``BaseException``, like ``KeyboardInterrupt``: a signal that ends a run),
@@ -64,11 +40,14 @@ PATH_MAX = 4096
 
 
 class BridgeError(Exception):
-    """Base class of every error the bridge reports to its user."""
+    """Base class of every error the bridge reports to its user; only its subclasses are
+    raised."""
 
 
-class InputError(BridgeError):
-    """A CAN log that is missing, of an unknown format, or unreadable at some place."""
+class FileError(BridgeError):
+    """A file that cannot be read or written as asked (an output that exists already, a folder
+    that is not writable, a layout that is not JSON): ``path: reason``, or ``path:where: reason``
+    at a place in it (a line, a record, an offset)."""
 
     def __init__(self, path: Path | str, reason: str, *, where: str | None = None) -> None:
         self.path = shown(path)
@@ -78,26 +57,61 @@ class InputError(BridgeError):
         super().__init__(f"{place}: {reason}")
 
 
-class DatabaseError(BridgeError):
+class InputError(FileError):
+    """An input (a CAN log, a recorded drive, a catalogue, a reference CSV) that is missing, of
+    an unknown format, or unreadable at some place; a command given several may go on with the
+    others."""
+
+
+class DatabaseError(FileError):
     """A DBC (or KCD/SYM/ARXML) file that cannot be loaded or that conflicts with another."""
-
-    def __init__(self, path: Path | str, reason: str) -> None:
-        self.path = shown(path)
-        self.reason = reason
-        super().__init__(f"{self.path}: {reason}")
-
-
-class OutputError(BridgeError):
-    """An output file that exists already or cannot be written."""
-
-    def __init__(self, path: Path | str, reason: str) -> None:
-        self.path = shown(path)
-        self.reason = reason
-        super().__init__(f"{self.path}: {reason}")
 
 
 class UsageError(BridgeError):
-    """A command-line argument or setting that does not make sense."""
+    """A command-line argument or a setting that does not make sense: ``argument: reason``, or
+    with the value given ``--option VALUE: reason`` (an option) and ``NAME=VALUE: reason`` (a
+    setting: ``TANKVIZ_...``, a health setting)."""
+
+    def __init__(self, argument: Path | str, reason: str, *, value: object = None) -> None:
+        self.argument = shown(argument)
+        self.reason = reason
+        self.value = value
+        given = self.argument
+        if value is not None:
+            given += f" {value}" if given.startswith("-") else f"={value}"
+        super().__init__(f"{given}: {reason}")
+
+
+class MessagePathError(BridgeError):
+    """A Foxglove message path (of a layout's panel) that names nothing the bridge publishes:
+    ``path: reason``."""
+
+    def __init__(self, path: str, reason: str) -> None:
+        self.path = path
+        self.reason = reason
+        super().__init__(f"{path}: {reason}")
+
+
+class ServerError(BridgeError):
+    """The live server could not start (e.g. the port is taken):
+    ``cannot serve on host:port: reason``."""
+
+    def __init__(self, host: str, port: int, reason: str) -> None:
+        self.host = host
+        self.port = port
+        self.reason = reason
+        super().__init__(f"cannot serve on {host}:{port}: {reason}")
+
+
+class ViewerInputError(BridgeError):
+    """A message from a viewer that the server does not take: ``reason``, or ``op: reason`` for
+    an operation of the protocol (``advertise``, ``subscribe``, ...). It never reaches the CLI:
+    the viewer gets the protocol's ``status`` message and the console one warning line."""
+
+    def __init__(self, reason: str, *, op: str | None = None) -> None:
+        self.op = op
+        self.reason = reason
+        super().__init__(f"{op}: {reason}" if op else reason)
 
 
 # --- how errors name files ----------------------------------------------------------------------

@@ -140,7 +140,7 @@ def test_without_dask_batch_says_what_to_install(tmp_path: Path, monkeypatch: py
     assert main(["batch", "convert", str(log), "--out", str(tmp_path / "out"),
                  "--dbc", "ecocar"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["error: tankviz batch runs on Dask, which is not installed: "
+    assert err == ["error: tankviz batch: runs on Dask, which is not installed: "
                    "pip install 'tankviz[fleet]'"]
 
 

@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.apps.inspect import format_summary, summarize, summarize_file
-from bridge.errors import InputError, OutputError
+from bridge.errors import FileError, InputError
 from bridge.frame import Frame
 from bridge.io.can_logs import LogSource
 from bridge.io.drives import BlockMerger, block_frames
@@ -195,7 +195,7 @@ def test_an_existing_output_is_refused_unless_forced(
     log = write_log("drive.blf", drive(ecocar)[:5])
     output = tmp_path / "drive.mcap"
     output.write_bytes(b"precious")
-    with pytest.raises(OutputError, match=r"drive\.mcap: exists already; use --force"):
+    with pytest.raises(FileError, match=r"drive\.mcap: exists already; use --force"):
         convert([log], output, [str(ECOCAR_DBC)])
     assert output.read_bytes() == b"precious"
     convert([log], output, [str(ECOCAR_DBC)], force=True)
@@ -204,10 +204,10 @@ def test_an_existing_output_is_refused_unless_forced(
 
 def test_an_unwritable_output_is_refused(write_log: WriteLog) -> None:
     log = write_log("drive.log", [can.Message(timestamp=T0, arbitration_id=1, data=b"1")])
-    with pytest.raises(OutputError, match=r"cannot write: folder .*missing does not exist"):
+    with pytest.raises(FileError, match=r"cannot write: folder .*missing does not exist"):
         convert([log], log.parent / "missing" / "out.mcap", [])
     # /proc takes no new files, not even from root
-    with pytest.raises(OutputError, match=r"^/proc/out\.mcap: cannot write"):
+    with pytest.raises(FileError, match=r"^/proc/out\.mcap: cannot write"):
         convert([log], Path("/proc/out.mcap"), [])
 
 

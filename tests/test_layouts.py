@@ -22,7 +22,7 @@ from bridge.apps.layouts import (
     load_layout,
     select_layouts,
 )
-from bridge.errors import BridgeError
+from bridge.errors import BridgeError, FileError, UsageError
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.pb.can_frame_pb2 import CanFrameBlock
@@ -398,7 +398,7 @@ def test_the_format_check() -> None:
 def test_load_layout_errors(tmp_path: Path) -> None:
     bad = tmp_path / "bad.json"
     bad.write_text("{", encoding="utf-8")
-    with pytest.raises(BridgeError, match=r"bad.json: not JSON: line 1"):
+    with pytest.raises(FileError, match=r"bad.json: not JSON: line 1"):
         load_layout(bad)
     with pytest.raises(BridgeError, match="no such file"):
         load_layout(tmp_path / "none.json")
@@ -416,11 +416,11 @@ def test_export(tmp_path: Path) -> None:
     with pytest.raises(BridgeError, match="exists"):
         export_layouts(out)
     assert export_layouts(out, names=["tank-viz"], force=True) == [out / "tank-viz.json"]
-    with pytest.raises(BridgeError, match=r"no bundled layout 'nope'; bundled: bring-up"):
+    with pytest.raises(UsageError, match=r"^'nope': no such bundled layout; bundled: bring-up"):
         export_layouts(out, names=["nope"])
     blocker = tmp_path / "file"
     blocker.write_text("", encoding="utf-8")
-    with pytest.raises(BridgeError, match="not a folder"):
+    with pytest.raises(FileError, match="file: not a folder"):
         export_layouts(blocker)
 
 
@@ -429,7 +429,7 @@ def test_listing() -> None:
     assert [line.split()[0] for line in lines] == sorted(NAMES)
     assert len({line.index(str(LAYOUTS)) for line in lines}) == 1, "aligned columns"
     assert [b.name for b in select_layouts(["tank-viz", "engineer"])] == ["tank-viz", "engineer"]
-    with pytest.raises(BridgeError, match="no bundled layout 'x'"):
+    with pytest.raises(UsageError, match=r"^'x': no such bundled layout"):
         select_layouts(["x"])
 
 

@@ -86,8 +86,8 @@ def test_the_bring_up_layout_of_databases_alone(
         "bring-up  Table, Image, 2 plots, Variable Slider, Raw Messages",
         "made for bus can0; --export DIR writes it"]
     assert main(["layouts", "--dbc", str(toyota), "tank-viz"]) == 1
-    assert ("no layout 'tank-viz'; made without a profile: bring-up (--profile makes the "
-            "others)") in capsys.readouterr().err
+    assert ("'tank-viz': no such layout; made without a profile: bring-up (--profile makes "
+            "the others)") in capsys.readouterr().err
 
 
 def test_buses_and_the_plotted_id(toyota: Path, tmp_path: Path,

@@ -25,7 +25,7 @@ from mcap.summary import Summary
 
 from bridge.apps.inspect import format_summary, summarize_file
 from bridge.apps.recover import METADATA_NAME, RecoverReport, format_report, recover, recover_file
-from bridge.errors import InputError, OutputError
+from bridge.errors import FileError, InputError
 from bridge.frame import Frame
 from bridge.sinks.mcap import Recorder
 from bridge.sinks.raw import cut as blocks
@@ -455,11 +455,11 @@ def test_an_existing_output_is_refused_without_force(tmp_path: Path) -> None:
     broken, fixed = tmp_path / "broken.mcap", tmp_path / "fixed.mcap"
     broken.write_bytes(drive().data[:20_000])
     fixed.write_bytes(b"keep me")
-    with pytest.raises(OutputError, match="exists already; use --force to overwrite it"):
+    with pytest.raises(FileError, match="exists already; use --force to overwrite it"):
         recover_file(broken, fixed)
     assert fixed.read_bytes() == b"keep me"
     assert recover_file(broken, fixed, force=True).messages > 0
-    with pytest.raises(OutputError, match="is the file to recover"):
+    with pytest.raises(FileError, match="is the file to recover"):
         recover_file(broken, broken, force=True)
 
 

@@ -22,7 +22,7 @@ from typing import TextIO
 
 from bridge.apps.options import Subparsers, add_stage_options, dbc_option
 from bridge.decode.decoder import parse_dbc_option
-from bridge.errors import OutputError, UsageError, shown
+from bridge.errors import FileError, UsageError, shown
 from bridge.fleet.batch import (
     ConvertJob,
     JobResult,
@@ -95,13 +95,13 @@ def _drives(n: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if args.workers is not None and (args.scheduler or args.workers < 1):
-        raise UsageError("--workers: a number ≥ 1, for the local cluster only (a --scheduler's "
+        raise UsageError("--workers", "a number ≥ 1, for the local cluster only (a --scheduler's "
                          "cluster has its own workers)")
     suffixes = supported_suffixes() if args.verb == "convert" else [".mcap"]
     files, refused = refused_inputs(find_inputs(args.inputs, suffixes))
     out: Path = args.out
     if out.exists() and not out.is_dir():
-        raise OutputError(out, "is not a folder")
+        raise FileError(out, "is not a folder")
     settings = _settings(args)
     jobs = plan_jobs(group_drives(files, suffixes, merge=args.verb == "convert"), out)
     todo, skipped = finished(jobs, force=args.force)
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
             for job in todo:
                 Path(job.output).parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise OutputError(out, f"cannot write: {exc.strerror or exc}") from None
+            raise FileError(out, f"cannot write: {exc.strerror or exc}") from None
         results = _run(args, todo, settings)
     failed = [r for r in results if r.error is not None]
     written = len(results) - len(failed)

@@ -78,7 +78,7 @@ def add_parser(sub: Subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.compare:
         if args.start is not None or args.end is not None:
-            raise UsageError("bits: --from and --to go with --id; --compare names its windows")
+            raise UsageError("bits", "--from and --to go with --id; --compare names its windows")
         return _compare(args)
     return _map(args)
 
@@ -88,7 +88,7 @@ def _map(args: argparse.Namespace) -> int:
     start_s = args.start if args.start is not None else 0.0
     end_s = args.end if args.end is not None else float("inf")
     if not end_s > start_s:
-        raise UsageError(f"bits: --to {end_s:g} must come after --from {start_s:g}")
+        raise UsageError("bits", f"--to {end_s:g} must come after --from {start_s:g}")
     tally = Tally(bus, key)
     buses: set[str] = set()
     frames_of_id = 0
@@ -110,10 +110,11 @@ def _map(args: argparse.Namespace) -> int:
                           None)
         known_buses(sorted(buses), bus, "--id", args.id)
         if not frames_of_id:
-            raise UsageError(f"--id {args.id}: bus {bus} has no frame of id {id_text(key)}")
+            raise UsageError("--id", f"bus {bus} has no frame of id {id_text(key)}",
+                             value=args.id)
         if not tally.frames:
-            raise UsageError(f"--id {args.id}: no frame of it between {start_s:g} s and "
-                             f"{end_s:g} s (an empty window)")
+            raise UsageError("--id", f"no frame of it between {start_s:g} s and "
+                             f"{end_s:g} s (an empty window)", value=args.id)
         message = source.message(bus, key)
         assert source.origin_ns is not None
         origin = source.origin_ns
@@ -207,8 +208,8 @@ def _compare(args: argparse.Namespace) -> int:
         assert steadiness is not None
         for w, text in enumerate(args.compare):
             if not steadiness.frames(w):
-                raise UsageError(f"--compare {text}: no frame in this window (an empty "
-                                 "window)")
+                raise UsageError("--compare", "no frame in this window (an empty "
+                                 "window)", value=text)
         switches = [s for s in steadiness.switches()
                     if not args.unknown or source.message(s.bus, s.key) is None]
         described = [(s, _signals(source.message(s.bus, s.key), s)) for s in switches]

@@ -112,10 +112,10 @@ def run(args: argparse.Namespace) -> int:
         return _query(args, items[1:])
     for option in ("alarm", "topic", "mark", "between"):
         if getattr(args, option) is not None:
-            raise UsageError(f"--{option} asks a catalogue: tankviz catalog query CATALOG "
+            raise UsageError(f"--{option}", "asks a catalogue: tankviz catalog query CATALOG "
                              f"--{option} ...")
     if args.output is None:
-        raise UsageError("name the catalogue to index into: tankviz catalog DRIVES... "
+        raise UsageError("catalog", "name the catalogue to index into: tankviz catalog DRIVES... "
                          "-o catalog.duckdb")
     reader: catalog.Reader = catalog.read_here
     if args.workers is not None or args.scheduler is not None:
@@ -132,9 +132,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _query(args: argparse.Namespace, rest: list[str]) -> int:
     if args.output is not None or args.workers is not None or args.scheduler is not None:
-        raise UsageError("-o, --workers and --scheduler are for indexing, not for query")
+        raise UsageError("catalog query", "-o, --workers and --scheduler are for indexing, not for "
+                         "query")
     if not rest or len(rest) > 2:
-        raise UsageError(f"usage: {QUERY_USAGE}")
+        raise UsageError("catalog query", f"usage: {QUERY_USAGE}")
     path = Path(rest[0])
     sql = rest[1] if len(rest) == 2 else None
     between: tuple[str, str] | None = (
@@ -142,12 +143,12 @@ def _query(args: argparse.Namespace, rest: list[str]) -> int:
     asked = (sql, args.alarm, args.topic, args.mark)
     if sum(x is not None for x in asked) != 1 and not (
             all(x is None for x in asked) and between is not None):
-        raise UsageError('ask one thing: "SQL", --alarm ID, --topic T or --mark TEXT (each may '
-                         "be narrowed with --between T1 T2, except SQL), or --between T1 T2 "
-                         "alone")
+        raise UsageError("catalog query", 'ask one thing: "SQL", --alarm ID, --topic T or --mark '
+                         "TEXT (each may be narrowed with --between T1 T2, except SQL), or "
+                         "--between T1 T2 alone")
     if sql is not None:
         if between is not None:
-            raise UsageError("--between narrows --alarm, --topic and --mark; write it into the "
+            raise UsageError("--between", "narrows --alarm, --topic and --mark; write it into the "
                              "SQL")
         answer = questions.query(path, sql)
     elif args.alarm is not None:

@@ -21,7 +21,7 @@ from bridge.apps.options import (
     stopped_by_signals,
 )
 from bridge.apps.progress import ProgressBar
-from bridge.errors import BridgeError, UsageError
+from bridge.errors import UsageError
 from bridge.io.drives import is_drive
 from bridge.io.issues import summarize_issues
 from bridge.pipeline.convert import (
@@ -69,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
     profile = args.profile
     if args.sample:
         if inputs:
-            raise UsageError(f"convert: --sample converts the bundled sample drive alone; it "
+            raise UsageError("convert", "--sample converts the bundled sample drive alone; it "
                              f"cannot be merged into {inputs[0]} (convert each on its own)")
         inputs.append(data_dir() / "ecocar_sample.blf")
         profile = profile or "ecocar"
     if not inputs:
-        raise BridgeError("convert: name at least one input log (or --sample)")
+        raise UsageError("convert", "name at least one input log (or --sample)")
     refuse_inputs(args.output, inputs)  # (convert checks them too: here before any warning)
     check_mcap_output(args.output)
     refuse_repeated(inputs)

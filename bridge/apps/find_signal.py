@@ -22,7 +22,7 @@ from bridge.apps.sources import Source, frame_key_of, opened
 from bridge.bringup.columns import Array, Bytes, by_id, data_frames, id_text
 from bridge.bringup.dbc import candidate_lines, dbc_file
 from bridge.bringup.search import MAX_LENGTH, MAX_ROWS, Reference, Search, search
-from bridge.errors import InputError, OutputError, UsageError
+from bridge.errors import FileError, InputError, UsageError
 from bridge.frame import NS
 
 #: A candidate fits this well at least to be written into ``-o`` (the best one always is).
@@ -72,13 +72,13 @@ def add_parser(sub: Subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.top < 1:
-        raise UsageError(f"find-signal: --top {args.top}: expected a number of candidates >= 1")
+        raise UsageError("--top", "expected a number of candidates >= 1", value=args.top)
     output: Path | None = args.output
     if output is not None:
         if output.exists() and not args.force:
-            raise OutputError(output, "exists already (--force overwrites it)")
+            raise FileError(output, "exists already (--force overwrites it)")
         if any(output.resolve() == Path(p).resolve() for p in args.inputs):
-            raise OutputError(output, "is one of the inputs: find-signal never writes over one")
+            raise FileError(output, "is one of the inputs: find-signal never writes over one")
     csv_path = Path(args.like) if _is_csv(args.like) else None
     table = _read_csv(csv_path) if csv_path is not None else None
     with opened(args) as source:
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
             assert wanted is not None
             reference = _decoded_reference(source, args.like, wanted, ref_t, ref_payloads)
     if not unknown:
-        raise UsageError(f"find-signal: every id of {args.inputs[0]} is in a database: nothing "
+        raise UsageError("find-signal", f"every id of {args.inputs[0]} is in a database: nothing "
                          "unknown to search")
     samples = {k: (np.concatenate(ts), _stack(ps)) for k, (ts, ps) in unknown.items()}
     found = search(samples, reference, top=args.top)
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             output.write_text(text, encoding="utf-8")
         except OSError as exc:
-            raise OutputError(output, f"cannot write: {exc.strerror or exc}") from None
+            raise FileError(output, f"cannot write: {exc.strerror or exc}") from None
         bus = found.candidates[0].field.bus
         print(f"wrote {output}: decode with it: --dbc {bus}={output} (beside the bus's own "
               "databases)")
@@ -142,16 +142,17 @@ def _signal_reference(source: Source, text: str) -> tuple[str, int, Any]:
     bus, slash, rest = text.partition("/")
     message, dot, signal = rest.rpartition(".")
     if not slash or not dot or not bus or not message or not signal:
-        raise UsageError(f"--like {text}: expected BUS/MESSAGE.SIGNAL (e.g. can0/SPEED.SPEED) "
-                         "or a CSV file (.csv)")
+        raise UsageError("--like", "expected BUS/MESSAGE.SIGNAL (e.g. can0/SPEED.SPEED) "
+                         "or a CSV file (.csv)", value=text)
     codecs = {c.message.name: c for c in source.decoder.codecs_for(bus)}
     codec = codecs.get(message)
     if codec is None:
-        raise UsageError(f"--like {text}: no database of bus {bus} has a message {message}")
+        raise UsageError("--like", f"no database of bus {bus} has a message {message}",
+                         value=text)
     names = [s.name for s in codec.message.signals]
     if signal not in names:
-        raise UsageError(f"--like {text}: message {message} has no signal {signal} (it has "
-                         f"{', '.join(names)})")
+        raise UsageError("--like", f"message {message} has no signal {signal} (it has "
+                         f"{', '.join(names)})", value=text)
     return bus, frame_key_of(codec.message), codec
 
 
@@ -160,8 +161,8 @@ def _decoded_reference(source: Source, text: str, wanted: tuple[str, int, Any],
     bus, key, codec = wanted
     signal = text.rpartition(".")[2]
     if not times:
-        raise UsageError(f"--like {text}: the source has no frame of {codec.message.name} "
-                         f"({id_text(key)}) on bus {bus}")
+        raise UsageError("--like", f"the source has no frame of {codec.message.name} "
+                         f"({id_text(key)}) on bus {bus}", value=text)
     t = np.concatenate(times)
     rows = _stack(payloads)
     values, kept = [], []
@@ -172,7 +173,7 @@ def _decoded_reference(source: Source, text: str, wanted: tuple[str, int, Any],
             values.append(float(value))
             kept.append(i)
     if len(values) < 2:
-        raise UsageError(f"--like {text}: fewer than two frames decode a value of it")
+        raise UsageError("--like", "fewer than two frames decode a value of it", value=text)
     order = np.argsort(t[kept], kind="stable")
     unit = next((s.unit or "" for s in codec.message.signals if s.name == signal), "")
     return Reference(text, unit, t[kept][order], np.asarray(values)[order])

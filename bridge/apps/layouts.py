@@ -21,21 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from bridge.apps.options import Subparsers, dbc_option
-from bridge.errors import BridgeError
+from bridge.errors import FileError, UsageError
 from bridge.pipeline.drive import load_stages
 from bridge.resources import layouts_dir
 from bridge.view.bringup import BRINGUP_NAME, bringup_layout
 from bridge.view.check import PANEL_NAMES, check_format, panel_type
 from bridge.view.generate import LAYOUT_NAMES, database_buses, generate_layouts, layout_text
-
-
-class LayoutError(BridgeError):
-    """A layout file that cannot be read or is not in Foxglove's layout format."""
-
-    def __init__(self, path: Path | str, reason: str) -> None:
-        self.path = str(path)
-        self.reason = reason
-        super().__init__(f"{path}: {reason}")
 
 
 @dataclass(frozen=True)
@@ -68,8 +59,8 @@ def select_layouts(names: Iterable[str] = (), directory: Path | None = None
     wanted = list(names) or list(layouts)
     unknown = [n for n in wanted if n not in layouts]
     if unknown:
-        raise BridgeError(f"no bundled layout {', '.join(repr(n) for n in unknown)}; "
-                          f"bundled: {', '.join(layouts)}")
+        raise UsageError(", ".join(repr(n) for n in unknown),
+                         f"no such bundled layout; bundled: {', '.join(layouts)}")
     return [layouts[n] for n in wanted]
 
 
@@ -107,7 +98,7 @@ def export_layouts(directory: Path, *, names: Iterable[str] | None = None,
         for path, target in targets:
             shutil.copyfile(path, target)
     except OSError as exc:
-        raise BridgeError(f"{directory}: cannot write: {exc.strerror or exc}") from None
+        raise FileError(directory, f"cannot write: {exc.strerror or exc}") from None
     return [target for _, target in targets]
 
 
@@ -115,9 +106,9 @@ def _writable(directory: Path, targets: Iterable[Path], force: bool) -> None:
     if not force:
         existing = [str(target) for target in targets if target.exists()]
         if existing:
-            raise BridgeError(f"{', '.join(existing)}: exists (--force overwrites)")
+            raise FileError(", ".join(existing), "exists (--force overwrites)")
     if directory.exists() and not directory.is_dir():
-        raise BridgeError(f"{directory}: not a folder")
+        raise FileError(directory, "not a folder")
 
 
 def select_generated(layouts: Mapping[str, dict[str, Any]], names: Iterable[str] = ()
@@ -128,7 +119,7 @@ def select_generated(layouts: Mapping[str, dict[str, Any]], names: Iterable[str]
     if unknown:
         made = (f"made for a profile: {', '.join(LAYOUT_NAMES)}" if len(layouts) > 1 else
                 f"made without a profile: {', '.join(layouts)} (--profile makes the others)")
-        raise BridgeError(f"no layout {', '.join(repr(n) for n in unknown)}; {made}")
+        raise UsageError(", ".join(repr(n) for n in unknown), f"no such layout; {made}")
     return {n: layouts[n] for n in wanted}
 
 
@@ -154,7 +145,7 @@ def export_generated(directory: Path, layouts: Mapping[str, dict[str, Any]], *,
         for target, data in targets:
             target.write_text(layout_text(data), encoding="utf-8")
     except OSError as exc:
-        raise BridgeError(f"{directory}: cannot write: {exc.strerror or exc}") from None
+        raise FileError(directory, f"cannot write: {exc.strerror or exc}") from None
     return [target for target, _ in targets]
 
 
@@ -163,12 +154,12 @@ def load_layout(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise LayoutError(path, "no such file") from None
+        raise FileError(path, "no such file") from None
     except json.JSONDecodeError as exc:
-        raise LayoutError(path, f"not JSON: line {exc.lineno}: {exc.msg}") from None
+        raise FileError(path, f"not JSON: line {exc.lineno}: {exc.msg}") from None
     problems = check_format(data)
     if problems:
-        raise LayoutError(path, "; ".join(problems))
+        raise FileError(path, "; ".join(problems))
     return dict(data)
 
 

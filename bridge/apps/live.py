@@ -244,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
         print(systemd_unit(args.argv))
         return 0
     if not args.bus:
-        raise UsageError("live: name at least one --bus NAME=INTERFACE:CHANNEL[@BITRATE]")
+        raise UsageError("live", "name at least one --bus NAME=INTERFACE:CHANNEL[@BITRATE]")
     return run_live(args, [BusSpec.parse(text) for text in args.bus])
 
 
@@ -267,13 +267,13 @@ def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
     for text in [*decoder.warnings(), *unread]:  # what would silence messages, said at once
         print(f"warning: {text}", file=sys.stderr)
     if args.no_record and args.no_server:
-        raise UsageError("--no-record and --no-server: nothing would be done")
+        raise UsageError("--no-record and --no-server", "nothing would be done")
     if args.split_size is not None and args.split_size <= 0:
-        raise UsageError(f"--split-size {args.split_size:g}: must be above 0")
+        raise UsageError("--split-size", "must be above 0", value=f"{args.split_size:g}")
     if args.split_duration is not None and args.split_duration <= 0:
-        raise UsageError(f"--split-duration {args.split_duration:g}: must be above 0")
+        raise UsageError("--split-duration", "must be above 0", value=f"{args.split_duration:g}")
     if not args.min_free >= 0:
-        raise UsageError(f"--min-free {args.min_free:g}: must be 0 or more (MB)")
+        raise UsageError("--min-free", "must be 0 or more (MB)", value=f"{args.min_free:g}")
     server = None if args.no_server else options.start_server(args)
     limiter = limit_can_logs(lambda text: print(text, file=sys.stderr, flush=True))
     terminal = TerminalMarks(lambda asked: live.marks.ask(asked))

@@ -41,8 +41,8 @@ def env(name: str, default: str) -> str:
 
 def _bad_env(name: str, expected: str) -> UsageError:
     """The one-line error for a setting of the environment that makes no sense."""
-    return UsageError(f"TANKVIZ_{name}={os.environ.get(f'TANKVIZ_{name}')!r}: "
-                      f"expected {expected}")
+    return UsageError(f"TANKVIZ_{name}", f"expected {expected}",
+                      value=repr(os.environ.get(f"TANKVIZ_{name}")))
 
 
 def env_port(name: str, default: int) -> int:
@@ -119,7 +119,7 @@ def _scene_rate(text: str) -> float:
     try:
         rate = float(text)
     except ValueError:
-        raise UsageError(f"--scene-rate {text}: expected a number of Hz") from None
+        raise UsageError("--scene-rate", "expected a number of Hz", value=text) from None
     return check_scene_rate(rate)
 
 
@@ -187,7 +187,7 @@ def seconds_above_zero(option: str, text: str) -> float:
     except ValueError:
         seconds = math.nan
     if not (math.isfinite(seconds) and seconds > 0):
-        raise UsageError(f"{option} {text}: expected a number of seconds > 0")
+        raise UsageError(option, "expected a number of seconds > 0", value=text)
     return seconds
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from bridge.apps.options import Subparsers, dbc_option
-from bridge.errors import BridgeError
+from bridge.errors import FileError, UsageError
 from bridge.frame import NS, Frame
 from bridge.io.can_logs import LogSource, merge
 from bridge.pb.marks_pb2 import Mark
@@ -51,12 +51,12 @@ from bridge.world.pages import PageStats
 def new_profile(dbc_options: Sequence[str], output: Path, *, force: bool = False) -> str:
     """Draft a profile from the databases into ``output``; returns what to tell the user."""
     if output.exists() and not force:
-        raise BridgeError(f"{output}: exists (--force overwrites)")
+        raise FileError(output, "exists (--force overwrites)")
     stages = load_stages(dbc_options, None)
     decoder = stages.decoder
     files = decoder.files
     if not files:
-        raise BridgeError("profile new: name the databases with --dbc [BUS=]PATH")
+        raise UsageError("profile new", "name the databases with --dbc [BUS=]PATH")
     base = output.resolve().parent
     bundled = data_dir().resolve()
     # a bundled database by its bundled name, which the loader finds (never a path into the
@@ -71,7 +71,7 @@ def new_profile(dbc_options: Sequence[str], output: Path, *, force: bool = False
     try:
         output.write_text(text, encoding="utf-8")
     except OSError as exc:
-        raise BridgeError(f"{output}: cannot write: {exc.strerror or exc}") from None
+        raise FileError(output, f"cannot write: {exc.strerror or exc}") from None
     todos = [n for n, line in enumerate(text.splitlines(), 1) if line.startswith(TODO)]
     lines = [f"wrote {output}"]
     try:

@@ -36,7 +36,7 @@ from bridge.apps.recover_records import (
     _Unreadable,
 )
 from bridge.apps.recover_salvage import _Salvage
-from bridge.errors import InputError, OutputError, check_input_path, shown
+from bridge.errors import FileError, InputError, check_input_path, shown
 from bridge.frame import format_time
 from bridge.sinks.mcap import FastWriter as Writer  # mcap's Writer, faster add_message
 from bridge.sinks.outputs import atomic_output, check_output
@@ -94,7 +94,7 @@ def recover_file(broken: Path | str, fixed: Path | str, *, force: bool = False,
         raise InputError(broken, "is a directory, not an MCAP file")
     check_input_path(broken)
     if fixed.exists() and fixed.resolve() == broken.resolve():
-        raise OutputError(fixed, "is the file to recover; write the recovered drive to a new file")
+        raise FileError(fixed, "is the file to recover; write the recovered drive to a new file")
     check_output(fixed, force=force, inputs=[broken])  # a hard link to it, too
     try:
         source = broken.open("rb")

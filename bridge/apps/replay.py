@@ -115,22 +115,22 @@ class ReplayReport:
 
 def _check(speed: float, start_s: float) -> None:
     if not speed > 0:
-        raise UsageError(f"--speed {speed:g}: must be above 0")
+        raise UsageError("--speed", "must be above 0", value=f"{speed:g}")
     if start_s < 0:
-        raise UsageError(f"--start {start_s:g}: must not be negative")
+        raise UsageError("--start", "must not be negative", value=f"{start_s:g}")
 
 
 def start_seconds(text: str) -> float | None:
     """``--start``'s seconds; None for a mark (``mark:N``, ``mark:TEXT``)."""
     if text.startswith(MARK_PREFIX):
         if not text[len(MARK_PREFIX):].strip():
-            raise UsageError(f"--start {text}: name a mark: mark:N (its number) or mark:TEXT (the "
-                             "first whose text contains TEXT)")
+            raise UsageError("--start", "name a mark: mark:N (its number) or mark:TEXT (the "
+                             "first whose text contains TEXT)", value=text)
         return None
     try:
         return float(text)
     except ValueError:
-        raise UsageError(f"--start {text}: expected SECONDS, mark:N or mark:TEXT") from None
+        raise UsageError("--start", "expected SECONDS, mark:N or mark:TEXT", value=text) from None
 
 
 def find_mark(marks: Sequence[Mark], wanted: str) -> Mark | None:
@@ -149,7 +149,7 @@ def mark_start_s(path: Path, text: str) -> tuple[float, Mark]:
     wanted = text[len(MARK_PREFIX):].strip()
     found = drive_marks(path)
     if not found.marks:
-        raise UsageError(f"--start {text}: {path.name} has no marks")
+        raise UsageError("--start", f"{path.name} has no marks", value=text)
     mark = find_mark(found.marks, wanted)
     if mark is None:
         what = (f"mark {wanted}" if wanted.isdigit()
@@ -157,8 +157,9 @@ def mark_start_s(path: Path, text: str) -> tuple[float, Mark]:
         listed = [f"{m.number} {m.text} ({found.seconds(m):.1f} s)"
                   for m in found.marks[:MARKS_LISTED]]
         more = len(found.marks) - len(listed)
-        raise UsageError(f"--start {text}: {path.name} has no {what}; its marks: "
-                         + ", ".join(listed) + (f", … and {more} more" if more else ""))
+        raise UsageError("--start", f"{path.name} has no {what}; its marks: "
+                         + ", ".join(listed) + (f", … and {more} more" if more else ""),
+                         value=text)
     return max(0.0, found.seconds(mark) - MARK_LEAD_S), mark
 
 
@@ -177,7 +178,8 @@ def _span_ns(path: Path) -> int | None:
 
 def _past_end(start_s: float, span_ns: int) -> UsageError:
     """``--start`` past the end of a drive whose first and last messages are ``span_ns`` apart."""
-    return UsageError(f"--start {start_s:g}: the drive is only {span_ns / NS:.1f} s long")
+    return UsageError("--start", f"the drive is only {span_ns / NS:.1f} s long",
+                      value=f"{start_s:g}")
 
 
 def replay_mcap(path: Path, server: ViewerServer, *, speed: float = 1.0, loop: bool = False,
@@ -380,13 +382,13 @@ def run(args: argparse.Namespace) -> int:
         check_input_path(path)
     mcap = [p for p in args.files if p.suffix.lower() == ".mcap"]
     if mcap and len(args.files) > 1:
-        raise UsageError("replay: one MCAP at a time (CAN logs can be several)")
+        raise UsageError("replay", "one MCAP at a time (CAN logs can be several)")
     named, seconds = args.start, start_seconds(args.start)
     note = None
     if seconds is None:  # a mark
         if not mcap:
-            raise UsageError(f"--start {named}: CAN logs have no marks (a drive tankviz "
-                             "recorded, .mcap, has)")
+            raise UsageError("--start", "CAN logs have no marks (a drive tankviz "
+                             "recorded, .mcap, has)", value=named)
         seconds, mark = mark_start_s(mcap[0], named)
         note = f"starting {MARK_LEAD_S:g} s before {describe(mark)}, at {seconds:.3f} s"
     args.start, args.start_note = seconds, note

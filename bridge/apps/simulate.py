@@ -25,7 +25,7 @@ from bridge.apps.options import (
     stopped_by_signals,
 )
 from bridge.apps.progress import ProgressBar
-from bridge.errors import OutputError, UsageError
+from bridge.errors import FileError, UsageError
 from bridge.frame import NS, Frame
 from bridge.io.can_logs import supported_suffixes
 from bridge.pipeline.drive import Drive, load_stages
@@ -90,10 +90,10 @@ def log_format(output: Path, car: str = "ecocar") -> str:
     if suffix is None:
         suffix = next((s for s in CANNOT_HOLD if name.endswith(s)), None)
     if suffix is None:
-        raise OutputError(output, f"unknown log format; write {_HOLDS}")
+        raise FileError(output, f"unknown log format; write {_HOLDS}")
     cannot = {**CANNOT_HOLD, **CANNOT_HOLD_FD} if car == "ecocar" else CANNOT_HOLD
     if suffix in cannot:
-        raise OutputError(output, f"{cannot[suffix]}; write {_HOLDS}")
+        raise FileError(output, f"{cannot[suffix]}; write {_HOLDS}")
     return suffix
 
 
@@ -126,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
     suffix = None if output.suffix.lower() == ".mcap" else log_format(output, car)
     check_output(output, force=args.force)
     if args.road is not None and car != "highway":
-        raise UsageError(f"--road {args.road}: only the highway car has other roads "
-                         "(--car highway)")
+        raise UsageError("--road", "only the highway car has other roads "
+                         "(--car highway)", value=args.road)
     frames = (simulate(duration_s=duration, seed=args.seed) if car == "ecocar"
               else simulate_highway(duration_s=duration, seed=args.seed,
                                     road=args.road or "curve"))

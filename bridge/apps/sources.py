@@ -122,15 +122,15 @@ def parse_window(text: str, option: str) -> tuple[float, float]:
     """``A0:A1`` seconds: a window (either end may be left out: from the start, to the end)."""
     start, colon, end = text.partition(":")
     if not colon:
-        raise UsageError(f"{option} {text}: expected START:END in seconds from the source's "
-                         "first frame, e.g. 40:60")
+        raise UsageError(option, "expected START:END in seconds from the source's "
+                         "first frame, e.g. 40:60", value=text)
     try:
         a = float(start) if start.strip() else 0.0
         b = float(end) if end.strip() else float("inf")
     except ValueError:
-        raise UsageError(f"{option} {text}: expected START:END in seconds, e.g. 40:60") from None
+        raise UsageError(option, "expected START:END in seconds, e.g. 40:60", value=text) from None
     if not b > a:
-        raise UsageError(f"{option} {text}: the window's end must come after its start")
+        raise UsageError(option, "the window's end must come after its start", value=text)
     return a, b
 
 
@@ -146,7 +146,7 @@ def parse_id(text: str, option: str = "--id") -> tuple[str, int]:
     above 0x7FF is a 29-bit one)."""
     bus, slash, ident = text.rpartition("/")
     if not slash or not bus or not ident:
-        raise UsageError(f"{option} {text}: expected BUS/ID, e.g. can0/0x1A0")
+        raise UsageError(option, "expected BUS/ID, e.g. can0/0x1A0", value=text)
     raw = ident.strip().lower()
     try:
         if raw.startswith("0x"):
@@ -156,14 +156,14 @@ def parse_id(text: str, option: str = "--id") -> tuple[str, int]:
         else:
             number = int(raw, 10)
     except ValueError:
-        raise UsageError(f"{option} {text}: {ident!r} is not an id (hex 0x1A0, or decimal "
-                         "416)") from None
+        raise UsageError(option, f"{ident!r} is not an id (hex 0x1A0, or decimal "
+                         "416)", value=text) from None
     if not 0 <= number < 1 << 29:
-        raise UsageError(f"{option} {text}: a CAN id has at most 29 bits")
+        raise UsageError(option, "a CAN id has at most 29 bits", value=text)
     return bus, number | EXTENDED_KEY if number > 0x7FF else number
 
 
 def known_buses(census_buses: Sequence[str], bus: str, option: str, text: str) -> None:
     if bus not in census_buses:
-        raise UsageError(f"{option} {text}: the source has no bus {bus!r} (its buses: "
-                         f"{', '.join(sorted(census_buses)) or 'none'})")
+        raise UsageError(option, f"the source has no bus {bus!r} (its buses: "
+                         f"{', '.join(sorted(census_buses)) or 'none'})", value=text)

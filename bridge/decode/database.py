@@ -158,7 +158,7 @@ def parse_dbc_option(text: str) -> tuple[str | None, Path]:
     bus, sep, rest = text.partition("=")
     if sep and bus and _BUS_NAME.match(bus) and not Path(text).exists():
         if not rest:
-            raise UsageError(f"--dbc {text}: no path after '{bus}='")
+            raise UsageError("--dbc", f"no path after '{bus}='", value=text)
         return bus, Path(rest)
     return None, Path(text)
 

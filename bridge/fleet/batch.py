@@ -37,8 +37,7 @@ if TYPE_CHECKING:
     from distributed import Client
 
 #: The one line a user without Dask gets.
-MISSING_DASK = ("tankviz batch runs on Dask, which is not installed: "
-                "pip install 'tankviz[fleet]'")
+MISSING_DASK = "runs on Dask, which is not installed: pip install 'tankviz[fleet]'"
 
 #: Two files of one stem are one drive when the later starts at most this long after the earlier
 #: ends (a logger's next part, a bus file that starts a little later).
@@ -70,9 +69,9 @@ def drive_stem(path: Path, suffixes: Iterable[str]) -> str:
 def _refuse_url(text: str) -> None:
     match = _URL.match(text)
     if match and match.group(1).lower() != "file":
-        raise UsageError(f"{text}: only local or shared-disk paths work (the CAN log readers "
-                         f"open files): mount the storage on every machine (NFS, SMB, s3fs, …) "
-                         f"and name its path")
+        raise UsageError(text, "only local or shared-disk paths work (the CAN log readers "
+                         "open files): mount the storage on every machine (NFS, SMB, s3fs, …) "
+                         "and name its path")
 
 
 def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[Path, Path]]:
@@ -96,7 +95,7 @@ def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[
         if glob.has_magic(text):
             matches = [Path(m).absolute() for m in sorted(glob.glob(str(path), recursive=True))]
             if not matches:
-                raise UsageError(f"{text}: matches no file")
+                raise UsageError(text, "matches no file")
             for m in matches:
                 if m.is_dir():
                     add_folder(m)
@@ -104,13 +103,13 @@ def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[
                     found.setdefault(m, m.parent)
         elif path.is_dir():
             if not add_folder(path):
-                raise UsageError(f"{text}: holds no {wanted} file")
+                raise UsageError(text, f"holds no {wanted} file")
         elif os.path.lexists(path):  # (a dangling link or a FIFO too: refused_inputs)
             found.setdefault(path, path.parent)
         else:
-            raise UsageError(f"{text}: no such file or folder")
+            raise UsageError(text, "no such file or folder")
     if not found:
-        raise UsageError(f"{' '.join(patterns)}: no {wanted} file found")
+        raise UsageError(" ".join(patterns), f"no {wanted} file found")
     return sorted(found.items())
 
 
@@ -216,11 +215,11 @@ def plan_jobs(drives: Sequence[BatchDrive], out: Path) -> list[ConvertJob]:
     for drive in drives:
         output = out / f"{drive.name}.mcap"
         if output in jobs:
-            raise UsageError(f"{output}: both {jobs[output].inputs[0]} and {drive.inputs[0]} "
+            raise UsageError(output, f"both {jobs[output].inputs[0]} and {drive.inputs[0]} "
                              "would be written there: convert them into different --out folders")
         for key in _identities([output]):
             if key in inputs:
-                raise UsageError(f"{output}: is an input ({inputs[key]}) and would be "
+                raise UsageError(output, f"is an input ({inputs[key]}) and would be "
                                  "overwritten: choose another --out folder")
         jobs[output] = ConvertJob(drive.name, tuple(str(p) for p in drive.inputs), str(output))
     return list(jobs.values())
@@ -481,12 +480,13 @@ def dask_client(*, workers: int | None = None, scheduler: str | None = None) -> 
     try:
         from distributed import Client, LocalCluster
     except ImportError:
-        raise UsageError(MISSING_DASK) from None
+        raise UsageError("tankviz batch", MISSING_DASK) from None
     if scheduler is not None:
         try:
             client = Client(scheduler, timeout=30)  # type: ignore[no-untyped-call]
         except (OSError, TimeoutError, ValueError) as exc:
-            raise UsageError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
+            raise UsageError("--scheduler", f"cannot connect: {exc}",
+                             value=scheduler) from None
         with client:
             yield client
         return

@@ -49,8 +49,8 @@ from mcap.reader import make_reader
 
 from bridge.errors import (
     BridgeError,
+    FileError,
     InputError,
-    OutputError,
     UsageError,
     name_too_long,
     not_a_file,
@@ -421,10 +421,10 @@ def dask_reader(*, workers: int | None = None, scheduler: str | None = None) -> 
     try:  # (untyped: used through Any)
         distributed: Any = importlib.import_module("dask.distributed")
     except ImportError:
-        raise UsageError(f"--workers and --scheduler read drives on Dask, which is not "
+        raise UsageError("--workers and --scheduler", "read drives on Dask, which is not "
                          f"installed: {FLEET_EXTRA}") from None
     if workers is not None and workers < 1:
-        raise UsageError(f"--workers {workers}: expected at least 1")
+        raise UsageError("--workers", "expected at least 1", value=workers)
 
     def read(paths: Sequence[str]) -> Iterator[DriveRows | BeingRecorded | str]:
         if not paths:
@@ -433,7 +433,8 @@ def dask_reader(*, workers: int | None = None, scheduler: str | None = None) -> 
             try:
                 client = distributed.Client(scheduler, timeout="10s")
             except OSError as exc:
-                raise UsageError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                raise UsageError("--scheduler", f"cannot connect ({exc})",
+                                 value=scheduler) from None
             cluster = None
         else:
             cluster = distributed.LocalCluster(n_workers=workers or 1, threads_per_worker=1,
@@ -460,11 +461,11 @@ def connect(catalog: Path | str, *, create: bool = False) -> Any:
     try:
         import duckdb
     except ImportError:
-        raise UsageError(f"the catalogue is a DuckDB file, and duckdb is not installed: "
+        raise UsageError(str(catalog), "is a DuckDB catalogue, and duckdb is not installed: "
                          f"{FLEET_EXTRA}") from None
     catalog = Path(catalog)
     if (why := name_too_long(catalog)) is not None:  # (DuckDB's error would be pages)
-        raise (OutputError if create else InputError)(catalog, why)
+        raise (FileError if create else InputError)(catalog, why)
     if not create and not catalog.is_file():
         raise InputError(catalog, "no such catalogue (make one with tankviz catalog DRIVES... "
                          f"-o {catalog})")

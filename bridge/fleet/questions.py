@@ -40,7 +40,7 @@ def query(catalog: Path | str, sql: str, parameters: Sequence[Any] = ()) -> Answ
             _check_reads_only(con, sql)
             result = con.execute(sql, list(parameters))
         except duckdb.Error as exc:
-            raise UsageError(f"{catalog}: {' '.join(str(exc).split())}") from None
+            raise UsageError(str(catalog), " ".join(str(exc).split())) from None
         if result.description is None:
             return Answer([], [], {})
         columns = [d[0] for d in result.description]
@@ -61,11 +61,12 @@ def _check_reads_only(con: Any, sql: str) -> None:
     statements = con.extract_statements(sql)
     shown = " ".join(sql.split())
     if not statements:
-        raise UsageError(f"no statement in the query {shown!r} (e.g. \"SELECT * FROM drives\")")
+        raise UsageError("catalog query", f"no statement in the query {shown!r} "
+                         '(e.g. "SELECT * FROM drives")')
     for statement in statements:
         kind = statement.type.name
         if kind not in READING_STATEMENTS:
-            raise UsageError(f"catalog query only reads: a {kind} statement is refused (it may "
+            raise UsageError("catalog query only reads", f"a {kind} statement is refused (it may "
                              f"write files or databases): {_shown(shown)}")
 
 
@@ -78,7 +79,7 @@ def _check_name(catalog: Path | str, what: str, column: str, table: str, name: s
     if name not in known:
         close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
         hint = f"; closest: {', '.join(close)}" if close else ""
-        raise UsageError(f"{catalog}: no {what} {name!r} in any drive of the catalogue{hint}")
+        raise UsageError(str(catalog), f"no {what} {name!r} in any drive of the catalogue{hint}")
 
 
 def _between_sql(column: str, between: tuple[str, str] | None) -> tuple[str, list[Any]]:
@@ -93,8 +94,8 @@ def _times(between: tuple[str, str]) -> tuple[datetime, datetime]:
         try:
             t = datetime.fromisoformat(text)
         except ValueError:
-            raise UsageError(f"--between {text}: expected a date or time such as 2026-01-01 or "
-                             "2026-01-01T12:00:00 (UTC)") from None
+            raise UsageError("--between", "expected a date or time such as 2026-01-01 or "
+                             "2026-01-01T12:00:00 (UTC)", value=text) from None
         if t.tzinfo is not None:
             t = t.astimezone(timezone.utc).replace(tzinfo=None)
         out.append(t)
@@ -102,7 +103,8 @@ def _times(between: tuple[str, str]) -> tuple[datetime, datetime]:
     if len(between[1]) == 10:  # a date alone: the whole day
         last = last.replace(hour=23, minute=59, second=59, microsecond=999999)
     if last < first:
-        raise UsageError(f"--between {between[0]} {between[1]}: the end is before the start")
+        raise UsageError("--between", "the end is before the start",
+                         value=f"{between[0]} {between[1]}")
     return first, last
 
 

@@ -109,9 +109,10 @@ class HealthSettings:
         for f in fields(self):
             value = getattr(self, f.name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise UsageError(f"health setting {f.name}={value!r}: must be a positive number")
+                raise UsageError(f"health setting {f.name}", "must be a positive number",
+                                 value=repr(value))
         if self.rate_threshold >= 1 or self.babble_share > 1:
-            raise UsageError("health settings: rate_threshold must be below 1 and "
+            raise UsageError("health settings", "rate_threshold must be below 1 and "
                              "babble_share at most 1")
 
 

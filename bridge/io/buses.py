@@ -88,9 +88,9 @@ class BusSpec:
     def parse(cls, text: str) -> BusSpec:
         match = _BUS.match(text.strip())
         if match is None:
-            raise UsageError(f"--bus {text}: expected NAME=INTERFACE:CHANNEL[@BITRATE] "
+            raise UsageError("--bus", "expected NAME=INTERFACE:CHANNEL[@BITRATE] "
                              "(e.g. radar=socketcan:can0) or the NAME of a python-can config "
-                             "section")
+                             "section", value=text)
         bitrate = match.group("bitrate")
         return cls(match.group("name"), match.group("interface"), match.group("channel"),
                    int(bitrate) if bitrate else None)
@@ -126,18 +126,19 @@ def configuration_error(spec: BusSpec, exc: Exception) -> UsageError | None:
     if isinstance(exc, can.CanInterfaceNotImplementedError):
         if spec.interface is None:
             return UsageError(
-                f"--bus {spec.name}: python-can's configuration has no interface for "
+                "--bus", f"python-can's configuration has no interface for "
                 f"{spec.name} (no [{spec.name}] section with an interface in "
-                f"{', '.join(can.util.CONFIG_FILES)}); give --bus {spec.name}=INTERFACE:CHANNEL")
+                f"{', '.join(can.util.CONFIG_FILES)}); give --bus {spec.name}=INTERFACE:CHANNEL",
+                value=spec.name)
         known = sorted(can.interfaces.VALID_INTERFACES)
         if spec.interface not in known:
             close = difflib.get_close_matches(spec.interface, known, n=1)
             hint = f"did you mean {close[0]}?" if close else "one of " + ", ".join(known)
-            return UsageError(f'--bus {spec}: python-can has no interface "{spec.interface}" '
-                              f"({hint})")
+            return UsageError("--bus", f'python-can has no interface "{spec.interface}" '
+                              f"({hint})", value=spec)
     text = str(exc).strip().splitlines()
-    return UsageError(f"--bus {spec}: cannot work: {type(exc).__name__}"
-                      + (f": {text[0]}" if text else ""))
+    return UsageError("--bus", f"cannot work: {type(exc).__name__}"
+                      + (f": {text[0]}" if text else ""), value=spec)
 
 
 def one_line(exc: BaseException) -> str:

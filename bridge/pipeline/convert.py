@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from bridge.decode.decoder import Decoder
-from bridge.errors import BridgeError, InputError, OutputError
+from bridge.errors import BridgeError, FileError, InputError
 from bridge.io.can_logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.drives import ArchiveSource, is_drive, read_drive
 from bridge.io.readahead import ReadAhead
@@ -106,8 +106,8 @@ def overlapping_inputs(inputs: Sequence[Path],
 def check_mcap_output(output: Path) -> None:
     """The output of convert is an MCAP drive archive: its name ends in ``.mcap``."""
     if output.suffix.lower() != ".mcap":
-        raise OutputError(output, "convert writes an MCAP drive archive: the output's name must "
-                          "end in .mcap")
+        raise FileError(output, "convert writes an MCAP drive archive: the output's name must "
+                        "end in .mcap")
 
 
 def recorded_issues(issues: Sequence[SourceIssue]) -> dict[str, Any]:

@@ -121,12 +121,12 @@ class Live:
                  say: Callable[[str], None] = print, bring_up: bool = True) -> None:
         names = [b.name for b in buses]
         if len(set(names)) != len(names):
-            raise UsageError(f"--bus: a bus name is used twice ({', '.join(names)})")
+            raise UsageError("--bus", f"a bus name is used twice ({', '.join(names)})")
         segments: dict[str, str] = {}
         for name in names:
             other = segments.setdefault(bus_segment(name), name)
             if other != name:
-                raise UsageError(f"--bus {other} and --bus {name} would share the topics "
+                raise UsageError(f"--bus {other} and --bus {name}", "would share the topics "
                                  f"/can/{bus_segment(name)}/...: rename one")
         self.buses = list(buses)
         self.scene_rate = scene_rate
@@ -198,7 +198,7 @@ class Live:
             tries = f"{link.tries} tr{'y' if link.tries == 1 else 'ies'}"
             why = (f"{link.failure} ({tries})" if link.failure else
                    "python-can's first try to open it had not ended")
-            error = UsageError(f"--bus {link.spec}: did not open {when}: {why}")
+            error = UsageError("--bus", f"did not open {when}: {why}", value=link.spec)
         raise error
 
     def _poll(self) -> list[Frame]:

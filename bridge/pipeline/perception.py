@@ -53,8 +53,8 @@ _topic_message = partial(tuple.__new__, TopicMessage)
 
 def check_scene_rate(rate: float) -> float:
     if not 0 < rate <= MAX_SCENE_RATE:
-        raise UsageError(f"--scene-rate {rate:g}: must be above 0 and at most "
-                         f"{MAX_SCENE_RATE:g} Hz")
+        raise UsageError("--scene-rate", "must be above 0 and at most "
+                         f"{MAX_SCENE_RATE:g} Hz", value=f"{rate:g}")
     return rate
 
 

@@ -22,18 +22,17 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from bridge.errors import BridgeError
+from bridge.errors import FileError
 from bridge.profile.expr import Expression
 
 
-class ProfileError(BridgeError):
-    """A profile that cannot be used; the message names the file, the key and what is wrong."""
+class ProfileError(FileError):
+    """A profile that cannot be used: ``path: key: reason`` (``path: reason`` without a key)."""
 
     def __init__(self, path: Path | str, key: str, reason: str) -> None:
-        self.path = str(path)
+        super().__init__(path, f"{key}: {reason}" if key else reason)
         self.key = key
         self.reason = reason
-        super().__init__(f"{self.path}: {key}: {reason}" if key else f"{self.path}: {reason}")
 
 
 class ObjectClass(str, Enum):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import can
 
-from bridge.errors import OutputError
+from bridge.errors import FileError
 from bridge.frame import Frame
 from bridge.sinks.outputs import fitted_name, publish
 
@@ -67,7 +67,7 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str, *,
             writer: can.Listener = (_CompleteSqliteWriter(partial) if suffix == ".db"
                                     else can.Logger(partial))
         except NotImplementedError as exc:  # MF4 without asammdf
-            raise OutputError(output, f"{exc}; pip install 'tankviz[mf4]'") from None
+            raise FileError(output, f"{exc}; pip install 'tankviz[mf4]'") from None
         try:
             for frame in frames:
                 writer.on_message_received(can.Message(
@@ -80,11 +80,11 @@ def write_log(frames: Iterator[Frame], output: Path, suffix: str, *,
         finally:
             writer.stop()
         if isinstance(writer, can.SqliteWriter) and writer.num_frames != count:
-            raise OutputError(output, f"python-can's SQLite writer wrote {writer.num_frames:,} "
-                              f"of {count:,} frames")
+            raise FileError(output, f"python-can's SQLite writer wrote {writer.num_frames:,} "
+                            f"of {count:,} frames")
         publish(partial, output, replace=replace)
     except OSError as exc:
-        raise OutputError(output, f"cannot write: {exc.strerror or exc}") from exc
+        raise FileError(output, f"cannot write: {exc.strerror or exc}") from exc
     finally:
         partial.unlink(missing_ok=True)
     return count, fd

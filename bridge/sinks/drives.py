@@ -31,7 +31,7 @@ from typing import Any, ClassVar, cast
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.decode.decoder import Decoded
-from bridge.errors import OutputError
+from bridge.errors import FileError
 from bridge.frame import timestamp
 from bridge.health.alarms import AlarmKind, Notice, alarm_notice
 from bridge.sinks.base import Serialized, Sink
@@ -240,8 +240,8 @@ class PartsRecorder(Sink):
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise OutputError(self.folder, f"cannot create the drives folder: "
-                              f"{exc.strerror or exc}") from None
+            raise FileError(self.folder, f"cannot create the drives folder: "
+                            f"{exc.strerror or exc}") from None
         self._next_check = self.clock() + self.check_interval_s
         self._arm()
 
@@ -269,7 +269,7 @@ class PartsRecorder(Sink):
             self._make_reserve(min(self.reserve, (free - self.min_free) // 2))
         except OSError as exc:
             if exc.errno != errno.ENOSPC:
-                raise OutputError(self.folder, f"cannot record: {exc.strerror or exc}") from None
+                raise FileError(self.folder, f"cannot record: {exc.strerror or exc}") from None
             self._stop(f"disk full: no room to record in {self.folder}")
             return
         if self._reserve_size <= 0:

@@ -27,7 +27,7 @@ try:
 except ImportError:  # Windows: no locks, so no partial file is ever taken for stale
     fcntl = None  # type: ignore[assignment]
 
-from bridge.errors import NAME_MAX, OutputError
+from bridge.errors import NAME_MAX, FileError
 
 #: What tells one run's partial output from another's: ``<pid>-<random>``.
 _TOKEN = re.compile(r"\d+-[0-9a-f]+")
@@ -172,7 +172,7 @@ def publish(partial: Path, path: Path, *, replace: bool) -> None:
     """Give the complete file ``partial`` its name ``path``, atomically: a reader sees no file or
     the whole of one. ``replace``: an existing ``path`` is replaced (``os.replace``); else a file
     that appeared at ``path`` meanwhile (another run's) is kept and this is an
-    :class:`~bridge.errors.OutputError` (``os.link``, which never replaces; on a file system
+    :class:`~bridge.errors.FileError` (``os.link``, which never replaces; on a file system
     without hard links, a check just before ``os.replace``)."""
     if replace:
         os.replace(partial, path)
@@ -180,12 +180,12 @@ def publish(partial: Path, path: Path, *, replace: bool) -> None:
     try:
         os.link(partial, path)
     except FileExistsError:
-        raise OutputError(path, APPEARED) from None
+        raise FileError(path, APPEARED) from None
     except OSError as exc:
         if exc.errno not in _NO_LINKS:
             raise
         if os.path.lexists(path):
-            raise OutputError(path, APPEARED) from None
+            raise FileError(path, APPEARED) from None
         os.replace(partial, path)
         return
     with contextlib.suppress(FileNotFoundError):
@@ -222,7 +222,7 @@ def atomic_output(path: Path, *, force: bool | None = None) -> Iterator[IO[bytes
             publish(partial, path, replace=replace)
     except OSError as exc:
         _remove(made)
-        raise OutputError(path, f"cannot write: {exc.strerror or exc}") from exc
+        raise FileError(path, f"cannot write: {exc.strerror or exc}") from exc
     except BaseException:
         _remove(made)
         raise
@@ -238,8 +238,8 @@ def refuse_inputs(path: Path, inputs: Iterable[Path | str]) -> None:
     whatever ``--force`` says."""
     for source in inputs:
         if same_file(path, source):
-            raise OutputError(path, f"is the same file as the input {source}: tankviz never "
-                              "writes over its inputs; name a new output file")
+            raise FileError(path, f"is the same file as the input {source}: tankviz never "
+                            "writes over its inputs; name a new output file")
 
 
 def check_output(path: Path, *, force: bool, inputs: Iterable[Path | str] = ()) -> None:
@@ -247,11 +247,11 @@ def check_output(path: Path, *, force: bool, inputs: Iterable[Path | str] = ()) 
     ``force``) or that cannot be written."""
     refuse_inputs(path, inputs)
     if path.is_dir():
-        raise OutputError(path, "is a directory")
+        raise FileError(path, "is a directory")
     if path.exists() and not force:
-        raise OutputError(path, "exists already; use --force to overwrite it")
+        raise FileError(path, "exists already; use --force to overwrite it")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
-        raise OutputError(path, f"cannot write: folder {parent} does not exist")
+        raise FileError(path, f"cannot write: folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
-        raise OutputError(path, f"cannot write: folder {parent} is not writable")
+        raise FileError(path, f"cannot write: folder {parent} is not writable")

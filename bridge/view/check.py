@@ -21,7 +21,7 @@ from typing import Any
 
 from google.protobuf.descriptor import FieldDescriptor
 
-from bridge.errors import BridgeError
+from bridge.errors import MessagePathError
 from bridge.topics import LOG_TOPIC, MARKS_TOPIC
 from bridge.view.paths import NUMERIC_TYPES, resolve_path, split_topic
 from bridge.view.produced import Produced
@@ -338,7 +338,7 @@ def check_layout(layout: Mapping[str, Any], where: Produced) -> list[str]:
                                 "the layout's globalVariables")
             try:
                 resolved = resolve_path(path, where, lists=kind == "Table")
-            except BridgeError as exc:
+            except MessagePathError as exc:
                 problems.append(f"{place}: {exc}")
                 continue
             if numeric and not resolved.plottable:

@@ -18,7 +18,7 @@ from typing import Any
 
 from google.protobuf.descriptor import FieldDescriptor
 
-from bridge.errors import BridgeError
+from bridge.errors import MessagePathError
 from bridge.view.produced import SAMPLE_KEYS, Produced
 
 #: Protobuf field types a plot can draw: numbers, booleans and enums (all but string, group,
@@ -108,7 +108,7 @@ def _segments(rest: str, path: str) -> list[str]:
             continue
         current.append(ch)
     if quote or depth:
-        raise BridgeError(f"{path}: unbalanced brackets or quotes")
+        raise MessagePathError(path, "unbalanced brackets or quotes")
     parts.append("".join(current))
     return parts
 
@@ -128,8 +128,8 @@ def _literal(text: str, path: str) -> Any:
     try:
         return float(text)
     except ValueError:
-        raise BridgeError(f"{path}: cannot read the filter value {text!r} (a quoted string, "
-                          "a number, true or false)") from None
+        raise MessagePathError(path, f"cannot read the filter value {text!r} (a quoted "
+                               "string, a number, true or false)") from None
 
 
 def _field_of(message: Any, dotted: str) -> Any:
@@ -178,7 +178,7 @@ def resolve_path(path: str, where: Produced, *, lists: bool = False) -> Resolved
     """
     topic, rest = split_topic(path, where.topics)
     if not topic:
-        raise BridgeError(f"{path}: no such topic")
+        raise MessagePathError(path, "no such topic")
     descriptor = where.topics[topic]
     schema = descriptor.full_name
     rest = re.sub(r"\.@[A-Za-z]+$", "", rest)  # modifiers (@derivative, @abs, …)
@@ -193,7 +193,7 @@ def resolve_path(path: str, where: Produced, *, lists: bool = False) -> Resolved
     if not rest:
         return Resolved(topic, schema, None)
     if not rest.startswith("."):
-        raise BridgeError(f"{path}: expected '.field' after {topic}")
+        raise MessagePathError(path, f"expected '.field' after {topic}")
     message, leaf = descriptor, None
     walked = topic
     several = False
@@ -201,30 +201,30 @@ def resolve_path(path: str, where: Produced, *, lists: bool = False) -> Resolved
     for n, part in enumerate(parts, 1):
         match = _SEGMENT.fullmatch(part)
         if match is None:
-            raise BridgeError(f"{path}: cannot read {part!r}")
+            raise MessagePathError(path, f"cannot read {part!r}")
         if message is None:
-            raise BridgeError(f"{path}: {walked} is not a message, it has no field "
-                              f"{match['name']!r}")
+            raise MessagePathError(path, f"{walked} is not a message, it has no field "
+                                        f"{match['name']!r}")
         name = match["name"]
         leaf = message.fields_by_name.get(name)
         if leaf is None:
             fields = ", ".join(message.fields_by_name)
-            raise BridgeError(f"{path}: {message.full_name} has no field {name!r}; "
-                              f"fields: {fields}")
+            raise MessagePathError(path, f"{message.full_name} has no field {name!r}; "
+                                        f"fields: {fields}")
         walked += f".{name}"
         suffix = match["suffix"]
         repeated = _is_repeated(leaf)
         whole = repeated and lists and not suffix and n == len(parts)  # a whole list
         if repeated and "[" not in suffix and not whole:
-            raise BridgeError(f"{path}: {walked} is repeated: index it ([0], [:])")
+            raise MessagePathError(path, f"{walked} is repeated: index it ([0], [:])")
         if not repeated and "[" in suffix:
-            raise BridgeError(f"{path}: {walked} is not repeated: it cannot be indexed")
+            raise MessagePathError(path, f"{walked} is not repeated: it cannot be indexed")
         message = leaf.message_type if leaf.type == FieldDescriptor.TYPE_MESSAGE else None
         if values is not None:
             values = [getattr(v, name) for v in values]
         tokens = _TOKEN.findall(suffix)
         if sum(t.startswith("[") for t in tokens) > 1:
-            raise BridgeError(f"{path}: {walked} is indexed twice")
+            raise MessagePathError(path, f"{walked} is indexed twice")
         sliced = False
         for token in tokens:
             if token.startswith("["):
@@ -247,24 +247,23 @@ def _filtered(token: str, message: Any, values: list[Any] | None, path: str,
     ``message``; ``values``: the sample's, None when not known in advance)."""
     filtered = _FILTER.fullmatch(token)
     if filtered is None:
-        raise BridgeError(f"{path}: cannot read the filter {token}")
+        raise MessagePathError(path, f"cannot read the filter {token}")
     field_name, operator, raw = filtered[1], filtered[2], filtered[3]
     field_leaf = _field_of(message, field_name) if message is not None else None
     if message is None or field_leaf is None:
-        raise BridgeError(f"{path}: the filter on {walked} names no field {field_name!r}")
+        raise MessagePathError(path, f"the filter on {walked} names no field {field_name!r}")
     value = _literal(raw, path)
     problem = _filter_type_error(field_leaf, value)
     if problem:
-        raise BridgeError(f"{path}: the filter on {walked}: {field_name} is {problem}")
+        raise MessagePathError(path, f"the filter on {walked}: {field_name} is {problem}")
     keys = SAMPLE_KEYS.get(message.full_name, frozenset())
     if values is None or value is _UNKNOWN or field_name not in keys:
         return None  # which elements match is not known in advance
     kept = [v for v in values if _COMPARE[operator](_value_of(v, field_name), value)]
     if not kept:
         there = sorted({str(_value_of(v, field_name)) for v in values})
-        raise BridgeError(
-            f"{path}: no {walked} has {field_name} {operator} {raw}; "
-            f"{field_name}: {', '.join(there) if there else 'none at all'}")
+        raise MessagePathError(path, f"no {walked} has {field_name} {operator} {raw}; "
+                               f"{field_name}: {', '.join(there) if there else 'none at all'}")
     return kept
 
 
@@ -276,14 +275,14 @@ def _index(token: str, values: list[Any] | None, path: str,
         return None, ":" in inner
     match = _INDEX.fullmatch(inner)
     if match is None or (match[1] is None and ":" not in inner):
-        raise BridgeError(f"{path}: cannot read the index {token} (n, a:b or :)")
+        raise MessagePathError(path, f"cannot read the index {token} (n, a:b or :)")
     if ":" not in inner:
         n = int(match[1])
         if values is None:
             return None, False
         picked = [v[n] for v in values if -len(v) <= n < len(v)]
         if not picked:
-            raise BridgeError(f"{path}: {walked} has no element {n}")
+            raise MessagePathError(path, f"{walked} has no element {n}")
         return picked, False
     if values is None:
         return None, True

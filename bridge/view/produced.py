@@ -16,7 +16,6 @@ from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool
 
-from bridge.errors import BridgeError
 from bridge.frame import Frame
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.marks import Marks
@@ -66,7 +65,8 @@ def descriptor_of(schema_name: str, file_descriptor_set: bytes) -> Any:
         ready = [f for f in pending
                  if all(d in {g.name for g in files if g not in pending} for d in f.dependency)]
         if not ready:
-            raise BridgeError(f"{schema_name}: the schema's files depend on missing files")
+            # the bridge's own schemas: a bug of the bridge, not an error of its user
+            raise RuntimeError(f"{schema_name}: the schema's files depend on missing files")
         for f in ready:
             pool.Add(f)
             pending.remove(f)
@@ -105,7 +105,7 @@ def health_sample(monitor: Any, buses: Iterable[str]) -> Any:
     for output in monitor.tick(0):
         if output.topic == HEALTH_TOPIC:
             return output.message
-    raise BridgeError("the health monitor published no /health")  # pragma: no cover
+    raise RuntimeError("the health monitor published no /health")  # pragma: no cover
 
 
 def bundled_produced(profile: str = "ecocar", buses: Iterable[str] = ("can0",)) -> Produced:

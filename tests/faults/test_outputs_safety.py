@@ -27,7 +27,7 @@ from mcap.reader import make_reader
 
 from bridge.apps.recover import recover_file
 from bridge.cli import main
-from bridge.errors import OutputError, UsageError
+from bridge.errors import FileError, UsageError
 from bridge.fleet.batch import find_inputs, group_drives, plan_jobs
 from bridge.frame import Frame
 from bridge.io.can_logs import LogSource
@@ -120,7 +120,7 @@ def test_recover_never_writes_over_the_file_it_recovers(drive: Path, tmp_path: P
                                                         kind: str) -> None:
     before = drive.read_bytes()
     fixed = link(kind, drive, tmp_path / "fixed.mcap")
-    with pytest.raises(OutputError, match=r"is the (file to recover|same file as the input)"):
+    with pytest.raises(FileError, match=r"is the (file to recover|same file as the input)"):
         recover_file(drive, fixed, force=True)
     assert drive.read_bytes() == before
 
@@ -164,7 +164,7 @@ def test_two_runs_writing_one_output_leave_one_whole_file(tmp_path: Path, force:
         other.write(b"second " * 1000)
     assert out.read_bytes() == b"second " * 1000
     stream.write(b"first " * 1000)
-    with pytest.raises(OutputError, match="another run") if not force else \
+    with pytest.raises(FileError, match="another run") if not force else \
             contextlib.nullcontext():
         first.__exit__(None, None, None)
     assert out.read_bytes() == (b"first " * 2000 if force else b"second " * 1000)
@@ -182,7 +182,7 @@ def test_two_simulations_writing_one_log_leave_one_whole_log(tmp_path: Path) -> 
                 write_sim_log(iter(drive), out, ".blf")  # the second run, whole
             yield frame
 
-    with pytest.raises(OutputError, match="another run"):
+    with pytest.raises(FileError, match="another run"):
         write_sim_log(first_run(), out, ".blf")
     assert [f.timestamp_ns for f in LogSource(out)] == [f.timestamp_ns for f in drive]
     assert stray(tmp_path) == []

@@ -23,15 +23,15 @@ The package, one concern a module:
 
 from __future__ import annotations
 
+from bridge.errors import ServerError, ViewerInputError
 from bridge.sinks.server.addresses import machine_addresses
 from bridge.sinks.server.client import ClientStats
-from bridge.sinks.server.viewer_input import ViewerInputError, ViewerMark, client_message
+from bridge.sinks.server.viewer_input import ViewerMark, client_message
 from bridge.sinks.server.viewer_server import (
     DEFAULT_HOST,
     DEFAULT_PORT,
     DEFAULT_QUEUE_LIMIT,
     SEND_BUFFER_BYTES,
-    ServerError,
     ViewerServer,
 )
 

@@ -60,11 +60,11 @@ from websockets.legacy.framing import prepare_ctrl
 from websockets.legacy.server import WebSocketServerProtocol
 from websockets.typing import DataLike
 
+from bridge.errors import ViewerInputError
 from bridge.sinks.server.viewer_input import (
     REFUSALS_LOGGED,
     TooManyMarks,
     ViewerInput,
-    ViewerInputError,
     ViewerMark,
 )
 

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge.errors import BridgeError
+from bridge.errors import ViewerInputError
 from bridge.pb.marks_pb2 import Mark
 from bridge.topics import MARKS_TOPIC
 
@@ -58,10 +58,6 @@ REFUSALS_LOGGED = 20
 SET_BY_SERVER = frozenset(f.name for f in Mark.DESCRIPTOR.fields) - {"text", "category"}
 
 _CLIENT_MESSAGE = struct.Struct("<BI")  # opcode 1 (message data), the client's channel id
-
-
-class ViewerInputError(BridgeError):
-    """A message from a viewer that the server does not take (the reason, in one line)."""
 
 
 class TooManyMarks(ViewerInputError):
@@ -102,20 +98,21 @@ def client_message(raw: str | bytes, *, marks: bool = False) -> dict[str, Any]:
         if not (isinstance(subscriptions, list) and all(
                 isinstance(sub, dict) and _is_int(sub.get("id"))
                 and _is_int(sub.get("channelId")) for sub in subscriptions)):
-            raise ViewerInputError('subscribe: "subscriptions" must be a list of '
-                                   '{"id": integer, "channelId": integer}')
+            raise ViewerInputError('"subscriptions" must be a list of '
+                                   '{"id": integer, "channelId": integer}', op=op)
     elif op == "advertise":
         channels = message.get("channels")
         if not (isinstance(channels, list) and all(
                 isinstance(c, dict) and _is_int(c.get("id")) and isinstance(c.get("topic"), str)
                 and isinstance(c.get("encoding"), str) for c in channels)):
-            raise ViewerInputError('advertise: "channels" must be a list of {"id": integer, '
-                                   '"topic": string, "encoding": string, "schemaName": string}')
+            raise ViewerInputError('"channels" must be a list of {"id": integer, '
+                                   '"topic": string, "encoding": string, "schemaName": string}',
+                                   op=op)
     else:
         key = "subscriptionIds" if op == "unsubscribe" else "channelIds"
         ids = message.get(key)
         if not (isinstance(ids, list) and all(map(_is_int, ids))):
-            raise ViewerInputError(f'{op}: "{key}" must be a list of integers')
+            raise ViewerInputError(f'"{key}" must be a list of integers', op=op)
     return message
 
 
@@ -226,7 +223,7 @@ class ViewerInput:
             if taken is None:
                 return None
             self.channels[channel] = None  # told once
-            raise ViewerInputError(taken)
+            raise ViewerInputError(str(taken))
         size = len(raw) - _CLIENT_MESSAGE.size
         if size > MARK_BYTES:  # (before any other work)
             raise ViewerInputError(f"a mark of {size:,} bytes: at most {MARK_BYTES:,}")
@@ -266,12 +263,12 @@ class ViewerInput:
             else:
                 self.channels[channel_id] = True
         if problems:
-            raise ViewerInputError("advertise: " + "; ".join(problems))
+            raise ViewerInputError("; ".join(problems), op="advertise")
 
     def _unadvertise(self, ids: list[int]) -> None:
         unknown = [i for i in ids if self.channels.pop(i, None) is None]
         if unknown:
-            raise ViewerInputError(f"unadvertise: channel {unknown[0]} was not advertised")
+            raise ViewerInputError(f"channel {unknown[0]} was not advertised", op="unadvertise")
 
 
 def _shown(text: str) -> str:

@@ -50,14 +50,14 @@ from foxglove_websocket.types import BinaryOpcode, ChannelId
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge.decode.decoder import Decoded, MessageCodec
-from bridge.errors import BridgeError
+from bridge.errors import ServerError, ViewerInputError
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Channel, Serialized, Sink
 from bridge.sinks.raw import RawBlock
 from bridge.sinks.server import internals
 from bridge.sinks.server.addresses import viewer_urls
 from bridge.sinks.server.client import ClientQueue, ClientStats
-from bridge.sinks.server.viewer_input import MARK_ENCODING, ViewerInputError, ViewerMark
+from bridge.sinks.server.viewer_input import MARK_ENCODING, ViewerMark
 from bridge.topics import frames_topic
 
 DEFAULT_HOST = "127.0.0.1"
@@ -77,10 +77,6 @@ VIEWER_MESSAGE_BYTES = 2**20
 #: Kernel send buffer per connection: about half a second of a busy scene, 25 MB/s at 20 ms
 #: round trip (the kernel doubles it for its bookkeeping).
 SEND_BUFFER_BYTES = 256 * 1024
-
-
-class ServerError(BridgeError):
-    """The server could not start (e.g. the port is taken)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,10 +163,10 @@ class ViewerServer(Sink):
         self._thread = threading.Thread(target=self._run, name="tankviz-server", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout):
-            raise ServerError(f"the WebSocket server did not start within {timeout:g} s")
+            raise ServerError(self.host, self.requested_port,
+                              f"the WebSocket server did not start within {timeout:g} s")
         if self._error is not None:
-            raise ServerError(f"cannot serve on {self.host}:{self.requested_port}: "
-                              f"{self._error}") from self._error
+            raise ServerError(self.host, self.requested_port, str(self._error)) from self._error
 
     def stop(self, timeout: float = 5.0) -> None:
         if self._loop is not None and self._stop is not None and self._thread is not None:
