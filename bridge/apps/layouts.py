@@ -5,8 +5,9 @@ made for a profile (``--profile P``), and the bring-up layout of a car without o
 :func:`bundled_layouts` lists the bundled ones with their previews and panels in words
 (:func:`summarize`), :func:`select_layouts` picks some by name (an unknown name is an error),
 :func:`export_layouts` copies them into a folder, overwriting nothing unless forced. Every
-layout is read with :func:`load_layout`, which refuses (:class:`LayoutError`) a file that is
-missing, not JSON or not in Foxglove's layout format (:func:`bridge.view.check.check_format`).
+layout is read with :func:`load_layout`, which refuses (:class:`~bridge.errors.FileError`) a
+file that is missing, not JSON or not in Foxglove's layout format
+(:func:`bridge.view.check.check_format`).
 """
 
 from __future__ import annotations
