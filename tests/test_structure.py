@@ -113,10 +113,25 @@ def test_no_import_chain_is_deeper_than_the_data_path() -> None:
 
 
 def report(root: Path) -> str:
+#: The most lines a module of bridge/ may have: a newcomer reads one in a sitting.
+MAX_LINES = 800
+
+
+def module_lines(root: Path = ROOT) -> dict[str, int]:
+    """The lines of each module of ``bridge`` (its generated protobuf code apart)."""
+    return {name: len(path.read_text().splitlines()) for name, path in modules(root).items()
+            if not name.startswith("bridge.pb")}
+
+
+def test_no_module_is_longer_than_the_cap() -> None:
+    longer = {name: lines for name, lines in module_lines().items() if lines > MAX_LINES}
+    assert not longer, (f"modules over {MAX_LINES} lines (split them along what they do): "
+                        + ", ".join(f"{name} ({lines})" for name, lines in sorted(longer.items())))
+
+
     edges = graph(root)
     chain = longest_chain(edges)
-    sizes = sorted(((len(p.read_text().splitlines()), n) for n, p in modules(root).items()
-                    if ".pb." not in n), reverse=True)
+    sizes = sorted(((lines, n) for n, lines in module_lines(root).items()), reverse=True)
     crossed = list(dict.fromkeys(stage(m) for m in chain))
     return "\n".join([f"longest import chain: {len(chain)} modules in {len(crossed)} folders "
                       f"({', '.join(crossed)})", "  " + " → ".join(chain),
