@@ -7,6 +7,7 @@ mode so that a change that breaks them (a renamed topic, a moved module) shows a
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import itertools
 import re
 import subprocess
@@ -37,6 +38,8 @@ CONVERT_ROWS = (
 
 
 def tool(name: str) -> ModuleType:
+    if str(TOOLS) not in sys.path:
+        sys.path.insert(0, str(TOOLS))  # the tools import benchlib, as they do run as scripts
     spec = importlib.util.spec_from_file_location(f"tools_{name}", TOOLS / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -245,14 +248,17 @@ def test_bench_health_tick_replays_every_frame_on_both_monitors_with_the_same_by
 
 
 def test_the_health_tick_reference_takes_the_lateral_check_from_its_revision() -> None:
-    """``also=("world.lateral",)``: the reference monitor's LateralSignCheck is the module of
-    the revision (``git show``), not the working tree's."""
-    modules = tool("bench_health").reference_package("HEAD", "_ref_health_lateral_test",
-                                                     also=("world.lateral",))
-    check = modules["monitor"].LateralSignCheck
-    assert sys.modules[check.__module__].__file__ == "<HEAD:bridge/world/lateral.py>"
+    """``also=("bridge.world.lateral",)``: the reference monitor's LateralSignCheck is the module
+    of the revision (its worktree), not the working tree's, which stays the one imported."""
     from bridge.world.lateral import LateralSignCheck
+
+    modules = tool("bench_health").reference_package("HEAD", also=("bridge.world.lateral",))
+    check = modules["monitor"].LateralSignCheck
+    method = next(f for f in vars(check).values() if inspect.isfunction(f))
+    tree = sys.modules["benchlib"].worktree("HEAD")  # the one bench_health made
+    assert method.__code__.co_filename == str(tree / "bridge" / "world" / "lateral.py")
     assert check is not LateralSignCheck
+    assert sys.modules[LateralSignCheck.__module__].LateralSignCheck is LateralSignCheck
 
 
 def test_bench_bringup_cli_times_every_command_against_python_can() -> None:

@@ -10,8 +10,9 @@ process, interleaved, best of ``--repeat`` (default 3):
     ``SerializeToString()``;
 (b) tankviz's :class:`bridge.decode.decoder.Decoder` (a new one per round, so its caches start
     cold; with ``--warm``, it has prepared every message before the clock starts);
-(c) optionally, each ``--compare NAME=PATH``: another decoder module (e.g. an old version taken
-    with ``git show HEAD:bridge/decode/decoder.py``) timed the same way as (b);
+(c) optionally, each ``--compare NAME=PATH``: another decoder module (a file), or with
+    ``--compare NAME=@REV`` the decoder of git revision REV (``benchlib.modules_at``), timed
+    the same way as (b);
 (d) with ``--block N``: tankviz's column decode, :meth:`Decoder.decode_block` on the same frames
     as :class:`bridge.block.FrameBlock` s of N frames (made before the clock starts: they are
     what the read-ahead hands over), also printed as a ratio to (b);
@@ -25,8 +26,8 @@ for the ten busiest ids.
 
 Logs:
 
-- ``synthetic`` (default): the simulated 3-bus ecocar drive of ``tools/bench_convert.py`` (its
-  generator, imported), ``--frames`` frames (default 200,000);
+- ``synthetic`` (default): ``bridge/sim``'s ecocar drive on three buses
+  (``benchlib.ecocar_frames``), ``--frames`` frames (default 200,000);
 - ``real-like``: traffic on the public ``ford_fusion_2018_pt.dbc`` (../shared/data/dbc) the way a
   production power-train bus looks: every message at its cycle, most status messages repeating
   unchanged, a 4-bit rolling counter and a checksum byte in a third of them, noisy measured
@@ -34,7 +35,7 @@ Logs:
 
     python tools/bench_decode.py
     python tools/bench_decode.py --log real-like
-    python tools/bench_decode.py --compare old=/tmp/me/old_decoder.py
+    python tools/bench_decode.py --compare old=@HEAD~3
     python tools/bench_decode.py --block 4096 --block 16384 [--warm]
 """
 
@@ -48,6 +49,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from types import ModuleType
 from typing import Any, cast
@@ -59,27 +61,19 @@ from google.protobuf import descriptor_pool
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_convert import ECOCAR_DBC, generate_frames
+from benchlib import ECOCAR_DBC, best_of, ecocar_frames, modules_at
 
 from bridge.block import FrameBlock
 from bridge.decode import decoder as tankviz_decoder
 from bridge.decode.proto_schema import MessageSchema
-from bridge.frame import Frame, to_ns
+from bridge.frame import Frame
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 REAL_LIKE_DBC = SHARED_DBC / "ford_fusion_2018_pt.dbc"
 
 
 def synthetic_frames(n: int, seed: int) -> list[Frame]:
-    db = cantools.database.load_file(str(ECOCAR_DBC), strict=False)
-    assert isinstance(db, Database)
-    out: list[Frame] = []
-    for msg in generate_frames(db, seed):
-        if len(out) >= n:
-            break
-        out.append(Frame(to_ns(msg.timestamp), f"can{msg.channel}", msg.arbitration_id,
-                         bytes(msg.data), msg.is_extended_id, msg.is_fd, dlc=msg.dlc))
-    return out
+    return list(ecocar_frames(n, seed))
 
 
 def real_like_frames(n: int, seed: int) -> list[Frame]:
@@ -197,6 +191,10 @@ class FreshBlocks(Fresh):
 
 
 def load_module(name: str, path: Path) -> ModuleType:
+    """The decoder module at ``path``, or with ``@REV`` the one of git revision REV."""
+    if str(path).startswith("@"):
+        module = "bridge.decode.decoder"
+        return modules_at(str(path)[1:], [module])[module]
     sys.path.insert(0, str(path.parent))
     spec = importlib.util.spec_from_file_location(f"bench_decode_{name}", path)
     assert spec is not None and spec.loader is not None
@@ -204,6 +202,21 @@ def load_module(name: str, path: Path) -> ModuleType:
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
+
+
+def timed(run: Callable[[list[Frame]], object], frames: list[Frame]) -> float:
+    """CPU seconds of ``run`` on ``frames`` (set up first, not timed), the garbage collector off
+    as in ``tankviz convert``."""
+    setup = getattr(run, "setup", None)
+    if setup is not None:
+        setup(frames)
+    gc.collect()
+    gc.disable()
+    started = time.process_time()
+    run(frames)
+    spent = time.process_time() - started
+    gc.enable()
+    return spent
 
 
 def repeats(frames: list[Frame]) -> tuple[float, list[tuple[str, int, float]]]:
@@ -265,18 +278,8 @@ def main(argv: list[str] | None = None) -> int:
         if differ:
             print(f"MISMATCH: {name} gives other payload bytes than (a) for {differ} frames")
 
-    best = dict.fromkeys(runners, float("inf"))
-    for _ in range(args.repeat):
-        for name, run in runners.items():
-            setup = getattr(run, "setup", None)
-            if setup is not None:
-                setup(frames)
-            gc.collect()
-            gc.disable()  # as tankviz convert runs
-            started = time.process_time()
-            run(frames)
-            best[name] = min(best[name], time.process_time() - started)
-            gc.enable()
+    best = best_of({name: partial(timed, run, frames) for name, run in runners.items()},
+                   args.repeat)
 
     decodable = sum(1 for r in reference if r is not None)
     print(f"log: {args.log}, {len(frames)} frames ({decodable} decodable), {dbc.name}; "

@@ -4,10 +4,9 @@
 Two kinds of traffic, turned into :class:`bridge.frame.Frame` (and decoded) a chunk at a time
 before the chunk is timed, so that only ``on_frame`` is:
 
-- ``synthetic``: the simulated three-bus ecocar drive of ``tools/bench_convert.py`` (its
-  generator, imported: rolling counters, checksums, CAN FD radar frames; 1.5M frames are about
-  the 600 s drive of issue #15), decoded with the ecocar databases and watched with the ecocar
-  profile (500 kbit/s, 2 Mbit/s data phase);
+- ``synthetic``: ``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_frames``:
+  rolling counters, checksums, CAN FD radar frames; 1.5M frames are about 650 s), decoded
+  with the ecocar databases and watched with the ecocar profile (500 kbit/s, 2 Mbit/s data phase);
 - ``candump``: a candump-like log of a car tankviz has no profile for (:func:`candump_frames`:
   ~100 ids, 11- and 29-bit, 10 ms to 1 s cycles, counters, checksums, noisy and random bytes,
   CAN FD frames with and without bit rate switch, some remote and error frames; 59 % and 43 %
@@ -15,9 +14,9 @@ before the chunk is timed, so that only ``on_frame`` is:
   of a foreign log.
 
 Each chunk goes through ``--repeat`` (3) monitors of the checkout (``new``) and as many of a
-reference (``old``: by default the committed ``bridge/health`` package, from ``git show
-HEAD:...``, each monitor with a copy of its own imported under another name, so that none shares
-another's caches), interleaved; it prints µs/frame of the best of each and the ratio
+reference (``old``: by default the committed ``bridge/health`` package, from a worktree of
+``--ref``, each monitor with a copy of its own, so that none shares another's caches),
+interleaved; it prints µs/frame of the best of each and the ratio
 old/new. It then compares the bits each counted on each bus (the bus load) with the exact count
 (the reference's ``frame_bits`` summed over every frame). ``--profile`` adds a cProfile of the
 first new monitor.
@@ -31,10 +30,8 @@ from __future__ import annotations
 import argparse
 import cProfile
 import gc
-import importlib.util
 import pstats
 import random
-import subprocess
 import sys
 import time
 import types
@@ -47,33 +44,16 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bridge.decode.decoder import Decoded, Decoder  # noqa: E402
-from bridge.frame import NS, Frame, to_ns  # noqa: E402
+from bridge.decode.decoder import Decoded  # noqa: E402
+from bridge.decode.decoder import Decoder  # noqa: E402
+from bridge.frame import NS, Frame  # noqa: E402
 from bridge.health import monitor as new_monitor  # noqa: E402
 from bridge.pipeline.drive import load_stages  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "tools"))
+from benchlib import ecocar_frames, package_at  # noqa: E402
+
 T0_NS = 1_700_000_000 * NS
-
-
-def load_tool(name: str) -> types.ModuleType:
-    """A module of tools/ (such as bench_convert, for its drive generator)."""
-    spec = importlib.util.spec_from_file_location(f"_tools_{name}", ROOT / "tools" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def synthetic_frames(n: int, seed: int = 1) -> list[Frame]:
-    """The first ``n`` frames of bench_convert's simulated drive (python-can channel N is bus
-    ``canN``, as in a BLF)."""
-    bench = load_tool("bench_convert")
-    db = bench.load_database(bench.ECOCAR_DBC).db
-    return [Frame(to_ns(m.timestamp), f"can{m.channel}", m.arbitration_id, bytes(m.data),
-                  m.is_extended_id, m.is_fd, m.is_error_frame, m.is_remote_frame,
-                  m.bitrate_switch, m.error_state_indicator, m.dlc)
-            for m in islice(bench.generate_frames(db, seed), n)]
 
 
 def candump_frames(n: int, seed: int = 7) -> list[Frame]:
@@ -135,65 +115,20 @@ def candump_frames(n: int, seed: int = 7) -> list[Frame]:
     return out[:n]
 
 
-def reference_modules(ref: str, tag: str) -> tuple[types.ModuleType, types.ModuleType]:
-    """The wire and monitor modules of git revision ``ref``, imported under other names with
-    every module of its ``bridge/health`` package (the reference monitor counts with the
-    reference's own counters and wire module, however the package was split then; each ``tag``
-    is a copy of its own, so that no two reference monitors share the wire module's caches)."""
-    modules = reference_package(ref, f"_ref_health_{tag}")
+def reference_modules(ref: str) -> tuple[types.ModuleType, types.ModuleType]:
+    """The wire and monitor modules of git revision ``ref``, with every module of its
+    ``bridge/health`` package (the reference monitor counts with the reference's own counters
+    and wire module, however the package was split then); each call makes a copy of its own,
+    so that no two reference monitors share the wire module's caches."""
+    modules = reference_package(ref)
     return modules["wire"], modules["monitor"]
 
 
-def reference_package(ref: str, package: str,
-                      also: tuple[str, ...] = ()) -> dict[str, types.ModuleType]:
-    """Every module of ``bridge/health`` at git revision ``ref``, imported as the package
-    ``package`` (rewritten to import each other), by module name.
-
-    ``also``: modules of other packages the health modules import (e.g. ``"world.lateral"``),
-    taken from ``ref`` too (imported first, as ``package._world_lateral``); the rest of
-    ``bridge`` is the working tree's."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
-                              text=True).stdout
-
-    names = [Path(p).stem for p in git("ls-tree", "--name-only", ref, "bridge/health/").split()
-             if p.endswith(".py") and not p.endswith("__init__.py")]
-    sys.modules[package] = types.ModuleType(package)
-    sys.modules[package].__path__ = []  # a package: its modules are put in sys.modules below
-    modules: dict[str, types.ModuleType] = {}
-    #: each module of ``also``: (its import, the reference's module name in ``package``)
-    renamed = [(f"from bridge.{dotted} import", f"_{dotted.replace('.', '_')}")
-               for dotted in also]
-
-    def run(name: str, path: str, text: str) -> types.ModuleType:
-        for spelled, alias in renamed:
-            text = text.replace(spelled, f"from {package}.{alias} import")
-        m = types.ModuleType(f"{package}.{name}")
-        m.__file__ = f"<{ref}:{path}>"
-        sys.modules[m.__name__] = m
-        setattr(sys.modules[package], name, m)
-        exec(compile(text, m.__file__, "exec"), m.__dict__)
-        return m
-
-    for dotted, (_, alias) in zip(also, renamed, strict=True):
-        path = f"bridge/{dotted.replace('.', '/')}.py"
-        run(alias, path, git("show", f"{ref}:{path}"))
-
-    def load(name: str) -> types.ModuleType:
-        if name in modules:
-            return modules[name]
-        text = git("show", f"{ref}:bridge/health/{name}.py")
-        for other in names:  # the package's own imports: the reference's modules, loaded first
-            if f"bridge.health.{other} import" in text or f"bridge.health import {other}" in text:
-                load(other)
-        text = text.replace("from bridge.health.", f"from {package}.").replace(
-            "from bridge.health import", f"from {package} import")
-        m = modules[name] = run(name, f"bridge/health/{name}.py", text)
-        return m
-
-    for name in names:
-        load(name)
-    return modules
+def reference_package(ref: str, also: tuple[str, ...] = ()) -> dict[str, types.ModuleType]:
+    """Every module of ``bridge/health`` at git revision ``ref``, by module name, and the modules
+    ``also`` (e.g. ``"bridge.world.lateral"``) of ``ref`` that they import; the rest of
+    ``bridge`` is the working tree's (:func:`benchlib.package_at`)."""
+    return package_at(ref, "bridge.health", own=also)
 
 
 @dataclass
@@ -217,16 +152,8 @@ def chunked(frames: Iterator[Frame], decoder: Decoder | None, size: int = 50_000
 
 def synthetic_case(n: int) -> Case:
     decoder, profile = load_stages([], "ecocar")
-    bench = load_tool("bench_convert")
-    db = bench.load_database(bench.ECOCAR_DBC).db
-
-    def frames() -> Iterator[Frame]:
-        for m in islice(bench.generate_frames(db, 1), n):
-            yield Frame(to_ns(m.timestamp), f"can{m.channel}", m.arbitration_id, bytes(m.data),
-                        m.is_extended_id, m.is_fd, m.is_error_frame, m.is_remote_frame,
-                        m.bitrate_switch, m.error_state_indicator, m.dlc)
-
-    return Case("synthetic (ecocar profile, decoded)", lambda: chunked(frames(), decoder),
+    return Case("synthetic (ecocar profile, decoded)",
+                lambda: chunked(ecocar_frames(n), decoder),
                 decoder, profile, {bus: 500_000 for bus in ("can0", "can1", "can2")},
                 {"can0": 2_000_000})
 
@@ -262,13 +189,13 @@ def bus_seconds(bits: dict[str, list[float]], case: Case) -> dict[str, float]:
 def measure(case: Case, repeat: int, ref: str, profile: bool) -> None:
     print(f"\n{case.name}")
     pairs = []
-    for i in range(repeat):
-        _, ref_monitor = reference_modules(ref, str(i))
+    for _ in range(repeat):
+        _, ref_monitor = reference_modules(ref)
         pairs.append([(label, module.HealthMonitor(case.profile, case.decoder,
                                                    bitrates=case.bitrates,
                                                    data_bitrates=case.data_bitrates))
                       for label, module in (("old", ref_monitor), ("new", new_monitor))])
-    exact_wire, _ = reference_modules(ref, "exact")
+    exact_wire, _ = reference_modules(ref)
     totals = {(i, label): 0.0 for i in range(repeat) for label in ("old", "new")}
     exact: dict[str, list[float]] = {}
     profiler = cProfile.Profile() if profile else None

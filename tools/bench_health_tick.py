@@ -11,7 +11,7 @@ and on two new monitors fed the same calls, interleaved (which of the two goes f
 at random at every timed call):
 
 - ``reference``: every module of ``bridge/health`` as it is at git revision ``--ref`` (default
-  ``HEAD``), read with ``git show`` and imported under other names (as ``tools/bench_health.py``
+  ``HEAD``), from a worktree of it, beside the working tree's (as ``tools/bench_health.py``
   does), and ``bridge/world/lateral.py`` with them (the lateral sign check the monitor runs at
   each tick); the rest of the world, the scene and of ``bridge`` are the working tree's;
 - ``current``: the modules of the working tree.
@@ -62,9 +62,9 @@ DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
 
 def reference_health(ref: str) -> dict[str, types.ModuleType]:
     """Every module of ``bridge/health`` at git revision ``ref``, with the lateral sign check
-    it runs at each tick (``bridge/world/lateral.py``), imported under other names
+    it runs at each tick (``bridge/world/lateral.py``), beside the working tree's
     (``tools/bench_health.py``'s loader), by module name."""
-    return reference_package(ref, "_ref_health_tick", also=("world.lateral",))
+    return reference_package(ref, also=("bridge.world.lateral",))
 
 
 def record(log: Path, profile: str, folder: Path) -> tuple[list[Call], dict[str, Any]]:

@@ -10,8 +10,8 @@ ticks, each in a world of its own that lives through the drive (as in a convert)
 with both messages serialized (what a sink does next):
 
 - ``old``: ``bridge/world/model.py``, ``bridge/scene/entities.py`` and ``bridge/scene/semantic.py``
-  at git revision ``--ref`` (default ``HEAD``), read with ``git show`` into a temporary folder and
-  imported under other names;
+  at git revision ``--ref`` (default ``HEAD``), from a worktree of it, beside the working
+  tree's;
 - ``new``: the modules of the working tree.
 
 It prints µs per tick of each and the ratio old / new (above 1: the new code is faster); then the
@@ -28,14 +28,10 @@ from __future__ import annotations
 
 import argparse
 import gc
-import importlib.util
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 import types
-from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -45,9 +41,8 @@ import zstandard
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate  # noqa: E402
-
-from bridge.decode.decoder import Decoder, load_database  # noqa: E402
+from bridge.decode.database import load_database  # noqa: E402
+from bridge.decode.decoder import Decoder  # noqa: E402
 from bridge.pipeline.perception import Perception  # noqa: E402
 from bridge.profile.loader import load_profile  # noqa: E402
 from bridge.profile.model import Profile  # noqa: E402
@@ -58,29 +53,18 @@ from bridge.sim.ecocar import simulate  # noqa: E402
 from bridge.world import model as new_model  # noqa: E402
 from bridge.world.model import polynomial  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "tools"))
+from benchlib import best_of, modules_at  # noqa: E402
+
 #: per tick: (time, lane lines of the world, steering wheel angle)
 Tick = tuple[int, dict[str, Any], float | None]
 
 
 def load_old(ref: str) -> tuple[types.ModuleType, types.ModuleType, types.ModuleType]:
-    """The world model, scene entities and semantic modules at ``ref``, under other names."""
-    folder = Path(tempfile.mkdtemp(prefix="bench_lanes_"))
-
-    def module(name: str, path: str) -> types.ModuleType:
-        text = subprocess.run(["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True,
-                              capture_output=True, text=True).stdout
-        text = text.replace("from bridge.world.model import", "from old_lanes_model import")
-        (folder / f"{name}.py").write_text(text)
-        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        found = importlib.util.module_from_spec(spec)
-        sys.modules[name] = found
-        spec.loader.exec_module(found)
-        return found
-
-    return (module("old_lanes_model", "bridge/world/model.py"),
-            module("old_lanes_entities", "bridge/scene/entities.py"),
-            module("old_lanes_semantic", "bridge/scene/semantic.py"))
+    """The world model, scene entities and semantic modules at ``ref``, beside the tree's."""
+    names = ("bridge.world.model", "bridge.scene.entities", "bridge.scene.semantic")
+    old = modules_at(ref, names)
+    return old[names[0]], old[names[1]], old[names[2]]
 
 
 def drive_ticks(profile: Profile, database: Any, seconds: float) -> list[Tick]:
@@ -105,7 +89,9 @@ def replay(model: types.ModuleType, entities: types.ModuleType, semantic: types.
            out: list[bytes] | None = None) -> float:
     """Seconds to make the lanes of every tick in a world of ``model``."""
     world = model.World(profile)
-    lane_model, lane_entities, lanes = world.lane_model, entities.lane_entities, semantic.lanes
+    lane_model, lanes = world.lane_model, semantic.lanes
+    # the scene tick's lanes: _lane_wire up to 304ae15, then lane_entities
+    lane_entities = getattr(entities, "_lane_wire", entities.lane_entities)
     ego = world.ego
     gc.collect()
     started = time.perf_counter()
@@ -113,8 +99,9 @@ def replay(model: types.ModuleType, entities: types.ModuleType, semantic: types.
         world.lanes = lines
         ego.steering_wheel_angle = angle
         model_now = lane_model(t)
-        update = SceneUpdate()
-        lane_entities(update.entities, model_now, t)
+        drawn: list[Any] = []
+        lane_entities(drawn, model_now, t)
+        update = entities.scene_update(drawn)
         message = lanes(model_now, t)
         if serialize:
             data = update.SerializeToString()
@@ -122,16 +109,6 @@ def replay(model: types.ModuleType, entities: types.ModuleType, semantic: types.
             if out is not None:
                 out.append(data)
     return time.perf_counter() - started
-
-
-def best_of(repeat: int, runs: dict[str, Callable[[], float]]) -> dict[str, float]:
-    """Each run ``repeat`` times, interleaved; the best time of each."""
-    best: dict[str, float] = {}
-    for _ in range(repeat):
-        for name, run in runs.items():
-            seconds = run()
-            best[name] = min(seconds, best.get(name, seconds))
-    return best
 
 
 def compressed(messages: list[bytes]) -> int:
@@ -192,9 +169,9 @@ def main(argv: list[str] | None = None) -> int:
           f"(observed in {time.perf_counter() - started:.1f} s)")
 
     for serialize in (False, True):
-        best = best_of(args.repeat, {
+        best = best_of({
             "old": partial(replay, *old, profile, ticks, serialize=serialize),
-            "new": partial(replay, *new, profile, ticks, serialize=serialize)})
+            "new": partial(replay, *new, profile, ticks, serialize=serialize)}, args.repeat)
         what = "make + serialize" if serialize else "make"
         per_tick = {name: seconds / len(ticks) * 1e6 for name, seconds in best.items()}
         print(f"lanes per tick ({what}): old {per_tick['old']:.1f} µs, new "

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """Benchmark the read-ahead's hand-over: frames/s through ReadAhead, new against old (a report).
 
-On the simulated 3-bus drive of ``tools/bench_convert.py`` (its generator and cache, imported),
-as a BLF and its ASC copy of ``--frames`` frames (default 400,000), it reads every frame through
+On ``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_log``, cached), as a BLF
+and its ASC copy of ``--frames`` frames (default 400,000), it reads every frame through
 :class:`bridge.io.readahead.ReadAhead` (a forked child reads the log with python-can and hands
 the frames over) and times, interleaved, best of ``--runs`` (default 3):
 
-- ``old frames``: the module as ``--ref`` has it (default ``HEAD``, read with ``git show`` and
-  imported under another name): iterating its frames (pickled tuples made into frames here);
+- ``old frames``: the module as ``--ref`` has it (default ``HEAD``, from a worktree of it, beside
+  the working tree's): iterating its frames (pickled tuples made into frames here);
 - ``new frames``: this checkout's module, iterating its frames (made here from the blocks);
 - ``new blocks``: this checkout's module, iterating :meth:`ReadAhead.blocks` (no frame made here:
   what the block engine reads).
@@ -39,10 +39,8 @@ from __future__ import annotations
 
 import argparse
 import gc
-import importlib.util
 import resource
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -55,7 +53,15 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_convert import asc_copy, synthetic_log
+from benchlib import (
+    asc_copy,
+    best_of,
+    cpu_seconds,
+    ecocar_frames,
+    ecocar_log,
+    interleaved,
+    modules_at,
+)
 
 from bridge.block import FrameBlock
 from bridge.frame import Frame
@@ -66,18 +72,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def old_module(ref: str) -> ModuleType:
-    """bridge/io/readahead.py as ``ref`` has it, imported as ``readahead_<ref>``."""
-    source = subprocess.run(["git", "show", f"{ref}:bridge/io/readahead.py"], cwd=ROOT,
-                            check=True, capture_output=True, text=True).stdout
-    folder = Path(tempfile.mkdtemp(prefix="tankviz-bench-readahead-"))
-    path = folder / "readahead_ref.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("readahead_ref", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    """bridge/io/readahead.py as ``ref`` has it."""
+    return modules_at(ref, ["bridge.io.readahead"])["bridge.io.readahead"]
 
 
 class MemorySource:
@@ -172,7 +168,7 @@ class Timing:
 
 def hand_over(args: argparse.Namespace) -> None:
     old = old_module(args.ref)
-    blf, _ = synthetic_log(args.workdir, args.frames, args.seed)
+    blf, _ = ecocar_log(args.workdir, args.frames, args.seed)
     asc = asc_copy(blf)
     print(f"read-ahead hand-over: {args.frames} simulated frames, old = {args.ref}'s "
           f"readahead.py, best of {args.runs}, interleaved (BATCH {new_module.BATCH})")
@@ -187,10 +183,9 @@ def hand_over(args: argparse.Namespace) -> None:
             "child old": (Timing(), partial(child_alone, old, path)),
             "child new": (Timing(), partial(child_alone, new_module, path)),
         }
-        counts = set()
-        for _ in range(args.runs):
-            for timing, work in contenders.values():
-                counts.add(timing.run(work))
+        runs = interleaved({name: partial(timing.run, work)
+                            for name, (timing, work) in contenders.items()}, args.runs)
+        counts = {n for done in runs.values() for n in done}
         assert len(counts) == 1, f"the contenders read different frame counts: {counts}"
         n = counts.pop()
         size = f"{path.stat().st_size / 1e6:.1f} MB, " if isinstance(path, Path) else ""
@@ -209,14 +204,12 @@ def hand_over(args: argparse.Namespace) -> None:
 
 
 def groups(args: argparse.Namespace) -> None:
-    from bench_decode import synthetic_frames
-
     np: Any
     try:
         import numpy as np
     except ImportError:  # not a dependency of tankviz
         np = None
-    frames = synthetic_frames(20_000, args.seed)
+    frames = list(ecocar_frames(20_000, args.seed))
 
     def numpy_groups(block: FrameBlock) -> dict[tuple[int, int], Any]:
         from array import array
@@ -242,12 +235,7 @@ def groups(args: argparse.Namespace) -> None:
             assert {k: list(v) for k, v in numpy_groups(block).items()} == \
                 {k: list(v) for k, v in block.groups().items()}
             ways["numpy argsort"] = partial(numpy_groups, block)
-        best = dict.fromkeys(ways, float("inf"))
-        for _ in range(20):
-            for name, way in ways.items():
-                started = time.process_time()
-                way()
-                best[name] = min(best[name], time.process_time() - started)
+        best = best_of({name: cpu_seconds(way) for name, way in ways.items()}, 20)
         print(f"  blocks of {size}: " + "   ".join(
             f"{name} {seconds / size * 1e9:.0f} ns/frame" for name, seconds in best.items()))
 

@@ -9,8 +9,8 @@ interleaved and best of ``--repeat`` (default 3), those calls are replayed on a 
 ``Perception`` of the drive's profile, timing the ticks only, twice:
 
 - ``reference``: ``bridge/pipeline/perception.py`` and every module of ``bridge/scene`` and
-  ``bridge/world`` as they are at git revision ``--ref`` (default ``HEAD``), read with ``git
-  show`` and imported under other names (the rest of ``bridge`` is the working tree's);
+  ``bridge/world`` as they are at git revision ``--ref`` (default ``HEAD``), from a worktree of
+  it, beside the working tree's (the rest of ``bridge`` is the working tree's);
 - ``current``: the modules of the working tree.
 
 It prints ms per tick of each (``--clock wall``, the default, or ``cpu``: the process's CPU
@@ -33,6 +33,7 @@ import tempfile
 import time
 import types
 from collections.abc import Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -44,57 +45,19 @@ from bridge.pipeline.convert import convert  # noqa: E402
 from bridge.pipeline.drive import load_stages  # noqa: E402
 from bridge.profile.model import Profile  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "tools"))
+from benchlib import interleaved, modules_at  # noqa: E402
+
 #: One recorded call: ("feed", message, values, time) or ("tick", time).
 Call = tuple[Any, ...]
 DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
 
 
-#: The packages the reference takes from git revision ``--ref`` (with perception.py).
-PACKAGES = ("scene", "world")
-
-
 def reference_perception(ref: str) -> types.ModuleType:
-    """``bridge/pipeline/perception.py`` of git revision ``ref``, imported under another name
-    with every module of its ``bridge/scene`` and ``bridge/world`` packages (rewritten to
-    import each other: package ``bridge.NAME`` as ``_ref_NAME``)."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True,
-                              text=True).stdout
-
-    names: dict[str, list[str]] = {}
-    for package in PACKAGES:
-        names[package] = [
-            Path(p).stem for p in git("ls-tree", "--name-only", ref, f"bridge/{package}/").split()
-            if p.endswith(".py") and not p.endswith("__init__.py")]
-        alias = f"_ref_{package}"
-        sys.modules[alias] = types.ModuleType(alias)
-        sys.modules[alias].__path__ = []  # a package: its modules are put in sys.modules below
-    modules: dict[tuple[str, str], types.ModuleType] = {}
-
-    def rewrite(text: str) -> str:
-        for package in PACKAGES:
-            text = text.replace(f"from bridge.{package}.", f"from _ref_{package}.").replace(
-                f"from bridge.{package} import", f"from _ref_{package} import")
-        return text
-
-    def load(package: str, name: str, path: str) -> types.ModuleType:
-        if (package, name) in modules:
-            return modules[package, name]
-        text = git("show", f"{ref}:{path}")
-        for other_package, others in names.items():  # the reference's own imports, first
-            for other in others:
-                if (f"bridge.{other_package}.{other} import" in text
-                        or f"bridge.{other_package} import {other}" in text):
-                    load(other_package, other, f"bridge/{other_package}/{other}.py")
-        m = modules[package, name] = types.ModuleType(f"_ref_{package}.{name}")
-        m.__file__ = f"<{ref}:{path}>"
-        sys.modules[m.__name__] = m
-        if package in PACKAGES:
-            setattr(sys.modules[f"_ref_{package}"], name, m)
-        exec(compile(rewrite(text), m.__file__, "exec"), m.__dict__)
-        return m
-
-    return load("pipeline", "perception", "bridge/pipeline/perception.py")
+    """``bridge/pipeline/perception.py`` of git revision ``ref``, with every module of its
+    ``bridge/scene`` and ``bridge/world`` packages (:func:`benchlib.modules_at`)."""
+    name = "bridge.pipeline.perception"
+    return modules_at(ref, [name], own=("bridge.scene", "bridge.world"))[name]
 
 
 def record(log: Path, profile: str, folder: Path) -> list[Call]:
@@ -165,13 +128,11 @@ def main() -> int:
             profile = load_stages([], profile_name).profile
             assert profile is not None
             ticks = sum(1 for call in calls if call[0] == "tick")
-            best = {"reference": float("inf"), "current": float("inf")}
-            digests: dict[str, str] = {}
-            for _ in range(args.repeat):
-                for name, module in (("reference", reference), ("current", current)):
-                    spent, digests[name] = replay(module, profile, calls, clock)
-                    best[name] = min(best[name], spent)
-            agree = digests["reference"] == digests["current"]
+            runs = interleaved({name: partial(replay, module, profile, calls, clock)
+                                for name, module in (("reference", reference),
+                                                     ("current", current))}, args.repeat)
+            best = {name: min(spent for spent, _ in done) for name, done in runs.items()}
+            agree = runs["reference"][-1][1] == runs["current"][-1][1]
             same &= agree
             print(f"{car:8s} {ticks} ticks: reference {best['reference'] / ticks * 1e3:.3f} "
                   f"ms/tick, current {best['current'] / ticks * 1e3:.3f} ms/tick, ratio "

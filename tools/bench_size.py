@@ -2,8 +2,8 @@
 """Archive size: what a drive's MCAP costs against the BLF of the same frames (a report, not a
 test).
 
-It converts the synthetic 3-bus drive of tools/bench_convert.py (the same generator, imported,
-cached in ``--workdir``) three ways with ``tankviz convert`` — raw frames only, raw + decoded
+It converts ``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_log``, cached in
+``--workdir``) three ways with ``tankviz convert`` — raw frames only, raw + decoded
 (``--dbc ecocar``), with the scene (``--profile ecocar``) — and prints for each:
 
 - the archive size and its ratio to the BLF (issue #26's goals: raw ≤ 1.0x, with decoded +
@@ -19,8 +19,8 @@ cached in ``--workdir``) three ways with ``tankviz convert`` — raw frames only
 sizes, and prints size and compression time as ratios to the level and chunk size tankviz uses
 (zstandard's default level 3, 4 MiB), measured in the same run, best of 3.
 
-    python tools/bench_size.py                  # 600 s of driving (1.44 M frames)
-    python tools/bench_size.py --frames 200000  # about 83 s, to iterate
+    python tools/bench_size.py                  # 650 s of driving (1.44 M frames)
+    python tools/bench_size.py --frames 200000  # about 90 s, to iterate
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_convert import ECOCAR_DBC, synthetic_log
+from benchlib import ECOCAR_DBC, ecocar_log
 
 KINDS = {"raw": [], "raw + decoded": ["--dbc", str(ECOCAR_DBC)],
          "with scene": ["--profile", "ecocar"]}
@@ -172,7 +172,7 @@ def levels_report(path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--frames", type=int, default=1_440_000,
-                        help="frames of the synthetic drive (default: about 600 s)")
+                        help="frames of the simulated drive (default: about 650 s)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--workdir", type=Path,
                         default=Path(tempfile.gettempdir()) / "tankviz-bench")
@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"which conversions, comma-separated (default: {','.join(KINDS)})")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
-    log, meta = synthetic_log(args.workdir, args.frames, args.seed)
+    log, meta = ecocar_log(args.workdir, args.frames, args.seed)
     blf = log.stat().st_size
     print(f"BLF {log.name}: {blf:,} bytes, {meta['frames']:,} frames, "
           f"{meta['seconds_of_driving']:.0f} s of driving")

@@ -2,8 +2,8 @@
 """Benchmark the world part of a scene tick: observing decoded messages into the world (a report,
 not a test).
 
-The synthetic drive of ``tools/bench_convert.py`` (its generator, imported: the ecocar on three
-buses, rolling counters and checksums, traffic coming and going) is decoded once with tankviz's
+``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_frames``: rolling counters and
+checksums, traffic coming and going) is decoded once with tankviz's
 decoder. Then, in one run, interleaved and best of ``--repeat`` (default 3), it times the world
 part of :class:`bridge.pipeline.perception.Perception` over those decoded messages with a scene
 tick every 50 ms (20 Hz): :meth:`~Perception.feed` per message, and at each tick the observing of
@@ -11,8 +11,8 @@ what came since the last one and the expiry of stale objects (:meth:`~Perception
 without the lane model, which is not this part's work). It does so twice:
 
 - ``reference``: ``bridge/world/observe.py`` and ``bridge/pipeline/perception.py`` as they are at
-  git revision ``--ref`` (default ``HEAD``), read with ``git show`` and imported under other
-  names;
+  git revision ``--ref`` (default ``HEAD``), from a worktree of it, beside the working tree's
+  (with the working tree's ``world/model.py`` over the reference's observations);
 - ``current``: the modules of the working tree.
 
 It prints µs per frame of the drive for each, the ratio reference / current (above 1: the current
@@ -24,7 +24,7 @@ part: the share of ``observe_latest``.
     python tools/bench_world.py --frames 100000 --ref HEAD~3
 
 ``--convert`` also times a whole ``tankviz convert`` with the scene of a cached synthetic BLF of
-``--frames`` frames (``bench_convert``'s cache): the working tree against a copy of it with the
+``--frames`` frames (``benchlib.ecocar_log``): the working tree against the working tree with the
 reference's observe.py and perception.py, a subprocess per run, interleaved, best of
 ``--repeat``; and prints µs/frame of each, their ratio, and the share of ``observe_latest`` in
 each under cProfile.
@@ -35,16 +35,16 @@ from __future__ import annotations
 import argparse
 import cProfile
 import gc
-import importlib.util
 import io
+import os
 import pstats
-import shutil
 import subprocess
 import sys
 import tempfile
 import time
 import types
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -52,10 +52,19 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT))
 
-import bench_convert  # noqa: E402  (the generator of the synthetic drive)
+from benchlib import (  # noqa: E402
+    ECOCAR_DBC,
+    best_of,
+    ecocar_frames,
+    ecocar_log,
+    interleaved,
+    modules_at,
+    worktree,
+)
 
-from bridge.decode.decoder import Decoder, load_database  # noqa: E402
-from bridge.frame import NS, Frame, to_ns  # noqa: E402
+from bridge.decode.database import load_database  # noqa: E402
+from bridge.decode.decoder import Decoder  # noqa: E402
+from bridge.frame import NS  # noqa: E402
 from bridge.pipeline import perception as current_perception  # noqa: E402
 from bridge.profile.loader import load_profile  # noqa: E402
 from bridge.profile.model import Profile  # noqa: E402
@@ -63,46 +72,26 @@ from bridge.profile.model import Profile  # noqa: E402
 Message = tuple[str, Any, int]
 
 
+#: The modules the reference takes from ``--ref``, and the tree's that import them.
+REFERENCE = ("bridge.world.observe", "bridge.pipeline.perception")
+OVER_REFERENCE = ("bridge.world.model",)
+
+
 def load_reference(ref: str) -> types.ModuleType:
     """``bridge/pipeline/perception.py`` at git revision ``ref``, importing ``observe.py`` of the
-    same revision and the working tree's ``world/model.py`` (all three under other names)."""
-    def source(path: str) -> str:
-        return subprocess.run(["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True,
-                              capture_output=True, text=True).stdout
-
-    def module(name: str, text: str) -> types.ModuleType:
-        folder = Path(tempfile.mkdtemp(prefix="bench_world_"))
-        path = folder / f"{name}.py"
-        path.write_text(text)
-        spec = importlib.util.spec_from_file_location(name, path)
-        assert spec is not None and spec.loader is not None
-        found = importlib.util.module_from_spec(spec)
-        sys.modules[name] = found
-        spec.loader.exec_module(found)
-        return found
-
-    module("reference_observe", source("bridge/world/observe.py"))
-    # the world of the working tree (not this part's work), over the reference's observations
-    module("reference_model", (ROOT / "bridge/world/model.py").read_text().replace(
-        "from bridge.world.observe import", "from reference_observe import"))
-    text = source("bridge/pipeline/perception.py").replace(
-        "from bridge.world.observe import", "from reference_observe import").replace(
-        "from bridge.world.model import", "from reference_model import")
-    return module("reference_perception", text)
+    same revision and the working tree's ``world/model.py`` (over the reference's observations:
+    the world is not this part's work)."""
+    name = "bridge.pipeline.perception"
+    return modules_at(ref, [name], own=REFERENCE, fresh=OVER_REFERENCE)[name]
 
 
 def decoded_drive(frames: int, seed: int, profile: Profile) -> list[Message]:
     """The first ``frames`` frames of the synthetic drive, decoded: (message, values, time) of
     each message the profile reads, in order."""
-    database = load_database(bench_convert.ECOCAR_DBC)
-    decoder = Decoder({None: [database]})
+    decoder = Decoder({None: [load_database(ECOCAR_DBC)]})
     wanted = current_perception.Perception(profile).messages
     out: list[Message] = []
-    for n, msg in enumerate(bench_convert.generate_frames(database.db, seed)):
-        if n >= frames:
-            break
-        frame = Frame(to_ns(msg.timestamp), f"can{msg.channel}", msg.arbitration_id,
-                      bytes(msg.data), is_fd=msg.is_fd, dlc=msg.dlc)
+    for frame in ecocar_frames(frames, seed):
         decoded = decoder.decode(frame)
         if decoded is not None and decoded.codec.message.name in wanted:
             out.append((decoded.codec.message.name, decoded.signals, frame.timestamp_ns))
@@ -157,18 +146,6 @@ def snapshot(world: Any) -> Any:
              world.ego.steering_wheel_angle))
 
 
-def best_of(repeat: int, runs: dict[str, Callable[[], tuple[float, int]]]
-            ) -> dict[str, tuple[float, int]]:
-    """Each run ``repeat`` times, interleaved; the best time of each."""
-    best: dict[str, tuple[float, int]] = {}
-    for _ in range(repeat):
-        for name, run in runs.items():
-            seconds, applied = run()
-            if name not in best or seconds < best[name][0]:
-                best[name] = (seconds, applied)
-    return best
-
-
 def profile_share(run: Callable[[], object], names: tuple[str, ...]) -> dict[str, float]:
     """The cumulative share of each function in ``names`` in ``run``, under cProfile."""
     profiler = cProfile.Profile()
@@ -184,9 +161,12 @@ def profile_share(run: Callable[[], object], names: tuple[str, ...]) -> dict[str
     return shares
 
 
-_CONVERT = """
+_CONVERT = f"""
 import cProfile, pstats, sys, time
-sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+if sys.argv[1] != "-":  # the reference: REFERENCE from that worktree, OVER_REFERENCE afresh
+    import benchlib
+    benchlib.take_modules(Path(sys.argv[1]), {REFERENCE!r}, {OVER_REFERENCE!r})
 from bridge.cli import main
 args = sys.argv[3:]
 if sys.argv[2] == "profile":
@@ -203,17 +183,8 @@ else:
     main(args)
     print(time.perf_counter() - started)
 """
-
-
-def reference_tree(ref: str) -> Path:
-    """A copy of the working tree's ``bridge`` with observe.py and perception.py of ``ref``."""
-    folder = Path(tempfile.mkdtemp(prefix="bench_world_tree_"))
-    shutil.copytree(ROOT / "bridge", folder / "bridge")
-    for path in ("bridge/world/observe.py", "bridge/pipeline/perception.py"):
-        (folder / path).write_text(subprocess.run(
-            ["git", "show", f"{ref}:{path}"], cwd=ROOT, check=True, capture_output=True,
-            text=True).stdout)
-    return folder
+#: The subprocess's PYTHONPATH: the working tree and tools/ (benchlib).
+PATH = (str(ROOT), str(ROOT / "tools"))
 
 
 def convert_figures(frames: int, seed: int, ref: str, repeat: int) -> None:
@@ -223,29 +194,23 @@ def convert_figures(frames: int, seed: int, ref: str, repeat: int) -> None:
     share of ``observe_latest``."""
     workdir = Path(tempfile.gettempdir()) / "tankviz-bench"
     workdir.mkdir(exist_ok=True)
-    path, _ = bench_convert.synthetic_log(workdir, frames, seed)
-    trees = {"reference": reference_tree(ref), "current": ROOT}
+    path, _ = ecocar_log(workdir, frames, seed)
+    trees = {"reference": str(worktree(ref)), "current": "-"}
 
-    def run(tree: Path, mode: str) -> float:
+    def run(tree: str, mode: str) -> float:
         output = workdir / f"bench_world_{mode}.mcap"
         args = ["convert", str(path), "-o", str(output), "--profile", "ecocar", "--force",
                 "--quiet"]
-        done = subprocess.run([sys.executable, "-c", _CONVERT, str(tree), mode, *args],
-                              check=True, capture_output=True, text=True)
+        done = subprocess.run([sys.executable, "-c", _CONVERT, tree, mode, *args],
+                              check=True, capture_output=True, text=True, cwd=ROOT,
+                              env=os.environ | {"PYTHONPATH": os.pathsep.join(PATH)})
         return float(done.stdout.strip().splitlines()[-1])
 
-    best: dict[str, float] = {}
-    try:
-        for _ in range(repeat):
-            for name, tree in trees.items():
-                seconds = run(tree, "time")
-                best[name] = min(best.get(name, seconds), seconds)
-        for name, seconds in best.items():
-            share = run(trees[name], "profile")
-            print(f"convert with the scene, {name}: {seconds / frames * 1e6:.2f} µs/frame; "
-                  f"observe_latest {share:.1%} of it under cProfile")
-    finally:
-        shutil.rmtree(trees["reference"])
+    best = best_of({name: partial(run, tree, "time") for name, tree in trees.items()}, repeat)
+    for name, seconds in best.items():
+        share = run(trees[name], "profile")
+        print(f"convert with the scene, {name}: {seconds / frames * 1e6:.2f} µs/frame; "
+              f"observe_latest {share:.1%} of it under cProfile")
     print(f"convert ratio reference / current: {best['reference'] / best['current']:.3f} "
           f"(best of {repeat}, interleaved)")
 
@@ -260,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="also profile a whole convert with the scene")
     args = parser.parse_args(argv)
 
-    profile = load_profile("ecocar", [load_database(bench_convert.ECOCAR_DBC).db])
+    profile = load_profile("ecocar", [load_database(ECOCAR_DBC).db])
     reference = load_reference(args.ref)
     drive = decoded_drive(args.frames, args.seed, profile)
     seconds = (drive[-1][2] - drive[0][2]) / NS
@@ -273,10 +238,11 @@ def main(argv: list[str] | None = None) -> int:
     agree = old == new
     print(f"worlds at every tick ({len(new)} ticks): {'the same' if agree else 'DIFFERENT'}")
 
-    best = best_of(args.repeat, {
+    runs = interleaved({
         "reference": lambda: run_world(reference, profile, drive),
         "current": lambda: run_world(current_perception, profile, drive),
-    })
+    }, args.repeat)
+    best = {name: min(done) for name, done in runs.items()}
     for name, (t, applied) in best.items():
         print(f"{name:>9} ({args.ref if name == 'reference' else 'working tree'}): "
               f"{t / args.frames * 1e6:.3f} µs/frame, {applied} observations applied")
