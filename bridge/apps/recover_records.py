@@ -1,6 +1,6 @@
 """The records of a broken MCAP as :mod:`bridge.apps.recover` reads them: the report, the input
 that never reads past a record's end, and what is checked of a record (its header, its fields'
-size, an attachment's CRC). How a recovery goes is in :mod:`bridge.apps.recover`'s docstring.
+size, an attachment's CRC). How a recovery goes is in :mod:`bridge.apps.recover_salvage`.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """One recovery of a broken MCAP (:class:`_Salvage`): read record by record, step over or repair
-damaged records, copy what is intact. What it does and why is in :mod:`bridge.apps.recover`'s
-docstring; the records and their checks are in :mod:`bridge.apps.recover_records`.
+damaged records, copy what is intact. What it promises is in :mod:`bridge.apps.recover`, why it
+steps over damage in DEVELOPING.md ("Why it is so"); the records and their checks are in
+:mod:`bridge.apps.recover_records`.
 """
 
 from __future__ import annotations
