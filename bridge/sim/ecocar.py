@@ -1,24 +1,13 @@
 """A deterministic scenario engine: realistic CAN traffic of the ecocar test vehicle.
 
-:func:`simulate` drives the ego car along a gently S-curved three-lane road (plus one oncoming
-lane) and yields, in time order, every frame the car's bus would carry: radar objects and status,
-camera obstacles and lanes, fusion tracks, the lead vehicle, ego motion, steering, driver inputs,
-GNSS position and diagnostics, each message family at its DBC cycle time, with small per-family
-phase offsets, a little timing jitter, rolling counters, checksums and measurement noise. Every
-payload is encoded with cantools against the bundled DBC (:func:`~bridge.sim.frames.load_ecocar`).
-
-The same ``seed`` gives byte-identical frames; the seed changes noise, jitter, phases, counter
-start values and the spurious radar detections, never the scenario itself. The scenario (the
-scripted episodes of :data:`~bridge.sim.scenario.TIMELINE`, the fault scenarios of
-:data:`~bridge.sim.scenario.SCENARIOS`) is :mod:`bridge.sim.scenario`; the road, the ego and the
-other road users :mod:`bridge.sim.world`; what the sensors see :mod:`bridge.sim.sensors`; the
-encoding and timing of frames :mod:`bridge.sim.frames`; the message families
-:mod:`bridge.sim.ego`, :mod:`bridge.sim.radar`, :mod:`bridge.sim.camera`,
-:mod:`bridge.sim.fusion` and :mod:`bridge.sim.gateway`.
-
-:func:`simulate` merges the families (each in time order) into one stream in non-decreasing
-timestamp order, adds the babbling gateway for ``babbling`` and, for ``bus_silent``, leaves out
-every frame with a timestamp inside the fault: no frame at all on the bus.
+:func:`simulate` yields, in non-decreasing timestamp order, every frame the car's bus would carry
+on a gently S-curved road (radar, camera, fusion, lead vehicle, ego motion, steering, driver
+inputs, GNSS, diagnostics), each family at its DBC cycle time with phases, jitter, counters,
+checksums and noise, encoded with cantools against the bundled DBC; for ``bus_silent`` no frame
+inside the fault. The same ``seed`` gives byte-identical frames, and never changes the scenario
+(:mod:`bridge.sim.scenario`). The world is :mod:`bridge.sim.world`, what the sensors see
+:mod:`bridge.sim.sensors`, frames and timing :mod:`bridge.sim.frames`, and each family its module
+(:mod:`bridge.sim.ego`, ``radar``, ``camera``, ``fusion``, ``gateway``).
 """
 
 from __future__ import annotations
