@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA_PATH = ("io", "decode", "profile", "world", "scene", "health", "bringup", "sinks", "pipeline",
              "view", "sim", "fleet", "apps")
 #: Modules at the top of bridge/ that every stage may use; they import no stage.
-SHARED = ("__init__", "errors", "frame", "block", "protowire", "topics", "resources", "pb")
+SHARED = ("__init__", "errors", "frame", "block", "protowire", "topics", "resources", "pb",
+          "fences")
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:

@@ -4,7 +4,9 @@ python-can's BLF reader stops at the first damaged object (losing the rest of th
 forever on an object of size 0, or makes frames of garbage. :class:`BlfReader` walks the objects
 first and gives python-can's object parser only intact ones: a damaged log container is skipped
 whole, a damaged object up to the next object signature (``LOBJ``), and each damage is reported
-with its byte offset; the frames before and after it are kept.
+with its byte offset; the frames before and after it are kept. It uses python-can's private
+names (:data:`bridge.fences.PYTHON_CAN`): on a release not checked, logs are read by python-can's
+own reader instead (:class:`~bridge.io.can_logs.LogSource`).
 """
 
 from __future__ import annotations

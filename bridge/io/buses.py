@@ -56,6 +56,7 @@ import can
 from can.interfaces.udp_multicast import UdpMulticastBus
 
 from bridge.errors import UsageError
+from bridge.fences import PYTHON_CAN
 from bridge.frame import NS, Frame
 
 #: Seconds live waits for every bus to open once before a bus that never opened is an error
@@ -568,8 +569,9 @@ def _received(bus: can.BusABC, limit: int,
     ``_recv_internal`` (every interface implements it), with the same filtering: ``recv``'s
     clock readings and its log call cost more than taking the frame (1.5 µs of 3.4 a frame on
     the virtual bus). One difference: ``recv(0)`` ends a read at a message its filters refuse,
-    this goes on to the next."""
-    if type(bus).recv is not _BUS_RECV:  # an interface with a recv of its own
+    this goes on to the next. Behind :data:`bridge.fences.PYTHON_CAN`."""
+    # an interface with a recv of its own, or a python-can release not checked: recv itself
+    if type(bus).recv is not _BUS_RECV or not PYTHON_CAN.holds():
         recv = bus.recv
         for _ in range(limit):
             message = recv(0)

@@ -55,6 +55,7 @@ from can.io.generic import MessageReader, TextIOMessageReader
 from can.io.player import MESSAGE_READERS
 
 from bridge.errors import InputError, not_a_file
+from bridge.fences import PYTHON_CAN
 from bridge.frame import Frame
 from bridge.io.blf import BlfReader, Bytes
 from bridge.io.candump import candump_error, error_frame
@@ -485,7 +486,7 @@ class LogSource:
             self._problem(f"byte {offset}", reason, kind, group)
 
         try:
-            if reader_type is can.BLFReader:
+            if reader_type is can.BLFReader and PYTHON_CAN.holds():
                 reader: MessageReader = BlfReader(stream, damaged)
             else:
                 reader = reader_type(file=stream)  # type: ignore[arg-type]

@@ -35,6 +35,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
 from bridge.decode.decoder import Decoded, MessageCodec
+from bridge.fences import MCAP
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Serialized, Sink
 from bridge.sinks.raw import RawBlock
@@ -90,7 +91,8 @@ class FastWriter(McapWriter):
     with one ``struct.pack`` and notes (log time, offset) in the chunk's message index; the
     statistics (message counts, first and last times) are worked out from those indexes just
     before mcap finishes each chunk. mcap still writes chunks, indexes and the summary. It relies
-    on mcap's internals, so it checks for them and falls back to mcap's method if they change;
+    on mcap's internals (:data:`bridge.fences.MCAP`), so it checks for them and falls back to
+    mcap's method if they change or the release was not checked;
     tests/test_recorder.py checks that both give byte-identical files.
     """
 
@@ -102,6 +104,8 @@ class FastWriter(McapWriter):
         self._chunk_size: Any = getattr(self, private + "chunk_size", None)
         self._finalize_chunk: Any = getattr(self, private + "finalize_chunk", None)
         self._output = output
+        if not MCAP.holds():  # mcap's own Writer, without its private names
+            self._statistics = self._chunk = self._chunk_size = self._finalize_chunk = None
         self._fast = (
             None not in (self._statistics, self._chunk, self._chunk_size, self._finalize_chunk)
             and hasattr(self._statistics, "channel_message_counts")
@@ -144,9 +148,9 @@ class FastWriter(McapWriter):
         """Close the chunk being built and push everything written so far to the disk."""
         if self._fast:
             self._settle_and_finalize()
-        elif self._finalize_chunk is not None:
-            self._finalize_chunk()
-        self._output.flush()
+            self._output.flush()
+        else:
+            super().flush()  # type: ignore[no-untyped-call]  # mcap's own: closes the chunk
         fileno = getattr(self._output, "fileno", None)
         if fileno is not None:
             with contextlib.suppress(OSError, ValueError):  # not a real file (BytesIO, a pipe)

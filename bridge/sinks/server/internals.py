@@ -1,11 +1,10 @@
 """The fence: every use of foxglove-websocket's and websockets' private internals, and only here.
 
-Written against **foxglove-websocket 0.1.4** (pyproject: ``foxglove-websocket>=0.1.4``; the
-releases checked are :data:`CHECKED_FOXGLOVE_WEBSOCKET`) and websockets' legacy server as
-websockets 12 to 17 ship it (pyproject: ``websockets>=12,<18``). tests/test_server.py asserts
-that every private name below still exists with the signature used here, and fails on a
-foxglove-websocket release not in :data:`CHECKED_FOXGLOVE_WEBSOCKET`: check those tests pass on
-it before adding it there.
+Written against the releases :data:`bridge.fences.FOXGLOVE_WEBSOCKET` and
+:data:`bridge.fences.WEBSOCKETS` name (foxglove-websocket 0.1.4, websockets' legacy server as
+websockets 12 to 17 ship it; pyproject allows those only). tests/test_server.py asserts that
+every private name below still exists with the signature used here, and tests/test_fences.py
+fails on another release: check those tests pass on it before widening the fence.
 
 What is used, and why:
 
@@ -61,6 +60,7 @@ from websockets.legacy.server import WebSocketServerProtocol
 from websockets.typing import DataLike
 
 from bridge.errors import ViewerInputError
+from bridge.fences import FOXGLOVE_WEBSOCKET, WEBSOCKETS
 from bridge.sinks.server.viewer_input import (
     REFUSALS_LOGGED,
     TooManyMarks,
@@ -68,8 +68,6 @@ from bridge.sinks.server.viewer_input import (
     ViewerMark,
 )
 
-#: foxglove-websocket releases this module was checked against (tests/test_server.py).
-CHECKED_FOXGLOVE_WEBSOCKET = ("0.1.4",)
 #: A viewer this far behind (bytes not yet taken by its socket) gets no more replies.
 REPLY_LIMIT_BYTES = 2**20
 
@@ -88,6 +86,8 @@ class Server(FoxgloveServer):  # type: ignore[misc]
     too, handed to :attr:`take_mark`), and replying without waiting for the viewer to read."""
 
     def __init__(self, *args: Any, marks: bool = False, **kwargs: Any) -> None:
+        FOXGLOVE_WEBSOCKET.holds()  # (says once when not: there is no public path)
+        WEBSOCKETS.holds()
         super().__init__(*args, **kwargs)
         self.marks = marks
         #: called in the server's loop with each mark a viewer published and that was taken;
