@@ -336,6 +336,9 @@ def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
         print(line)
     print(f"{report.frames:,} frames; {len(report.gaps)} bus gaps; "
           f"{dropped_report(report.viewers)}")
+    if report.failure is not None:
+        print(f"error: {report.failure}", file=sys.stderr)
+        return 1
     return 0
 
 

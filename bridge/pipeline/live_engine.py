@@ -46,6 +46,7 @@ what each bus's reading mended or lost (the command prints it: :mod:`bridge.apps
 from __future__ import annotations
 
 import dataclasses
+import os
 import queue
 import threading
 import time
@@ -57,9 +58,10 @@ from typing import Any
 import can
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.errors import UsageError
+from bridge.errors import BridgeError, UsageError
 from bridge.frame import NS, Frame, timestamp
 from bridge.health.alarms import AlarmKind
+from bridge.io.bus_reader import Died, Item, LinkState, Read, ReaderProcess
 from bridge.io.buses import (
     OPEN_WAIT_S,
     BusEvent,
@@ -102,9 +104,26 @@ class LiveReport:
     viewers: list[ClientStats] = field(default_factory=list)
     #: what each bus's reading mended or lost
     receive: dict[str, ReceiveCounts] = field(default_factory=dict)
+    #: why the run ended before it was stopped (the process reading the buses died), if so
+    failure: str | None = None
 
 
 _NOTHING = ReceiveCounts()
+#: Where live reads its buses: ``process`` (a process of their own), ``here`` (the pipeline's);
+#: by default in a process of their own unless a bus is ``virtual`` (which connects only the
+#: buses of one process).
+READER_ENV = "TANKVIZ_LIVE_READER"
+
+
+def reads_in_process(buses: Sequence[BusSpec], open_bus: Callable[[BusSpec], can.BusABC],
+                     reader: str | None) -> bool:
+    """Whether live reads ``buses`` in a process of their own (:data:`READER_ENV`)."""
+    reader = reader or os.environ.get(READER_ENV) or None
+    if reader not in (None, "process", "here"):
+        raise UsageError(READER_ENV, "must be process or here", value=reader)
+    if reader is not None:
+        return reader == "process"
+    return open_bus is BusSpec.open and all(b.interface != "virtual" for b in buses)
 
 
 class Live:
@@ -118,7 +137,8 @@ class Live:
                  min_free: int = 0,
                  open_bus: Callable[[BusSpec], can.BusABC] = BusSpec.open,
                  open_wait_s: float = OPEN_WAIT_S,
-                 say: Callable[[str], None] = print, bring_up: bool = True) -> None:
+                 say: Callable[[str], None] = print, bring_up: bool = True,
+                 reader: str | None = None) -> None:
         names = [b.name for b in buses]
         if len(set(names)) != len(names):
             raise UsageError("--bus", f"a bus name is used twice ({', '.join(names)})")
@@ -134,7 +154,12 @@ class Live:
         self.say = say
         self.open_wait_s = open_wait_s
         self.events: queue.SimpleQueue[BusEvent] = queue.SimpleQueue()
-        self.links = [BusLink(spec, self.events, open_bus=open_bus) for spec in buses]
+        #: the buses are read in a process of their own (:mod:`bridge.io.bus_reader`)
+        self.split = reads_in_process(buses, open_bus, reader)
+        self._open_bus = open_bus
+        self.links = ([] if self.split else
+                      [BusLink(spec, self.events, open_bus=open_bus) for spec in buses])
+        self.reader: ReaderProcess | None = None
         self.drive = Drive(stages, scene_rate=scene_rate,
                            bitrates={b.name: b.bitrate for b in buses if b.bitrate is not None},
                            extra={"buses": [str(b) for b in self.buses]}, bring_up=bring_up)
@@ -163,6 +188,10 @@ class Live:
         self.pipeline.advertise(names)
         self.stopping = threading.Event()
         self._down: dict[str, Gap] = {}
+        #: what the reading process sent while the buses were opening
+        self._early: list[Item] = []
+        #: each bus's receive counts as the reading process last sent them
+        self._receive_told: dict[str, ReceiveCounts] = {}
 
     def stop(self) -> None:
         self.stopping.set()
@@ -173,33 +202,57 @@ class Live:
         once; a bus that has not opened after :attr:`open_wait_s` seconds (or when the run is
         stopped first) raises one saying so. Then the buses are closed and nothing is
         recorded."""
+        if self.split and self.reader is None:  # (a process starts once)
+            self.reader = ReaderProcess(self.buses, round(NS / self.scene_rate),
+                                        open_bus=self._open_bus)
         for link in self.links:
             link.start()
         began = time.monotonic()
+        died: Died | None = None
         while True:
-            error = next((link.error for link in self.links if link.error is not None), None)
-            waiting = [link for link in self.links if not link.opened.is_set()]
+            if self.reader is not None:
+                for item in self.reader.take(0.02):
+                    if isinstance(item, Died):
+                        died = item
+                    self._early.append(item)  # (reads of the buses open first: kept)
+            states = self._link_states()
+            error: BridgeError | None = next(
+                (link.error for link in states if link.error is not None), None)
+            if died is not None:
+                error = BridgeError(died.reason)
+            waiting = [link for link in states if not link.opened]
             if (error is not None or not waiting or self.stopping.is_set()
                     or time.monotonic() - began >= self.open_wait_s):
                 break
-            self.stopping.wait(0.02)
+            if self.reader is None:
+                self.stopping.wait(0.02)
         if error is None and not waiting:
             return
         took = time.monotonic() - began
         for link in self.links:
             link.stop()
             link.close()
+        if self.reader is not None:
+            self.reader.stop()
+            self.reader.close()
         if self.recorder is not None:
             self.recorder.finish()
         if error is None:
-            link = waiting[0]
+            state = waiting[0]
             when = (f"in {self.open_wait_s:g} s" if took >= self.open_wait_s else
                     f"before the run was stopped after {took:.1f} s")
-            tries = f"{link.tries} tr{'y' if link.tries == 1 else 'ies'}"
-            why = (f"{link.failure} ({tries})" if link.failure else
+            tries = f"{state.tries} tr{'y' if state.tries == 1 else 'ies'}"
+            why = (f"{state.failure} ({tries})" if state.failure else
                    "python-can's first try to open it had not ended")
-            error = UsageError("--bus", f"did not open {when}: {why}", value=link.spec)
+            error = UsageError("--bus", f"did not open {when}: {why}", value=state.spec)
         raise error
+
+    def _link_states(self) -> list[LinkState]:
+        """Each bus's opening: as the reading process told it, or its link's."""
+        if self.reader is not None:
+            return self.reader.links
+        return [LinkState(link.spec, link.opened.is_set(), link.error, link.failure, link.tries)
+                for link in self.links]
 
     def _poll(self) -> list[Frame]:
         """Every bus's new frames, in time order."""
@@ -212,49 +265,19 @@ class Live:
         # What is loaded by now (databases, profile, schemas) lives as long as the process:
         # frozen out of the collector's way; full collections only at quiet moments.
         collector = steady_stream()
-        pipeline, events = self.pipeline, self.events
-        process = pipeline.process_many
+        pipeline = self.pipeline
         schedule = ReadSchedule(round(NS / self.scene_rate))
+        failure: str | None = None
         try:
-            while not self.stopping.is_set():
-                collector.quiet()  # (where the loop waits: a full collection when one is due)
-                schedule.wait()
-                while True:
-                    try:
-                        self._bus_event(events.get_nowait(), schedule.offset_ns or 0)
-                    except queue.Empty:
-                        break
-                frames = self._poll()
-                if frames:
-                    read_ns = time.time_ns()
-                    schedule.saw(frames[-1].timestamp_ns, read_ns)
-                    steps = len(pipeline.steps)
-                    process(frames)
-                    if len(pipeline.steps) != steps:  # the clock stepped: log time with it
-                        schedule.restart(frames[-1].timestamp_ns, read_ns)
-                # Every frame stamped before this was read: the scenes due go out now, whether
-                # or not a later frame came (a quiet or silent bus).
-                log_now = schedule.log_time(time.time_ns())
-                if log_now is not None:
-                    self._take_marks(log_now)  # (before the first frame, marks wait for one)
-                    pipeline.advance(log_now)
-                if self.server is not None:
-                    # raw frames and signals for who subscribed to them, with the next scene
-                    self.server.flush_batched()
-                if self.recorder is not None:
-                    self.recorder.tick()
-                    self._recorder_state()
-                self._receive_state()
+            if self.reader is not None:
+                failure = self._run_split(schedule, collector)
+            else:
+                self._run_here(schedule, collector)
         finally:
-            for link in self.links:
-                link.stop()
-            # What the interfaces have already received (a bounded while: a busy bus never
-            # runs dry).
-            until = time.monotonic() + 0.25
-            while time.monotonic() < until and (frames := self._poll()):
-                process(frames)
-            for link in self.links:
-                link.close()
+            if self.reader is not None:
+                self._finish_split(schedule)
+            else:
+                self._finish_here()
             self._receive_state()
             if self.server is not None:
                 self.server.on_mark = None  # (the drive ends: viewers are told)
@@ -268,7 +291,119 @@ class Live:
         viewers = self.server.client_stats() if self.server else []
         return LiveReport(pipeline.frames, self.recorder.files if self.recorder else [],
                           self.recorder.gaps if self.recorder else [],
-                          sum(s.dropped for s in viewers), viewers, dict(self.receive))
+                          sum(s.dropped for s in viewers), viewers, dict(self.receive),
+                          failure)
+
+    def _run_here(self, schedule: ReadSchedule, collector: Any) -> None:
+        """The loop, the buses read in this thread."""
+        pipeline, events = self.pipeline, self.events
+        process = pipeline.process_many
+        while not self.stopping.is_set():
+            collector.quiet()  # (where the loop waits: a full collection when one is due)
+            schedule.wait()
+            while True:
+                try:
+                    self._bus_event(events.get_nowait(), schedule.offset_ns or 0)
+                except queue.Empty:
+                    break
+            frames = self._poll()
+            if frames:
+                read_ns = time.time_ns()
+                schedule.saw(frames[-1].timestamp_ns, read_ns)
+                steps = len(pipeline.steps)
+                process(frames)
+                if len(pipeline.steps) != steps:  # the clock stepped: log time with it
+                    schedule.restart(frames[-1].timestamp_ns, read_ns)
+            # Every frame stamped before this was read: the scenes due go out now, whether
+            # or not a later frame came (a quiet or silent bus).
+            self._turn(schedule.log_time(time.time_ns()))
+
+    def _finish_here(self) -> None:
+        for link in self.links:
+            link.stop()
+        # What the interfaces have already received (a bounded while: a busy bus never
+        # runs dry).
+        until = time.monotonic() + 0.25
+        while time.monotonic() < until and (frames := self._poll()):
+            self.pipeline.process_many(frames)
+        for link in self.links:
+            link.close()
+
+    def _run_split(self, schedule: ReadSchedule, collector: Any) -> str | None:
+        """The loop, the buses read by the reading process: each of its reads processed in
+        turn, then the scenes due by the time of the newest read. Returns why the reading
+        process died, if it did."""
+        assert self.reader is not None
+        early, self._early = self._early, []
+        while not self.stopping.is_set():
+            collector.quiet()  # (where the loop waits: a full collection when one is due)
+            items = early or self.reader.take(0.1)
+            early = []
+            read_ns, died = self._take(items, schedule)
+            if died is not None:
+                return self._reader_died(died)
+            # Every frame stamped before this was read by then, and is processed.
+            self._turn(schedule.log_time(read_ns) if read_ns is not None else None)
+        return None
+
+    def _finish_split(self, schedule: ReadSchedule) -> None:
+        """What the reading process still reads once asked to stop (it reads for at most
+        ``DRAIN_S``), processed; then it ends."""
+        assert self.reader is not None
+        self.reader.stop()
+        until = time.monotonic() + 5.0
+        while not self.reader.ended and time.monotonic() < until:
+            self._take(self.reader.take(0.1), schedule)
+        self.reader.close()
+
+    def _take(self, items: list[Item], schedule: ReadSchedule) -> tuple[int | None, Died | None]:
+        """Items of the reading process, in order: reads processed as :meth:`_run_here`
+        processes its own. Returns the newest read's wall time, and a death."""
+        pipeline = self.pipeline
+        read_ns: int | None = None
+        died: Died | None = None
+        for item in items:
+            if isinstance(item, Read):
+                block = item.block
+                if block is not None:
+                    newest = block.t[-1]
+                    schedule.saw(newest, item.read_ns)
+                    schedule.next_read_ns(item.read_ns)  # (a smaller offset, once a second)
+                    steps = len(pipeline.steps)
+                    pipeline.process_many(block)
+                    if len(pipeline.steps) != steps:  # the clock stepped: log time with it
+                        schedule.restart(newest, item.read_ns)
+                read_ns = item.read_ns
+            elif isinstance(item, BusEvent):
+                self._bus_event(item, schedule.offset_ns or 0)
+            elif isinstance(item, Died):
+                died = item
+            else:
+                self._receive_told[item[0]] = item[1]
+        return read_ns, died
+
+    def _turn(self, log_now: int | None) -> None:
+        """After a read: the marks asked and the scenes due by ``log_now``, the viewers'
+        batches, the recorder's flush and what the recorder and the reading say."""
+        pipeline = self.pipeline
+        if log_now is not None:
+            self._take_marks(log_now)  # (before the first frame, marks wait for one)
+            pipeline.advance(log_now)
+        if self.server is not None:
+            # raw frames and signals for who subscribed to them, with the next scene
+            self.server.flush_batched()
+        if self.recorder is not None:
+            self.recorder.tick()
+            self._recorder_state()
+        self._receive_state()
+
+    def _reader_died(self, died: Died) -> str:
+        """The reading process died: said on ``/log`` and the console; the drive ends."""
+        t = max(time.time_ns(), self.pipeline.last_ns or 0)
+        text = f"{died.reason}: the drive is finished here"
+        self.pipeline.emit([log_message(t, Log.ERROR, text)])
+        self.say(text)
+        return text
 
     def _viewer_mark(self, mark: ViewerMark) -> None:
         """A mark a viewer published (the server's thread): taken at the loop's next turn."""
@@ -288,12 +423,13 @@ class Live:
     def _receive_state(self) -> None:
         """What each bus's reading mended or lost, when it changed: to the health monitor
         (``/log``, ``/health``) and into the metadata (``bus_receive``)."""
-        for link in self.links:
-            counts = link.receive
-            if counts != self.receive.get(link.spec.name, _NOTHING):
-                copy = self.receive[link.spec.name] = dataclasses.replace(counts)
-                self.drive.health.note_receive(link.spec.name, copy)
-                self._receive_record[link.spec.name] = copy.to_dict()
+        told = (self._receive_told.items() if self.reader is not None else
+                [(link.spec.name, link.receive) for link in self.links])
+        for name, counts in told:
+            if counts != self.receive.get(name, _NOTHING):
+                copy = self.receive[name] = dataclasses.replace(counts)
+                self.drive.health.note_receive(name, copy)
+                self._receive_record[name] = copy.to_dict()
 
     def _recorder_state(self) -> None:
         """What the recorder says (the disk filled, recording resumed) on ``/log``, and its
