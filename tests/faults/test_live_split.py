@@ -1,0 +1,129 @@
+"""Live's buses read in a process of their own (:mod:`bridge.io.bus_reader`), with the car in
+another process on udp_multicast:
+
+- every frame crosses, each bus's in the order sent, each read's frames in time order;
+- a stop sent to the whole process group (systemd's, a terminal's Ctrl+C) finishes the drive
+  with every frame the car sent: the reading process waits for the pipeline's word;
+- the reading process killed is said, the drive is finished (a complete MCAP with the frames
+  before), live exits 1.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import summary_counts, timeout_scale
+from multicast import multicast_or_skip, send, unique_group
+from waiting import wait_for
+
+from bridge.frame import Frame
+from bridge.io.bus_reader import Died, Read, ReaderProcess
+from bridge.io.buses import BusSpec
+from bridge.io.drives import ArchiveSource
+
+LIMIT_S = 60.0
+
+
+@pytest.fixture(autouse=True)
+def _multicast() -> None:
+    multicast_or_skip()
+
+
+def test_every_frame_crosses_in_order() -> None:
+    a, b = unique_group(0), unique_group(1)
+    reader = ReaderProcess([BusSpec("a", "udp_multicast", a), BusSpec("b", "udp_multicast", b)],
+                           20_000_000)
+    reads: list[Read] = []
+    try:
+        wait_for(lambda: bool(reads.extend(i for i in reader.take(0.05) if isinstance(i, Read)))
+                 or all(link.opened for link in reader.links), LIMIT_S * timeout_scale())
+        assert send(a, 990) == (990, 0)
+        assert send(b, 100) == (100, 0)
+
+        def frames() -> list[Frame]:
+            return [f for r in reads if r.block is not None for f in r.block]
+
+        def more() -> bool:
+            items = reader.take(0.05)
+            assert not any(isinstance(i, Died) for i in items)
+            reads.extend(i for i in items if isinstance(i, Read))
+            return len(frames()) >= 1090
+
+        wait_for(more, LIMIT_S * timeout_scale())
+    finally:
+        reader.stop()
+        wait_for(lambda: bool(reader.take(0.05)) or reader.ended, LIMIT_S * timeout_scale())
+        reader.close()
+    got = frames()
+    for bus, n in (("a", 990), ("b", 100)):
+        assert [int.from_bytes(f.data, "big") for f in got if f.bus == bus] == list(range(n))
+    for r in reads:
+        if r.block is not None:
+            assert list(r.block.t) == sorted(r.block.t)
+    assert [r.read_ns for r in reads] == sorted(r.read_ns for r in reads)
+
+
+def start_live(tmp_path: Path, group: str) -> subprocess.Popen[str]:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "bridge", "live", "--bus", f"a=udp_multicast:{group}",
+         "--profile", "ecocar", "--no-server", "--drives", str(tmp_path / "drives")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        start_new_session=True, env={**os.environ, "TANKVIZ_LIVE_READER": "process"})
+    assert process.stdout is not None
+    for line in process.stdout:
+        if line.startswith("Ctrl+C stops"):
+            break
+    return process
+
+
+def reader_pid(pid: int) -> int:
+    """The reading process: the child of ``pid`` that is not multiprocessing's resource
+    tracker."""
+    children = [int(c) for task in Path(f"/proc/{pid}/task").iterdir()
+                for c in (task / "children").read_text().split()]
+    (child,) = [c for c in children
+                if b"resource_tracker" not in Path(f"/proc/{c}/cmdline").read_bytes()]
+    return child
+
+
+def test_a_stop_sent_to_the_whole_group_records_every_frame(tmp_path: Path) -> None:
+    group = unique_group()
+    live = start_live(tmp_path, group)
+    try:
+        assert send(group, 990) == (990, 0)
+    finally:
+        os.killpg(live.pid, signal.SIGTERM)  # (systemd's KillMode=control-group)
+    out = live.communicate(timeout=LIMIT_S * timeout_scale())[0]
+    assert live.returncode == 0, out
+    assert "990 frames;" in out, out
+
+
+def test_the_reading_process_killed_is_said_and_the_drive_finished(tmp_path: Path) -> None:
+    group = unique_group()
+    live = start_live(tmp_path, group)
+    try:
+        assert send(group, 500) == (500, 0)
+        drives = tmp_path / "drives"
+        # the recorder's flush (once a second) shows the frames came through
+        wait_for(lambda: sum(p.stat().st_size for p in drives.glob("*.mcap")) > 20_000,
+                 LIMIT_S * timeout_scale())
+        os.kill(reader_pid(live.pid), signal.SIGKILL)
+        out = live.communicate(timeout=LIMIT_S * timeout_scale())[0]
+    finally:
+        if live.poll() is None:
+            live.kill()
+    assert live.returncode == 1, out
+    assert ("the process reading the buses ended without a word (killed by SIGKILL): the drive "
+            "is finished here") in out, out
+    (drive,) = (tmp_path / "drives").glob("*.mcap")
+    counts = summary_counts(drive)  # (a complete file, the death on /log)
+    assert counts["/log"] >= 1
+    frames = int(out.split(" frames;")[0].split()[-1].replace(",", ""))
+    assert 0 < frames <= 500
+    (drive,) = (tmp_path / "drives").glob("*.mcap")
+    assert len([f for f in ArchiveSource(drive)]) == frames
