@@ -136,3 +136,11 @@ def test_progress_is_told_every_so_many_frames(size: int) -> None:
     assert count == len(frames)
     assert len(told) == len(frames) // 300 and told == sorted(told)
     assert all(300 * (k + 1) <= n < 300 * (k + 1) + size for k, n in enumerate(told))
+
+
+def test_a_drive_lists_each_channel_once() -> None:
+    """Health emits /log too: the drive's channels name it once, as every other topic."""
+    drive = Drive(load_stages([], "ecocar"))
+    topics = [c.topic for c in drive.pipeline.channels(["can0"])]
+    assert "/log" in topics and "/health" in topics
+    assert len(topics) == len(set(topics))

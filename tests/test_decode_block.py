@@ -20,9 +20,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.block import FrameBlock
-from bridge.decode import decoder as decoder_module
+from bridge.decode import codec as codec_module
+from bridge.decode.codec import Decoded
 from bridge.decode.compiled import compile_column_decoder, compile_decoder
-from bridge.decode.decoder import Decoded, Decoder, load_database
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome
 from bridge.frame import Frame
 from bridge.io.can_logs import LogSource
 from bridge.resources import data_dir
@@ -33,8 +36,8 @@ def same_value(a: Any, b: Any) -> bool:
                                               and math.isnan(b)))
 
 
-def same_decoded(a: Decoded | None, b: Decoded | None) -> bool:
-    if a is None or b is None:
+def same_decoded(a: Outcome, b: Outcome) -> bool:
+    if type(a) is not Decoded or type(b) is not Decoded:
         return a is b
     return (a.codec.topic == b.codec.topic and a.payload == b.payload
             and a.non_finite == b.non_finite and list(a.signals) == list(b.signals)
@@ -51,13 +54,13 @@ def counts(decoder: Decoder) -> tuple[Any, ...]:
                    for c in decoder.codecs()))
 
 
-def per_frame(decoder: Decoder, frames: Sequence[Frame]) -> list[Decoded | None]:
+def per_frame(decoder: Decoder, frames: Sequence[Frame]) -> list[Outcome]:
     return [decoder.decode(f) for f in frames]
 
 
 def in_blocks(decoder: Decoder, frames: Sequence[Frame], sizes: Sequence[int]
-              ) -> list[Decoded | None]:
-    out: list[Decoded | None] = []
+              ) -> list[Outcome]:
+    out: list[Outcome] = []
     at, turn = 0, 0
     while at < len(frames):
         size = sizes[turn % len(sizes)]
@@ -202,7 +205,7 @@ def test_a_column_decodes_as_its_frames_do() -> None:
     one, many = Decoder({None: [database]}), Decoder({None: [database]})
 
     expected = per_frame(one, column)
-    got = many.decode_column(column[0].bus, key, [f.data for f in column])
+    got = many.decode_block(FrameBlock.from_frames(column))
 
     assert all(same_decoded(a, b) for a, b in zip(expected, got, strict=True))
     assert counts(many) == counts(one)
@@ -222,7 +225,7 @@ def test_a_codec_decodes_a_column_in_one_step_with_the_same_counts() -> None:
             expected.append(codec_one.decode(data))
         except Exception as exc:
             expected.append(type(exc))
-    got = codec_many.decode_many(datas)
+    got, _ = codec_many.decode_many(datas)
 
     assert [type(g) if isinstance(g, Exception) else g.payload for g in got] == \
         [e if isinstance(e, type) else e.payload for e in expected]
@@ -235,15 +238,15 @@ def test_the_block_path_is_checked_against_a_wrong_count(monkeypatch: pytest.Mon
     """The comparison above can fail: a column that forgot its truncated frames is caught."""
     database = load_database(ECOCAR_DBC)
     frames = ecocar_frames()[:5000]
-    real = decoder_module.MessageCodec._decode_many
+    real = codec_module.MessageCodec.decode_many
 
-    def forgetful(self: decoder_module.MessageCodec, datas: Sequence[bytes]) -> Any:
+    def forgetful(self: codec_module.MessageCodec, datas: Sequence[bytes]) -> Any:
         truncated = self.truncated
         out = real(self, datas)
         self.truncated = truncated
         return out
 
-    monkeypatch.setattr(decoder_module.MessageCodec, "_decode_many", forgetful)
+    monkeypatch.setattr(codec_module.MessageCodec, "decode_many", forgetful)
     with pytest.raises(AssertionError):
         assert_same({None: [database]}, frames)
 

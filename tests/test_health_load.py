@@ -59,12 +59,13 @@ def candump_log() -> list[Frame]:
 def health(frames: Iterable[Frame], bitrates: dict[str, int],
            data_bitrates: dict[str, int]) -> list[Health]:
     """The /health messages of the frames, watched without a profile or databases."""
-    monitor = HealthMonitor(None, Decoder({}), bitrates=bitrates, data_bitrates=data_bitrates)
+    decoder = Decoder({})
+    monitor = HealthMonitor(None, decoder, bitrates=bitrates, data_bitrates=data_bitrates)
     out = []
     last = 0
     for frame in frames:
         out += monitor.advance(frame.timestamp_ns)
-        monitor.on_frame(frame, None)
+        monitor.on_frame(frame, decoder.decode(frame))
         last = frame.timestamp_ns
     out += monitor.finish(last)
     return [m.message for m in out if m.topic == HEALTH_TOPIC]

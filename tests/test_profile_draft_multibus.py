@@ -29,7 +29,7 @@ from cantools.database.can.database import Database
 from conftest import GOLDEN, T0, WriteLog, check_golden, message
 
 from bridge.cli import main
-from bridge.decode.decoder import load_database
+from bridge.decode.database import load_database
 from bridge.errors import DatabaseError
 from bridge.pipeline.drive import load_stages
 from bridge.profile.draft import draft_profile, find_families, group_families

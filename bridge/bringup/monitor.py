@@ -29,7 +29,9 @@ from bridge.bringup.bitmap import MapRow, bit_map
 from bridge.bringup.census import Census, IdRow
 from bridge.bringup.columns import Columns, concat, data_frames
 from bridge.bringup.payload import PayloadWriter
-from bridge.decode.decoder import Decoded, Decoder
+from bridge.decode.codec import Decoded
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome
 from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.topics import (
@@ -142,10 +144,10 @@ class BringUpMonitor:
 
     # --- frames ----------------------------------------------------------------------------
 
-    def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
+    def on_frame(self, frame: Frame, decoded: Outcome) -> None:
         """One frame, as the decoder made it (the pipeline inlines this)."""
         self.pending.append(frame)
-        if decoded is None:
+        if type(decoded) is not Decoded:
             self.on_undecoded(frame)
 
     def on_undecoded(self, frame: Frame) -> None:

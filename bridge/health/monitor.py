@@ -10,7 +10,7 @@ The seed's team found a radar knocked out of alignment only because the blue sph
   over the bitrate, the data phase of CAN FD
   frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
   but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
-  (+inf, -inf, NaN: :attr:`bridge.decode.decoder.Decoded.non_finite`), gaps (no traffic for
+  (+inf, -inf, NaN: :attr:`bridge.decode.codec.Decoded.non_finite`), gaps (no traffic for
   longer than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
 - every message family of the profile (object groups such as radar, camera and tracks; the lead
   vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
@@ -68,7 +68,8 @@ from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode.decoder import Decoder, MessageCodec
+from bridge.decode.codec import MessageCodec
+from bridge.decode.decoder import Decoder
 from bridge.frame import NEVER_NS, NS, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings, alarm_id
 from bridge.health.counts import (

@@ -1,19 +1,12 @@
 """What the health monitor counts of every frame: per bus its frames, bits on the wire, ids,
 gaps, error frames, unknown ids, decode errors and non-finite values, per family its frames and
-when it last came or resumed (:mod:`bridge.health.counts` holds the counts;
-:class:`~bridge.health.monitor.HealthMonitor` checks them).
+when it last came or resumed (:mod:`bridge.health.counts` holds the counts).
 
-The per-frame hook :meth:`TrafficCounting.on_frame` is made for the hot path (a few dict
-operations, and the frame's bits counted exactly only for a sample); it takes a frame that did not
-decode as the decoder sorted it (:meth:`bridge.decode.decoder.Decoder.outcome`: an unknown id, a
-decode error, an error frame or a remote frame), without sorting it again (a frame it did not just
-decode, it sorts from the decoder's tables: the same outcome). Offline, a block of frames is
-counted in bulk with the same result, count for count (:meth:`TrafficCounting.count_block`, then
-:meth:`TrafficCounting.count_rows` for each run of rows between two ticks): each ``(bus, key)``
-column's bits in one pass (a kind's exact counts and estimates follow its own frames only), each
-bus's ids, bits and gaps and each family's times from their rows in order; a run ends right after a
-message's first frame, whose cycle time may shorten its bus's gap time (tests/
-test_health_block.py).
+Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path: a few dict
+operations, a frame's bits counted exactly only for a sample) or a block at a time, count for
+count the same (:meth:`TrafficCounting.count_block`, then :meth:`TrafficCounting.count_rows` for
+each run of rows between two ticks); either way each frame is counted by the outcome the decoder
+gave it, never sorted again.
 """
 
 from __future__ import annotations
@@ -28,15 +21,17 @@ from operator import add, itemgetter
 from typing import NamedTuple
 
 from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
-from bridge.decode.decoder import Decoded, Decoder, MessageCodec, Outcome
+from bridge.decode.codec import Decoded, MessageCodec
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome, Undecoded
 from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
 from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 
-# what the decoder made of a frame that did not decode (module globals: the per-frame path)
-_ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR = (Outcome.ERROR_FRAME, Outcome.UNKNOWN_ID,
-                                            Outcome.DECODE_ERROR)
+# why a frame did not decode (module globals: the per-frame path)
+_ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR, _REMOTE = (
+    Undecoded.ERROR_FRAME, Undecoded.UNKNOWN_ID, Undecoded.DECODE_ERROR, Undecoded.REMOTE)
 
 
 class BusRows(NamedTuple):
@@ -54,13 +49,14 @@ class BlockCount(NamedTuple):
     """A block's frames made ready to count (:meth:`TrafficCounting.count_block`)."""
 
     block: FrameBlock
-    decoded: Sequence[Decoded | None]
+    #: what the decoder made of each row
+    decoded: Sequence[Outcome]
     #: the kinds of frame of each bus, the block's counted in
     kinds: dict[str, dict[KindKey, FrameKind]]
     #: each bus index's rows, in the order of their first row
     buses: dict[int, BusRows]
-    #: (row, bus index, outcome) of every row that did not decode and is counted, in row order
-    undecoded: list[tuple[int, int, Outcome]]
+    #: (row, bus index, why) of every row that did not decode and is counted, in row order
+    undecoded: list[tuple[int, int, Undecoded]]
     #: rows with non-finite values
     bad: list[int]
     #: each family's rows and their times, in row order
@@ -108,9 +104,8 @@ class TrafficCounting:
             bus.gap_ns = min(bus.gap_ns, gap)
         return families
 
-    def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
-        """Count one frame (call it for every frame, right after decoding it with the
-        monitor's decoder: a frame that did not decode is counted as the decoder sorted it)."""
+    def on_frame(self, frame: Frame, decoded: Outcome) -> None:
+        """Count one frame, given what the monitor's decoder made of it."""
         # By position (the eleven fields by name cost ~100 ns more a frame): timestamp_ns, bus,
         # arbitration_id, data, is_extended, is_fd, is_error, is_remote, bitrate_switch, esi, dlc.
         t, name, ident, data, extended, fd, error, remote, brs, esi, dlc = frame
@@ -136,14 +131,12 @@ class TrafficCounting:
         if data_phase:
             bus.brs_bits += data_phase
         bus.ids[ident | EXTENDED_KEY if extended else ident] += 1  # frame_key, inlined
-        if decoded is None:
-            decoder = self.decoder  # its outcome, read here as Decoder.outcome reads it
-            why = decoder.why if frame is decoder.undecoded else decoder.outcome(frame, None)
-            if why is _UNKNOWN_ID:
+        if type(decoded) is not Decoded:
+            if decoded is _UNKNOWN_ID:
                 bus.unknown += 1
-            elif why is _DECODE_ERROR:
+            elif decoded is _DECODE_ERROR:
                 bus.decode_errors += 1
-            elif why is _ERROR_FRAME:
+            elif decoded is _ERROR_FRAME:
                 bus.error_frames += 1
             return
         if decoded.non_finite:
@@ -160,7 +153,7 @@ class TrafficCounting:
             family.frames += 1
 
     def count_block(self, block: FrameBlock,
-                    decoded: Sequence[Decoded | None]) -> BlockCount | None:
+                    decoded: Sequence[Outcome]) -> BlockCount | None:
         """Get a block's frames ready to be counted, a run of rows at a time
         (:meth:`count_rows`), as :meth:`on_frame` of each in order counts them; ``decoded``:
         what the decoder made of each row. None where the block must be counted frame by frame
@@ -185,7 +178,7 @@ class TrafficCounting:
         bits: list[tuple[float, float]] = [(0.0, 0.0)] * n
         kinds = {name: (self._buses[name].kinds if name in self._buses else {})
                  for name in names}
-        undecoded: list[tuple[int, int, Outcome]] = []
+        undecoded: list[tuple[int, int, Undecoded]] = []
         bad: list[int] = []
         family_rows: dict[FamilyCounts, list[Sequence[int]]] = {}
         firsts: list[tuple[int, MessageCodec]] = []
@@ -222,27 +215,22 @@ class TrafficCounting:
                 deque(map(bits.__setitem__, rows, column), 0)  # bits[rows] = column, in C
             results = decoded if whole else list(map(decoded.__getitem__, rows))
             fed: Sequence[int] = rows
-            if None in results:
+            if Undecoded in set(map(type, results)):
                 fed = []
-                known: bool | None = None  # (whether the bus's databases define the id)
                 for r, d in zip(rows, results, strict=True):
-                    if d is not None:
+                    if not isinstance(d, Undecoded):
                         fed.append(r)
-                    elif flags[r] & ERROR:
-                        undecoded.append((r, k, _ERROR_FRAME))
-                    elif not flags[r] & REMOTE:
-                        if known is None:
-                            known = self.decoder.knows(names[k], key)
-                        undecoded.append((r, k, _DECODE_ERROR if known else _UNKNOWN_ID))
+                    elif d is not _REMOTE:  # (a remote frame is counted as no other)
+                        undecoded.append((r, k, d))
                 if not fed:
                     continue
             # a (bus, key)'s frames are of one message (the decoder's table)
             first = decoded[fed[0]]
-            assert first is not None
+            assert type(first) is Decoded
             codec = first.codec
             if codec.floats:  # (only a float signal can be non-finite)
                 bad += [r for r, d in zip(rows, results, strict=True)
-                        if d is not None and d.non_finite]
+                        if type(d) is Decoded and d.non_finite]
             families = self._families_of.get(codec)
             if families is None:
                 families = tuple(self._by_message.get(codec.message.name, ()))
@@ -316,7 +304,7 @@ class TrafficCounting:
         decoded = c.decoded
         for r in c.bad[bisect_left(c.bad, i):bisect_left(c.bad, j)]:
             d = decoded[r]
-            assert d is not None
+            assert type(d) is Decoded
             self._non_finite(self._buses[names[block.bus[r]]], d)
         for r, codec in c.firsts[bisect_left(c.firsts, (i,)):bisect_left(c.firsts, (j,))]:
             if codec not in self._families_of:

@@ -21,7 +21,8 @@ from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 from bridge import __version__
 from bridge.block import FrameBlock
-from bridge.decode.decoder import DatabaseFile, Decoder, load_database, parse_dbc_option
+from bridge.decode.database import DatabaseFile, load_database, parse_dbc_option
+from bridge.decode.decoder import Decoder
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from bridge.block import FrameBlock
-from bridge.decode.decoder import DatabaseFile, Decoder, database_warnings, load_database
+from bridge.decode.database import DatabaseFile, database_warnings, load_database
+from bridge.decode.decoder import Decoder
 from bridge.errors import DatabaseError, InputError
 from bridge.io.drives import ArchiveContents, mark_time
 from bridge.pb.marks_pb2 import Mark

@@ -21,7 +21,7 @@ import pytest
 from harness import Viewer, assert_survived, start, steady
 from mcap.reader import make_reader
 
-from bridge.decode.decoder import Decoded
+from bridge.decode.codec import Decoded
 from bridge.frame import NS, Frame
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages

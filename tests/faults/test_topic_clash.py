@@ -25,7 +25,8 @@ from harness import recorded, start
 from mcap.reader import make_reader
 
 from bridge.cli import main
-from bridge.decode.decoder import Decoder, load_database
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
 from bridge.frame import Frame
 from bridge.topics import (
     BITS_LABELS_TOPIC,
