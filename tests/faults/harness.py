@@ -22,8 +22,10 @@ from pathlib import Path
 from typing import Any
 
 import websockets
+from conftest import timeout_scale
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from waiting import wait_for
 
 from bridge.frame import NS, Frame
 from bridge.sim.ecocar import simulate
@@ -81,15 +83,17 @@ class LiveCar:
     lines: list[tuple[float, str]] = field(default_factory=list)
 
     def when(self, text: str, timeout: float = 60.0) -> float:
-        """The wall time the line containing ``text`` was printed (waits for it)."""
-        until = time.monotonic() + timeout
-        while time.monotonic() < until:
-            for at, line in list(self.lines):
-                if text in line:
-                    return at
-            if self.process.poll() is not None and not self._reader.is_alive():
-                break
-            time.sleep(0.02)
+        """The wall time the line containing ``text`` was printed (waits for it, ``timeout``
+        times timeout_scale() at most)."""
+
+        def printed_or_ended() -> bool:
+            return (any(text in line for _, line in list(self.lines))
+                    or (self.process.poll() is not None and not self._reader.is_alive()))
+
+        wait_for(printed_or_ended, timeout * timeout_scale(), step=0.02)
+        for at, line in list(self.lines):
+            if text in line:
+                return at
         raise AssertionError(f"never printed {text!r}:\n{self.output}")
 
     @property
@@ -97,7 +101,7 @@ class LiveCar:
         return "".join(line for _, line in self.lines)
 
     def wait(self, timeout: float = 120.0) -> int:
-        code = self.process.wait(timeout)
+        code = self.process.wait(timeout * timeout_scale())
         self._reader.join(5.0)
         return code
 
