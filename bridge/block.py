@@ -16,9 +16,8 @@ A :class:`FrameBlock` holds N frames of any buses, in their order, as one column
 - ``data``: every payload, one after the other, in one ``bytes``; ``ends``: ``array('I')``, the
   end offset of each frame's payload in it.
 
-:meth:`FrameBlock.from_frames` makes one of :class:`~bridge.frame.Frame` tuples;
-:meth:`~FrameBlock.frame` and iterating give back exactly the same tuples (``bool`` flags,
-``bytes`` data, ``int`` ids).
+:meth:`FrameBlock.from_frames` makes one of :class:`~bridge.frame.Frame` tuples; iterating
+gives back exactly the same tuples (``bool`` flags, ``bytes`` data, ``int`` ids).
 :meth:`~FrameBlock.to_bytes` and :meth:`FrameBlock.from_bytes` carry a block between processes
 as one buffer (a header, the bus names, then each column's raw bytes, in this machine's byte
 order: a hand-over, not a file format), no per-frame object pickled.
@@ -179,21 +178,6 @@ class FrameBlock:
                 value |= f
             self._all_flags = value
         return self._all_flags
-
-    def frame(self, i: int) -> Frame:
-        """Row ``i`` as the frame it was made of."""
-        n = len(self.t)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError("frame block row out of range")
-        flags = self.flags[i]
-        key = self.key[i]
-        extended = bool(flags & EXTENDED)
-        return Frame(self.t[i], self.buses[self.bus[i]], key ^ EXTENDED_KEY if extended else key,
-                     self.data[self.ends[i - 1] if i else 0:self.ends[i]], extended,
-                     bool(flags & FD), bool(flags & ERROR), bool(flags & REMOTE),
-                     bool(flags & BRS), bool(flags & ESI), self.dlc[i])
 
     def payloads(self) -> list[bytes]:
         """Every frame's payload, in row order (made once: do not change the list)."""
