@@ -17,8 +17,8 @@ import pytest
 from conftest import T0
 from mcap.reader import make_reader
 
-from bridge.block import FrameBlock
 from bridge.frame import NS, Frame
+from bridge.packed import PackedFrames
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.sim.ecocar import simulate
 from bridge.sim.highway import simulate_highway
@@ -47,8 +47,8 @@ def recorded(stages: Callable[[], Stages], feed: Callable[[Drive], int]
     return topics, {k: json.loads(v) if v[:1] in "[{" else v for k, v in meta.items()}
 
 
-def in_blocks(frames: list[Frame], size: int) -> list[FrameBlock]:
-    return [FrameBlock.from_frames(frames[i:i + size]) for i in range(0, len(frames), size)]
+def in_blocks(frames: list[Frame], size: int) -> list[PackedFrames]:
+    return [PackedFrames.from_frames(frames[i:i + size]) for i in range(0, len(frames), size)]
 
 
 def in_reads(drive: Drive, frames: list[Frame], size: int) -> int:

@@ -28,7 +28,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
-from bridge.block import FrameBlock
 from bridge.bringup import bitmap
 from bridge.bringup.bitmap import MAX_ROWS, MapRow, bit_map
 from bridge.bringup.census import gap_figures
@@ -37,6 +36,7 @@ from bridge.bringup.monitor import FILE_HZ, FILE_PERIOD_S
 from bridge.bringup.payload import encode, id_field
 from bridge.cli import main
 from bridge.frame import NS, Frame
+from bridge.packed import PackedFrames
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.highway import simulate_highway
@@ -79,7 +79,7 @@ def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages
         for i in range(0, len(frames), size):
             drive.pipeline.process_many(frames[i:i + size])
     else:
-        drive.run_blocks(FrameBlock.from_frames(frames[i:i + size])
+        drive.run_blocks(PackedFrames.from_frames(frames[i:i + size])
                          for i in range(0, len(frames), size))
     drive.finish()
     return dict(viewer.topics)
@@ -90,7 +90,7 @@ def recorded(frames: list[Frame], *, bring_up: bool = True) -> Messages:
     drive = Drive(load_stages([], "highway"), bring_up=bring_up)
     out = io.BytesIO()
     drive.record(out, attachment_time_ns=0)
-    drive.run_blocks([FrameBlock.from_frames(frames)])
+    drive.run_blocks([PackedFrames.from_frames(frames)])
     drive.finish()
     out.seek(0)
     topics: Messages = defaultdict(list)

@@ -9,7 +9,6 @@ import pytest
 from conftest import ECOCAR_DBC
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from bridge.block import FrameBlock
 from bridge.decode.codec import Decoded
 from bridge.decode.database import load_database, parse_dbc_option
 from bridge.decode.decoder import Decoder
@@ -17,6 +16,7 @@ from bridge.decode.outcome import Undecoded
 from bridge.decode.proto_schema import MessageSchema
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key, key_id
+from bridge.packed import PackedFrames
 
 ECOCAR = load_database(ECOCAR_DBC)
 
@@ -149,7 +149,7 @@ def test_each_frame_has_one_outcome_alone_or_in_a_block(
         (Frame(3, "can0", 0x100, b"", is_remote=True, dlc=8), Undecoded.REMOTE),
     ]
     alone = [decoder().decode(f) for f, _ in cases]
-    in_block = decoder().decode_block(FrameBlock.from_frames([f for f, _ in cases]))
+    in_block = decoder().decode_block(PackedFrames.from_frames([f for f, _ in cases]))
     for (_, want), one, block in zip(cases, alone, in_block, strict=True):
         assert (type(one) if want is Decoded else one) is want
         assert (type(block) if want is Decoded else block) is want

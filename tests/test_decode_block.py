@@ -19,7 +19,6 @@ from conftest import ECOCAR_DBC
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.block import FrameBlock
 from bridge.decode import codec as codec_module
 from bridge.decode.codec import Decoded
 from bridge.decode.compiled import compile_column_decoder, compile_decoder
@@ -28,6 +27,7 @@ from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome
 from bridge.frame import Frame
 from bridge.io.can_logs import LogSource
+from bridge.packed import PackedFrames
 from bridge.resources import data_dir
 
 
@@ -64,7 +64,7 @@ def in_blocks(decoder: Decoder, frames: Sequence[Frame], sizes: Sequence[int]
     at, turn = 0, 0
     while at < len(frames):
         size = sizes[turn % len(sizes)]
-        block = FrameBlock.from_bytes(FrameBlock.from_frames(frames[at:at + size]).to_bytes())
+        block = PackedFrames.from_bytes(PackedFrames.from_frames(frames[at:at + size]).to_bytes())
         out += decoder.decode_block(block)
         at, turn = at + size, turn + 1
     return out
@@ -205,7 +205,7 @@ def test_a_column_decodes_as_its_frames_do() -> None:
     one, many = Decoder({None: [database]}), Decoder({None: [database]})
 
     expected = per_frame(one, column)
-    got = many.decode_block(FrameBlock.from_frames(column))
+    got = many.decode_block(PackedFrames.from_frames(column))
 
     assert all(same_decoded(a, b) for a, b in zip(expected, got, strict=True))
     assert counts(many) == counts(one)

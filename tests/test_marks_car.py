@@ -17,11 +17,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from waiting import wait_for
 
-from bridge.block import FrameBlock
 from bridge.cli import main
 from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec
 from bridge.io.drives import ArchiveSource
+from bridge.packed import PackedFrames
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.pipeline.live_engine import Live
@@ -153,7 +153,7 @@ def through(frames: list[Frame], how: str, profile: str = "highway") -> list[tup
             pipeline.process_many(frames[k:k + 7])
     else:
         for k in range(0, len(frames), 50):
-            pipeline.process_block(FrameBlock.from_frames(frames[k:k + 50]))
+            pipeline.process_block(PackedFrames.from_frames(frames[k:k + 50]))
     drive.finish()
     return collect.marks()
 

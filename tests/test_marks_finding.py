@@ -368,7 +368,7 @@ def check_between_their_frames(events: list[tuple[str, int]], made: list[Mark]) 
 
 
 def test_carried_marks_come_between_the_frames_before_and_after_them() -> None:
-    from bridge.block import blocks
+    from bridge.packed import blocks
     from bridge.pipeline.drive import Drive
     from bridge.pipeline.rederive import CarriedMarks
 

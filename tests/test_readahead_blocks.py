@@ -14,12 +14,12 @@ import can
 import pytest
 from conftest import T0, WriteLog
 
-from bridge.block import MAX_BUSES, FrameBlock
 from bridge.errors import InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.can_logs import LogSource, SourceIssue, merge
 from bridge.io.readahead import BATCH, ReadAhead
+from bridge.packed import MAX_BUSES, PackedFrames
 
 
 @pytest.fixture(autouse=True)
@@ -63,7 +63,7 @@ def test_blocks_hold_the_merged_frames_and_the_sources_their_notes(
     made = list(reading.blocks())
 
     assert reading.ahead is ahead
-    assert all(type(b) is FrameBlock and 0 < len(b) <= BATCH for b in made)
+    assert all(type(b) is PackedFrames and 0 < len(b) <= BATCH for b in made)
     assert [f for b in made for f in b] == expected
     assert any(f.is_fd for f in expected) and any(f.is_remote for f in expected)
     assert [(s.frames, s.backwards, s.issues) for s in sources] == \
@@ -139,7 +139,7 @@ def test_an_input_error_comes_after_the_blocks_before_it(write_log: WriteLog) ->
     log = messages(6000, 0, 0.001)
     log[5000].timestamp = T0
     path = write_log("drive.log", log)
-    got: list[FrameBlock] = []
+    got: list[PackedFrames] = []
 
     with pytest.raises(InputError, match="line 5001: time jumps backwards"):
         got.extend(ReadAhead([LogSource(path, strict=True)]).blocks())

@@ -14,7 +14,7 @@ process, interleaved, best of ``--repeat`` (default 3):
     ``--compare NAME=@REV`` the decoder of git revision REV (``benchlib.modules_at``), timed
     the same way as (b);
 (d) with ``--block N``: tankviz's column decode, :meth:`Decoder.decode_block` on the same frames
-    as :class:`bridge.block.FrameBlock` s of N frames (made before the clock starts: they are
+    as :class:`bridge.packed.PackedFrames` s of N frames (made before the clock starts: they are
     what the read-ahead hands over), also printed as a ratio to (b);
 
 and prints µs/frame of each (CPU time of this process, which a loaded machine disturbs less than
@@ -63,10 +63,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchlib import ECOCAR_DBC, best_of, ecocar_frames, modules_at
 
-from bridge.block import FrameBlock
 from bridge.decode import decoder as tankviz_decoder
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
+from bridge.packed import PackedFrames
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 REAL_LIKE_DBC = SHARED_DBC / "ford_fusion_2018_pt.dbc"
@@ -176,12 +176,12 @@ class FreshBlocks(Fresh):
     def __init__(self, path: Path, size: int, warm: bool) -> None:
         super().__init__(tankviz_decoder, path, warm)
         self.size = size
-        self.made: dict[int, list[FrameBlock]] = {}
+        self.made: dict[int, list[PackedFrames]] = {}
 
     def __call__(self, frames: list[Frame]) -> list[bytes | None]:
         blocks = self.made.get(id(frames))
         if blocks is None:
-            blocks = self.made[id(frames)] = [FrameBlock.from_frames(frames[i:i + self.size])
+            blocks = self.made[id(frames)] = [PackedFrames.from_frames(frames[i:i + self.size])
                                               for i in range(0, len(frames), self.size)]
         decode = self.decoder.decode_block
         out: list[bytes | None] = []

@@ -25,9 +25,9 @@ takes the frames) and the CPU time of this process and of the child (user + syst
 ratios old / new (above 1: new is faster). The child's CPU is python-can's reading plus the
 packing; this process's is the hand-over's other half.
 
-With ``--groups`` it also times grouping a block's rows by (bus, key), FrameBlock.groups (a dict
+With ``--groups`` it also times grouping a block's rows by (bus, key), PackedFrames.groups (a dict
 of ``array('I')``) against a numpy ``argsort`` split (when numpy is installed), on blocks of
-4,096 and 16,384 frames of the same drive: the measurement behind bridge/block.py's choice of
+4,096 and 16,384 frames of the same drive: the measurement behind bridge/packed.py's choice of
 the standard library.
 
     python tools/bench_readahead.py
@@ -63,10 +63,10 @@ from benchlib import (
     modules_at,
 )
 
-from bridge.block import FrameBlock
 from bridge.frame import Frame
 from bridge.io import readahead as new_module
 from bridge.io.can_logs import LogSource, SourceIssue
+from bridge.packed import PackedFrames
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -211,7 +211,7 @@ def groups(args: argparse.Namespace) -> None:
         np = None
     frames = list(ecocar_frames(20_000, args.seed))
 
-    def numpy_groups(block: FrameBlock) -> dict[tuple[int, int], Any]:
+    def numpy_groups(block: PackedFrames) -> dict[tuple[int, int], Any]:
         from array import array
 
         assert np is not None
@@ -229,8 +229,8 @@ def groups(args: argparse.Namespace) -> None:
 
     print("grouping a block's rows by (bus, key), best of 20:")
     for size in (4096, 16384):
-        block = FrameBlock.from_frames(frames[:size])
-        ways: dict[str, Callable[[], Any]] = {"FrameBlock.groups": block.groups}
+        block = PackedFrames.from_frames(frames[:size])
+        ways: dict[str, Callable[[], Any]] = {"PackedFrames.groups": block.groups}
         if np is not None:
             assert {k: list(v) for k, v in numpy_groups(block).items()} == \
                 {k: list(v) for k, v in block.groups().items()}

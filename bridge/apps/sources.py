@@ -21,10 +21,10 @@ from typing import Any
 
 from bridge.apps.options import dbc_option
 from bridge.apps.progress import ProgressBar
-from bridge.block import FrameBlock
 from bridge.decode.decoder import Decoder
 from bridge.errors import InputError, UsageError
 from bridge.frame import EXTENDED_KEY, NS
+from bridge.packed import PackedFrames
 
 
 def add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -51,7 +51,7 @@ class Source:
     origin_ns: int | None = None
     _messages: dict[str, dict[int, Any]] | None = None
 
-    def blocks(self) -> Iterator[FrameBlock]:
+    def blocks(self) -> Iterator[PackedFrames]:
         """The frames in blocks, in order, with a progress line."""
         from bridge.io.readahead import ReadAhead
 

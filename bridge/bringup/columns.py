@@ -1,6 +1,6 @@
 """A frame block's data frames as numpy columns, grouped per (bus, id).
 
-:func:`data_frames` takes the rows of a :class:`~bridge.block.FrameBlock` (all, or a range) that
+:func:`data_frames` takes the rows of a :class:`~bridge.packed.PackedFrames` (all, or a range) that
 carry data (error and remote frames carry none and are left out) as :class:`Columns`: times,
 bus names, frame keys, and the payloads as one ``uint8`` matrix, a row per frame, zero-padded to
 the longest payload. :func:`by_id` gives each (bus, key)'s rows of it, in their order;
@@ -15,8 +15,8 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from bridge.block import ERROR, REMOTE, FrameBlock
 from bridge.frame import EXTENDED_KEY, key_id
+from bridge.packed import ERROR, REMOTE, PackedFrames
 
 Array = npt.NDArray[np.int64]
 Bytes = npt.NDArray[np.uint8]
@@ -45,7 +45,7 @@ def id_text(key: int) -> str:
     return f"0x{key:03X}"
 
 
-def data_frames(block: FrameBlock, i: int = 0, j: int | None = None) -> Columns:
+def data_frames(block: PackedFrames, i: int = 0, j: int | None = None) -> Columns:
     """Rows ``i`` to ``j`` of ``block`` that carry data, as columns."""
     n = len(block)
     i, j, _ = slice(i, j).indices(n)

@@ -24,7 +24,6 @@ import numpy.typing as npt
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 
-from bridge.block import ERROR, REMOTE, FrameBlock, blocks
 from bridge.bringup.bitmap import MapRow, bit_map
 from bridge.bringup.census import Census, IdRow
 from bridge.bringup.columns import Columns, concat, data_frames
@@ -33,6 +32,7 @@ from bridge.decode.codec import Decoded
 from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome
 from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame
+from bridge.packed import ERROR, REMOTE, PackedFrames, blocks
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.topics import (
     BITS_LABELS_TOPIC,
@@ -138,7 +138,7 @@ class BringUpMonitor:
         self._frames_then: dict[tuple[str, int], int] = {}
         #: the block whose unknown rows are found (:meth:`on_rows`), and they: the rows files
         #: keep and all of them, each with its id, in row order
-        self._block: FrameBlock | None = None
+        self._block: PackedFrames | None = None
         self._rows: tuple[list[int], list[_Unknown], list[int], list[_Unknown]] = (
             [], [], [], [])
 
@@ -173,7 +173,7 @@ class BringUpMonitor:
         self.made.append(self.envelope(unknown.topic, CanPayload, unknown.write(data), t))
         self.kept.append(keep)
 
-    def on_rows(self, block: FrameBlock, i: int, j: int) -> None:
+    def on_rows(self, block: PackedFrames, i: int, j: int) -> None:
         """Rows ``i`` to ``j`` (excluded) of a block, after those before them, as
         :meth:`on_frame` of each."""
         if self.pending:
@@ -211,7 +211,7 @@ class BringUpMonitor:
         self._pieces += [[block, 0, len(block)] for block in blocks(self.pending)]
         self.pending.clear()
 
-    def _find_unknown(self, block: FrameBlock) -> None:
+    def _find_unknown(self, block: PackedFrames) -> None:
         """A new block's data rows of unknown ids, and which of them files keep (the first of
         their id in each slot of log time: decided here for the whole block, in row order)."""
         self._block = block

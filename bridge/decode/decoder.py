@@ -19,7 +19,6 @@ from typing import Any
 from cantools.database.can.message import Message as DbcMessage
 from google.protobuf import descriptor_pool
 
-from bridge.block import ERROR, EXTENDED, REMOTE, FrameBlock
 from bridge.decode.codec import Decoded, MessageCodec
 from bridge.decode.compiled import DecodeColumn, compile_decoders
 from bridge.decode.database import DatabaseFile, layout
@@ -28,6 +27,7 @@ from bridge.decode.outcome import DecodeStats, Outcome, Undecoded
 from bridge.decode.proto_schema import MessageSchema, identifier, type_names
 from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
+from bridge.packed import ERROR, EXTENDED, REMOTE, PackedFrames
 from bridge.topics import BUS_LEAVES, bus_segment, own_topic
 
 # Why a frame did not decode, as module globals (the per-frame path).
@@ -247,7 +247,7 @@ class Decoder:
         self.stats.unknown[(bus, frame.arbitration_id)] += 1
         return _UNKNOWN_ID
 
-    def decode_block(self, block: FrameBlock) -> list[Outcome]:
+    def decode_block(self, block: PackedFrames) -> list[Outcome]:
         """Decode every frame of ``block``, a column per ``(bus, key)`` in one step: one
         outcome per row, in row order, what :meth:`decode` of the row's frame returns, with the
         same statistics afterwards as decoding the frames one by one in order."""

@@ -20,7 +20,6 @@ from itertools import chain
 from operator import add, itemgetter
 from typing import NamedTuple
 
-from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
 from bridge.decode.codec import Decoded, MessageCodec
 from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome, Undecoded
@@ -28,6 +27,7 @@ from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
 from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
+from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 
 # why a frame did not decode (module globals: the per-frame path)
 _ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR, _REMOTE = (
@@ -48,7 +48,7 @@ class BusRows(NamedTuple):
 class BlockCount(NamedTuple):
     """A block's frames made ready to count (:meth:`TrafficCounting.count_block`)."""
 
-    block: FrameBlock
+    block: PackedFrames
     #: what the decoder made of each row
     decoded: Sequence[Outcome]
     #: the kinds of frame of each bus, the block's counted in
@@ -152,7 +152,7 @@ class TrafficCounting:
             family.last_ns = t
             family.frames += 1
 
-    def count_block(self, block: FrameBlock,
+    def count_block(self, block: PackedFrames,
                     decoded: Sequence[Outcome]) -> BlockCount | None:
         """Get a block's frames ready to be counted, a run of rows at a time
         (:meth:`count_rows`), as :meth:`on_frame` of each in order counts them; ``decoded``:

@@ -1,7 +1,7 @@
 """Read ahead: the frames of several sources, read and merged in a second process.
 
 :class:`ReadAhead` reads :func:`~bridge.io.can_logs.merge` of the sources in a forked child, which
-sends them through a pipe as :class:`~bridge.block.FrameBlock` blocks of :data:`BATCH` frames
+sends them through a pipe as :class:`~bridge.packed.PackedFrames` blocks of :data:`BATCH` frames
 (:meth:`ReadAhead.blocks`; iterating gives their frames), never more than two blocks ahead, so
 memory stays flat; :meth:`progress` tells the bytes read. The results are those of reading here:
 each source's ``issues``, ``frames`` and ``backwards`` come back from the child; an
@@ -29,10 +29,10 @@ from collections.abc import Generator, Iterable, Iterator, Sequence
 from itertools import islice
 from typing import Any, Protocol, TypeVar
 
-from bridge.block import FrameBlock, blocks
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io.can_logs import SourceIssue, merge
+from bridge.packed import PackedFrames, blocks
 
 #: Frames per hand-over (per block): large enough that a block costs little per frame, small
 #: enough that the pipeline starts at once.
@@ -101,8 +101,8 @@ class ReadAhead:
             return iter(merge(self.sources))
         return self._frames()
 
-    def blocks(self) -> Iterator[FrameBlock]:
-        """The frames as :class:`~bridge.block.FrameBlock` s of at most :data:`BATCH` frames, in
+    def blocks(self) -> Iterator[PackedFrames]:
+        """The frames as :class:`~bridge.packed.PackedFrames` s of at most :data:`BATCH` frames, in
         order (instead of iterating: one or the other, once)."""
         if not self.ahead:
             return self._blocks_here()
@@ -116,12 +116,12 @@ class ReadAhead:
         finally:
             from_child.close()  # the child is ended at once, not when this is collected
 
-    def _blocks_here(self) -> Iterator[FrameBlock]:
+    def _blocks_here(self) -> Iterator[PackedFrames]:
         frames = iter(merge(self.sources))
         while batch := list(islice(frames, BATCH)):
             yield from blocks(batch)
 
-    def _from_child(self) -> Generator[FrameBlock, None, None]:
+    def _from_child(self) -> Generator[PackedFrames, None, None]:
         import multiprocessing
 
         context = multiprocessing.get_context("fork")
@@ -154,7 +154,7 @@ class ReadAhead:
                     done = array("q")
                     done.frombytes(message[1:1 + 8 * sources])
                     self._done = done.tolist()
-                    yield FrameBlock.from_bytes(memoryview(message)[1 + 8 * sources:])
+                    yield PackedFrames.from_bytes(memoryview(message)[1 + 8 * sources:])
                     continue
                 kind, *body = pickle.loads(message[1:])
                 self._settle(body[0])

@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
 from bridge import __version__
-from bridge.block import FrameBlock
 from bridge.decode.database import DatabaseFile, load_database, parse_dbc_option
 from bridge.decode.decoder import Decoder
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
+from bridge.packed import PackedFrames
 from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.pipeline import Pipeline
 from bridge.profile.loader import load_profile, read_profile_databases, resolve_profile
@@ -162,7 +162,7 @@ class Drive:
                 gc.enable()
         return count
 
-    def run_blocks(self, blocks: Iterable[FrameBlock], *,
+    def run_blocks(self, blocks: Iterable[PackedFrames], *,
                    progress: Callable[[int], None] | None = None, every: int = 16384) -> int:
         """:meth:`run` for frames in blocks (offline: :meth:`Pipeline.process_block`)."""
         process = self.pipeline.process_block

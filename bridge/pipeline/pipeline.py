@@ -20,13 +20,13 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge.block import FrameBlock
 from bridge.decode.codec import Decoded, MessageCodec
 from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome
 from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
+from bridge.packed import PackedFrames
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.clock import ClockStep, StepDetector
@@ -35,7 +35,7 @@ from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
-from bridge.sinks.raw import Blocker, RawBlock
+from bridge.sinks.raw import BlockCutter, RawBlock
 from bridge.topics import (
     HEALTH_CATEGORY,
     LOG_TOPIC,
@@ -97,7 +97,7 @@ class Pipeline:
         #: that do not
         self._records: list[bool] = []
         self._showing: list[Sink] = []
-        self._blocker = Blocker(self._emit_raw)
+        self._blocker = BlockCutter(self._emit_raw)
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
@@ -180,7 +180,7 @@ class Pipeline:
         if t_ns >= self._next_tick:
             self.advance(t_ns)
 
-    def process_block(self, block: FrameBlock) -> None:
+    def process_block(self, block: PackedFrames) -> None:
         """A block of frames through every stage, as :meth:`process_many` of its frames (the
         same messages on every topic, and the same statistics; topics interleave otherwise in
         the file). Each (bus, id) column of the block is decoded in one step
@@ -242,9 +242,9 @@ class Pipeline:
             self._rows(block, decoded, i, j)
             i = j
 
-    def _rows(self, block: FrameBlock, decoded: list[Outcome], i: int, j: int) -> None:
+    def _rows(self, block: PackedFrames, decoded: list[Outcome], i: int, j: int) -> None:
         """Rows ``i`` to ``j`` of a block, counted by health, through the other stages: their
-        raw blocks (:meth:`~bridge.sinks.raw.Blocker.add_rows`), bring-up
+        raw blocks (:meth:`~bridge.sinks.raw.BlockCutter.add_rows`), bring-up
         (:meth:`~bridge.bringup.monitor.BringUpMonitor.on_rows`), and their decoded messages to
         the sinks and perception (:meth:`_hand`)."""
         if self.sinks:

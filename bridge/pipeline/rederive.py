@@ -18,11 +18,11 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.block import FrameBlock
 from bridge.decode.database import DatabaseFile, database_warnings, load_database
 from bridge.decode.decoder import Decoder
 from bridge.errors import DatabaseError, InputError
 from bridge.io.drives import ArchiveContents, mark_time
+from bridge.packed import PackedFrames
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
 from bridge.pipeline.marks import Marks, mark_messages
@@ -166,7 +166,7 @@ class CarriedMarks:
                 self._made.made.append(mark)
                 self._pipeline.emit(mark_messages(mark, mark_time(mark)))
 
-    def blocks(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
+    def blocks(self, blocks: Iterable[PackedFrames]) -> Iterator[PackedFrames]:
         """``blocks`` cut where a mark comes, each mark made between the two parts (when the
         pipeline asks for the part after it: the frames before it have gone through)."""
         pending = self._pending

@@ -20,12 +20,12 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.apps.inspect import summarize_file
-from bridge.block import FrameBlock
 from bridge.cli import main
 from bridge.decode.codec import Decoded
 from bridge.decode.database import load_database
 from bridge.decode.decoder import Decoder
 from bridge.frame import EXTENDED_KEY, Frame
+from bridge.packed import PackedFrames
 
 T0 = 1_700_000_000.0
 J1939_DBC = """VERSION ""
@@ -103,7 +103,7 @@ def test_every_source_and_priority_of_a_pgn_decodes_and_keeps_its_source(dbc: Pa
 def test_blocks_decode_as_frame_by_frame_and_the_health_census_agrees(dbc: Path) -> None:
     one, block = (Decoder({None: [load_database(dbc)]}) for _ in range(2))
     by_frame = [one.decode(f) for f in frames()]
-    by_block = block.decode_block(FrameBlock.from_frames(frames()))
+    by_block = block.decode_block(PackedFrames.from_frames(frames()))
     assert [d.payload if d else None for d in by_frame] == [
         d.payload if d else None for d in by_block]
     assert block.stats.unknown == {}
