@@ -64,6 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchlib import ECOCAR_DBC, best_of, ecocar_frames, modules_at
 
 from bridge.decode import decoder as tankviz_decoder
+from bridge.decode.database import load_database
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
 from bridge.packed import PackedFrames
@@ -144,7 +145,7 @@ class Fresh:
 
     def __init__(self, module: ModuleType, path: Path, warm: bool) -> None:
         self.module, self.warm = module, warm
-        self.database = module.load_database(path)
+        self.database = load_database(path)
         self.decoder: Any = None
 
     def setup(self, frames: list[Frame]) -> None:
@@ -161,7 +162,7 @@ class Fresh:
         out: list[bytes | None] = []
         for f in frames:
             d = decode(f)
-            out.append(None if d is None else d.payload)
+            out.append(getattr(d, "payload", None))  # (None: not decoded, old or new)
         return out
 
 
@@ -186,7 +187,7 @@ class FreshBlocks(Fresh):
         decode = self.decoder.decode_block
         out: list[bytes | None] = []
         for block in blocks:
-            out += [None if d is None else d.payload for d in decode(block)]
+            out += [getattr(d, "payload", None) for d in decode(block)]
         return out
 
 
