@@ -204,6 +204,7 @@ def _reference(inputs: list[Path], output: Path, dbcs: list[str],
     return _records(output)
 
 
+@pytest.mark.slow
 def test_a_batch_converts_every_drive_as_convert_does_and_a_bad_one_fails_alone(
         sim_logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
@@ -350,6 +351,7 @@ def _radar_frames(db: cantools.database.can.Database, t0: float, n: int,
     return out
 
 
+@pytest.mark.slow
 def test_a_real_dask_cluster_converts_a_non_ecocar_fleet(
         dask_cluster: str, shared_dbc: Path, tmp_path: Path) -> None:
     dbc = shared_dbc / "tesla_radar_bosch.dbc"

@@ -123,6 +123,7 @@ def test_drives_are_named_by_their_utc_start() -> None:
     assert drive_name(start, 2) == "2026-01-01T12-00-00Z_part002.mcap"
 
 
+@pytest.mark.slow
 def test_sigterm_finishes_a_valid_drive_with_every_frame_the_car_sent(tmp_path: Path) -> None:
     demo = start_demo(tmp_path)
 
@@ -148,6 +149,7 @@ def test_sigterm_finishes_a_valid_drive_with_every_frame_the_car_sent(tmp_path: 
     assert json.loads(meta["statistics"])["decode_errors"] == {}
 
 
+@pytest.mark.slow
 def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
     from bridge.apps.recover import recover_file
 
@@ -328,6 +330,7 @@ def test_a_scene_goes_to_the_viewers_before_the_recorder_writes_it(tmp_path: Pat
         assert live.pipeline.sinks == [server, live.recorder]
 
 
+@pytest.mark.slow
 def test_a_stalled_viewer_costs_the_recorder_nothing(tmp_path: Path) -> None:
     """One viewer never reads, another gets the scene at the scene rate, every frame is kept."""
     with ViewerServer(port=0, queue_limit=50) as server:

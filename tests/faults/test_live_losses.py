@@ -73,6 +73,7 @@ def _json(text: str) -> Any:
         return text  # a string value
 
 
+@pytest.mark.slow
 def test_frames_stamped_nan_are_kept_stamped_when_received_and_counted(tmp_path: Path) -> None:
     car = start(tmp_path, f"{__file__}:nan_stamps")
     viewer = Viewer(car.url)

@@ -169,6 +169,7 @@ def live_script() -> Iterator[tuple[float, Any]]:
             yield i * 0.01, Frame(now + i * 10_000_000, "can0", id_, bytes([i] * 8))
 
 
+@pytest.mark.slow
 def test_live_moves_the_message_and_records_every_raw_frame(tmp_path: Path) -> None:
     dbc = tmp_path / "clash.dbc"
     dbc.write_text(CLASH_DBC)
