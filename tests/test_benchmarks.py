@@ -48,6 +48,7 @@ def tool(name: str) -> ModuleType:
     return module
 
 
+@pytest.mark.slow
 def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
                                                                  shared_dbc: Path) -> None:
     report = tmp_path / "report.md"
@@ -168,6 +169,7 @@ def test_live_table_is_read_by_its_columns() -> None:
     assert report.live_table("no table here") == []
 
 
+@pytest.mark.slow
 def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
     """``bench_live.py --stages`` adds the stages one by one, from a pipeline with no sink at all
     (decoding only) to the server: every row is a cost."""
@@ -180,6 +182,7 @@ def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
         assert cost > 0, stages
 
 
+@pytest.mark.slow
 def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path: Path) -> None:
     from mcap.records import MessageIndex
     from mcap.stream_reader import StreamReader
@@ -201,6 +204,7 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
 BEFORE_BLOCKS = "a6fe390"
 
 
+@pytest.mark.slow
 def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
                                                                 shared_dbc: Path) -> None:
     """``--before REV``: the same tools measure a worktree of REV too, its ``bridge`` (not this

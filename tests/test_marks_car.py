@@ -235,6 +235,7 @@ def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_button(
         tmp_path: Path, highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     output = tmp_path / "highway.mcap"
@@ -252,6 +253,7 @@ def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_bu
     assert lines == ["MARK 1: STEER_BUTTON == 1 (car)", "MARK 2: STEER_BUTTON == 1 (car)"]
 
 
+@pytest.mark.slow
 def test_profile_check_says_what_the_rules_read_and_which_marks_a_log_made(
         highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["profile", "check", "highway", str(highway_log)]) == 0
