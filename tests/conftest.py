@@ -93,6 +93,17 @@ def ecocar() -> cantools.database.can.Database:
     return cantools.database.load_file(ECOCAR_DBC)
 
 
+@pytest.fixture(scope="session")
+def sample_drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The bundled sample log (ecocar_sample.blf) converted with the ecocar profile, once per
+    run: read it, never change it."""
+    from bridge.pipeline.convert import convert
+
+    drive = tmp_path_factory.mktemp("sample") / "sample.mcap"
+    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+    return drive
+
+
 @pytest.fixture
 def shared_dbc() -> Path:
     """The public DBCs beside the project (../shared); skipped where they are absent."""
