@@ -157,6 +157,7 @@ def test_stopping_the_blocks_early_ends_the_reading_process() -> None:
     assert multiprocessing.active_children() == []
 
 
+@pytest.mark.slow
 def test_the_benchmarks_run_and_report_every_row(tmp_path: Path) -> None:
     """tools/bench_readahead.py and bench_decode.py --block run (tiny sizes: no timing is
     checked) and print every contender."""
