@@ -96,6 +96,7 @@ def damaged(frames: list[Frame]) -> list[Frame]:
     return out
 
 
+@pytest.mark.slow
 def test_ecocar_with_damage_and_clock_steps() -> None:
     frames = damaged(list(simulate(duration_s=6.0, seed=3)))
     topics = assert_same_drive(lambda: load_stages([], "ecocar"), frames)
