@@ -14,6 +14,7 @@ the profile as attachments when it (each part) starts, and the ``tankviz`` metad
 from __future__ import annotations
 
 import gc
+from itertools import islice
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
@@ -145,17 +146,18 @@ class Drive:
             every: int = 16384) -> int:
         """Every frame through the pipeline; ``progress`` is called with the count now and
         then. Returns how many frames there were."""
-        process = self.pipeline.process
+        process = self.pipeline.process_many
         count = 0
+        frames = iter(frames)
         # The hot loop makes millions of short-lived tuples and no reference cycles: the cyclic
         # garbage collector would only walk the long-lived caches over and over (about 8 %).
         collecting = gc.isenabled()
         gc.disable()
         try:
-            for frame in frames:
-                process(frame)
-                count += 1
-                if progress is not None and count % every == 0:
+            while chunk := list(islice(frames, every)):
+                process(chunk)
+                count += len(chunk)
+                if progress is not None and len(chunk) == every:
                     progress(count)
         finally:
             if collecting:
