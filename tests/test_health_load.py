@@ -4,9 +4,10 @@ within 1 % of the exact one on real-like traffic, and everything else the monito
 frame stays exact.
 
 The traffic: the benches' simulated ecocar drive on three buses (``tools/benchlib.py``: CAN FD
-radar frames, noisy signals) and a candump-like log of a car without a profile (``tools/bench_health.py``: ~100 ids, 11- and 29-bit,
-counters, checksums, random bytes, CAN FD frames with and without bit rate switch, remote and
-error frames). "Exact" is :func:`bridge.health.wire.frame_bits` summed over every frame.
+radar frames, noisy signals) and a candump-like log of a car without a profile
+(``tools/bench_health.py``: ~100 ids, 11- and 29-bit, counters, checksums, random bytes, CAN
+FD frames with and without bit rate switch, remote and error frames). "Exact" is
+:func:`bridge.health.wire.frame_bits` summed over every frame.
 """
 
 from __future__ import annotations

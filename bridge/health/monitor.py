@@ -51,7 +51,7 @@ What it counts per bus and per family, and the figures of ``/health`` made of th
 :mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
 :mod:`bridge.health.sight`.
 
-Frames are counted as they come, one by one or a block at a time (:mod:`bridge.health.traffic`).
+Frames are counted as they come, one by one or a pack at a time (:mod:`bridge.health.traffic`).
 Object checks run at scene ticks (:meth:`HealthMonitor.on_world`): who sees a moving object in
 whose field of view is asked once per object and sensor while the object stays in the world
 (observations are values). :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene

@@ -5,7 +5,7 @@ decoder and the profile, every name checked against the databases. :class:`Drive
 health monitor, the bring-up stage (on unless ``bring_up=False``) and the
 :class:`~bridge.pipeline.pipeline.Pipeline`, its sinks in the order they are added (the live
 server first: viewers wait for a scene, the recorder does not); :meth:`Drive.run` and
-:meth:`Drive.run_blocks` feed it, :meth:`Drive.finish` emits what is due and finishes every sink.
+:meth:`Drive.run_packed` feed it, :meth:`Drive.finish` emits what is due and finishes every sink.
 A file sink made with :meth:`Drive.record` or :meth:`Drive.record_parts` gets every database and
 the profile as attachments when it (each part) starts, and the ``tankviz`` metadata record
 (:meth:`Drive.describe`, plus :attr:`Drive.extra`) just before it is finished.
@@ -14,9 +14,9 @@ the profile as attachments when it (each part) starts, and the ``tankviz`` metad
 from __future__ import annotations
 
 import gc
-from itertools import islice
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
+from itertools import islice
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
@@ -164,17 +164,17 @@ class Drive:
                 gc.enable()
         return count
 
-    def run_blocks(self, blocks: Iterable[PackedFrames], *,
+    def run_packed(self, packs: Iterable[PackedFrames], *,
                    progress: Callable[[int], None] | None = None, every: int = 16384) -> int:
-        """:meth:`run` for frames in blocks (offline: :meth:`Pipeline.process_block`)."""
-        process = self.pipeline.process_block
+        """:meth:`run` for frames in packs (offline: :meth:`Pipeline.process_packed`)."""
+        process = self.pipeline.process_packed
         count = 0
         collecting = gc.isenabled()
         gc.disable()  # as in run
         try:
-            for block in blocks:
-                process(block)
-                before, count = count, count + len(block)
+            for pack in packs:
+                process(pack)
+                before, count = count, count + len(pack)
                 if progress is not None and count // every != before // every:
                     progress(count)
         finally:
