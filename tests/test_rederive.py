@@ -33,7 +33,6 @@ from bridge.io.drives import ArchiveSource, read_drive
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
-from bridge.resources import data_dir
 from bridge.sinks.server import ViewerServer
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
@@ -193,9 +192,9 @@ def test_re_deriving_twice_gives_the_same_bytes(bosch_drive: Path, tmp_path: Pat
     assert one.read_bytes() == two.read_bytes()
 
 
-def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path) -> None:
-    drive = tmp_path / "sample.mcap"
-    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path, sample_drive: Path
+                                                       ) -> None:
+    drive = sample_drive
     out = tmp_path / "out.mcap"
     convert([drive], out, [])
     first, second = messages(drive), messages(out)
@@ -227,9 +226,8 @@ def test_an_mcap_that_is_not_a_drive_is_one_line(tmp_path: Path,
 
 
 def test_a_drive_cut_short_re_derives_what_it_holds_and_says_what_is_lost(
-        tmp_path: Path) -> None:
-    drive = tmp_path / "sample.mcap"
-    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+        tmp_path: Path, sample_drive: Path) -> None:
+    drive = sample_drive
     whole = len(list(ArchiveSource(drive)))
     cut = tmp_path / "cut.mcap"
     data = drive.read_bytes()

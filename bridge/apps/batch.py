@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TextIO
 
 from bridge.apps.options import Subparsers, add_stage_options, dbc_option
-from bridge.decode.decoder import parse_dbc_option
+from bridge.decode.database import parse_dbc_option
 from bridge.errors import FileError, UsageError, shown
 from bridge.fleet.batch import (
     ConvertJob,

@@ -40,7 +40,7 @@ from bridge.apps.options import (
     add_stage_options,
     install_stop_signals,
 )
-from bridge.decode.decoder import parse_dbc_option
+from bridge.decode.database import parse_dbc_option
 from bridge.errors import BridgeError, InputError, UsageError, check_input_path
 from bridge.frame import NS
 from bridge.io.can_logs import LogSource, merge, supported_suffixes

@@ -10,7 +10,7 @@ The seed's team found a radar knocked out of alignment only because the blue sph
   over the bitrate, the data phase of CAN FD
   frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
   but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
-  (+inf, -inf, NaN: :attr:`bridge.decode.decoder.Decoded.non_finite`), gaps (no traffic for
+  (+inf, -inf, NaN: :attr:`bridge.decode.codec.Decoded.non_finite`), gaps (no traffic for
   longer than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
 - every message family of the profile (object groups such as radar, camera and tracks; the lead
   vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
@@ -51,7 +51,7 @@ What it counts per bus and per family, and the figures of ``/health`` made of th
 :mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
 :mod:`bridge.health.sight`.
 
-Frames are counted as they come, one by one or a block at a time (:mod:`bridge.health.traffic`).
+Frames are counted as they come, one by one or a pack at a time (:mod:`bridge.health.traffic`).
 Object checks run at scene ticks (:meth:`HealthMonitor.on_world`): who sees a moving object in
 whose field of view is asked once per object and sensor while the object stays in the world
 (observations are values). :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene
@@ -68,7 +68,8 @@ from typing import Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode.decoder import Decoder, MessageCodec
+from bridge.decode.codec import MessageCodec
+from bridge.decode.decoder import Decoder
 from bridge.frame import NEVER_NS, NS, timestamp
 from bridge.health.alarms import Alarm, AlarmInfo, AlarmKind, HealthSettings, alarm_id
 from bridge.health.counts import (

@@ -18,10 +18,11 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from bridge.block import FrameBlock
-from bridge.decode.decoder import DatabaseFile, Decoder, database_warnings, load_database
+from bridge.decode.database import DatabaseFile, database_warnings, load_database
+from bridge.decode.decoder import Decoder
 from bridge.errors import DatabaseError, InputError
 from bridge.io.drives import ArchiveContents, mark_time
+from bridge.packed import PackedFrames
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
 from bridge.pipeline.marks import Marks, mark_messages
@@ -165,25 +166,25 @@ class CarriedMarks:
                 self._made.made.append(mark)
                 self._pipeline.emit(mark_messages(mark, mark_time(mark)))
 
-    def blocks(self, blocks: Iterable[FrameBlock]) -> Iterator[FrameBlock]:
-        """``blocks`` cut where a mark comes, each mark made between the two parts (when the
+    def packs(self, packs: Iterable[PackedFrames]) -> Iterator[PackedFrames]:
+        """``packs`` cut where a mark comes, each mark made between the two parts (when the
         pipeline asks for the part after it: the frames before it have gone through)."""
         pending = self._pending
-        for block in blocks:
-            ts, i, n = block.t, 0, len(block)
+        for pack in packs:
+            ts, i, n = pack.t, 0, len(pack)
             while pending and i < n:
                 due = mark_time(pending[0])
-                if max(ts) < due:  # (most blocks: no frame reaches the mark)
+                if max(ts) < due:  # (most packs: no frame reaches the mark)
                     break
                 j = next((k for k in range(i, n) if ts[k] >= due), n)
                 if j == n:
                     break
                 if j > i:
-                    yield block.slice(i, j)
+                    yield pack.slice(i, j)
                 self.before(ts[j])
                 i = j
             if i < n:
-                yield block if i == 0 else block.slice(i, n)
+                yield pack if i == 0 else pack.slice(i, n)
 
     def finish(self) -> None:
         """The marks after the last frame (live took them as it stopped)."""

@@ -49,7 +49,7 @@ from foxglove_websocket.server import FoxgloveServer, FoxgloveServerListener, Ti
 from foxglove_websocket.types import BinaryOpcode, ChannelId
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge.decode.decoder import Decoded, MessageCodec
+from bridge.decode.codec import Decoded, MessageCodec
 from bridge.errors import ServerError, ViewerInputError
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Channel, Serialized, Sink
