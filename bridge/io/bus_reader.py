@@ -4,7 +4,7 @@ read, in order, as the pipeline's process reads them.
 The reading process (``multiprocessing``'s ``spawn``: a fresh interpreter, never a fork of a
 process with threads) opens each bus as :class:`~bridge.io.buses.BusLink` does, reads them all on
 :class:`~bridge.io.buses.ReadSchedule`'s schedule (following the frames' clock, and a clock that
-steps back), and sends each read at once as one :class:`~bridge.block.FrameBlock` (the frames of
+steps back), and sends each read at once as one :class:`~bridge.packed.PackedFrames` (the frames of
 every bus merged in time order, with the wall time of the read): a read with no frame is sent
 too, so the pipeline knows every frame stamped before then has come. Its sending never waits for
 the pipeline (a thread of its own sends, from a queue without bound), so a slow pipeline never
@@ -34,7 +34,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from bridge.block import FrameBlock
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame
 from bridge.io.buses import (
@@ -46,6 +45,7 @@ from bridge.io.buses import (
     limit_can_logs,
     merge_batches,
 )
+from bridge.packed import PackedFrames
 
 #: A read's first bytes: the kind, the wall time of the read (ns); then its block, if any.
 _READ = struct.Struct("<cq")
@@ -73,7 +73,7 @@ class Read:
     """One read of every bus: its frames in time order (None: none), at ``read_ns`` (wall)."""
 
     read_ns: int
-    block: FrameBlock | None
+    block: PackedFrames | None
 
 
 @dataclass
@@ -124,7 +124,7 @@ class ReaderProcess:
             kind = message[:1]
             if kind in (_BLOCK, _EMPTY):
                 _, read_ns = _READ.unpack_from(message)
-                block = (FrameBlock.from_bytes(memoryview(message)[_READ.size:])
+                block = (PackedFrames.from_bytes(memoryview(message)[_READ.size:])
                          if kind == _BLOCK else None)
                 out.append(Read(read_ns, block))
                 reads += 1
@@ -242,7 +242,7 @@ def _read_until_stopped(specs: list[BusSpec], period_ns: int,
 
     def hand(frames: list[Frame], read_ns: int) -> None:
         if frames:
-            put_bytes(_READ.pack(_BLOCK, read_ns) + FrameBlock.from_frames(frames).to_bytes())
+            put_bytes(_READ.pack(_BLOCK, read_ns) + PackedFrames.from_frames(frames).to_bytes())
         else:
             put_bytes(_READ.pack(_EMPTY, read_ns))
 
