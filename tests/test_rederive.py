@@ -14,6 +14,7 @@ import asyncio
 import json
 import shutil
 import threading
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +31,12 @@ from bridge.apps.replay import replay_drive
 from bridge.cli import main
 from bridge.errors import InputError
 from bridge.io.drives import ArchiveSource, read_drive
+from bridge.pipeline import drive as drive_module
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir
+from bridge.sinks.mcap import Recorder
 from bridge.sinks.server import ViewerServer
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
@@ -227,13 +230,20 @@ def test_an_mcap_that_is_not_a_drive_is_one_line(tmp_path: Path,
 
 
 def test_a_drive_cut_short_re_derives_what_it_holds_and_says_what_is_lost(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     drive = tmp_path / "sample.mcap"
-    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+    with monkeypatch.context() as patch:  # chunks of 1 MiB: the sample drive has several
+        patch.setattr(drive_module, "Recorder", partial(Recorder, chunk_size=1024 * 1024))
+        convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
     whole = len(list(ArchiveSource(drive)))
     cut = tmp_path / "cut.mcap"
     data = drive.read_bytes()
-    cut.write_bytes(data[: len(data) * 3 // 4])  # a power loss: the last chunk is incomplete
+    with drive.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) > 1
+    last = max(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    # a power loss: the last chunk is incomplete
+    cut.write_bytes(data[: last.chunk_start_offset + last.chunk_length // 2])
     out = tmp_path / "out.mcap"
     report = convert([cut], out, [])  # the attachments are at the start: still there
     assert 0 < report.frames < whole

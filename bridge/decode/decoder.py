@@ -61,7 +61,7 @@ from bridge.decode.j1939 import address_fields, address_suffix, is_j1939, pgn_ke
 from bridge.decode.proto_schema import MessageSchema, identifier, type_names
 from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
-from bridge.topics import BUS_LEAVES, bus_segment, message_topic, own_topic
+from bridge.topics import BUS_LEAVES, bus_segment, message_topic, own_topic, short_topic
 
 #: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
 #: 256 holds every payload of a static message with an 8-bit rolling counter; more hit no more
@@ -109,7 +109,7 @@ class MessageCodec:
     """
 
     def __init__(self, message: DbcMessage, database: DatabaseFile,
-                 schema: Callable[[], MessageSchema], bus: str,
+                 schema: Callable[..., MessageSchema], bus: str,
                  decoder: Callable[[], Callable[[bytes], Any]],
                  column_decoder: Callable[[], DecodeColumn | None] | None = None, *,
                  j1939_id: int | None = None, derived: bool = False) -> None:
@@ -154,10 +154,21 @@ class MessageCodec:
         self._decode = self._decoder()
         return self._decode(data)
 
+    @cached_property
+    def short(self) -> MessageCodec:
+        """The codec of the message's frames shorter than it (which may lack any signal): its
+        own topic (:func:`bridge.topics.short_topic`) and type (every field ``optional``,
+        :class:`MessageSchema` ``short``); its frames are counted by this codec."""
+        codec = MessageCodec(self.message, self.database, partial(self._schema, short=True),
+                             self.bus, self._decoder, j1939_id=self.j1939_id, derived=True)
+        codec.topic = short_topic(self.topic)
+        return codec
+
     def _first_encode(self, signals: Mapping[str, Any]) -> bytes:
         encode = self.schema.encode
         if self.j1939_id is not None:
-            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses))
+            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses),
+                                    implicit=not self.schema.short)
             self._encode = lambda s: encode(s) + suffix
         else:
             self._encode = encode
@@ -165,9 +176,11 @@ class MessageCodec:
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
+        into = self
         if len(data) != self.length:
             if len(data) < self.length:
                 self.truncated += 1
+                into = self.short
             else:
                 self.longer += 1
                 self.longest = max(self.longest, len(data))
@@ -182,7 +195,7 @@ class MessageCodec:
                if self.floats else ())
         if bad:
             self.non_finite.update(bad)
-        result = Decoded(self, signals, self._encode(signals), bad)
+        result = Decoded(into, signals, into._encode(signals), bad)
         self.decoded += 1
         if self.caching:
             if len(self._cache) >= _CACHE_SIZE:
@@ -252,7 +265,10 @@ class MessageCodec:
                     signals = cast("dict[str, Any]", decode(data))
                 bad = (tuple(n for n in floats if not math.isfinite(signals.get(n, 0.0)))
                        if floats else ())
-                result = _new_decoded((self, signals, encode(signals), bad))
+                if len(data) < length:
+                    result = _new_decoded((self.short, signals, self.short._encode(signals), bad))
+                else:
+                    result = _new_decoded((self, signals, encode(signals), bad))
             except Exception as exc:  # decode() raises it: the caller counts it
                 results[data] = exc
                 failed = True
@@ -366,7 +382,7 @@ class Decoder:
     def __init__(self, databases: Mapping[str | None, Iterable[DatabaseFile]]) -> None:
         self._databases = {bus: list(files) for bus, files in databases.items()}
         self._pool = descriptor_pool.DescriptorPool()
-        self._schemas: dict[tuple[str, str], MessageSchema] = {}
+        self._schemas: dict[tuple[str, str, bool], MessageSchema] = {}
         #: per database's part of the types' names, its messages' type names
         self._type_names: dict[str, dict[str, str]] = {}
         #: compiled decoders by id of the DBC message (the databases keep the messages alive)
@@ -475,9 +491,10 @@ class Decoder:
             self._database_names[database.sha256] = name
         return name
 
-    def _schema(self, database: DatabaseFile, message: DbcMessage) -> MessageSchema:
+    def _schema(self, database: DatabaseFile, message: DbcMessage, *,
+                short: bool = False) -> MessageSchema:
         name = self._database_name(database)
-        key = (name, message.name)
+        key = (name, message.name, short)
         schema = self._schemas.get(key)
         if schema is None:
             addresses = address_fields(message) if is_j1939(message, database.db) else ()
@@ -485,7 +502,7 @@ class Decoder:
             if types is None:
                 types = self._type_names[name] = type_names(database.db.messages)
             schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses,
-                                                        types[message.name])
+                                                        types[message.name], short=short)
         return schema
 
     def _decoders_of(self, message: DbcMessage
