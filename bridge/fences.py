@@ -90,8 +90,8 @@ MCAP = Fence(
     "mcap", "1.6", "1.7", "bridge/sinks/mcap.py (FastWriter)",
     ("mcap.writer.Writer.__statistics", "Writer.__chunk_builder", "Writer.__chunk_size",
      "Writer.__finalize_chunk", "ChunkBuilder.record_writer._buffer",
-     "ChunkBuilder.message_indices"),
-    "messages are written by mcap's own Writer.add_message and flush")
+     "ChunkBuilder.message_indices", "mcap.writer.zstandard (chunks at another level)"),
+    "messages are written by mcap's own Writer.add_message and flush, chunks at zstd level 3")
 FOXGLOVE_WEBSOCKET = Fence(
     "foxglove-websocket", "0.1.4", "0.1.5", "bridge/sinks/server/internals.py",
     ("FoxgloveServer._clients", "FoxgloveServer._channels",
