@@ -7,7 +7,7 @@ The traffic: the benches' simulated ecocar drive on three buses (``tools/benchli
 radar frames, noisy signals) and a candump-like log of a car without a profile
 (``tools/bench_health.py``: ~100 ids, 11- and 29-bit, counters, checksums, random bytes, CAN
 FD frames with and without bit rate switch, remote and error frames). "Exact" is
-:func:`bridge.health.wire.frame_bits` summed over every frame.
+:func:`bridge.health.bus_bits.frame_bits` summed over every frame.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import pytest
 
 from bridge.decode.decoder import Decoder
 from bridge.frame import NS, Frame
+from bridge.health.bus_bits import EXACT_FIRST, FrameKind, frame_bits
 from bridge.health.monitor import HealthMonitor
-from bridge.health.wire import EXACT_FIRST, FrameKind, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.topics import HEALTH_TOPIC
 

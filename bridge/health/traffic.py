@@ -25,8 +25,8 @@ from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome, Undecoded
 from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
+from bridge.health.bus_bits import MAX_KINDS, FrameKind, KindKey
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
-from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 
 # why a frame did not decode (module globals: the per-frame path)
