@@ -103,6 +103,7 @@ def test_ecocar_with_damage_and_clock_steps() -> None:
     assert topics["/scene/radar"] and topics["/health"]
 
 
+@pytest.mark.slow
 def test_the_highway_car_on_two_buses() -> None:
     frames = list(simulate_highway(duration_s=6.0, seed=1, road="winding"))
     assert {f.bus for f in frames} == {"can0", "can1"}
