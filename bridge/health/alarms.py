@@ -1,10 +1,10 @@
 """Health alarms: the settings of the checks, what an alarm is about, and an alarm's hysteresis.
 
-:class:`HealthSettings` holds the thresholds and timing of every check, in seconds of log time
-(a value out of range is a :class:`~bridge.errors.UsageError`). :func:`alarm_id` makes every
-alarm id, its subject and its kind (:class:`AlarmKind`, ``tankviz.AlarmKind`` in ``/health``);
-this is the one table of them, and the health monitor (:mod:`bridge.health.monitor`) checks when
-each holds (live's last two: :mod:`bridge.health.receive`):
+:class:`HealthSettings` holds the thresholds and timing of every check, in seconds of log time (a
+value out of range is a :class:`~bridge.errors.UsageError`). :func:`alarm_id` makes every alarm id,
+its subject and its kind (:class:`AlarmKind`, ``tankviz.AlarmKind`` in ``/health``); this is the
+one table of them (:mod:`bridge.health.monitor` checks them; live's last two,
+:mod:`bridge.health.receive`):
 
 ============================  ==================  ================================================
 id                            kind                holds when
@@ -38,13 +38,11 @@ id                            kind                holds when
                                                   came within the last window
 ============================  ==================  ================================================
 
-:class:`Alarm` is one alarm's hysteresis in log time: raised once its condition has held for its
-raise time (``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``; at once for live's two),
-cleared once it has been gone for ``clear_after_s``, either wait starting again when the
-condition flips back; it keeps its latest reason and how often it was raised, and gives itself as
-``tankviz.Alarm`` (:meth:`Alarm.to_pb`) and to the overlay (:meth:`Alarm.info`). An alarm told
-outside the monitor's ``/log`` (``recorder.disk_full``) is a :class:`Notice`
-(:func:`alarm_notice`).
+:class:`Alarm` is one alarm's hysteresis in log time: raised once its condition has held for
+``raise_after_s`` (``lane_loss_s`` for ``lanes.lost``; at once for live's two), cleared once gone
+for ``clear_after_s``, either wait restarting when the condition flips back; as ``tankviz.Alarm``
+(:meth:`Alarm.to_pb`) and for the overlay (:meth:`Alarm.info`). An alarm told outside the monitor's
+``/log`` (``recorder.disk_full``) is a :class:`Notice` (:func:`alarm_notice`).
 """
 
 from __future__ import annotations
