@@ -1,10 +1,8 @@
 """Data frames as numpy columns, grouped per (bus, id).
 
-:func:`data_frames` takes the rows of a :class:`~bridge.packed.PackedFrames` (all, or a range) that
-carry data (error and remote frames carry none and are left out) as :class:`Columns`: times,
-bus names, frame keys, and the payloads as one ``uint8`` matrix, a row per frame, zero-padded to
-the longest payload. :func:`by_id` gives each (bus, key)'s rows of it, in their order;
-:func:`concat` makes one of several, in order.
+:func:`data_frames` gives the rows of a :class:`~bridge.packed.PackedFrames` that carry data as
+:class:`Columns` (times, buses, frame keys, payloads as one zero-padded ``uint8`` matrix);
+:func:`by_id` and :func:`concat` split and join them, in order.
 """
 
 from __future__ import annotations
