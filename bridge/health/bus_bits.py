@@ -1,19 +1,9 @@
 """Bits on the wire: how long each CAN frame takes on the bus, the measure of the bus load.
 
-:func:`frame_bits` counts a frame's bits from the frame alone, SOF to the end of the interframe
-space, stuff bits included: exact up to the end of the data field, the expected 0.5 stuff bits for
-a classic frame's 15-bit CRC (CAN FD's CRC stuffing is fixed: exact); split into the arbitration
-phase and the data phase (BRS to the CRC delimiter of a CAN FD frame with BRS, else 0). A CAN FD
-payload between two lengths is padded to the next; a remote frame has no data field; an error
-frame counts :data:`ERROR_FRAME_BITS`. A remembered count (per kind of frame and recent payload)
-is the same as a new one. :func:`estimate_frame_bits` is one number in nominal bit times (each
-data-phase bit counts ``bitrate / data_bitrate`` given both); the load is these bits over the
-bitrate (no bitrate, no load).
-
-:class:`FrameKind`, the monitor's per-frame count of one kind of frame on a bus, counts the first
-:data:`EXACT_FIRST` frames exactly, then a sample, and the others as the sample's mean for as many
-zero bytes: the same frames always count the same, and on real-like traffic every one-second
-window's load is within 1 % of the exact one (tests/test_health_load.py).
+:func:`frame_bits` counts a frame's bits from SOF to the end of the interframe space, stuff bits
+included, split into arbitration and data phase; the load is these bits over the bitrate (no
+bitrate, no load). :class:`FrameKind` counts from a sample: the same frames always count the
+same, and every one-second window's load is within 1 % of the exact one.
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
-"""What the health monitor (:mod:`bridge.health.monitor`) counts per bus and per message family,
-and the figures of ``/health`` it makes of those counts.
+"""What the health monitor counts per bus and per message family, and the figures of ``/health``
+it makes of those counts.
 
-:class:`BusCounts` (frames, bits, errors, unknown ids, gaps, frames per id) becomes
-``tankviz.BusHealth`` by :func:`bus_figures` and the bus alarms that hold by
-:func:`bus_conditions`; :class:`FamilyCounts` becomes ``tankviz.FamilyHealth`` by
-:func:`family_figures`; rates over a window are the counts now less a :class:`Snapshot`'s a
-window ago. Times are log time in integer nanoseconds (:data:`NEVER`, :data:`UNKNOWN`).
+:class:`BusCounts` becomes ``tankviz.BusHealth`` (:func:`bus_figures`) and the bus alarms that
+hold (:func:`bus_conditions`), :class:`FamilyCounts` ``tankviz.FamilyHealth``
+(:func:`family_figures`); rates over a window are the counts now less a :class:`Snapshot`'s.
 """
 
 from __future__ import annotations

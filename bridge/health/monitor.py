@@ -1,29 +1,10 @@
 """The health monitor: sensor and CAN bus diagnostics, computed in log time for live, convert and
 replay alike.
 
-:class:`HealthMonitor` watches every bus (frames/s, load: :mod:`bridge.health.bus_bits`; error
-frames, unknown ids, decode errors, non-finite values, gaps longer than ``gap_factor`` x the bus's
-shortest cycle time, the busiest id) and every message family of the profile (expected rate from
-``GenMsgCycleTime`` or learned, actual rate, age of the newest frame, valid objects, validity rules
-that could not be evaluated). It checks the alarms of :mod:`bridge.health.alarms` at each tick, one
-subject at a time, with their hysteresis, and is told what it cannot see: ``recorder.disk_full``
-(:meth:`HealthMonitor.hold`, raised and cleared at the next check) and live's receive counts
-(:meth:`HealthMonitor.note_receive`). A silence explains everything under it: while a bus is in a
-gap, the sensor alarms of families only on it are not raised, nor ``lanes.lost`` for a silent lane
-family; a sensor's rate is judged only after a full window of traffic; without enough matched
-objects the misalignment alarm stays as it is.
-
-Time is log time: :meth:`HealthMonitor.advance` evaluates on a grid of ``eval_hz`` ticks, catching
-up a gap's ticks (a silent bus raises its alarm at the right log time even in a conversion); a clock
-step is not a gap (:meth:`HealthMonitor.rebase`). It returns ``/health`` (``tankviz.Health``) at
-``publish_hz``, and ``foxglove.Log`` on ``/log`` when an alarm is raised or cleared, when a value is
-non-finite or a validity rule cannot be evaluated (the first time, then at most every ``_REPORT_S``
-s of log time, with the count), and once per sensor whose lateral sign looks wrong
-(:mod:`bridge.world.lateral`; :meth:`HealthMonitor.lateral_sign_records`). Frames are counted as
-they come, one or a pack at a time (:mod:`bridge.health.traffic`); object checks run at scene ticks
-(:meth:`HealthMonitor.on_world`); :meth:`HealthMonitor.active_alarms`, for the overlay, changes only
-at a check or a clock step. The counts are :mod:`bridge.health.counts`, fields of view and matching
-:mod:`bridge.health.sight`.
+:class:`HealthMonitor` watches every bus and every message family of the profile, checks the
+alarms of :mod:`bridge.health.alarms` at ticks of log time (a gap's ticks caught up, so a
+conversion raises alarms when live would), and publishes ``/health`` and ``/log``. A silence
+explains everything under it: one fault raises one alarm, not a cascade.
 """
 
 from __future__ import annotations
@@ -68,7 +49,18 @@ _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same ba
 
 
 class HealthMonitor(TrafficCounting):
-    """Sensor and bus health of one drive (see the module documentation).
+    """Sensor and bus health of one drive.
+
+    Per bus: frames/s, load (:mod:`bridge.health.bus_bits`), error frames, unknown ids, decode
+    errors, non-finite values, gaps longer than ``gap_factor`` x the bus's shortest cycle time, the
+    busiest id. Per family: expected rate (``GenMsgCycleTime`` or learned), actual rate, age of the
+    newest frame, valid objects, validity rules that could not be evaluated. While a bus is in a
+    gap, the sensor alarms of families only on it are not raised, nor ``lanes.lost`` for a silent
+    lane family; a sensor's rate is judged only after a full window of traffic; without enough
+    matched objects the misalignment alarm stays as it is. ``/health`` (``tankviz.Health``) comes at
+    ``publish_hz``; ``foxglove.Log`` on ``/log`` when an alarm is raised or cleared, when a value is
+    non-finite or a rule cannot be evaluated (the first time, then at most every ``_REPORT_S`` s
+    with the count), and once per sensor whose lateral sign looks wrong.
 
     - ``profile``: the families and sensors to watch (None: buses only).
     - ``decoder``: the pipeline's decoder, for the databases' cycle times and which ids a bus

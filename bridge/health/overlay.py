@@ -1,11 +1,9 @@
-"""The health alarms in the scene, drawn with :mod:`bridge.scene.entities` in the vehicle frame,
-from the active alarms (:class:`~bridge.health.alarms.AlarmInfo`), not the monitor.
+"""The health alarms in the scene, drawn in the vehicle frame from the active alarms
+(:class:`~bridge.health.alarms.AlarmInfo`), not the monitor.
 
-:func:`alarm_entities` is a red text above the ego (entity ``health-alarms``) naming the active
-alarms, nothing when there are none; :func:`fov_entities` is each sensor's field of view (every
-sensor with a range and an azimuth) as an outline on the ground (entity ``fov-<sensor>``): dim grey
-when healthy, thick, red and labelled with the alarm ids when an active alarm concerns it. Entities
-are made once per state and copied with each tick's time.
+A red text above the ego names the active alarms (entity ``health-alarms``); each sensor's field
+of view is an outline on the ground (entity ``fov-<sensor>``), red and labelled while an alarm
+concerns it.
 """
 
 from __future__ import annotations
