@@ -1,8 +1,6 @@
-"""Files bundled with tankviz: databases, profiles and sample logs (``bridge/data``), protobuf
-schemas (``schemas/``) and Foxglove layouts (``layouts/``).
-
-In a source tree ``schemas/`` and ``layouts/`` sit beside ``bridge/``; in an installed wheel they
-are inside the package (``bridge/schemas``, ``bridge/layouts``), where pyproject.toml puts them.
+"""Files bundled with tankviz: databases, profiles and sample logs (``bridge/data``) and Foxglove
+layouts (``layouts/`` beside ``bridge/`` in a source tree, ``bridge/layouts`` in an installed
+wheel).
 """
 
 from __future__ import annotations
@@ -12,22 +10,15 @@ from pathlib import Path
 _PACKAGE = Path(__file__).resolve().parent
 
 
-def _folder(name: str) -> Path:
-    inside = _PACKAGE / name
-    return inside if inside.is_dir() else _PACKAGE.parent / name
-
-
 def data_dir() -> Path:
     """Bundled databases (``*.dbc``), vehicle profiles (``*.toml``) and sample logs."""
     return _PACKAGE / "data"
 
 
-def schemas_dir() -> Path:
-    return _folder("schemas")
-
-
 def layouts_dir() -> Path:
-    return _folder("layouts")
+    """The bundled layouts: inside the package when installed, else beside it."""
+    inside = _PACKAGE / "layouts"
+    return inside if inside.is_dir() else _PACKAGE.parent / "layouts"
 
 
 def bundled_database(name: str) -> Path | None:

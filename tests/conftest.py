@@ -1,5 +1,6 @@
 """Shared fixtures: bundled and public databases, and logs written with python-can's writers;
-the tests' time budgets (TANKVIZ_TEST_TIMEOUT_SCALE) and hypothesis' CI profile."""
+the tests' time budgets (TANKVIZ_TEST_TIMEOUT_SCALE), the goldens (TANKVIZ_REGENERATE_GOLDENS)
+and hypothesis' CI profile."""
 
 from __future__ import annotations
 
@@ -46,6 +47,33 @@ def timeout_scale() -> float:
     return scale
 
 
+#: Where the goldens live: what a test's output must be, byte for byte.
+GOLDEN = Path(__file__).resolve().parent / "golden"
+
+
+def regenerating_goldens() -> bool:
+    """TANKVIZ_REGENERATE_GOLDENS=1: a golden test writes what it got as the new golden (then
+    compares, and passes). Any other value is refused, so that a typo never regenerates, nor
+    silently compares."""
+    raw = os.environ.get("TANKVIZ_REGENERATE_GOLDENS", "")
+    if raw not in ("", "0", "1"):
+        raise pytest.UsageError(f"TANKVIZ_REGENERATE_GOLDENS={raw!r}: expected 1 (or 0, unset)")
+    return raw == "1"
+
+
+def check_golden(path: Path, got: str, differs: str = "") -> None:
+    """``got`` is the text of the golden file ``path`` (under :data:`GOLDEN`), or becomes it
+    with TANKVIZ_REGENERATE_GOLDENS=1; ``differs`` says more where they differ."""
+    if regenerating_goldens():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(got)
+    name = path.relative_to(GOLDEN)
+    assert path.exists(), f"no golden {name}: run with TANKVIZ_REGENERATE_GOLDENS=1"
+    assert got == path.read_text(), (
+        f"{differs or 'what the test got'} differs from the golden {name} (after a deliberate "
+        "change, run with TANKVIZ_REGENERATE_GOLDENS=1 and review the diff)")
+
+
 def summary_counts(path: Path) -> dict[str, int]:
     """Messages per topic of an MCAP file, as the Python mcap library reads its summary."""
     from mcap.reader import make_reader
@@ -63,6 +91,17 @@ T0 = 1_700_000_000.0  # an absolute start time, in python-can's float seconds
 @pytest.fixture(scope="session")
 def ecocar() -> cantools.database.can.Database:
     return cantools.database.load_file(ECOCAR_DBC)
+
+
+@pytest.fixture(scope="session")
+def sample_drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The bundled sample log (ecocar_sample.blf) converted with the ecocar profile, once per
+    run: read it, never change it."""
+    from bridge.pipeline.convert import convert
+
+    drive = tmp_path_factory.mktemp("sample") / "sample.mcap"
+    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+    return drive
 
 
 @pytest.fixture

@@ -16,7 +16,6 @@ import random
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import pytest
 from conftest import T0, message, timeout_scale
 from mcap.records import Attachment, AttachmentIndex, DataEnd, Footer, Metadata
 from mcap.stream_reader import StreamReader
+from waiting import wait_for
 
 from bridge.cli import main
 from bridge.errors import UsageError
@@ -204,6 +204,7 @@ def _reference(inputs: list[Path], output: Path, dbcs: list[str],
     return _records(output)
 
 
+@pytest.mark.slow
 def test_a_batch_converts_every_drive_as_convert_does_and_a_bad_one_fails_alone(
         sim_logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
@@ -307,20 +308,21 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
             start(f"worker{i}", "worker", "--scheduler-file", str(scheduler_file),
                   "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
                   "--dashboard-address", ":0", "--name", f"w{i}")
-        deadline = time.monotonic() + 60 * timeout_scale()
         address = ""
         connected = 0
-        while time.monotonic() < deadline:
+
+        def up_or_ended() -> bool:
+            nonlocal address, connected
             if any(p.poll() is not None for p in processes):
-                break
+                return True
             try:
                 address = address or json.loads(scheduler_file.read_text())["address"]
                 connected = _workers_connected(address)
             except (OSError, ValueError, KeyError):
                 connected = 0
-            if connected == 2:
-                break
-            time.sleep(0.2)
+            return connected == 2
+
+        wait_for(up_or_ended, 60 * timeout_scale(), step=0.2)
         if connected != 2:
             text = "\n".join(f.read_text() for f in sorted(logs.iterdir()))
             pytest.fail(f"the Dask cluster did not come up ({connected} workers):\n{text}")
@@ -350,6 +352,7 @@ def _radar_frames(db: cantools.database.can.Database, t0: float, n: int,
     return out
 
 
+@pytest.mark.slow
 def test_a_real_dask_cluster_converts_a_non_ecocar_fleet(
         dask_cluster: str, shared_dbc: Path, tmp_path: Path) -> None:
     dbc = shared_dbc / "tesla_radar_bosch.dbc"

@@ -48,6 +48,7 @@ def tool(name: str) -> ModuleType:
     return module
 
 
+@pytest.mark.slow
 def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
                                                                  shared_dbc: Path) -> None:
     report = tmp_path / "report.md"
@@ -168,6 +169,7 @@ def test_live_table_is_read_by_its_columns() -> None:
     assert report.live_table("no table here") == []
 
 
+@pytest.mark.slow
 def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
     """``bench_live.py --stages`` adds the stages one by one, from a pipeline with no sink at all
     (decoding only) to the server: every row is a cost."""
@@ -180,6 +182,7 @@ def test_live_stages_run_every_stage_from_bare_decoding_on() -> None:
         assert cost > 0, stages
 
 
+@pytest.mark.slow
 def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path: Path) -> None:
     from mcap.records import MessageIndex
     from mcap.stream_reader import StreamReader
@@ -201,6 +204,7 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
 BEFORE_BLOCKS = "a6fe390"
 
 
+@pytest.mark.slow
 def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
                                                                 shared_dbc: Path) -> None:
     """``--before REV``: the same tools measure a worktree of REV too, its ``bridge`` (not this
@@ -236,6 +240,7 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     assert "## Details: tools/bench_convert.py on the code before" in text
 
 
+@pytest.mark.slow
 def test_bench_health_tick_replays_every_frame_on_both_monitors_with_the_same_bytes() -> None:
     """tools/bench_health_tick.py in a tiny run: the convert's frames reach the monitors (the
     block engine counts frames without ``on_frame``: the recording must still see each), and
@@ -261,6 +266,7 @@ def test_the_health_tick_reference_takes_the_lateral_check_from_its_revision() -
     assert sys.modules[LateralSignCheck.__module__].LateralSignCheck is LateralSignCheck
 
 
+@pytest.mark.slow
 def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
     """tools/bench_bringup_cli.py on a few seconds of the RAV4-sized drive: every command runs
     and gets its row (the find-signal goal line too)."""
@@ -274,6 +280,7 @@ def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
     assert "find-signal goal" in run.stdout
 
 
+@pytest.mark.slow
 def test_bench_bringup_measures_size_cpu_and_live_with_and_without_bring_up(
         shared_dbc: Path) -> None:
     """tools/bench_bringup.py on a few seconds of the Toyota and the highway car: every row with

@@ -6,7 +6,7 @@ and 0x2E0 on can1 no database of it defines:
 - ``/can/<bus>/unknown``: every frame of the unknown ids to a viewer, at most ``FILE_HZ`` a
   second per id (the first of each slot of log time) into a file; never a known id;
 - ``/can/bits`` (a PNG, read back with the small reader below) and ``/can/bits/labels``;
-- the same messages frame by frame, in live's reads and in blocks; none with ``--no-bring-up``.
+- the same messages frame by frame, in live's reads and in packs; none with ``--no-bring-up``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
-from bridge.block import FrameBlock
 from bridge.bringup import bitmap
 from bridge.bringup.bitmap import MAX_ROWS, MapRow, bit_map
 from bridge.bringup.census import gap_figures
@@ -37,6 +36,7 @@ from bridge.bringup.monitor import FILE_HZ, FILE_PERIOD_S
 from bridge.bringup.payload import encode, id_field
 from bridge.cli import main
 from bridge.frame import NS, Frame
+from bridge.packed import PackedFrames
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.sim.highway import simulate_highway
@@ -70,7 +70,7 @@ def highway(seconds: float = 6.0) -> list[Frame]:
 
 def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages:
     """Every message a viewer gets of a drive of ``frames``: fed one by one, in live's reads or
-    in blocks of ``size``."""
+    in packs of ``size``."""
     viewer = Viewer()
     drive = Drive(load_stages([], "highway"), [viewer])
     if feed == "frames":
@@ -79,7 +79,7 @@ def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages
         for i in range(0, len(frames), size):
             drive.pipeline.process_many(frames[i:i + size])
     else:
-        drive.run_blocks(FrameBlock.from_frames(frames[i:i + size])
+        drive.run_packed(PackedFrames.from_frames(frames[i:i + size])
                          for i in range(0, len(frames), size))
     drive.finish()
     return dict(viewer.topics)
@@ -90,7 +90,7 @@ def recorded(frames: list[Frame], *, bring_up: bool = True) -> Messages:
     drive = Drive(load_stages([], "highway"), bring_up=bring_up)
     out = io.BytesIO()
     drive.record(out, attachment_time_ns=0)
-    drive.run_blocks([FrameBlock.from_frames(frames)])
+    drive.run_packed([PackedFrames.from_frames(frames)])
     drive.finish()
     out.seek(0)
     topics: Messages = defaultdict(list)
@@ -294,7 +294,7 @@ def test_frame_by_frame_in_reads_and_in_blocks_a_viewer_gets_the_same_messages()
               for i, f in enumerate(frames)]
     one_by_one = viewed(frames)
     assert one_by_one[unknown_topic("can0")] and one_by_one[BITS_TOPIC]
-    for feed, size in (("reads", 83), ("blocks", 1), ("blocks", 97), ("blocks", 4096)):
+    for feed, size in (("reads", 83), ("packs", 1), ("packs", 97), ("packs", 4096)):
         assert viewed(frames, feed, size) == one_by_one, (feed, size)
 
 

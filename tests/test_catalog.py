@@ -460,6 +460,7 @@ def tables(path: Path) -> dict[str, list[tuple[Any, ...]]]:
         con.close()
 
 
+@pytest.mark.slow
 def test_two_local_dask_workers_make_the_same_catalogue_as_one_process(
         archive: Path, indexed: Path, tmp_path: Path) -> None:
     out = tmp_path / "dask.duckdb"

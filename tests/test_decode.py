@@ -9,10 +9,14 @@ import pytest
 from conftest import ECOCAR_DBC
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from bridge.decode.decoder import Decoder, Outcome, load_database, parse_dbc_option
+from bridge.decode.codec import Decoded
+from bridge.decode.database import load_database, parse_dbc_option
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Undecoded
 from bridge.decode.proto_schema import MessageSchema
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key, key_id
+from bridge.packed import PackedFrames
 
 ECOCAR = load_database(ECOCAR_DBC)
 
@@ -33,7 +37,7 @@ def decoder() -> Decoder:
 def test_decoded_signals_are_what_cantools_decodes(ecocar: cantools.database.can.Database) -> None:
     f = frame(ecocar, "EgoMotion", VehicleSpeed=88.5, YawRate=-3.2, Counter=7)
     decoded = decoder().decode(f)
-    assert decoded is not None
+    assert isinstance(decoded, Decoded)
     assert decoded.codec.topic == "/can/can0/EgoMotion"
     expected = ecocar.get_message_by_name("EgoMotion").decode(f.data, decode_choices=False)
     assert dict(decoded.signals) == expected
@@ -44,7 +48,7 @@ def test_every_decoded_field_is_present_even_when_zero(
         ecocar: cantools.database.can.Database) -> None:
     f = frame(ecocar, "EgoMotion")
     decoded = decoder().decode(f)
-    assert decoded is not None
+    assert isinstance(decoded, Decoded)
     parsed = decoded.codec.schema.parse(decoded.payload)
     assert set(parsed) == {s.name for s in ecocar.get_message_by_name("EgoMotion").signals}
 
@@ -79,7 +83,7 @@ def test_multiplexed_signals_are_present_only_on_their_page(
     d = decoder()
     page1 = d.decode(frame(ecocar, "SensorDiag", DiagPage=1, TempCore=55))
     page2 = d.decode(frame(ecocar, "SensorDiag", DiagPage=2, SupplyVoltage=13.5))
-    assert page1 is not None and page2 is not None
+    assert isinstance(page1, Decoded) and isinstance(page2, Decoded)
     fields1 = page1.codec.schema.parse(page1.payload)
     fields2 = page2.codec.schema.parse(page2.payload)
     assert "TempCore" in fields1 and "SupplyVoltage" not in fields1
@@ -91,7 +95,7 @@ def test_big_endian_signed_and_float_signals(ecocar: cantools.database.can.Datab
     d = decoder()
     steering = d.decode(frame(ecocar, "Steering", SteeringWheelAngle=-123.4))
     position = d.decode(frame(ecocar, "EgoPosition", Latitude=52.5, Longitude=-13.25))
-    assert steering is not None and position is not None
+    assert isinstance(steering, Decoded) and isinstance(position, Decoded)
     assert steering.signals["SteeringWheelAngle"] == pytest.approx(-123.4)
     assert position.codec.schema.parse(position.payload)["Longitude"] == -13.25
 
@@ -100,7 +104,7 @@ def test_fd_frames_decode(ecocar: cantools.database.can.Database) -> None:
     f = frame(ecocar, "RadarHeader", ObjectCount=17)
     assert f.is_fd and len(f.data) == 64
     decoded = decoder().decode(f)
-    assert decoded is not None and decoded.signals["ObjectCount"] == 17
+    assert isinstance(decoded, Decoded) and decoded.signals["ObjectCount"] == 17
 
 
 def test_short_frames_decode_what_fits_and_are_counted(
@@ -108,7 +112,7 @@ def test_short_frames_decode_what_fits_and_are_counted(
     whole = frame(ecocar, "EgoMotion", VehicleSpeed=50, Checksum=0x5A)
     d = decoder()
     decoded = d.decode(whole._replace(data=whole.data[:3]))
-    assert decoded is not None
+    assert isinstance(decoded, Decoded)
     assert decoded.signals["VehicleSpeed"] == pytest.approx(50)
     assert "Checksum" not in decoded.signals
     assert [c.truncated for c in d.codecs() if c.truncated] == [1]
@@ -125,11 +129,11 @@ def test_short_frames_decode_what_fits_and_are_counted(
 def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
         ecocar: cantools.database.can.Database) -> None:
     d = decoder()
-    assert d.decode(Frame(1, "can0", 0x7FF, b"\x00" * 8)) is None
-    assert d.decode(Frame(1, "can0", 0x100, b"", is_extended=True)) is None  # 29-bit 0x100
-    assert d.decode(Frame(2, "can1", 0, b"", is_error=True)) is None
+    assert d.decode(Frame(1, "can0", 0x7FF, b"\x00" * 8)) is Undecoded.UNKNOWN_ID
+    assert d.decode(Frame(1, "can0", 0x100, b"", is_extended=True)) is Undecoded.UNKNOWN_ID
+    assert d.decode(Frame(2, "can1", 0, b"", is_error=True)) is Undecoded.ERROR_FRAME
     bad_mux = frame(ecocar, "SensorDiag")._replace(data=bytes([9]) + bytes(7))
-    assert d.decode(bad_mux) is None
+    assert d.decode(bad_mux) is Undecoded.DECODE_ERROR
     stats = d.stats.to_dict(d.codecs())
     assert stats["unknown_ids"] == {"can0/0x100": 1, "can0/0x7FF": 1}
     assert stats["error_frames"] == {"can1": 1}
@@ -138,28 +142,24 @@ def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
     assert stats["frames"] == {"can0": 3, "can1": 1}
 
 
-def test_each_frame_has_one_outcome_told_without_sorting_it_again(
+def test_each_frame_has_one_outcome_alone_or_in_a_block(
         ecocar: cantools.database.can.Database) -> None:
-    """What decode made of a frame: the latest frame that did not decode is remembered; a frame
-    fed by hand (never decoded) is sorted from its flags and its bus's databases alike."""
+    """What the decoder made of a frame is its decoded message or why there is none, the same
+    whether it came alone or in a pack."""
     bad_mux = frame(ecocar, "SensorDiag")._replace(data=bytes([9]) + bytes(7))
     cases = [
-        (frame(ecocar, "EgoMotion"), Outcome.DECODED),
-        (Frame(1, "can0", 0x7FF, bytes(8)), Outcome.UNKNOWN_ID),
-        (Frame(1, "can0", 0x100, b"", is_extended=True), Outcome.UNKNOWN_ID),  # 29-bit 0x100
-        (bad_mux, Outcome.DECODE_ERROR),
-        (Frame(2, "can0", 0x100, b"", is_error=True), Outcome.ERROR_FRAME),
-        (Frame(3, "can0", 0x100, b"", is_remote=True, dlc=8), Outcome.REMOTE),
+        (frame(ecocar, "EgoMotion"), Decoded),
+        (Frame(1, "can0", 0x7FF, bytes(8)), Undecoded.UNKNOWN_ID),
+        (Frame(1, "can0", 0x100, b"", is_extended=True), Undecoded.UNKNOWN_ID),  # 29-bit 0x100
+        (bad_mux, Undecoded.DECODE_ERROR),
+        (Frame(2, "can0", 0x100, b"", is_error=True), Undecoded.ERROR_FRAME),
+        (Frame(3, "can0", 0x100, b"", is_remote=True, dlc=8), Undecoded.REMOTE),
     ]
-    d = decoder()
-    for f, want in cases:
-        decoded = d.decode(f)
-        assert d.outcome(f, decoded) is want
-    by_hand = decoder()
-    for f, want in cases:
-        if want is not Outcome.DECODED:
-            assert by_hand.outcome(f, None) is want
-    assert by_hand.stats.frames == {}  # nothing decoded, nothing counted
+    alone = [decoder().decode(f) for f, _ in cases]
+    in_block = decoder().decode_packed(PackedFrames.from_frames([f for f, _ in cases]))
+    for (_, want), one, pack in zip(cases, alone, in_block, strict=True):
+        assert (type(one) if want is Decoded else one) is want
+        assert (type(pack) if want is Decoded else pack) is want
 
 
 def test_a_frame_key_tells_a_29_bit_id_from_an_11_bit_one() -> None:
@@ -173,9 +173,9 @@ def test_each_bus_decodes_with_its_own_databases(
     tesla = load_database(shared_dbc / "tesla_radar_bosch.dbc")
     d = Decoder({"radar": [tesla], "body": [ECOCAR]})
     radar_point = Frame(1, "radar", 0x310, bytes(8))
-    assert d.decode(radar_point) is not None  # RadarPoint0_A on the radar bus ...
+    assert isinstance(d.decode(radar_point), Decoded)  # RadarPoint0_A on the radar bus ...
     assert d.decode(radar_point._replace(bus="body")).codec.message.name == "RadarObj0_A"
-    assert d.decode(radar_point._replace(bus="other")) is None  # no database for this bus
+    assert d.decode(radar_point._replace(bus="other")) is Undecoded.UNKNOWN_ID  # (no database)
 
 
 def test_two_databases_defining_one_id_differently_on_one_bus_is_an_error(
@@ -261,6 +261,6 @@ def test_databases_of_the_same_name_are_told_apart_in_the_order_given(tmp_path: 
     brake = d.decode(Frame(1, "can0", 257, bytes(8)))  # the second database's message first
     speed = d.decode(Frame(2, "can0", 256, bytes(8)))
 
-    assert speed is not None and brake is not None
+    assert isinstance(speed, Decoded) and isinstance(brake, Decoded)
     assert speed.codec.schema.full_name == "tankviz.dbc.car.Speed"
     assert brake.codec.schema.full_name == f"tankviz.dbc.car_{b.sha256[:8]}.Brake"

@@ -20,7 +20,8 @@ from google.protobuf import descriptor_pool
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from bridge.decode.decoder import Decoder, load_database
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
 from bridge.decode.proto_schema import MessageSchema, compile_encoder
 from bridge.frame import Frame
 

@@ -48,7 +48,7 @@ from conftest import summary_counts, timeout_scale
 
 from bridge.sim.scenario import DEFAULT_START_NS, TIMELINE
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 BROWSER = ROOT / "tests" / "browser"

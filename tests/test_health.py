@@ -21,14 +21,16 @@ from pathlib import Path
 import pytest
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode.decoder import DatabaseFile, Decoder
+from bridge.decode.codec import Decoded
+from bridge.decode.database import DatabaseFile
+from bridge.decode.decoder import Decoder
 from bridge.errors import UsageError
 from bridge.frame import NS, Frame
 from bridge.health import alarms
 from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings, alarm_id, alarm_notice
+from bridge.health.bus_bits import estimate_frame_bits, frame_bits
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
-from bridge.health.wire import estimate_frame_bits, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
@@ -90,7 +92,7 @@ def run(frames: Iterable[Frame], decoder: Decoder, profile: Profile | None, *,
             perception.advance(t)
         outputs += monitor.advance(t)
         decoded = decoder.decode(frame)
-        if decoded is not None and perception is not None:
+        if type(decoded) is Decoded and perception is not None:
             perception.feed(decoded.codec.message.name, decoded.signals, t)
         monitor.on_frame(frame, decoded)
         last = t

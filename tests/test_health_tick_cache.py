@@ -14,6 +14,7 @@ import random
 
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
+from bridge.decode.codec import Decoded
 from bridge.frame import NS, Frame
 from bridge.health.alarms import AlarmInfo, AlarmKind
 from bridge.health.monitor import HealthMonitor
@@ -119,7 +120,8 @@ def test_active_alarms_follow_every_check_and_clock_step() -> None:
     frames = [(T0 + k * 10_000_000, k) for k in range(300)]
     for t, _ in frames:
         monitor.advance(t)
-        monitor.on_frame(Frame(t, "can0", 0x7E5, bytes(8)), None)
+        frame = Frame(t, "can0", 0x7E5, bytes(8))
+        monitor.on_frame(frame, decoder.decode(frame))
     assert monitor.active_alarms() == []
     seen = []
     t = frames[-1][0]
@@ -180,7 +182,7 @@ def test_who_sees_what_is_asked_of_each_object_once_with_the_same_verdict() -> N
                         + reference_fov_entities(profile, alarms, tick)])
         monitor.advance(t)
         decoded = decoder.decode(frame)
-        if decoded is not None:
+        if type(decoded) is Decoded:
             perception.feed(decoded.codec.message.name, decoded.signals, t)
         monitor.on_frame(frame, decoded)
     assert ticks > 100

@@ -16,21 +16,16 @@ from pathlib import Path
 
 import pytest
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from test_profile_lanes import NO_CAMERA, WITH_CAMERA, car, load
 
 from bridge.frame import NS
 from bridge.profile.model import Mount, Sensor, SensorKind
-from bridge.scene.entities import (
-    CAMERA_LANE_COLOR,
-    STEERING_LANE_COLOR,
-    lane_entities,
-    lane_entity,
-    line_points,
-)
+from bridge.scene.entities import STEERING_LANE_COLOR, lane_entities
+from bridge.scene.wire import WireEntity, line_points, scene_update
 from bridge.world.model import (
     LANE_TOLERANCE_M,
     LaneCurve,
+    LaneModel,
     World,
     camera_curve,
     polynomial,
@@ -187,9 +182,11 @@ def test_steering_lines_follow_the_steering_angle_and_are_reused_while_it_holds(
 def test_a_steering_only_car_draws_magenta_lines_of_the_curve_points(tmp_path: Path) -> None:
     world = steering_world(tmp_path, 0.3)
     model = world.lane_model(0)
-    update = SceneUpdate()
+    drawn_lines: list[WireEntity] = []
 
-    lane_entities(update.entities, model, 7 * NS)
+    lane_entities(drawn_lines, model, 7 * NS)
+
+    update = scene_update(drawn_lines)
 
     assert [e.id for e in update.entities] == ["lane-left", "lane-right"]
     for e, line in zip(update.entities, model.lines, strict=True):
@@ -207,12 +204,19 @@ def test_an_unchanged_line_keeps_its_drawn_entity_and_a_new_line_gets_its_own() 
     line = camera_curve("left", sensor, ROADS["gentle bend"][0], LENGTH)
     moved = camera_curve("left", sensor, ROADS["tight bend"][0], LENGTH)
 
-    drawn = lane_entity(line, CAMERA_LANE_COLOR, "camera")
+    def drawn(lines: tuple[LaneCurve, ...], source: str) -> bytes:
+        """The bytes of the first line's entity, all but its timestamp."""
+        into: list[WireEntity] = []
+        lane_entities(into, LaneModel(source, lines, 0.0), 0)
+        return into[0].parts[0]
 
-    assert lane_entity(line, CAMERA_LANE_COLOR, "camera") is drawn
-    assert lane_entity(moved, CAMERA_LANE_COLOR, "camera") is not drawn
-    assert lane_entity(line, STEERING_LANE_COLOR, "steering") is not drawn
-    assert [(p.x, p.y) for p in drawn.lines[0].points] == list(line.points)
+    first = drawn((line,), "camera")
+
+    assert drawn((line,), "camera") is first
+    assert drawn((moved,), "camera") is not first
+    assert drawn((line,), "steering") is not first
+    (entity,) = scene_update([WireEntity("lane-left", [first])]).entities
+    assert [(p.x, p.y) for p in entity.lines[0].points] == list(line.points)
     assert isinstance(line, LaneCurve)
 
 

@@ -22,6 +22,7 @@ from bridge.apps.layouts import (
     load_layout,
     select_layouts,
 )
+from bridge.decode.outcome import Undecoded
 from bridge.errors import BridgeError, FileError, UsageError
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
@@ -76,7 +77,7 @@ def alarm_ids(stages: tuple[Any, Any]) -> list[str]:
     carried a frame (bus alarms appear with their bus)."""
     decoder, profile = stages
     monitor = HealthMonitor(profile, decoder)
-    monitor.on_frame(Frame(0, BUS, 0x100, bytes(8)), None)
+    monitor.on_frame(Frame(0, BUS, 0x100, bytes(8)), Undecoded.UNKNOWN_ID)
     return monitor.alarm_ids()
 
 

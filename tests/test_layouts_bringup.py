@@ -16,7 +16,8 @@ from typing import Any
 
 import can
 import pytest
-from conftest import SHARED_DBC, SHARED_DBC_ORIGIN
+from conftest import SHARED_DBC, SHARED_DBC_ORIGIN, timeout_scale
+from waiting import wait_for
 
 from bridge.apps.hints import BringupHint, bringup_command
 from bridge.apps.layouts import load_layout
@@ -276,9 +277,7 @@ def test_live_recording_without_a_profile_writes_the_bring_up_layout_and_names_i
     layout = drives / "layouts" / "bring-up.json"
 
     def send() -> None:  # once live reads the bus (it wrote the layouts after opening it)
-        deadline = time.monotonic() + 20
-        while not layout.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(layout.exists, 20 * timeout_scale())
         with can.Bus(interface="virtual", channel=channel) as bus:
             for _ in range(5):
                 bus.send(can.Message(arbitration_id=0x7A1, data=bytes(8), is_extended_id=False))

@@ -17,6 +17,7 @@ from conftest import SHARED_DBC, SHARED_DBC_ORIGIN
 
 from bridge.apps.layouts import load_layout
 from bridge.cli import main
+from bridge.decode.outcome import Undecoded
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.pipeline.drive import load_stages
@@ -52,7 +53,7 @@ def monitored_alarms(decoder: Any, profile: Any, buses: list[str]) -> list[str]:
     """Every alarm a health monitor of the profile checks once each bus has carried a frame."""
     monitor = HealthMonitor(profile, decoder)
     for bus in buses:
-        monitor.on_frame(Frame(0, bus, 0x7FF, bytes(8)), None)
+        monitor.on_frame(Frame(0, bus, 0x7FF, bytes(8)), Undecoded.UNKNOWN_ID)
     return monitor.alarm_ids()
 
 

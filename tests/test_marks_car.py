@@ -17,11 +17,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from waiting import wait_for
 
-from bridge.block import FrameBlock
 from bridge.cli import main
 from bridge.frame import NS, Frame
 from bridge.io.buses import BusSpec
 from bridge.io.drives import ArchiveSource
+from bridge.packed import PackedFrames
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.pipeline.live_engine import Live
@@ -153,12 +153,12 @@ def through(frames: list[Frame], how: str, profile: str = "highway") -> list[tup
             pipeline.process_many(frames[k:k + 7])
     else:
         for k in range(0, len(frames), 50):
-            pipeline.process_block(FrameBlock.from_frames(frames[k:k + 50]))
+            pipeline.process_packed(PackedFrames.from_frames(frames[k:k + 50]))
     drive.finish()
     return collect.marks()
 
 
-@pytest.mark.parametrize("how", ["process", "process_many", "process_block"])
+@pytest.mark.parametrize("how", ["process", "process_many", "process_packed"])
 def test_the_pipeline_marks_at_the_frame_that_makes_the_rule_true(how: str) -> None:
     # a 20 ms press between two scene ticks (50 ms apart) marks too
     pattern = "---XXXXXX----XX---------X"
@@ -235,6 +235,7 @@ def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_button(
         tmp_path: Path, highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     output = tmp_path / "highway.mcap"
@@ -252,6 +253,7 @@ def test_converting_the_simulated_highway_drive_marks_each_press_of_the_wheel_bu
     assert lines == ["MARK 1: STEER_BUTTON == 1 (car)", "MARK 2: STEER_BUTTON == 1 (car)"]
 
 
+@pytest.mark.slow
 def test_profile_check_says_what_the_rules_read_and_which_marks_a_log_made(
         highway_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["profile", "check", "highway", str(highway_log)]) == 0

@@ -29,7 +29,6 @@ from bridge.fleet.catalog import read_drive
 from bridge.io.drives import ArchiveSource, BlockMerger, block_frames, raw_frame_counts
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
 from bridge.pipeline.convert import convert
-from bridge.resources import data_dir
 
 
 def canframe_schema() -> bytes:
@@ -89,11 +88,10 @@ def as_old_drive(new: Path, old: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def drives(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, int]:
-    folder = tmp_path_factory.mktemp("old")
-    new = folder / "new.mcap"
-    convert([data_dir() / "ecocar_sample.blf"], new, [], profile="ecocar")
-    old = folder / "old.mcap"
+def drives(tmp_path_factory: pytest.TempPathFactory, sample_drive: Path
+           ) -> tuple[Path, Path, int]:
+    new = sample_drive
+    old = tmp_path_factory.mktemp("old") / "old.mcap"
     return new, old, as_old_drive(new, old)
 
 

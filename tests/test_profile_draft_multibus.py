@@ -26,10 +26,10 @@ from typing import Any
 
 import pytest
 from cantools.database.can.database import Database
-from conftest import T0, WriteLog, message
+from conftest import GOLDEN, T0, WriteLog, check_golden, message
 
 from bridge.cli import main
-from bridge.decode.decoder import load_database
+from bridge.decode.database import load_database
 from bridge.errors import DatabaseError
 from bridge.pipeline.drive import load_stages
 from bridge.profile.draft import draft_profile, find_families, group_families
@@ -41,8 +41,6 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 TESTS = Path(__file__).resolve().parent
-GOLDEN = TESTS / "golden" / "drafts"
-REGENERATE = os.environ.get("TANKVIZ_REGENERATE_GOLDENS") == "1"
 FINISHED = TESTS / "profiles" / "rav4.toml"
 RADAR, CAR = "toyota_adas.dbc", "toyota_2017_pt.dbc"
 
@@ -61,13 +59,8 @@ def new(capsys: pytest.CaptureFixture[str], output: Path, *dbcs: str) -> str:
     return out
 
 
-def check_golden(name: str, text: str) -> None:
-    path = GOLDEN / name
-    if REGENERATE:
-        GOLDEN.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
-    assert path.exists(), f"no golden {path.name}: run with TANKVIZ_REGENERATE_GOLDENS=1"
-    assert text == path.read_text(), f"the draft differs from {path}"
+def check_draft(name: str, text: str) -> None:
+    check_golden(GOLDEN / "drafts" / name, text, "the draft")
 
 
 def database(shared_dbc: Path, name: str) -> Database:
@@ -114,12 +107,12 @@ def test_files_that_conflict_without_buses_are_told_both_ways_to_give_buses(
 def test_the_rav4_draft_matches_its_golden(shared_dbc: Path) -> None:
     text = draft_profile([(RADAR, database(shared_dbc, RADAR)), (CAR, database(shared_dbc, CAR))],
                          name="rav4", buses={"can1": [RADAR], "can0": [CAR]})
-    check_golden("rav4.toml", text)
+    check_draft("rav4.toml", text)
 
 
 def test_the_radar_alone_draft_matches_its_golden(shared_dbc: Path) -> None:
     text = draft_profile([(RADAR, database(shared_dbc, RADAR))], name="toyota_adas")
-    check_golden("toyota_adas.toml", text)
+    check_draft("toyota_adas.toml", text)
 
 
 def test_the_radar_alone_draft_loads_as_written_with_one_radar_and_its_slots_twice(

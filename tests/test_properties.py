@@ -27,7 +27,9 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.decode.decoder import DatabaseFile, Decoded, Decoder, load_database
+from bridge.decode.codec import Decoded
+from bridge.decode.database import DatabaseFile, load_database
+from bridge.decode.decoder import Decoder
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
 from bridge.resources import data_dir

@@ -234,6 +234,7 @@ def test_a_later_cut_never_recovers_less(data: st.DataObject) -> None:
     assert check_cut(a).messages <= check_cut(b).messages
 
 
+@pytest.mark.slow
 def test_every_cut_across_a_chunk_and_the_attachment() -> None:
     """Every byte offset of two windows: across the 3rd chunk and its message indexes, and
     across the attachment and metadata written mid-drive."""

@@ -196,9 +196,9 @@ def test_re_deriving_twice_gives_the_same_bytes(bosch_drive: Path, tmp_path: Pat
     assert one.read_bytes() == two.read_bytes()
 
 
-def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path) -> None:
-    drive = tmp_path / "sample.mcap"
-    convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
+def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path, sample_drive: Path
+                                                       ) -> None:
+    drive = sample_drive
     out = tmp_path / "out.mcap"
     convert([drive], out, [])
     first, second = messages(drive), messages(out)

@@ -10,13 +10,11 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
-from pathlib import Path
 from typing import Any
 
 import cantools
 import pytest
-from conftest import ECOCAR_DBC
+from conftest import ECOCAR_DBC, GOLDEN, check_golden
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import json_format
 from hypothesis import given, settings
@@ -28,8 +26,6 @@ from bridge.profile.model import Mount, Profile, Sensor, SensorKind
 from bridge.topics import TopicMessage
 from bridge.world.observe import polar_to_cartesian, to_vehicle
 
-GOLDEN = Path(__file__).resolve().parent / "golden"
-REGENERATE = os.environ.get("TANKVIZ_REGENERATE_GOLDENS") == "1"
 T0 = 1_767_268_800_000_000_000
 MS = 1_000_000
 
@@ -96,14 +92,9 @@ def street(drive: Drive) -> None:
     drive.send(50, "EgoMotion", VehicleSpeed=90.0, YawRate=2.0)  # time passes: the scene is due
 
 
-def check_golden(name: str, message: SceneUpdate) -> None:
-    path = GOLDEN / f"{name}.json"
+def check_scene_golden(name: str, message: SceneUpdate) -> None:
     got = json.loads(json_format.MessageToJson(message))
-    if REGENERATE:
-        GOLDEN.mkdir(exist_ok=True)
-        path.write_text(json.dumps(got, indent=1, sort_keys=True) + "\n")
-    assert path.exists(), f"no golden {path.name}: run with TANKVIZ_REGENERATE_GOLDENS=1"
-    assert got == json.loads(path.read_text()), f"{name} differs from {path}"
+    check_golden(GOLDEN / f"{name}.json", json.dumps(got, indent=1, sort_keys=True) + "\n", name)
 
 
 @pytest.mark.parametrize("category", ["ego", "lanes", "radar", "camera", "tracks", "lead", "mio",
@@ -113,7 +104,7 @@ def test_the_street_scene_matches_its_golden(db: cantools.database.can.Database,
     drive = Drive(db, profile)
     street(drive)
     (update,) = drive.scene(category)
-    check_golden(f"street_{category.replace('/', '-')}", update)
+    check_scene_golden(f"street_{category.replace('/', '-')}", update)
 
 
 def test_the_street_scene_in_words(db: cantools.database.can.Database, profile: Profile) -> None:

@@ -21,7 +21,7 @@ from bridge.pipeline import perception as perception_module
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
 from bridge.profile.model import Profile
-from bridge.scene import entities
+from bridge.scene import entities, wire
 from bridge.sim.highway import CAR_BUS, highway_database, simulate_highway
 from bridge.sim.highway_body import UNKNOWN_IDS
 from bridge.world import observe
@@ -93,7 +93,7 @@ def test_the_scene_tick_s_shortcuts_make_the_scene_the_long_way_makes(
 
     def speed(vx: float) -> bytes:
         entities._SPEEDS.clear()
-        return entities._metadata(entities._VX_KEY, f"{vx:.2f} m/s")
+        return wire.metadata(entities._VX_KEY, f"{vx:.2f} m/s")
 
     with mock.patch.object(_Object, "read_key", lambda self: object()), \
             mock.patch.object(entities, "_hundredths", hundredths), \

@@ -1,4 +1,4 @@
-"""The scene tick builds its entities as wire bytes (bridge.scene.entities.WireEntity): each is the
+"""The scene tick builds its entities as wire bytes (bridge.scene.wire.WireEntity): each is the
 message that setting its fields one by one makes, byte for byte."""
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from bridge.frame import timestamp
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ObjectClass
-from bridge.scene import entities
+from bridge.scene import entities, wire
 from bridge.scene.labels import Block
 from bridge.topics import VEHICLE_FRAME
-from bridge.world.model import LaneModel, steering_curve
+from bridge.world.model import LaneCurve, LaneModel, steering_curve
 from bridge.world.observe import ObjectObservation
 
 _EDGES = [0.0, -0.0, 1.5, -3.25, 1e300, 5e-324]
@@ -52,7 +52,7 @@ def test_labels_drawn_as_wire_bytes_are_the_messages_set_field_by_field(seed: in
     rnd = random.Random(seed)
     for _ in range(200):
         lifetime_s = rnd.choice([0.0, 0.1, 0.3, 2.5])
-        owner = entities.WireEntity("x", [], lifetime_s)
+        owner = wire.WireEntity("x", [], lifetime_s)
         leader = None
         if rnd.random() < 0.5:
             leader = ((_number(rnd), _number(rnd), _number(rnd)),
@@ -61,9 +61,9 @@ def test_labels_drawn_as_wire_bytes_are_the_messages_set_field_by_field(seed: in
                            "x" * 200])
         block = Block(owner, _number(rnd), _number(rnd), _number(rnd), text, (), leader)
         t_ns = rnd.randrange(2**62)
-        drawn: list[entities.WireEntity] = []
+        drawn: list[wire.WireEntity] = []
         entities.draw_labels(drawn, [block], t_ns)
-        got = entities.scene_update(drawn).entities[0]
+        got = wire.scene_update(drawn).entities[0]
         assert got.SerializeToString() == _by_fields(block, t_ns, lifetime_s).SerializeToString()
 
 
@@ -71,17 +71,17 @@ def test_a_scene_update_of_wire_entities_keeps_their_order_and_bytes() -> None:
     made = [SceneEntity(id=f"e{i}", frame_id=VEHICLE_FRAME, metadata=[{"key": "k",
                                                                           "value": "v" * i}])
             for i in range(0, 300, 37)]
-    wire = [entities.WireEntity(e.id, [e.SerializeToString()]) for e in made]
-    assert entities.scene_update(wire).SerializeToString() == \
+    as_wire = [wire.WireEntity(e.id, [e.SerializeToString()]) for e in made]
+    assert wire.scene_update(as_wire).SerializeToString() == \
         SceneUpdate(entities=made).SerializeToString()
-    assert entities.scene_update([]).SerializeToString() == b""
+    assert wire.scene_update([]).SerializeToString() == b""
 
 
 @pytest.mark.parametrize("x, y", [(40.0, 0.2), (0.0, -0.0), (-3.5, 1e300), (123.456, -7.25)])
 def test_the_lead_box_as_wire_bytes_is_the_message_set_field_by_field(x: float,
                                                                         y: float) -> None:
     lead = ObjectObservation("tracks", 7, 10**9, x, y, True, 1.0, None, None, ObjectClass.CAR)
-    into: list[entities.WireEntity] = []
+    into: list[wire.WireEntity] = []
     (label,) = entities.lead_entities(into, lead, 5 * 10**9 + 7, 0.3, None, ("radar: car",))
     e = SceneEntity()
     e.MergeFrom(entities._lead_template(0.3))
@@ -89,7 +89,7 @@ def test_the_lead_box_as_wire_bytes_is_the_message_set_field_by_field(x: float,
     position = e.cubes[0].pose.position
     position.x, position.y = x + entities.LEAD_BOX[0] / 2, y
     e.metadata.add(key="label", value=label.text)
-    assert entities.scene_update(into).entities[0].SerializeToString() == e.SerializeToString()
+    assert wire.scene_update(into).entities[0].SerializeToString() == e.SerializeToString()
     assert label.text.endswith("\nradar: car")
 
 
@@ -113,25 +113,41 @@ def test_frame_transforms_are_the_messages_set_field_by_field() -> None:
 
 def test_a_cube_of_the_lead_is_where_the_lead_is() -> None:
     lead = ObjectObservation("tracks", 7, 0, 30.0, -1.0, True)
-    into: list[entities.WireEntity] = []
+    into: list[wire.WireEntity] = []
     entities.lead_entities(into, lead, 0, 0.3)
-    (cube,) = entities.scene_update(into).entities[0].cubes
+    (cube,) = wire.scene_update(into).entities[0].cubes
     assert isinstance(cube, CubePrimitive)
     assert (cube.pose.position.x, cube.pose.position.y, cube.pose.position.z) == (
         30.0 + entities.LEAD_BOX[0] / 2, -1.0, entities.LEAD_BOX[2] / 2)
 
 
-def test_lane_lines_as_wire_bytes_are_what_lane_entities_draws() -> None:
+def _lane_by_fields(line: LaneCurve, rgba: entities.RGBA, source: str,
+                    t_ns: int) -> SceneEntity:
+    """A lane line's entity set field by field, its points added one by one."""
+    e = entities.entity(t_ns, f"lane-{line.name}", 0.0)
+    drawn = e.lines.add(type=LinePrimitive.LINE_STRIP, thickness=entities.LANE_THICKNESS,
+                        scale_invariant=False)
+    entities.set_pose(drawn.pose, 0.0, 0.0, 0.0)
+    for x, y in line.points:
+        drawn.points.add(x=x, y=y, z=entities.LANE_Z)
+    drawn.color.CopyFrom(entities.color(rgba))
+    e.metadata.add(key="source", value=source)
+    return e
+
+
+def test_lane_lines_as_wire_bytes_are_the_messages_set_field_by_field() -> None:
     t_ns = 3 * 10**9 + 1
     for source, curvature in (("camera", 0.0), ("camera", 0.004), ("steering", -0.02)):
         lines = tuple(steering_curve(name, offset, curvature, 60.0) for name, offset in (
             ("left", 1.8), ("right", -1.8), ("next_left", 5.4)))
         model = LaneModel(source, lines, 0.0)
-        expected = SceneUpdate()
-        entities.lane_entities(expected.entities, model, t_ns)
+        colors = ([entities.STEERING_LANE_COLOR] * 3 if source == "steering" else
+                  [entities.CAMERA_LANE_COLOR] * 2 + [entities.NEIGHBOUR_LANE_COLOR])
+        expected = SceneUpdate(entities=[_lane_by_fields(line, rgba, source, t_ns)
+                                         for line, rgba in zip(lines, colors, strict=True)])
         for _ in range(2):  # made, then held
-            wire: list[entities.WireEntity] = []
-            entities._lane_wire(wire, model, t_ns)
-            assert [e.id for e in wire] == [e.id for e in expected.entities]
-            assert entities.scene_update(wire).SerializeToString() == \
+            drawn: list[wire.WireEntity] = []
+            entities.lane_entities(drawn, model, t_ns)
+            assert [e.id for e in drawn] == ["lane-left", "lane-right", "lane-next_left"]
+            assert wire.scene_update(drawn).SerializeToString() == \
                 expected.SerializeToString()

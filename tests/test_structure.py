@@ -1,7 +1,7 @@
 """The folders of ``bridge/`` follow the data path, and imports only run down it.
 
 Each stage is a package; a package imports only the shared modules at the top of ``bridge/``
-(errors, frame, block, protowire, topics, resources, the generated protobuf code) and the
+(errors, frame, packed, protowire, topics, resources, the generated protobuf code) and the
 packages before it in :data:`DATA_PATH`. So the longest chain of imports is no deeper than the
 data path itself, and a newcomer finds each stage in the folder named after it.
 
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA_PATH = ("io", "decode", "profile", "world", "scene", "health", "bringup", "sinks", "pipeline",
              "view", "sim", "fleet", "apps")
 #: Modules at the top of bridge/ that every stage may use; they import no stage.
-SHARED = ("__init__", "errors", "frame", "block", "protowire", "topics", "resources", "pb",
+SHARED = ("__init__", "errors", "frame", "packed", "protowire", "topics", "resources", "pb",
           "fences")
 
 

@@ -1,10 +1,16 @@
 """Polling for a condition, for tests and tools (``from waiting import wait_for`` in tests;
-``from tests.waiting import wait_for`` elsewhere in the checkout)."""
+``from tests.waiting import wait_for`` elsewhere in the checkout).
+
+A test never sleeps to wait: it waits for the condition it needs, within a time budget scaled by
+``timeout_scale()`` (tests/conftest.py, TANKVIZ_TEST_TIMEOUT_SCALE), e.g.
+``assert wait_for(lambda: live.pipeline.frames >= sent, 10 * timeout_scale())``. A condition that
+holds ends the wait at once; the budget is only what a slow machine may take at most."""
 
 from __future__ import annotations
 
+import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 0.01) -> bool:
@@ -15,3 +21,15 @@ def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 
             return True
         time.sleep(step)
     return condition()
+
+
+async def wait_for_async(condition: Callable[[], Awaitable[bool]], timeout: float = 5.0,
+                         step: float = 0.0) -> bool:
+    """:func:`wait_for` in a coroutine: awaits ``condition`` until true or ``timeout`` (it may
+    itself wait for something, e.g. a message: then ``step`` may be 0)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if await condition():
+            return True
+        await asyncio.sleep(step)
+    return await condition()

@@ -31,7 +31,6 @@ import gc
 import io
 import sys
 import tempfile
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -50,6 +49,9 @@ from bridge.sim.highway import simulate_highway  # noqa: E402
 from bridge.sinks.base import Sink  # noqa: E402
 from bridge.sinks.can_log_writer import write_log  # noqa: E402
 from bridge.topics import BITS_LABELS_TOPIC, BITS_TOPIC  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import best_of, cpu_seconds  # noqa: E402
 
 #: The goals: growth of the archive, and of convert's CPU time, with the bring-up topics.
 SIZE_GOAL = 0.10
@@ -85,14 +87,8 @@ def highway(folder: Path, seconds: float) -> tuple[Path, list[str], str]:
 
 def best(runs: int, *contenders: Callable[[], Any]) -> list[float]:
     """The best CPU time of each contender over ``runs`` interleaved rounds."""
-    times = [float("inf")] * len(contenders)
-    for _ in range(runs):
-        for i, run in enumerate(contenders):
-            gc.collect()
-            start = time.process_time()
-            run()
-            times[i] = min(times[i], time.process_time() - start)
-    return times
+    named = {str(i): cpu_seconds(run) for i, run in enumerate(contenders)}
+    return list(best_of(named, runs).values())
 
 
 def without(path: Path, left_out: Sequence[str]) -> int:

@@ -13,8 +13,8 @@ process, interleaved, best of ``--repeat`` (default 3):
 (c) optionally, each ``--compare NAME=PATH``: another decoder module (a file), or with
     ``--compare NAME=@REV`` the decoder of git revision REV (``benchlib.modules_at``), timed
     the same way as (b);
-(d) with ``--block N``: tankviz's column decode, :meth:`Decoder.decode_block` on the same frames
-    as :class:`bridge.block.FrameBlock` s of N frames (made before the clock starts: they are
+(d) with ``--pack N``: tankviz's column decode, :meth:`Decoder.decode_packed` on the same frames
+    as :class:`bridge.packed.PackedFrames` s of N frames (made before the clock starts: they are
     what the read-ahead hands over), also printed as a ratio to (b);
 
 and prints µs/frame of each (CPU time of this process, which a loaded machine disturbs less than
@@ -36,7 +36,7 @@ Logs:
     python tools/bench_decode.py
     python tools/bench_decode.py --log real-like
     python tools/bench_decode.py --compare old=@HEAD~3
-    python tools/bench_decode.py --block 4096 --block 16384 [--warm]
+    python tools/bench_decode.py --pack 4096 --pack 16384 [--warm]
 """
 
 from __future__ import annotations
@@ -63,10 +63,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchlib import ECOCAR_DBC, best_of, ecocar_frames, modules_at
 
-from bridge.block import FrameBlock
 from bridge.decode import decoder as tankviz_decoder
+from bridge.decode.database import load_database
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
+from bridge.packed import PackedFrames
 
 SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 REAL_LIKE_DBC = SHARED_DBC / "ford_fusion_2018_pt.dbc"
@@ -144,7 +145,7 @@ class Fresh:
 
     def __init__(self, module: ModuleType, path: Path, warm: bool) -> None:
         self.module, self.warm = module, warm
-        self.database = module.load_database(path)
+        self.database = load_database(path)
         self.decoder: Any = None
 
     def setup(self, frames: list[Frame]) -> None:
@@ -161,7 +162,7 @@ class Fresh:
         out: list[bytes | None] = []
         for f in frames:
             d = decode(f)
-            out.append(None if d is None else d.payload)
+            out.append(getattr(d, "payload", None))  # (None: not decoded, old or new)
         return out
 
 
@@ -170,23 +171,23 @@ def decoder_runner(module: ModuleType, path: Path, warm: bool = False) -> Fresh:
 
 
 class FreshBlocks(Fresh):
-    """(d): Decoder.decode_block on blocks of ``size`` frames (made once per list of frames,
+    """(d): Decoder.decode_packed on packs of ``size`` frames (made once per list of frames,
     outside the timing), with a new decoder per round as :class:`Fresh` makes it."""
 
     def __init__(self, path: Path, size: int, warm: bool) -> None:
         super().__init__(tankviz_decoder, path, warm)
         self.size = size
-        self.made: dict[int, list[FrameBlock]] = {}
+        self.made: dict[int, list[PackedFrames]] = {}
 
     def __call__(self, frames: list[Frame]) -> list[bytes | None]:
-        blocks = self.made.get(id(frames))
-        if blocks is None:
-            blocks = self.made[id(frames)] = [FrameBlock.from_frames(frames[i:i + self.size])
+        packs = self.made.get(id(frames))
+        if packs is None:
+            packs = self.made[id(frames)] = [PackedFrames.from_frames(frames[i:i + self.size])
                                               for i in range(0, len(frames), self.size)]
-        decode = self.decoder.decode_block
+        decode = self.decoder.decode_packed
         out: list[bytes | None] = []
-        for block in blocks:
-            out += [None if d is None else d.payload for d in decode(block)]
+        for pack in packs:
+            out += [getattr(d, "payload", None) for d in decode(pack)]
         return out
 
 
@@ -252,8 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--compare", action="append", default=[], metavar="NAME=PATH",
                         help="another decoder module to time like (b)")
-    parser.add_argument("--block", action="append", type=int, default=[], metavar="N",
-                        help="also time Decoder.decode_block on blocks of N frames (d)")
+    parser.add_argument("--pack", action="append", type=int, default=[], metavar="N",
+                        help="also time Decoder.decode_packed on packs of N frames (d)")
     parser.add_argument("--warm", action="store_true",
                         help="tankviz's decoders have prepared every message before the clock "
                         "starts (one frame of each id decoded): the steady state")
@@ -265,8 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.compare:
         name, _, path = spec.partition("=")
         runners[f"c {name}"] = decoder_runner(load_module(name, Path(path)), dbc, args.warm)
-    for size in args.block:
-        runners[f"d blocks of {size}"] = FreshBlocks(dbc, size, args.warm)
+    for size in args.pack:
+        runners[f"d packs of {size}"] = FreshBlocks(dbc, size, args.warm)
 
     reference = runners["a naive"](frames)
     for name, run in runners.items():

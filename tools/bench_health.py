@@ -44,7 +44,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bridge.decode.decoder import Decoded  # noqa: E402
+from bridge.decode.codec import Decoded  # noqa: E402
 from bridge.decode.decoder import Decoder  # noqa: E402
 from bridge.frame import NS, Frame  # noqa: E402
 from bridge.health import monitor as new_monitor  # noqa: E402

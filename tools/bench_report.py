@@ -34,7 +34,6 @@ is passed on); the load average says how noisy that run was.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime
 import json
 import os
@@ -44,11 +43,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 TOOLS = Path(__file__).resolve().parent
+sys.path.insert(0, str(TOOLS))
+from benchlib import interleaved, revision_env, worktree  # noqa: E402
+
 #: bench_live rows that go into the main table even though they have no target.
 LIVE_EXTRA = ("reference: the pipeline alone", "garbage collections")
 
@@ -220,14 +222,26 @@ def run_scene(rev: str) -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
+def cpu_and_wall(command: list[str], cwd: Path, env: dict[str, str] | None
+                 ) -> tuple[float, float]:
+    """``command`` run in ``cwd``: its CPU seconds (user + system, its children's too) and
+    wall seconds."""
+    import resource
+
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started = time.perf_counter()
+    subprocess.run(command, cwd=cwd, env=env, check=True, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - started
+    done = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return done.ru_utime + done.ru_stime - used.ru_utime - used.ru_stime, wall
+
+
 def run_ab(old: Path, env: dict[str, str], seconds: float = 60.0,
            runs: int = 3) -> list[tuple[str, str, str, str, str]]:
     """``tankviz convert`` of the code before (its worktree ``old``) and now on the same log
     (``seconds`` of the simulated ecocar drive, BLF), interleaved, best of ``runs``: CPU (user +
     system of the convert and its read-ahead) and wall seconds, as rows (measure, before, now,
     goal, ok). The most direct before/after there is: no reference between them."""
-    import resource
-
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         log, out = Path(tmp) / "drive.blf", Path(tmp) / "out.mcap"
@@ -236,39 +250,20 @@ def run_ab(old: Path, env: dict[str, str], seconds: float = 60.0,
                        stdout=subprocess.DEVNULL)
         for kind, extra in (("raw + decoded", ["--dbc", "ecocar"]),
                             ("with the scene", ["--profile", "ecocar"])):
-            best = {"before": [float("inf")] * 2, "now": [float("inf")] * 2}
-            for _ in range(runs):
-                for name, tree, tree_env in (("before", old, env), ("now", TOOLS.parent, None)):
-                    used = resource.getrusage(resource.RUSAGE_CHILDREN)
-                    started = time.perf_counter()
-                    subprocess.run([sys.executable, "-m", "bridge", "convert", str(log), "-o",
-                                    str(out), "--force", "--quiet", *extra], cwd=tree,
-                                   env=tree_env, check=True, stderr=subprocess.DEVNULL)
-                    wall = time.perf_counter() - started
-                    done = resource.getrusage(resource.RUSAGE_CHILDREN)
-                    cpu = done.ru_utime + done.ru_stime - used.ru_utime - used.ru_stime
-                    best[name] = [min(best[name][0], cpu), min(best[name][1], wall)]
-            (cpu_old, wall_old), (cpu_new, wall_new) = best["before"], best["now"]
+            command = [sys.executable, "-m", "bridge", "convert", str(log), "-o", str(out),
+                       "--force", "--quiet", *extra]
+            runs_of = interleaved({"before": partial(cpu_and_wall, command, old, env),
+                                   "now": partial(cpu_and_wall, command, TOOLS.parent, None)},
+                                  runs)
+            (cpu_old, wall_old), (cpu_new, wall_new) = (
+                (min(c for c, _ in runs_of[name]), min(w for _, w in runs_of[name]))
+                for name in ("before", "now"))
             rows.append((f"tankviz convert {kind}, {seconds:g} s simulated (s, best of {runs}; "
                          "cpu, wall)",
                          f"{cpu_old:.2f}, {wall_old:.2f}",
                          f"{cpu_new:.2f}, {wall_new:.2f} ({cpu_old / cpu_new:.2f}x cpu, "
                          f"{wall_old / wall_new:.2f}x wall faster)", "", ""))
     return rows
-
-
-@contextlib.contextmanager
-def checkout(rev: str) -> Iterator[Path]:
-    """The code at ``rev`` in a temporary git worktree (removed after)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "before"
-        subprocess.run(["git", "-C", str(TOOLS.parent), "worktree", "add", "--detach", "-q",
-                        str(path), rev], check=True)
-        try:
-            yield path
-        finally:
-            subprocess.run(["git", "-C", str(TOOLS.parent), "worktree", "remove", "--force",
-                            str(path)], check=False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -293,32 +288,31 @@ def main(argv: list[str] | None = None) -> int:
     before: dict[str, Any] | None = None
     live_before: list[tuple[str, str, str, str]] | None = None
     scene: list[tuple[str, str, str, str, str]] | None = None
-    with contextlib.ExitStack() as stack:
-        env: dict[str, str] | None = None
-        if args.before is not None:
-            old = stack.enter_context(checkout(args.before))
-            env = {**os.environ, "PYTHONPATH": str(old)}
-            before = run_convert(convert_args, env, old)
-            if before is None:
-                print(f"error: tools/bench_convert.py failed on {args.before}", file=sys.stderr)
-                return 1
-        convert = run_convert(convert_args, cwd=TOOLS.parent)
-        if convert is None:
-            print("error: tools/bench_convert.py failed", file=sys.stderr)
+    env: dict[str, str] | None = None
+    if args.before is not None:
+        old = worktree(args.before)
+        env = revision_env(args.before)
+        before = run_convert(convert_args, env, old)
+        if before is None:
+            print(f"error: tools/bench_convert.py failed on {args.before}", file=sys.stderr)
             return 1
-        live: list[tuple[str, str, str, str]] | None = None
-        live_text: str | None = None
-        commands = ["tools/bench_convert.py " + " ".join(convert_args)]
-        if args.live:
-            if args.before is not None:
-                live_before, _ = run_live(env, old)
-            live, live_text = run_live(cwd=TOOLS.parent)
-            commands.append("tools/bench_live.py --quick")
+    convert = run_convert(convert_args, cwd=TOOLS.parent)
+    if convert is None:
+        print("error: tools/bench_convert.py failed", file=sys.stderr)
+        return 1
+    live: list[tuple[str, str, str, str]] | None = None
+    live_text: str | None = None
+    commands = ["tools/bench_convert.py " + " ".join(convert_args)]
+    if args.live:
         if args.before is not None:
-            scene = run_ab(old, env or {}, args.ab_seconds, args.ab_runs)
-        if args.scene and args.before is not None:
-            scene = (scene or []) + run_scene(args.before)
-            commands.append(f"tools/bench_scene.py --ref {args.before} --clock cpu")
+            live_before, _ = run_live(env, old)
+        live, live_text = run_live(cwd=TOOLS.parent)
+        commands.append("tools/bench_live.py --quick")
+    if args.before is not None:
+        scene = run_ab(old, env or {}, args.ab_seconds, args.ab_runs)
+    if args.scene and args.before is not None:
+        scene = (scene or []) + run_scene(args.before)
+        commands.append(f"tools/bench_scene.py --ref {args.before} --clock cpu")
     lo, hi = convert["load"]
     header = {
         "date": started.strftime("%Y-%m-%d %H:%M UTC"),

@@ -33,7 +33,7 @@ from bridge.apps.options import (
     add_stage_options,
     install_stop_signals,
 )
-from bridge.decode.decoder import parse_dbc_option
+from bridge.decode.database import parse_dbc_option
 from bridge.errors import UsageError
 from bridge.io.buses import BusSpec, ReceiveCounts, limit_can_logs
 from bridge.pipeline.drive import Stages

@@ -76,7 +76,7 @@ def check_environment() -> None:
 
 def dbc_option(text: str) -> str:
     """``--dbc [BUS=]PATH``, where PATH may also name a bundled database (``ecocar``)."""
-    from bridge.decode.decoder import parse_dbc_option
+    from bridge.decode.database import parse_dbc_option
 
     bus, path = parse_dbc_option(text)
     if not path.exists() and (bundled := bundled_database(str(path))) is not None:

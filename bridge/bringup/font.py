@@ -1,10 +1,9 @@
 """A 5 x 7 pixel font, to write labels into an image's own pixels (every viewer shows them, at
 any size the image is drawn).
 
-Digits (a zero as round as an O: read as one by people and OCR alike, in ``0x2C4``), capital
-letters, a small ``x`` (``0x2C4``) and ``_ - . / : # , ( )``; other small letters are
-written as capitals, anything else as a blank. A glyph is 5 pixels wide and 7 high; text
-advances 6 pixels a character (times ``scale``).
+Digits (a zero as round as an O, for people and OCR alike), capitals, a small ``x`` and
+``_ - . / : # , ( )``; other small letters are written as capitals, anything else as a blank.
+Text advances 6 pixels a character (times ``scale``).
 """
 
 from __future__ import annotations

@@ -1,25 +1,13 @@
 """A precompiled decoder per DBC message: cantools' own decoding, without its per-signal calls.
 
-cantools decodes a payload in two steps: its compiled bitstruct formats unpack every raw value
-(C, fast), then a Python loop calls each signal's conversion (``raw * scale + offset``) and fills
-a dict, about two thirds of its time. :func:`compile_decoder` writes that loop out once per
-message as one generated function: the same bitstruct formats of the message (cantools' own
-objects, taken from the message), and each signal's scale and offset (the very objects of its
-conversion, so an ``int`` scaling stays ``int`` arithmetic) in one dict literal in cantools'
-signal order. The result is equal to ``message.decode(data, decode_choices=False,
-allow_truncated=True)``, key order and value types included (tests/test_decode_compiled.py
-checks it on every message of the bundled and public DBCs, with random payloads).
-
-Only the plain case is compiled: a message that is not multiplexed and not a container, a
-payload of exactly the message's length, and conversions of the three kinds cantools uses for
-numbers (identity, linear, linear integer, also under a value table). Everything else (a
-multiplexed message, a short or long payload, a conversion of another kind, cantools' internals
-not as expected, a message whose formats cannot unpack a payload because its signals overlap) is
-cantools' own ``decode``: :func:`compile_decoder` returns None for a message
-it cannot compile, and the function it returns hands any payload of another length to cantools.
-
-:func:`compile_column_decoder` gives the same decoding for a column of payloads of the message's
-length in one call (:meth:`bridge.decode.decoder.MessageCodec.decode_many`).
+:func:`compile_decoder` returns a function equal to ``message.decode(data, decode_choices=False,
+allow_truncated=True)``, key order and value types included (tests/test_decode_compiled.py), or
+None for a message it cannot compile. Only the plain case is compiled: a message neither
+multiplexed nor a container, whose signals do not overlap, with conversions cantools uses for
+numbers (identity, linear, linear integer, also under a value table); the function hands a payload
+of another length than the message's to cantools. :func:`compile_column_decoder` decodes a column
+of payloads of the message's length in one call
+(:meth:`bridge.decode.decoder.MessageCodec.decode_many`).
 """
 
 from __future__ import annotations

@@ -1,379 +1,40 @@
-"""Decode: CAN frames to signals with cantools, by (bus, id), each bus with its own databases; a
-J1939 message by its PGN from any source address (:mod:`bridge.decode.j1939`: a codec is made
-for each id of it seen, one topic and schema for all, the address in each decoded message).
+"""The decoder of a drive (:class:`Decoder`): frames to decoded messages by (bus, id), each bus
+with its own databases, one frame at a time or a pack of frames a column at a time.
 
-Every frame has one :class:`Outcome`: decoded, an unknown id (no database of its bus defines
-it), a decode error, an error frame or a remote frame. Those that do not decode are counted per
-bus, or per (bus, id), in :class:`DecodeStats`, never raised: the recorder keeps every raw frame,
-so nothing is lost. :meth:`Decoder.outcome` tells what :meth:`Decoder.decode` made of a frame, so
-that the health monitor counts it without sorting it again. Frames shorter than their DBC length
-decode what fits and are counted too; CAN FD frames longer than their message decode what the
-message defines and are counted with the longest length seen (``longer`` in the statistics).
-
-Decoding repeats: a payload seen before on a message returns the same :class:`Decoded` (a bounded
-cache per message, which a message whose payloads never repeat stops using for a while: see
-:class:`MessageCodec`). A new one is decoded by the message's precompiled decoder where it has
-one (:func:`bridge.decode.compiled.compile_decoder`: cantools' own formats and conversions, its
-very result), else by cantools, and encoded by the message's precompiled encoder
-(:func:`bridge.decode.proto_schema.compile_encoder`), byte for byte protobuf's own encoding.
-
-Offline, frames come in blocks (:class:`bridge.block.FrameBlock`): :meth:`Decoder.decode_block`
-decodes a block a column per ``(bus, key)`` (:meth:`Decoder.decode_column`,
-:meth:`MessageCodec.decode_many`): each distinct payload of a column once, the payloads of the
-message's length in one call of its precompiled column decoder
-(:func:`bridge.decode.compiled.compile_column_decoder`), and every count the same as decoding the
-block's frames one by one in order (what it returns too, row for row; tests/test_decode_block.py
-checks it). Only what the payload cache remembers may differ, never a result.
-
-A float signal (IEEE, ``SIG_VALTYPE_``) that decodes to +inf, -inf or NaN is kept in the decoded
-message as it came, named in :attr:`Decoded.non_finite` and counted per bus, message and signal
-(``non_finite`` in the statistics); the world never takes such a value
-(:mod:`bridge.world.observe`).
-
-Problems that would silence, move or mix a message without a word are warnings: those of a
-database itself are named in :attr:`DatabaseFile.warnings` when the file is loaded
-(:mod:`bridge.decode.database`), and :meth:`Decoder.warnings` adds a message moved off a topic of
-tankviz's own on one bus (:func:`bridge.topics.message_topic`), buses that share their topics and,
-once frames have been decoded, every ``--dbc BUS=`` whose bus no frame came from.
+A J1939 message decodes by its PGN from any source address (:mod:`bridge.decode.j1939`: a codec
+is made for each id of it seen, one topic and schema for all). Every frame has one
+:data:`~bridge.decode.outcome.Outcome`; those that do not decode are counted in
+:attr:`Decoder.stats`, never raised (the recorder keeps every raw frame). A pack decodes to what
+its frames decode to one by one, with the same counts (tests/test_decode_packed.py). What would
+silence, move or mix a message without a word is a warning (:meth:`Decoder.warnings`).
 """
 
 from __future__ import annotations
 
-import math
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from enum import Enum
-from functools import cached_property, partial
-from typing import Any, NamedTuple, cast
+from functools import partial
+from typing import Any
 
 from cantools.database.can.message import Message as DbcMessage
 from google.protobuf import descriptor_pool
 
-from bridge.block import ERROR, EXTENDED, REMOTE, FrameBlock
+from bridge.decode.codec import Decoded, MessageCodec
 from bridge.decode.compiled import DecodeColumn, compile_decoders
-from bridge.decode.database import DatabaseFile as DatabaseFile
-from bridge.decode.database import database_warnings as database_warnings
-from bridge.decode.database import layout as _layout
-from bridge.decode.database import load_database as load_database
-from bridge.decode.database import parse_dbc_option as parse_dbc_option
-from bridge.decode.j1939 import address_fields, address_suffix, is_j1939, pgn_key
+from bridge.decode.database import DatabaseFile, layout
+from bridge.decode.j1939 import address_fields, is_j1939, pgn_key
+from bridge.decode.outcome import DecodeStats, Outcome, Undecoded
 from bridge.decode.proto_schema import MessageSchema, identifier, type_names
 from bridge.errors import DatabaseError
 from bridge.frame import EXTENDED_KEY, Frame, frame_key
-from bridge.topics import BUS_LEAVES, bus_segment, message_topic, own_topic, short_topic
+from bridge.packed import ERROR, EXTENDED, REMOTE, PackedFrames
+from bridge.topics import BUS_LEAVES, bus_segment, own_topic
 
-#: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
-#: 256 holds every payload of a static message with an 8-bit rolling counter; more hit no more
-#: often on the simulated or the Ford-like traffic of tools/bench_decode.py (1024, 256 and 64
-#: decode at the same speed) and only make memory grow for minutes (at 1024, by 6 MB between
-#: 200k and 400k frames of the simulated drive) and live's full collections walk more.
-_CACHE_SIZE = 256
-#: Misses per trial of a message's payload cache: a trial with fewer hits than misses / 8 ...
-_TRIAL_MISSES = 512
-#: ... stops caching that message for this many frames, then it is tried again.
-_REST_FRAMES = 16 * _TRIAL_MISSES
-
-#: bytes.translate table of block flags: 1 where the frame is extended, else 0
+# Why a frame did not decode, as module globals (the per-frame path).
+_UNKNOWN_ID, _DECODE_ERROR = Undecoded.UNKNOWN_ID, Undecoded.DECODE_ERROR
+_ERROR_FRAME, _REMOTE = Undecoded.ERROR_FRAME, Undecoded.REMOTE
+#: bytes.translate table of pack flags: 1 where the frame is extended, else 0
 _EXTENDED_ONLY = bytes(1 if f & EXTENDED else 0 for f in range(256))
-
-class Decoded(NamedTuple):
-    """One decoded frame: its message, the signal values and their protobuf encoding, and the
-    float signals whose value is not finite (+inf, -inf, NaN)."""
-
-    codec: MessageCodec
-    signals: Mapping[str, Any]
-    payload: bytes
-    non_finite: tuple[str, ...] = ()
-
-
-#: ``Decoded`` of a tuple of its fields: the very object ``Decoded(*fields)`` makes, without
-#: its Python-level ``__new__`` (the column decode's per-payload path)
-_new_decoded = partial(tuple.__new__, Decoded)
-
-
-class MessageCodec:
-    """One DBC message as seen on one bus: cantools decoding, the protobuf type, the topic.
-
-    A decoded payload is remembered (up to ``_CACHE_SIZE`` distinct ones, then forgotten all at
-    once), and the same payload again returns the same :class:`Decoded`. A message whose
-    payloads do not repeat (a counter or a checksum in every frame, a noisy measurement) is not
-    worth it: after ``_TRIAL_MISSES`` misses with fewer than one hit per 8 misses, it stops
-    remembering (:attr:`caching` False, its memory freed) for ``_REST_FRAMES`` frames, then tries
-    again.
-
-    What a message costs to prepare (its protobuf type and encoder, :attr:`schema`; its compiled
-    decoder; both shared by every bus the message is on) is made when it is first needed: a
-    database of a hundred messages on three buses, of which each bus carries a few, does not make
-    them all before its first frame.
-    """
-
-    def __init__(self, message: DbcMessage, database: DatabaseFile,
-                 schema: Callable[..., MessageSchema], bus: str,
-                 decoder: Callable[[], Callable[[bytes], Any]],
-                 column_decoder: Callable[[], DecodeColumn | None] | None = None, *,
-                 j1939_id: int | None = None, derived: bool = False) -> None:
-        self.message = message
-        self.database = database
-        self._schema = schema
-        self._decoder = decoder
-        self._column_decoder = column_decoder
-        #: the column decoder once made (None: there is none, every payload is decoded alone)
-        self._decode_column: DecodeColumn | None = None
-        self._column_made = column_decoder is None
-        self.bus = bus
-        self.topic = message_topic(bus, message.name)
-        #: a J1939 message: the id of its frames, whose addresses its decoded messages keep
-        self.j1939_id = j1939_id
-        #: a J1939 message's codec for another id than the database's (same topic, schema)
-        self.derived = derived
-        self.length = message.length
-        self.decoded = 0
-        self.truncated = 0
-        #: CAN FD frames longer than the message, and the longest of them
-        self.longer = 0
-        self.longest = 0
-        #: the float signals, which alone can decode to +inf, -inf or NaN
-        self.floats = tuple(s.name for s in message.signals if s.is_float)
-        #: non-finite values per signal name
-        self.non_finite: Counter[str] = Counter()
-        self._cache: dict[bytes, Decoded] = {}
-        #: whether new payloads are remembered now
-        self.caching = True
-        self._misses = 0  # in this trial (caching), since ...
-        self._since = 0  # ... this many decoded frames; or (not caching) until then
-        self._decode: Callable[[bytes], Any] = self._first_decode
-        self._encode: Callable[[Mapping[str, Any]], bytes] = self._first_encode
-
-    @cached_property
-    def schema(self) -> MessageSchema:
-        """The message's protobuf type (made on first use)."""
-        return self._schema()
-
-    def _first_decode(self, data: bytes) -> Any:
-        self._decode = self._decoder()
-        return self._decode(data)
-
-    @cached_property
-    def short(self) -> MessageCodec:
-        """The codec of the message's frames shorter than it (which may lack any signal): its
-        own topic (:func:`bridge.topics.short_topic`) and type (every field ``optional``,
-        :class:`MessageSchema` ``short``); its frames are counted by this codec."""
-        codec = MessageCodec(self.message, self.database, partial(self._schema, short=True),
-                             self.bus, self._decoder, j1939_id=self.j1939_id, derived=True)
-        codec.topic = short_topic(self.topic)
-        return codec
-
-    def _first_encode(self, signals: Mapping[str, Any]) -> bytes:
-        encode = self.schema.encode
-        if self.j1939_id is not None:
-            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses),
-                                    implicit=not self.schema.short)
-            self._encode = lambda s: encode(s) + suffix
-        else:
-            self._encode = encode
-        return self._encode(signals)
-
-    def decode(self, data: bytes) -> Decoded:
-        """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
-        into = self
-        if len(data) != self.length:
-            if len(data) < self.length:
-                self.truncated += 1
-                into = self.short
-            else:
-                self.longer += 1
-                self.longest = max(self.longest, len(data))
-        hit = self._cache.get(data)
-        if hit is not None:
-            self.decoded += 1
-            if hit.non_finite:
-                self.non_finite.update(hit.non_finite)
-            return hit
-        signals: dict[str, Any] = self._decode(data)
-        bad = (tuple(n for n in self.floats if not math.isfinite(signals.get(n, 0.0)))
-               if self.floats else ())
-        if bad:
-            self.non_finite.update(bad)
-        result = Decoded(into, signals, into._encode(signals), bad)
-        self.decoded += 1
-        if self.caching:
-            if len(self._cache) >= _CACHE_SIZE:
-                self._cache.clear()
-            self._cache[data] = result
-            self._misses += 1
-            if self._misses >= _TRIAL_MISSES:
-                self._trial_ends()
-        elif self.decoded >= self._since:
-            self.caching, self._misses, self._since = True, 0, self.decoded
-        return result
-
-    def decode_many(self, datas: Sequence[bytes]) -> list[Decoded | Exception]:
-        """Decode a column of payloads in one step: what :meth:`decode` on each, in order, returns,
-        with the same counts afterwards (``decoded``, ``truncated``, ``longer``, ``longest``,
-        ``non_finite``); a payload it cannot decode has in its place the exception :meth:`decode`
-        would raise (not counted as decoded, as :meth:`decode` does not).
-
-        Each distinct payload of the column is decoded once (or taken from the cache), so equal
-        payloads share one :class:`Decoded`; the cache learns the new ones as :meth:`decode`
-        would, its trials counted per distinct payload (which only changes what is remembered,
-        never a result)."""
-        return self._decode_many(datas)[0]
-
-    def _decode_many(self, datas: Sequence[bytes]) -> tuple[list[Decoded | Exception], bool]:
-        """:meth:`decode_many`, and whether a payload failed."""
-        n = len(datas)
-        if not n:
-            return [], False
-        length = self.length
-        if len(set(map(len, datas))) > 1 or len(datas[0]) != length:
-            for size, count in Counter(map(len, datas)).items():
-                if size < length:
-                    self.truncated += count
-                elif size > length:
-                    self.longer += count
-                    self.longest = max(self.longest, size)
-        cache = self._cache
-        results: dict[bytes, Decoded | Exception | None] = dict.fromkeys(datas)
-        failed = counted = False  # a payload that failed; one with non-finite values counted
-        half_counted: dict[bytes, tuple[str, ...]] = {}  # failed after counting non-finite ones
-        new: list[bytes] = []
-        for data in results:
-            hit = cache.get(data)
-            if hit is None:
-                new.append(data)
-            else:
-                results[data] = hit
-                counted = counted or bool(hit.non_finite)
-        if not self._column_made:
-            self._decode_column, self._column_made = self._column_decoder(), True  # type: ignore[misc]
-        column = self._decode_column
-        decoded: list[tuple[bytes, dict[str, Any] | None]] = []
-        if column is not None and new:
-            exact = [d for d in new if len(d) == length]
-            decoded += zip(exact, column(exact), strict=True)
-            if len(exact) != len(new):
-                decoded += ((d, None) for d in new if len(d) != length)
-        else:
-            decoded += ((d, None) for d in new)
-        floats, encode, decode = self.floats, self._encode, self._decode
-        caching = self.caching
-        for data, signals in decoded:
-            bad: tuple[str, ...] = ()
-            try:
-                if signals is None:
-                    signals = cast("dict[str, Any]", decode(data))
-                bad = (tuple(n for n in floats if not math.isfinite(signals.get(n, 0.0)))
-                       if floats else ())
-                if len(data) < length:
-                    result = _new_decoded((self.short, signals, self.short._encode(signals), bad))
-                else:
-                    result = _new_decoded((self, signals, encode(signals), bad))
-            except Exception as exc:  # decode() raises it: the caller counts it
-                results[data] = exc
-                failed = True
-                if bad:
-                    half_counted[data] = bad
-                continue
-            results[data] = result
-            counted = counted or bool(bad)
-            if caching:
-                if len(cache) >= _CACHE_SIZE:
-                    cache.clear()
-                cache[data] = result
-                self._misses += 1
-        out = cast("list[Decoded | Exception]", list(map(results.__getitem__, datas)))
-        if not failed:
-            self.decoded += n
-        else:
-            self.decoded += sum(1 for r in out if type(r) is Decoded)
-        if counted or half_counted:
-            occurrences = Counter(datas) if len(results) < n else None
-            for data, done in results.items():
-                bad = done.non_finite if type(done) is Decoded else half_counted.get(data, ())
-                if bad:
-                    times = occurrences[data] if occurrences is not None else 1
-                    for name in bad:
-                        self.non_finite[name] += times
-        if caching:
-            if self._misses >= _TRIAL_MISSES:
-                self._trial_ends()
-        elif self.decoded >= self._since:
-            self.caching, self._misses, self._since = True, 0, self.decoded
-        return out, failed
-
-    def _trial_ends(self) -> None:
-        hits = self.decoded - self._since - self._misses
-        if hits * 8 < self._misses:
-            self.caching, self._since = False, self.decoded + _REST_FRAMES
-            self._cache.clear()
-        else:
-            self._misses, self._since = 0, self.decoded
-
-
-class Outcome(Enum):
-    """What the decoder made of a frame (as cantools' monitor has ``MessageFormattingResult``)."""
-
-    #: a message of its bus's databases, decoded
-    DECODED = "decoded"
-    #: no database of its bus defines its id
-    UNKNOWN_ID = "unknown_id"
-    #: a message of its bus's databases that cantools cannot decode
-    DECODE_ERROR = "decode_error"
-    ERROR_FRAME = "error_frame"
-    REMOTE = "remote"
-
-
-# The outcomes as module globals, for the per-frame paths (quicker than the class's attributes).
-_DECODED, _UNKNOWN_ID, _DECODE_ERROR = Outcome.DECODED, Outcome.UNKNOWN_ID, Outcome.DECODE_ERROR
-_ERROR_FRAME, _REMOTE = Outcome.ERROR_FRAME, Outcome.REMOTE
-
-
-@dataclass
-class DecodeStats:
-    """What happened to every frame, per bus and per (bus, id)."""
-
-    frames: Counter[str] = field(default_factory=Counter)
-    error_frames: Counter[str] = field(default_factory=Counter)
-    remote_frames: Counter[str] = field(default_factory=Counter)
-    unknown: Counter[tuple[str, int]] = field(default_factory=Counter)
-    errors: Counter[tuple[str, int]] = field(default_factory=Counter)
-    last_error: dict[tuple[str, int], str] = field(default_factory=dict)
-
-    def to_dict(self, codecs: Iterable[MessageCodec]) -> dict[str, Any]:
-        """A JSON-ready summary (stored in the MCAP metadata, printed by ``inspect``)."""
-
-        def ids(counter: Counter[tuple[str, int]]) -> dict[str, int]:
-            return {f"{bus}/0x{i:X}": n for (bus, i), n in sorted(counter.items())}
-
-        codecs = sorted(codecs, key=lambda c: c.topic)  # (a J1939 message's: one topic)
-        decoded: Counter[str] = Counter()
-        truncated: Counter[str] = Counter()
-        longer: dict[str, dict[str, int]] = {}
-        non_finite: Counter[str] = Counter()
-        for c in codecs:
-            decoded[c.topic] += c.decoded
-            truncated[c.topic] += c.truncated
-            if c.longer:
-                seen = longer.setdefault(c.topic, {"frames": 0, "message_bytes": c.length,
-                                                   "longest": 0})
-                seen["frames"] += c.longer
-                seen["longest"] = max(seen["longest"], c.longest)
-            for name, n in sorted(c.non_finite.items()):
-                non_finite[f"{c.bus}/{c.message.name}.{name}"] += n
-        return {
-            "frames": dict(sorted(self.frames.items())),
-            "decoded": {topic: n for topic, n in decoded.items() if n},
-            "truncated": {topic: n for topic, n in truncated.items() if n},
-            "longer": longer,
-            "unknown_ids": ids(self.unknown),
-            "decode_errors": ids(self.errors),
-            "last_decode_error": {f"{bus}/0x{i:X}": text
-                                  for (bus, i), text in sorted(self.last_error.items())},
-            "error_frames": dict(sorted(self.error_frames.items())),
-            "remote_frames": dict(sorted(self.remote_frames.items())),
-            "non_finite": dict(non_finite),
-        }
 
 
 class Decoder:
@@ -396,10 +57,6 @@ class Decoder:
         #: a line for each message of a bus moved off a topic of tankviz's own there alone
         self._moved: list[str] = []
         self.stats = DecodeStats()
-        #: the latest frame :meth:`decode` returned None for, and why (read by :meth:`outcome`;
-        #: the health monitor reads them itself, as :meth:`outcome` does, in its per-frame path)
-        self.undecoded: Frame | None = None
-        self.why = Outcome.UNKNOWN_ID
         # Check every combination now, so a conflict is reported before any work is done.
         for bus in self._databases:
             self._check(self._files_for(bus))
@@ -460,7 +117,7 @@ class Decoder:
         for f in files:
             for message in f.db.messages:
                 key = frame_key(message.frame_id, message.is_extended_frame)
-                if key in owner and _layout(owner[key][1]) != _layout(message):
+                if key in owner and layout(owner[key][1]) != layout(message):
                     other_file, other = owner[key]
                     raise DatabaseError(
                         f.path,
@@ -562,9 +219,8 @@ class Decoder:
         codec = self._tables[bus][key] = self._codec(bus, *found, ident, derived=True)
         return codec
 
-    def decode(self, frame: Frame) -> Decoded | None:
-        """Decode one frame, or count why it cannot be decoded (its :class:`Outcome`, which
-        :meth:`outcome` then tells) and return None."""
+    def decode(self, frame: Frame) -> Outcome:
+        """Decode one frame, or count why it cannot be decoded and return that."""
         bus = frame.bus
         table = self._tables.get(bus)
         if table is None:
@@ -582,56 +238,38 @@ class Decoder:
                 key = (bus, frame.arbitration_id)
                 self.stats.errors[key] += 1
                 self.stats.last_error[key] = f"{codec.message.name}: {type(exc).__name__}: {exc}"
-                self.undecoded, self.why = frame, _DECODE_ERROR
-                return None
+                return _DECODE_ERROR
         if frame.is_error:
             self.stats.error_frames[bus] += 1
-            why = _ERROR_FRAME
-        elif frame.is_remote:
+            return _ERROR_FRAME
+        if frame.is_remote:
             self.stats.remote_frames[bus] += 1
-            why = _REMOTE
-        else:
-            self.stats.unknown[(bus, frame.arbitration_id)] += 1
-            why = _UNKNOWN_ID
-        self.undecoded, self.why = frame, why
-        return None
+            return _REMOTE
+        self.stats.unknown[(bus, frame.arbitration_id)] += 1
+        return _UNKNOWN_ID
 
-    def decode_column(self, bus: str, key: int, datas: Sequence[bytes],
-                      flags: bytes | None = None) -> list[Decoded | None]:
-        """Decode a column of frames of one ``bus`` and frame ``key``
-        (:func:`~bridge.frame.frame_key`) in one step: their payloads ``datas`` and, one byte
-        per frame, their ``flags`` as a :class:`~bridge.block.FrameBlock` has them (None: none
-        set, and the key alone tells whether an id is extended). What :meth:`decode` on each of
-        those frames, in order, returns, and the same statistics (:attr:`stats`, every codec's
-        counts) afterwards. Unlike :meth:`decode`, it leaves :attr:`undecoded` and :attr:`why`
-        as they were: there is no frame to name (:meth:`outcome` sorts frames fed by hand)."""
-        results, errors = self._column(bus, key, datas, flags, flags is None)
-        for stats_key, (_, text) in errors.items():
-            self.stats.last_error[stats_key] = text
-        return results
-
-    def decode_block(self, block: FrameBlock) -> list[Decoded | None]:
-        """Decode every frame of ``block``, a column per ``(bus, key)``
-        (:meth:`decode_column`): one entry per row, in row order, what :meth:`decode` of the
-        row's frame returns, with the same statistics afterwards as decoding the frames one by
-        one in order. Like :meth:`decode_column`, it leaves :attr:`undecoded` and :attr:`why`."""
-        n = len(block)
-        out: list[Decoded | None] = [None] * n
+    def decode_packed(self, pack: PackedFrames) -> list[Outcome]:
+        """Decode every frame of ``pack``, a column per ``(bus, key)`` in one step: one
+        outcome per row, in row order, what :meth:`decode` of the row's frame returns, with the
+        same statistics afterwards as decoding the frames one by one in order."""
+        n = len(pack)
+        out: list[Outcome] = [_UNKNOWN_ID] * n
         if not n:
             return out
-        payloads = block.payloads()
+        payloads = pack.payloads()
         # (an FD or BRS bit alone changes nothing in decoding)
-        flags = block.flags if block.all_flags() & (ERROR | REMOTE | EXTENDED) else None
-        buses = block.buses
+        flags = pack.flags if pack.all_flags() & (ERROR | REMOTE | EXTENDED) else None
+        buses = pack.buses
         last: dict[tuple[str, int], tuple[int, str]] = {}
-        for (bus_index, key), rows in block.groups().items():
-            if len(rows) == n:
+        for (bus_index, key), rows in pack.groups().items():
+            whole = len(rows) == n
+            if whole:
                 datas, these = payloads, flags
             else:
                 datas = list(map(payloads.__getitem__, rows))
                 these = None if flags is None else bytes(map(flags.__getitem__, rows))
-            results, errors = self._column(buses[bus_index], key, datas, these, False)
-            if len(rows) == n:
+            results, errors = self._column(buses[bus_index], key, datas, these)
+            if whole:
                 out = results
             else:
                 deque(map(out.__setitem__, rows, results), 0)  # out[rows] = results, in C
@@ -643,13 +281,12 @@ class Decoder:
             self.stats.last_error[stats_key] = text
         return out
 
-    def _column(self, bus: str, key: int, datas: Sequence[bytes], flags: bytes | None,
-                keyed: bool) -> tuple[list[Decoded | None],
-                                      dict[tuple[str, int], tuple[int, str]]]:
-        """:meth:`decode_column`'s results, and per ``(bus, id)`` of a decode error the
-        position of the last one in the column and its text (for the caller to store).
-        ``flags`` None: no flag set, and the key tells whether the id is extended if ``keyed``,
-        else it is not."""
+    def _column(self, bus: str, key: int, datas: Sequence[bytes], flags: bytes | None
+                ) -> tuple[list[Outcome], dict[tuple[str, int], tuple[int, str]]]:
+        """The outcomes of a column of frames of one ``bus`` and frame ``key`` (their payloads
+        ``datas``, their ``flags`` as a pack has them; None: none set), and per ``(bus, id)``
+        of a decode error the position of its last one and its text (for the caller to keep:
+        the last of the pack)."""
         table = self._tables.get(bus)
         if table is None:
             table = self._table(bus)
@@ -659,65 +296,59 @@ class Decoder:
         codec = table.get(key)
         if codec is None and bus in self._pgns:
             codec = self._match(bus, key)
-        errors: dict[tuple[str, int], tuple[int, str]] = {}
         every = 0
         if flags is not None:
             for f in set(flags):
                 every |= f
-        if not every & (ERROR | REMOTE) and (
-                not every & EXTENDED or flags is None or _EXTENDED_ONLY[0] not in
-                flags.translate(_EXTENDED_ONLY)):
-            # No error or remote frame, and all extended or none: one id (without flags, the
-            # key alone tells whether it is extended)
-            ident = key & ~EXTENDED_KEY if (keyed and flags is None) or every & EXTENDED else key
+        rows: list[int] | None = None  # the rows to decode (None: all)
+        ids: list[int] | None = None  # their ids (None: ``ident`` for all)
+        ident = key
+        out: list[Outcome] = []
+        mixed = (flags is not None and bool(every & EXTENDED)
+                 and _EXTENDED_ONLY[0] in flags.translate(_EXTENDED_ONLY))
+        if not every & (ERROR | REMOTE) and not mixed:
+            # No error or remote frame, and all extended or none: one id
+            ident = key & ~EXTENDED_KEY if every & EXTENDED else key
             if codec is None:
                 stats.unknown[(bus, ident)] += n
-                return [None] * n, errors
-            return self._decode_codec(codec, bus, datas, None, ident, errors), errors
-        # Row by row what decode() sorts by the flags; the rest decoded in one step.
-        rows: list[int] = []
-        results: list[Decoded | None] = [None] * n
-        assert flags is not None
-        for i, f in enumerate(flags):
-            ident = key ^ EXTENDED_KEY if f & EXTENDED else key
-            if codec is not None and not f & (ERROR | REMOTE):
-                rows.append(i)
-            elif f & ERROR:
-                stats.error_frames[bus] += 1
-            elif f & REMOTE:
-                stats.remote_frames[bus] += 1
-            else:
-                stats.unknown[(bus, ident)] += 1
-        if rows and codec is not None:
-            ids = [key ^ EXTENDED_KEY if flags[i] & EXTENDED else key for i in rows]
-            decoded = self._decode_codec(codec, bus, list(map(datas.__getitem__, rows)), ids,
-                                         0, errors)
-            for i, result in zip(rows, decoded, strict=True):
-                results[i] = result
-            # positions of errors are within ``rows``: make them the column's
-            for stats_key, (at, text) in list(errors.items()):
-                errors[stats_key] = (rows[at], text)
-        return results, errors
-
-    def _decode_codec(self, codec: MessageCodec, bus: str, datas: Sequence[bytes],
-                      ids: list[int] | None, ident: int,
-                      errors: dict[tuple[str, int], tuple[int, str]]) -> list[Decoded | None]:
-        """``datas`` decoded by ``codec``; a decode error counted per ``(bus, id)`` (``ids``
-        per row, else ``ident`` for all) and its last position and text put in ``errors``."""
-        results, failed = codec._decode_many(datas)
-        if not failed:
-            return results  # type: ignore[return-value]  # no exception in it
-        out: list[Decoded | None] = []
-        stats = self.stats
-        for at, result in enumerate(results):
-            if type(result) is Decoded:
-                out.append(result)
-                continue
-            stats_key = (bus, ident if ids is None else ids[at])
-            stats.errors[stats_key] += 1
-            errors[stats_key] = (at, f"{codec.message.name}: {type(result).__name__}: {result}")
-            out.append(None)
-        return out
+                return [_UNKNOWN_ID] * n, {}
+        else:
+            # What decode() sorts by the flags, row by row; the rest decoded in one step. (A
+            # standard id with bit 31 set, which a damaged archive has, shares its key with an
+            # extended id: its flags tell them apart.)
+            assert flags is not None
+            out = [_UNKNOWN_ID] * n
+            rows, ids = [], []
+            for i, f in enumerate(flags):
+                if f & ERROR:
+                    stats.error_frames[bus] += 1
+                    out[i] = _ERROR_FRAME
+                elif f & REMOTE:
+                    stats.remote_frames[bus] += 1
+                    out[i] = _REMOTE
+                elif codec is not None:
+                    rows.append(i)
+                    ids.append(key ^ EXTENDED_KEY if f & EXTENDED else key)
+                else:
+                    stats.unknown[(bus, key ^ EXTENDED_KEY if f & EXTENDED else key)] += 1
+            if codec is None or not rows:
+                return out, {}
+        assert codec is not None
+        results, failed = codec.decode_many(datas if rows is None
+                                            else list(map(datas.__getitem__, rows)))
+        errors: dict[tuple[str, int], tuple[int, str]] = {}
+        if failed:
+            for at, result in enumerate(results):
+                if type(result) is not Decoded:
+                    stats_key = (bus, ident if ids is None else ids[at])
+                    stats.errors[stats_key] += 1
+                    errors[stats_key] = (at if rows is None else rows[at],
+                                         f"{codec.message.name}: {type(result).__name__}: {result}")
+                    results[at] = _DECODE_ERROR  # type: ignore[call-overload]
+        if rows is None:
+            return results, errors  # type: ignore[return-value]  # (no exception left in it)
+        deque(map(out.__setitem__, rows, results), 0)  # type: ignore[arg-type]
+        return out, errors
 
     def knows(self, bus: str, key: int) -> bool:
         """Whether a database of ``bus`` defines the message of frame key ``key``
@@ -734,25 +365,3 @@ class Decoder:
         if codec is None:
             codec = self._match(bus, key)
         return None if codec is None else codec.message
-
-    def outcome(self, frame: Frame, decoded: Decoded | None) -> Outcome:
-        """What :meth:`decode` made of ``frame``, given what it returned: for the latest frame
-        it returned None for, the outcome it found (:attr:`undecoded`, :attr:`why`). A frame it
-        did not just decode (a caller that feeds frames by hand) is sorted from its flags and
-        its bus's databases, without decoding it: a frame of a message they define that was not
-        decoded is a decode error."""
-        if decoded is not None:
-            return _DECODED
-        if frame is self.undecoded:
-            return self.why
-        if frame.is_error:
-            return _ERROR_FRAME
-        if frame.is_remote:
-            return _REMOTE
-        table = self._tables.get(frame.bus)
-        if table is None:
-            table = self._table(frame.bus)
-        # frame_key inlined (the health monitor's per-frame path, for frames fed by hand)
-        key = frame.arbitration_id | EXTENDED_KEY if frame.is_extended else frame.arbitration_id
-        return (_DECODE_ERROR if key in table or self._match(frame.bus, key) is not None
-                else _UNKNOWN_ID)

@@ -1,19 +1,8 @@
-"""What the health monitor counts of every frame: per bus its frames, bits on the wire, ids,
-gaps, error frames, unknown ids, decode errors and non-finite values, per family its frames and
-when it last came or resumed (:mod:`bridge.health.counts` holds the counts;
-:class:`~bridge.health.monitor.HealthMonitor` checks them).
+"""What the health monitor counts of every frame, per bus and per family.
 
-The per-frame hook :meth:`TrafficCounting.on_frame` is made for the hot path (a few dict
-operations, and the frame's bits counted exactly only for a sample); it takes a frame that did not
-decode as the decoder sorted it (:meth:`bridge.decode.decoder.Decoder.outcome`: an unknown id, a
-decode error, an error frame or a remote frame), without sorting it again (a frame it did not just
-decode, it sorts from the decoder's tables: the same outcome). Offline, a block of frames is
-counted in bulk with the same result, count for count (:meth:`TrafficCounting.count_block`, then
-:meth:`TrafficCounting.count_rows` for each run of rows between two ticks): each ``(bus, key)``
-column's bits in one pass (a kind's exact counts and estimates follow its own frames only), each
-bus's ids, bits and gaps and each family's times from their rows in order; a run ends right after a
-message's first frame, whose cycle time may shorten its bus's gap time (tests/
-test_health_block.py).
+Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path) or a pack at a
+time, count for count the same; either way each frame is counted by the outcome the decoder gave
+it, never sorted again. :mod:`bridge.health.counts` holds the counts.
 """
 
 from __future__ import annotations
@@ -27,40 +16,43 @@ from itertools import chain
 from operator import add, itemgetter
 from typing import NamedTuple
 
-from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
-from bridge.decode.decoder import Decoded, Decoder, MessageCodec, Outcome
+from bridge.decode.codec import Decoded, MessageCodec
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome, Undecoded
 from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
+from bridge.health.bus_bits import MAX_KINDS, FrameKind, KindKey
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
-from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
+from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 
-# what the decoder made of a frame that did not decode (module globals: the per-frame path)
-_ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR = (Outcome.ERROR_FRAME, Outcome.UNKNOWN_ID,
-                                            Outcome.DECODE_ERROR)
+# why a frame did not decode (module globals: the per-frame path)
+_ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR, _REMOTE = (
+    Undecoded.ERROR_FRAME, Undecoded.UNKNOWN_ID, Undecoded.DECODE_ERROR, Undecoded.REMOTE)
 
 
 class BusRows(NamedTuple):
-    """One bus's rows of a block, in row order, with their times, keys and bits."""
+    """One bus's rows of a pack, in row order, with their times, keys and bits."""
 
     rows: Sequence[int]
     times: Sequence[int]
     keys: Sequence[int]
     arbitration: list[float]
-    #: None: no frame of the block switches its bit rate
+    #: None: no frame of the pack switches its bit rate
     data_phase: list[float] | None
 
 
-class BlockCount(NamedTuple):
-    """A block's frames made ready to count (:meth:`TrafficCounting.count_block`)."""
+class PackedCount(NamedTuple):
+    """A pack's frames made ready to count (:meth:`TrafficCounting.count_packed`)."""
 
-    block: FrameBlock
-    decoded: Sequence[Decoded | None]
-    #: the kinds of frame of each bus, the block's counted in
+    pack: PackedFrames
+    #: what the decoder made of each row
+    decoded: Sequence[Outcome]
+    #: the kinds of frame of each bus, the pack's counted in
     kinds: dict[str, dict[KindKey, FrameKind]]
     #: each bus index's rows, in the order of their first row
     buses: dict[int, BusRows]
-    #: (row, bus index, outcome) of every row that did not decode and is counted, in row order
-    undecoded: list[tuple[int, int, Outcome]]
+    #: (row, bus index, why) of every row that did not decode and is counted, in row order
+    undecoded: list[tuple[int, int, Undecoded]]
     #: rows with non-finite values
     bad: list[int]
     #: each family's rows and their times, in row order
@@ -108,9 +100,8 @@ class TrafficCounting:
             bus.gap_ns = min(bus.gap_ns, gap)
         return families
 
-    def on_frame(self, frame: Frame, decoded: Decoded | None) -> None:
-        """Count one frame (call it for every frame, right after decoding it with the
-        monitor's decoder: a frame that did not decode is counted as the decoder sorted it)."""
+    def on_frame(self, frame: Frame, decoded: Outcome) -> None:
+        """Count one frame, given what the monitor's decoder made of it."""
         # By position (the eleven fields by name cost ~100 ns more a frame): timestamp_ns, bus,
         # arbitration_id, data, is_extended, is_fd, is_error, is_remote, bitrate_switch, esi, dlc.
         t, name, ident, data, extended, fd, error, remote, brs, esi, dlc = frame
@@ -136,14 +127,12 @@ class TrafficCounting:
         if data_phase:
             bus.brs_bits += data_phase
         bus.ids[ident | EXTENDED_KEY if extended else ident] += 1  # frame_key, inlined
-        if decoded is None:
-            decoder = self.decoder  # its outcome, read here as Decoder.outcome reads it
-            why = decoder.why if frame is decoder.undecoded else decoder.outcome(frame, None)
-            if why is _UNKNOWN_ID:
+        if type(decoded) is not Decoded:
+            if decoded is _UNKNOWN_ID:
                 bus.unknown += 1
-            elif why is _DECODE_ERROR:
+            elif decoded is _DECODE_ERROR:
                 bus.decode_errors += 1
-            elif why is _ERROR_FRAME:
+            elif decoded is _ERROR_FRAME:
                 bus.error_frames += 1
             return
         if decoded.non_finite:
@@ -159,33 +148,33 @@ class TrafficCounting:
             family.last_ns = t
             family.frames += 1
 
-    def count_block(self, block: FrameBlock,
-                    decoded: Sequence[Decoded | None]) -> BlockCount | None:
-        """Get a block's frames ready to be counted, a run of rows at a time
+    def count_packed(self, pack: PackedFrames,
+                    decoded: Sequence[Outcome]) -> PackedCount | None:
+        """Get a pack's frames ready to be counted, a run of rows at a time
         (:meth:`count_rows`), as :meth:`on_frame` of each in order counts them; ``decoded``:
-        what the decoder made of each row. None where the block must be counted frame by frame
-        (a bus with so many kinds of frame that the block could make it forget them).
+        what the decoder made of each row. None where the pack must be counted frame by frame
+        (a bus with so many kinds of frame that the pack could make it forget them).
 
         The bits of every frame are counted here, a ``(bus, key)`` column at a time (a kind's
         exact counts and estimates follow its own frames only, whatever comes between them:
         :meth:`FrameKind.bits_of`), and each bus's and family's rows are gathered; the rest is
         counted at :meth:`count_rows`, in row order where order matters (gaps, the sum of the
-        bits, ids and non-finite values first seen, families). A block is counted exactly as
+        bits, ids and non-finite values first seen, families). A pack is counted exactly as
         frame by frame if every run ends right after each row of a message the monitor had not
-        seen (:attr:`BlockCount.cuts`: the bus's gap time may change there)."""
-        n = len(block)
-        names = block.buses
+        seen (:attr:`PackedCount.cuts`: the bus's gap time may change there)."""
+        n = len(pack)
+        names = pack.buses
         for name in names:
             bus = self._buses.get(name)
             if (len(bus.kinds) if bus is not None else 0) + n > MAX_KINDS:
                 return None
-        payloads, flags, dlcs, ts = block.payloads(), block.flags, block.dlc, block.t
-        plain = not block.all_flags()
-        groups = block.groups()
+        payloads, flags, dlcs, ts = pack.payloads(), pack.flags, pack.dlc, pack.t
+        plain = not pack.all_flags()
+        groups = pack.groups()
         bits: list[tuple[float, float]] = [(0.0, 0.0)] * n
         kinds = {name: (self._buses[name].kinds if name in self._buses else {})
                  for name in names}
-        undecoded: list[tuple[int, int, Outcome]] = []
+        undecoded: list[tuple[int, int, Undecoded]] = []
         bad: list[int] = []
         family_rows: dict[FamilyCounts, list[Sequence[int]]] = {}
         firsts: list[tuple[int, MessageCodec]] = []
@@ -222,27 +211,22 @@ class TrafficCounting:
                 deque(map(bits.__setitem__, rows, column), 0)  # bits[rows] = column, in C
             results = decoded if whole else list(map(decoded.__getitem__, rows))
             fed: Sequence[int] = rows
-            if None in results:
+            if Undecoded in set(map(type, results)):
                 fed = []
-                known: bool | None = None  # (whether the bus's databases define the id)
                 for r, d in zip(rows, results, strict=True):
-                    if d is not None:
+                    if not isinstance(d, Undecoded):
                         fed.append(r)
-                    elif flags[r] & ERROR:
-                        undecoded.append((r, k, _ERROR_FRAME))
-                    elif not flags[r] & REMOTE:
-                        if known is None:
-                            known = self.decoder.knows(names[k], key)
-                        undecoded.append((r, k, _DECODE_ERROR if known else _UNKNOWN_ID))
+                    elif d is not _REMOTE:  # (a remote frame is counted as no other)
+                        undecoded.append((r, k, d))
                 if not fed:
                     continue
             # a (bus, key)'s frames are of one message (the decoder's table)
             first = decoded[fed[0]]
-            assert first is not None
+            assert type(first) is Decoded
             codec = first.codec
             if codec.floats:  # (only a float signal can be non-finite)
                 bad += [r for r, d in zip(rows, results, strict=True)
-                        if d is not None and d.non_finite]
+                        if type(d) is Decoded and d.non_finite]
             families = self._families_of.get(codec)
             if families is None:
                 families = tuple(self._by_message.get(codec.message.name, ()))
@@ -254,10 +238,10 @@ class TrafficCounting:
         bad.sort()
         firsts.sort(key=by_row)
         arbitration = list(map(itemgetter(0), bits))
-        data_phase = list(map(itemgetter(1), bits)) if block.all_flags() & BRS else None
+        data_phase = list(map(itemgetter(1), bits)) if pack.all_flags() & BRS else None
         buses: dict[int, BusRows] = {}
         if len(names) == 1:
-            buses[0] = BusRows(range(n), ts, block.key, arbitration, data_phase)
+            buses[0] = BusRows(range(n), ts, pack.key, arbitration, data_phase)
         else:
             of_bus: dict[int, list[array[int]]] = {}
             for (k, _), rows in groups.items():
@@ -266,7 +250,7 @@ class TrafficCounting:
                 merged = sorted(chain.from_iterable(columns))
                 buses[k] = BusRows(
                     merged, list(map(ts.__getitem__, merged)),
-                    list(map(block.key.__getitem__, merged)),
+                    list(map(pack.key.__getitem__, merged)),
                     list(map(arbitration.__getitem__, merged)),
                     None if data_phase is None else list(map(data_phase.__getitem__, merged)))
         families_of: dict[FamilyCounts, tuple[Sequence[int], list[int]]] = {}
@@ -274,14 +258,14 @@ class TrafficCounting:
             fed_rows = (fed_columns[0] if len(fed_columns) == 1
                         else sorted(chain.from_iterable(fed_columns)))
             families_of[family] = (fed_rows, list(map(ts.__getitem__, fed_rows)))
-        return BlockCount(block, decoded, kinds, buses, undecoded, bad, families_of, firsts)
+        return PackedCount(pack, decoded, kinds, buses, undecoded, bad, families_of, firsts)
 
-    def count_rows(self, c: BlockCount, i: int, j: int) -> None:
-        """Count rows ``i`` to ``j`` (excluded) of a block made ready by :meth:`count_block`,
+    def count_rows(self, c: PackedCount, i: int, j: int) -> None:
+        """Count rows ``i`` to ``j`` (excluded) of a pack made ready by :meth:`count_packed`,
         which no run counted yet, as :meth:`on_frame` of each in turn (a run that holds a row
-        of :attr:`BlockCount.cuts` but its last is counted as if that row came last)."""
-        block = c.block
-        names = block.buses
+        of :attr:`PackedCount.cuts` but its last is counted as if that row came last)."""
+        pack = c.pack
+        names = pack.buses
         for k, (rows, times, keys, arbitration, data_phase) in c.buses.items():
             a, b = (i, j) if isinstance(rows, range) else (bisect_left(rows, i),
                                                          bisect_left(rows, j))
@@ -316,11 +300,11 @@ class TrafficCounting:
         decoded = c.decoded
         for r in c.bad[bisect_left(c.bad, i):bisect_left(c.bad, j)]:
             d = decoded[r]
-            assert d is not None
-            self._non_finite(self._buses[names[block.bus[r]]], d)
+            assert type(d) is Decoded
+            self._non_finite(self._buses[names[pack.bus[r]]], d)
         for r, codec in c.firsts[bisect_left(c.firsts, (i,)):bisect_left(c.firsts, (j,))]:
             if codec not in self._families_of:
-                self._resolve(self._buses[names[block.bus[r]]], codec)
+                self._resolve(self._buses[names[pack.bus[r]]], codec)
         for family, (rows, times) in c.families.items():
             a, b = bisect_left(rows, i), bisect_left(rows, j)
             if a == b:

@@ -1,23 +1,9 @@
-"""The data path of one drive: frames → decode → perception, health and bring-up → sinks.
+"""The data path of one drive (:class:`Pipeline`): frames → decode → perception, health and
+bring-up → sinks.
 
-:class:`Pipeline` is what every command runs for every frame (:class:`bridge.pipeline.drive.Drive`
-assembles it). Each sink (:class:`bridge.sinks.base.Sink`) gets the raw frames in blocks (a
-block per bus per window of at most 20 ms, :mod:`bridge.sinks.raw`; live, a window is sent once
-the clock passes it), every decoded message, and the scene, perception and health messages made
-at each tick, in the order the sinks were given (the live server first: viewers wait for a
-scene, the recorder does not). Every scene tick of log time is made and recorded (at the end of
-the input, a final tick draws the frames after the last one); when the pipeline catches up
-several ticks at once (it fell behind), viewers (:meth:`Pipeline.add_viewer`) get the latest
-only. A clock step (a frame stamped far before or after log time, :mod:`bridge.pipeline.clock`)
-re-bases scene ticks, health windows and lifetimes at once, is said on ``/log`` and noted in
-:attr:`Pipeline.steps`; frames keep their own stamps. Each message is serialized once for all
-sinks; the live server itself sends raw frames and decoded signals only to viewers that
-subscribed to them. The bring-up stage (:attr:`Pipeline.bringup`,
-:mod:`bridge.bringup.monitor`) is fed every frame like health and ticked with it; the sinks that
-record files (:attr:`~bridge.sinks.base.Sink.records`) get fewer of its messages than the
-others. A profile's ``[marks]`` rules are evaluated on each decoded frame of the messages they
-read (:class:`~bridge.pipeline.marks.MarkWatch`), and a mark is made and emitted at the frame
-that makes a rule true; the frames of other messages do not see them.
+Every frame, alone, in a read or packed, takes the same step: log time reaches it, it goes into
+its raw block, is counted by health and bring-up, and its decoded message goes to every sink,
+perception and the ``[marks]`` rules. Each message is serialized once for all sinks.
 """
 
 from __future__ import annotations
@@ -33,11 +19,13 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge.block import FrameBlock
-from bridge.decode.decoder import Decoded, Decoder, MessageCodec
+from bridge.decode.codec import Decoded, MessageCodec
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome
 from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
+from bridge.packed import PackedFrames
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.pipeline.clock import ClockStep, StepDetector
@@ -46,7 +34,7 @@ from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
-from bridge.sinks.raw import Blocker, RawBlock
+from bridge.sinks.raw import BlockCutter, RawBlock
 from bridge.topics import (
     HEALTH_CATEGORY,
     LOG_TOPIC,
@@ -66,7 +54,12 @@ Feed = Callable[[str, Mapping[str, Any], int], None]
 
 
 class Pipeline:
-    """Runs one drive's frames through decoding, perception and health into its sinks."""
+    """Runs one drive's frames through decoding, perception and health into its sinks.
+
+    When log time reaches a frame, a clock step re-bases every stage and the ticks due before it are
+    made. Every scene tick is recorded; a viewer (:meth:`add_viewer`) gets only the latest of a
+    catch-up.
+    """
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),
@@ -100,14 +93,15 @@ class Pipeline:
         self.clock = clock or StepDetector()
         #: every clock step so far
         self.steps: list[ClockStep] = []
-        #: sinks that may get fewer scenes (live viewers): not those of a catch-up
-        self.viewers: list[Sink] = []
-        self._archives: list[Sink] = []
+        #: the sinks that get the latest scene only when the pipeline catches up several ticks
+        #: (live servers: :meth:`add_viewer`), and those that get every scene
+        self.latest_only: list[Sink] = []
+        self._every_scene: list[Sink] = []
         #: whether each sink records files (:attr:`~bridge.sinks.base.Sink.records`), and those
         #: that do not
         self._records: list[bool] = []
         self._showing: list[Sink] = []
-        self._blocker = Blocker(self._emit_raw)
+        self._cutter = BlockCutter(self._emit_raw)
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
@@ -119,7 +113,7 @@ class Pipeline:
     def add_sink(self, sink: Sink) -> None:
         """One more sink, after those there are (before the first frame)."""
         self.sinks.append(sink)
-        self._archives = [s for s in self.sinks if s not in self.viewers]
+        self._every_scene = [s for s in self.sinks if s not in self.latest_only]
         self._on_decoded = [s.on_decoded for s in self.sinks]
         self._records = [getattr(s, "records", False) for s in self.sinks]
         self._showing = [s for s, records in zip(self.sinks, self._records, strict=True)
@@ -128,17 +122,24 @@ class Pipeline:
             self.bringup.everyone = not all(self._records)
 
     def process(self, frame: Frame) -> None:
-        """One frame through every stage."""
-        self._process(frame, self.decoder.decode(frame))
+        """One frame through every stage (:meth:`process_many` of it alone)."""
+        self._step((frame,), self.decoder.decode)
 
     def process_many(self, frames: Iterable[Frame]) -> None:
-        """:meth:`process` of each frame in turn (live: a read of the buses), the decoded
-        messages handed to the sinks a run at a time (:meth:`~bridge.sinks.base.Sink.
+        """Frames through every stage, one by one (live: a read of the buses); the decoded
+        messages are handed to the sinks a run at a time (:meth:`~bridge.sinks.base.Sink.
         on_decoded_many`): those of the frames up to the next clock step or tick go before
-        it, so each sink gets every message in the order :meth:`process` gives it, but for
-        raw blocks, which may come before the decoded messages of the frames before them."""
-        decode, blocker, health = self.decoder.decode, self._blocker, self.health
-        check, sinks, bringup = self.clock.check, self.sinks, self.bringup
+        it, so each sink gets every message in the order of the frames, but for raw blocks,
+        which may come before the decoded messages of the frames before them."""
+        self._step(frames, self.decoder.decode)
+
+    def _step(self, frames: Iterable[Frame], decode: Callable[[Frame], Outcome]) -> None:
+        """The step of every frame taken one by one, ``decode`` telling what each decodes to:
+        log time reaches it (:meth:`_reach`), then it goes into its raw block, is counted by
+        health and bring-up, and its decoded message, with those of its run, to the sinks and
+        perception (:meth:`_hand`)."""
+        cutter, health, sinks, bringup = self._cutter, self.health, self.sinks, self.bringup
+        check = self.clock.check
         keep = (bringup.pending if bringup is not None else []).append
         run: list[tuple[int, Decoded]] = []
         t = None
@@ -151,22 +152,20 @@ class Pipeline:
                     run = []
                 if bringup is not None and bringup.made:
                     self._hand_made(bringup)
-                if step is not None:
-                    self.rebase(step)
-                if t >= self._next_tick:
-                    self.advance(t)
+                self._reach(t, step)
             if sinks:
-                blocker.add(frame)
+                cutter.add(frame)
             decoded = decode(frame)
             if health is not None:
                 health.on_frame(frame, decoded)
-            if bringup is not None:  # BringUpMonitor.on_frame, inlined
-                keep(frame)
-                if decoded is None:
-                    bringup.on_undecoded(frame)
-            self.frames += 1
-            if decoded is not None:
+            if type(decoded) is Decoded:
+                if bringup is not None:  # BringUpMonitor.on_frame, inlined
+                    keep(frame)
                 run.append((t, decoded))
+            elif bringup is not None:
+                keep(frame)
+                bringup.on_undecoded(frame)
+            self.frames += 1
         if run:
             self._hand(run)
         if bringup is not None:
@@ -176,30 +175,36 @@ class Pipeline:
         if t is not None:
             self.last_ns = t
 
-    def process_block(self, block: FrameBlock) -> None:
-        """A block of frames through every stage, as :meth:`process` of each in turn (the same
-        messages on every topic, and the same statistics; topics interleave otherwise in the
-        file). Each (bus, id) column of the block is decoded in one step
-        (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
-        the decoder's counts are read only when a drive is described). Then the block goes
+    def _reach(self, t_ns: int, step: ClockStep | None) -> None:
+        """Log time reaches a frame's ``t_ns``: the clock step it makes (``step``, from
+        :meth:`~bridge.pipeline.clock.StepDetector.check`) re-bases, and what is due before it
+        is made (:meth:`advance`)."""
+        if step is not None:
+            self.rebase(step)
+        if t_ns >= self._next_tick:
+            self.advance(t_ns)
+
+    def process_packed(self, pack: PackedFrames) -> None:
+        """A pack of frames through every stage, as :meth:`process_many` of its frames (the
+        same messages on every topic, and the same statistics; topics interleave otherwise in
+        the file). Each (bus, id) column of the pack is decoded in one step
+        (:meth:`~bridge.decode.decoder.Decoder.decode_packed`: decoding depends on no time, and
+        the decoder's counts are read only when a drive is described). Then the pack goes
         through the other stages a run of rows at a time: a run ends where a frame steps the
         clock or comes at or after the next scene, health or bring-up tick (which are made
-        before it), or where the health monitor needs it to
-        (:attr:`~bridge.health.traffic.BlockCount.cuts`). A run's frames are counted by health
-        in bulk (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), go into their raw
-        blocks from the columns (:meth:`~bridge.sinks.raw.Blocker.add_rows`) and to bring-up as
-        rows (:meth:`~bridge.bringup.monitor.BringUpMonitor.on_rows`), and their decoded
-        messages to the sinks at once (:meth:`~bridge.sinks.base.Sink.on_decoded_many`) and to
-        perception in order. A block whose health must be counted frame by frame (a bus with
-        too many kinds of frame) goes through :meth:`process`'s stages frame by frame."""
-        decoded = self.decoder.decode_block(block)
+        before it: :meth:`_reach`), or where the health monitor needs it to
+        (:attr:`~bridge.health.traffic.PackedCount.cuts`). A run's frames are counted by health
+        in bulk (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), then go through
+        the other stages (:meth:`_rows`). A pack whose health must be counted frame by frame
+        (a bus with too many kinds of frame) takes the step of :meth:`process_many`."""
+        decoded = self.decoder.decode_packed(pack)
         health = self.health
-        counting = health.count_block(block, decoded) if health is not None else None
+        counting = health.count_packed(pack, decoded) if health is not None else None
         if health is not None and counting is None:
-            for frame, d in zip(block, decoded, strict=True):
-                self._process(frame, d)
+            outcomes = iter(decoded)
+            self._step(pack, lambda _frame: next(outcomes))
             return
-        ts = block.t
+        ts = pack.t
         n = len(ts)
         cuts = iter([*counting.cuts, n] if counting is not None else [n])
         cut = next(cuts)
@@ -212,11 +217,7 @@ class Pipeline:
         while i < n:
             # the first frame of a run: a clock step or a tick may come before it
             t = ts[i]
-            step = clock.check(t)
-            if step is not None:
-                self.rebase(step)
-            if t >= self._next_tick:
-                self.advance(t)
+            self._reach(t, clock.check(t))
             # the run: the frames up to the next that steps the clock or makes a tick
             while cut <= i:
                 cut = next(cuts)
@@ -242,18 +243,21 @@ class Pipeline:
             if counting is not None:
                 assert health is not None
                 health.count_rows(counting, i, j)
-            self._run(block, decoded, i, j)
+            self._rows(pack, decoded, i, j)
             i = j
 
-    def _run(self, block: FrameBlock, decoded: list[Decoded | None], i: int, j: int) -> None:
-        """Rows ``i`` to ``j`` of a block, health counted, through the other stages."""
+    def _rows(self, pack: PackedFrames, decoded: list[Outcome], i: int, j: int) -> None:
+        """Rows ``i`` to ``j`` of a pack, counted by health, through the other stages: their
+        raw blocks (:meth:`~bridge.sinks.raw.BlockCutter.add_rows`), bring-up
+        (:meth:`~bridge.bringup.monitor.BringUpMonitor.on_rows`), and their decoded messages to
+        the sinks and perception (:meth:`_hand`)."""
         if self.sinks:
-            self._blocker.add_rows(block, i, j)
-        ts = block.t
-        self._hand([(ts[r], d) for r, d in enumerate(decoded[i:j], i) if d is not None])
+            self._cutter.add_rows(pack, i, j)
+        ts = pack.t
+        self._hand([(ts[r], d) for r, d in enumerate(decoded[i:j], i) if type(d) is Decoded])
         bringup = self.bringup
         if bringup is not None:
-            bringup.on_rows(block, i, j)
+            bringup.on_rows(pack, i, j)
             if bringup.made:
                 self._hand_made(bringup)
         self.frames += j - i
@@ -261,9 +265,15 @@ class Pipeline:
 
     def _hand(self, run: list[tuple[int, Decoded]]) -> None:
         """The decoded messages of a run of frames (between two ticks or clock steps) to the
-        sinks at once, and to perception in order."""
-        for sink in self.sinks:
-            sink.on_decoded_many(run)
+        sinks at once (one alone as such: :meth:`~bridge.sinks.base.Sink.on_decoded`), and to
+        perception in order."""
+        if len(run) == 1:
+            t, decoded = run[0]
+            for on_decoded in self._on_decoded:
+                on_decoded(t, decoded)
+        else:
+            for sink in self.sinks:
+                sink.on_decoded_many(run)
         if self.perception is not None:  # (there are [marks] rules only with a profile)
             fed_of = self._fed
             for t, d in run:
@@ -310,42 +320,10 @@ class Pipeline:
             elif files:
                 sink.on_messages(files)
 
-    def _process(self, frame: Frame, decoded: Decoded | None) -> None:
-        """One frame, decoded, through the other stages."""
-        t = frame.timestamp_ns
-        step = self.clock.check(t)
-        if step is not None:
-            self.rebase(step)
-        if t >= self._next_tick:
-            self.advance(t)
-        if self.sinks:
-            self._blocker.add(frame)
-        if self.health is not None:
-            self.health.on_frame(frame, decoded)
-        bringup = self.bringup
-        if bringup is not None:
-            bringup.pending.append(frame)
-            if decoded is None:
-                bringup.on_undecoded(frame)
-                if bringup.made:
-                    self._hand_made(bringup)
-            bringup.bound()
-        if decoded is not None:
-            for on_decoded in self._on_decoded:
-                on_decoded(t, decoded)
-            codec = decoded.codec
-            feed = self._fed.get(codec)
-            if feed is None:
-                feed = self._fed[codec] = self._feed_of(codec)
-            if feed:
-                feed(codec.message.name, decoded.signals, t)
-        self.frames += 1
-        self.last_ns = t
-
     def add_viewer(self, sink: Sink) -> None:
         """One more sink that may get fewer scenes (a live server): when the pipeline catches
         up several scene ticks at once, it gets the latest only; every other sink gets all."""
-        self.viewers.append(sink)
+        self.latest_only.append(sink)
         self.add_sink(sink)
 
     def rebase(self, step: ClockStep) -> None:
@@ -367,8 +345,8 @@ class Pipeline:
         comes: live's clock), every scene tick in turn, each with the health checks due by
         then."""
         self.clock.passed(t_ns)
-        if self._blocker.due(t_ns):
-            self._blocker.flush_due(t_ns)
+        if self._cutter.due(t_ns):
+            self._cutter.flush_due(t_ns)
         perception, health = self.perception, self.health
         if perception is not None:
             ticks = perception.due_ticks(t_ns)
@@ -422,7 +400,7 @@ class Pipeline:
     def flush_raw(self) -> None:
         """Close the open window of raw frames now: a part of a drive that ends takes every
         frame decoded so far with it (its statistics count them)."""
-        self._blocker.flush()
+        self._cutter.flush()
 
     def _emit_raw(self, blocks: list[RawBlock]) -> None:
         for sink in self.sinks:
@@ -431,11 +409,11 @@ class Pipeline:
     def emit(self, outputs: Iterable[TopicMessage], *, catching_up: bool = False,
              files: bool = True) -> None:
         """Scene, perception and other messages to every sink, serialized once (``catching_up``:
-        not to :attr:`viewers`; not ``files``: not to the sinks that record files)."""
+        not to :attr:`latest_only`; not ``files``: not to the sinks that record files)."""
         serialized = [Serialized(out.topic, type(out.message), out.message.SerializeToString(),
                                  out.t_ns) for out in outputs]
         if serialized:
-            for sink in (self._archives if catching_up else self.sinks if files
+            for sink in (self._every_scene if catching_up else self.sinks if files
                          else self._showing):
                 sink.on_messages(serialized)
 
@@ -453,7 +431,7 @@ class Pipeline:
         if self.marks is not None:
             topics += [(MARKS_TOPIC, Mark), (scene_topic(MARKS_CATEGORY), SceneUpdate)]
         out = [Channel(topic, cls.DESCRIPTOR.full_name, partial(_fds, cls))
-               for topic, cls in [*topics, (LOG_TOPIC, Log)]]
+               for topic, cls in dict.fromkeys([*topics, (LOG_TOPIC, Log)])]  # (health has /log)
         for bus in buses:
             out.append(Channel(frames_topic(bus), CanFrameBlock.DESCRIPTOR.full_name,
                                partial(_fds, CanFrameBlock)))

@@ -1,37 +1,18 @@
-"""Scene: pure functions from the world to ``foxglove.SceneUpdate`` messages, one per category.
-
-The look is the Tank Viz baseline: an orange-brown ego box (placed about the vehicle origin as
-the profile's ``[vehicle] origin`` says), green camera lanes (magenta when extrapolated from
-the steering angle), small blue radar and white camera spheres, red tracks labelled
-"TrackID: n / x: … / y: …", a green lead-vehicle box labelled "Lead Vehicle / x: … / y: …".
-Beyond it: class labels, pedestrians as tall yellow cylinders that cannot be missed, neighbour
-lane lines, sensor frames and the MIO check.
-
-Where a track and the detections it was fused from meet, both stay visible and readable: a track
-is a flat red disc (a squashed sphere, wider than a detection's ball) at the height of the balls'
-centres, so a detection at its place stands out of it in its own colour; and a place has one
-label block: the track's (its id, position and class, then "group: class" for a detection of
-another class there; the lead box's when the track is the lead). A detection within
-SHARED_PLACE_M of a track has no label of its own (:mod:`bridge.scene.places`).
-
-Labels are not drawn by the entities they name: each 3D view of the generated layouts has its
-own label category (``labels/chase``, ``labels/range``), laid out for that view's camera
-(:func:`bridge.scene.camera.view_cameras`), with one entity per block that has the id of the
-entity it names.
-
-Foxglove decodes protobuf with defaults, and a default is invisible (alpha 0, font size 0,
-thickness 0, a zero quaternion): every visible field is set here explicitly.
+"""What the scene draws: pure functions from the world to one ``foxglove.SceneUpdate`` per
+category, in the Tank Viz look (an orange-brown ego box, green camera lanes, magenta steering
+lanes, blue radar and white camera balls, red track discs, a green lead box, yellow pedestrian
+cylinders, the MIO check), each object's label laid out per view (``labels/<view>``:
+:mod:`bridge.scene.labels`). Every visible field is set (a protobuf default is invisible in
+Foxglove); the scene tick's entities are encoded with :mod:`bridge.scene.wire`.
 """
 
 from __future__ import annotations
 
 import math
-import struct
 import textwrap
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache, partial
-from typing import Any, TypeAlias
 
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
@@ -47,11 +28,10 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.duration_pb2 import Duration
-from google.protobuf.internal.containers import RepeatedCompositeFieldContainer
 
 from bridge.frame import NS, timestamp
 from bridge.profile.model import ObjectClass, Profile, SensorKind, Vehicle
-from bridge.protowire import varint
+from bridge.protowire import field
 from bridge.scene.camera import MIN_MARK_PX, ViewCamera, camera_for, view_cameras, view_range
 from bridge.scene.labels import Block, Label, lay_out
 from bridge.scene.places import (
@@ -63,6 +43,27 @@ from bridge.scene.places import (
     drawn_objects,
     place_notes,
     shared_places,
+)
+from bridge.scene.wire import (
+    CUBES_TAG,
+    CYLINDERS_TAG,
+    ID_TAG,
+    IDENTITY,
+    LINES_TAG,
+    ORIENTATION,
+    POINTS_TAG,
+    POSE_HEAD,
+    TEXT_STRING_TAG,
+    TEXTS_TAG,
+    VECTOR,
+    WireEntity,
+    line_points,
+    metadata,
+    metadata_key,
+    scene_update,
+    sphere_parts,
+    stamp_field,
+    without,
 )
 from bridge.topics import VEHICLE_FRAME, scene_topic
 from bridge.world.model import LaneCurve, LaneModel, MioCheck, World
@@ -92,7 +93,7 @@ TRACK_HEIGHT = 0.15  # m, disc thickness
 LEAD_BOX = (4.5, 1.9, 1.5)  # m
 LANE_THICKNESS = 0.15  # m
 FONT_SIZE = 14.0  # px (scale invariant)
-
+LANE_Z = 0.05  # m, lane lines lie just above the ground
 
 
 def duration(seconds: float) -> Duration:
@@ -100,20 +101,6 @@ def duration(seconds: float) -> Duration:
     return Duration(seconds=ns // NS, nanos=ns % NS)
 
 
-# Building a scene is ~20 entities a tick, 50 times a second. scene_updates builds each
-# entity as the wire bytes of its fields (a WireEntity): a cached template of all that does not
-# change from tick to tick (frame, lifetime, sizes, colours, class label, metadata), the tick's
-# stamp, and only then its id, positions and label, each a protobuf field encoded here; each
-# category's SceneUpdate is parsed from its entities' bytes in one call (scene_update). Parsed,
-# the bytes make the message that setting each field would make (a repeated field keeps the
-# order of its items; the message is serialised by protobuf later, from its fields): the
-# scene's bytes are the same (tests/test_drive_bytes.py, tests/test_scene.py), faster than
-# building each entity field by field. A lane line's bytes are cached whole while the world
-# hands out the same line (_lane_bytes), the sensor frames' bytes once per profile
-# (frame_transforms). lane_entities and update build SceneEntity messages for other callers;
-# their cached messages are only ever copied.
-Entities: TypeAlias = RepeatedCompositeFieldContainer[SceneEntity]
-_IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 _stamp = lru_cache(maxsize=4)(timestamp)
 _lifetime = lru_cache(maxsize=16)(duration)
 
@@ -126,13 +113,13 @@ _color = lru_cache(maxsize=64)(color)
 
 
 def pose(x: float, y: float, z: float) -> Pose:
-    return Pose(position=Vector3(x=x, y=y, z=z), orientation=_IDENTITY)
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=IDENTITY)
 
 
 def set_pose(target: Pose, x: float, y: float, z: float) -> None:
     position = target.position
     position.x, position.y, position.z = x, y, z
-    target.orientation.CopyFrom(_IDENTITY)
+    target.orientation.CopyFrom(IDENTITY)
 
 
 def text(x: float, y: float, z: float, words: str) -> TextPrimitive:
@@ -153,26 +140,10 @@ def entity(t_ns: int, entity_id: str, lifetime_s: float) -> SceneEntity:
     return e
 
 
-def add_sphere(e: SceneEntity, x: float, y: float, z: float, size: float, rgba: RGBA,
-               height: float | None = None) -> None:
-    """A sphere of diameter ``size`` (squashed to ``height`` when given)."""
-    ball = e.spheres.add()
-    set_pose(ball.pose, x, y, z)
-    extent = ball.size
-    extent.x = extent.y = size
-    extent.z = size if height is None else height
-    ball.color.CopyFrom(_color(rgba))
-
-
 def _template(entity_id: str, lifetime_s: float) -> SceneEntity:
     e = entity(0, entity_id, lifetime_s)
     e.ClearField("timestamp")
     return e
-
-
-def _place(primitive: Any, x: float, y: float) -> None:
-    position = primitive.pose.position
-    position.x, position.y = x, y
 
 
 @lru_cache(maxsize=4)
@@ -194,130 +165,11 @@ def _lane_template(name: str, rgba: RGBA, source: str) -> SceneEntity:
     return e
 
 
-# A point of a LinePrimitive as protobuf wire bytes: the ``points`` field (length-delimited,
-# 27 bytes) of a Point3 with x, y and z (fields 1, 2, 3: little-endian doubles). Parsing the
-# points of a line from bytes is 5x faster than adding them one by one; the message is the same
-# (tests/test_lanes_geometry.py checks it against points added one by one).
-_POINT = struct.Struct("<BBBdBdBd")
-_POINTS_TAG = LinePrimitive.DESCRIPTOR.fields_by_name["points"].number << 3 | 2
-LANE_Z = 0.05  # m, lane lines lie just above the ground
-
-
-def line_points(points: Iterable[tuple[float, float]], z: float) -> bytes:
-    """The wire bytes of a LinePrimitive holding ``points`` (x, y) at height ``z``, only."""
-    pack, tag = _POINT.pack, _POINTS_TAG
-    return b"".join([pack(tag, 27, 0x09, x, 0x11, y, 0x19, z) for x, y in points])
-
-
-#: The drawn lines by (id of the LaneCurve, colour, source), with the LaneCurve itself (so that
-#: its id stays its own while it is held here). The world hands out the same LaneCurve while a
-#: line is unchanged: its entity is built once and copied tick after tick.
-_LANE_ENTITIES: dict[tuple[int, RGBA, str], tuple[LaneCurve, SceneEntity]] = {}
-
-
-def lane_entity(line: LaneCurve, rgba: RGBA, source: str) -> SceneEntity:
-    """``line`` drawn, all but its timestamp: made once per line, never changed, only copied."""
-    key = (id(line), rgba, source)
-    held = _LANE_ENTITIES.get(key)
-    if held is not None and held[0] is line:
-        return held[1]
-    e = SceneEntity()
-    e.CopyFrom(_lane_template(line.name, rgba, source))
-    e.lines[0].MergeFromString(line_points(line.points, LANE_Z))
-    if len(_LANE_ENTITIES) >= 64:  # the lines of a few ticks are enough to hold
-        _LANE_ENTITIES.clear()
-    _LANE_ENTITIES[key] = (line, e)
-    return e
-
-
 def _lane_color(line: LaneCurve, source: str) -> RGBA:
     """Steering lanes in their colour, camera lanes in theirs (the next lanes lighter)."""
     if source == "steering":
         return STEERING_LANE_COLOR
     return NEIGHBOUR_LANE_COLOR if line.name.startswith("next") else CAMERA_LANE_COLOR
-
-
-def lane_entities(into: Entities, lanes: LaneModel, t_ns: int) -> None:
-    stamp = _stamp(t_ns)
-    source = lanes.source
-    for line in lanes.lines:
-        e = into.add()
-        e.MergeFrom(lane_entity(line, _lane_color(line, source), source))
-        e.timestamp.CopyFrom(stamp)
-
-
-_FIELDS = SceneEntity.DESCRIPTOR.fields_by_name
-#: The tags (as wire bytes) of SceneEntity's length-delimited fields.
-_STAMP_TAG, _ID_TAG, _METADATA_TAG, _SPHERES_TAG, _CYLINDERS_TAG, _LINES_TAG, _TEXTS_TAG = (
-    varint(_FIELDS[name].number << 3 | 2) for name in (
-        "timestamp", "id", "metadata", "spheres", "cylinders", "lines", "texts"))
-#: SceneUpdate's entities field's tag.
-_ENTITIES_TAG = varint(SceneUpdate.DESCRIPTOR.fields_by_name["entities"].number << 3 | 2)
-#: A Vector3 field as wire bytes: its tag, length 27 and x, y, z (fields 1, 2, 3: doubles).
-_VECTOR = struct.Struct("<BBBdBdBd")
-
-
-def _field(tag: bytes, data: bytes) -> bytes:
-    """A length-delimited field (string, bytes, message) as wire bytes: ``tag``, the length
-    and ``data``."""
-    n = len(data)
-    return tag + (_BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7)) if n < 0x4000
-                  else varint(n)) + data  # varint(n), its one or two bytes inline
-
-
-#: The one-byte varints (a short field's length).
-_BYTES = [bytes((n,)) for n in range(0x80)]
-
-
-@lru_cache(maxsize=8)
-def _key(key: str) -> bytes:
-    return _field(b"\x0a", key.encode())
-
-
-def _pair(key: str, value: str) -> bytes:
-    """A SceneEntity's metadata item (a KeyValuePair: key 1, value 2) as wire bytes."""
-    return _metadata(_key(key), value)
-
-
-def _metadata(key: bytes, value: str) -> bytes:
-    """:func:`_pair` of the key's field as wire bytes (``key``) and ``value``."""
-    data = value.encode()
-    n = len(data)
-    if n < 0x80:  # the common case: the item's and the value's lengths each one byte
-        m = len(key) + 2 + n
-        if m < 0x80:
-            return b"".join((_METADATA_TAG, _BYTES[m], key, b"\x12", _BYTES[n], data))
-    return _field(_METADATA_TAG, key + _field(b"\x12", data))
-
-
-@lru_cache(maxsize=4)
-def _stamp_field(t_ns: int) -> bytes:
-    return _field(_STAMP_TAG, _stamp(t_ns).SerializeToString())
-
-
-class WireEntity:
-    """A SceneEntity being built as the wire bytes of its fields (``parts``, in order), its
-    ``id`` and lifetime (its label's, when it has one); :func:`scene_update` parses the
-    entities of a category at once."""
-
-    __slots__ = ("id", "lifetime_s", "parts")
-
-    def __init__(self, entity_id: str, parts: list[bytes], lifetime_s: float = 0.0) -> None:
-        self.id = entity_id
-        self.parts = parts
-        self.lifetime_s = lifetime_s
-
-
-def scene_update(entities: Iterable[WireEntity]) -> SceneUpdate:
-    """A SceneUpdate of ``entities``, in order, parsed from their wire bytes in one call."""
-    items: list[bytes] = []
-    for e in entities:
-        data = b"".join(e.parts)
-        n = len(data)
-        items += (_ENTITIES_TAG, _BYTES[n] if n < 0x80 else bytes((n & 0x7F | 0x80, n >> 7))
-                  if n < 0x4000 else varint(n), data)  # varint(n), its one or two bytes inline
-    update: SceneUpdate = SceneUpdate.FromString(b"".join(items))
-    return update
 
 
 @lru_cache(maxsize=4)
@@ -328,7 +180,7 @@ def _ego_bytes(v: Vehicle) -> bytes:
 
 #: Each lane line's entity as wire bytes (all but its timestamp) by (id of the LaneCurve,
 #: colour, source), with the LaneCurve itself (so that its id stays its own while it is held
-#: here): made once per line, as :func:`lane_entity` makes it.
+#: here): made once per line.
 _LANE_BYTES: dict[tuple[int, RGBA, str], tuple[LaneCurve, bytes]] = {}
 
 
@@ -336,11 +188,8 @@ _LANE_BYTES: dict[tuple[int, RGBA, str], tuple[LaneCurve, bytes]] = {}
 def _lane_parts(name: str, rgba: RGBA, source: str) -> tuple[bytes, bytes]:
     """A lane line's template (:func:`_lane_template`) as wire bytes: the entity without its
     line, and the line without its points."""
-    e = SceneEntity()
-    e.CopyFrom(_lane_template(name, rgba, source))
-    line = e.lines[0].SerializeToString()
-    e.ClearField("lines")
-    return e.SerializeToString(), line
+    template = _lane_template(name, rgba, source)
+    return without(template, "lines"), template.lines[0].SerializeToString()
 
 
 def _lane_bytes(line: LaneCurve, rgba: RGBA, source: str) -> bytes:
@@ -349,16 +198,17 @@ def _lane_bytes(line: LaneCurve, rgba: RGBA, source: str) -> bytes:
     if held is not None and held[0] is line:
         return held[1]
     head, primitive = _lane_parts(line.name, rgba, source)
-    data = head + _field(_LINES_TAG, primitive + line_points(line.points, LANE_Z))
+    data = head + field(LINES_TAG, primitive + line_points(line.points, LANE_Z))
     if len(_LANE_BYTES) >= 64:  # the lines of a few ticks are enough to hold
         _LANE_BYTES.clear()
     _LANE_BYTES[key] = (line, data)
     return data
 
 
-def _lane_wire(into: list[WireEntity], lanes: LaneModel, t_ns: int) -> None:
-    """What :func:`lane_entities` draws, as wire entities."""
-    stamp = _stamp_field(t_ns)
+def lane_entities(into: list[WireEntity], lanes: LaneModel, t_ns: int) -> None:
+    """The lane lines, each an entity ``lane-<name>`` (added to ``into``) with its source in
+    its metadata."""
+    stamp = stamp_field(t_ns)
     source = lanes.source
     for line in lanes.lines:
         into.append(WireEntity(f"lane-{line.name}",
@@ -371,8 +221,7 @@ class _ObjectParts:
 
     template: bytes  # frame, lifetime, class metadata
     head: bytes  # the mark's field up to its position (SpherePrimitive.pose.position)
-    middle: bytes  # between the position and the size (the pose's orientation)
-    tail: bytes  # after the size (the colour)
+    tail: bytes  # after its size (the colour)
     size: float  # the mark's base diameter
     height: float  # and height
 
@@ -387,17 +236,13 @@ def _object_parts(kind: SensorKind, lifetime_s: float, object_class: ObjectClass
     else:
         size = height = DETECTION_SIZE
         rgba = RADAR_COLOR if kind is SensorKind.RADAR else CAMERA_COLOR
-    middle = _field(b"\x12", _IDENTITY.SerializeToString())  # Pose.orientation
-    tail = _field(b"\x1a", color(rgba).SerializeToString())  # SpherePrimitive.color
-    pose_length = _VECTOR.size + len(middle)
-    sphere_length = len(varint(pose_length)) + 1 + pose_length + _VECTOR.size + len(tail)
-    head = _SPHERES_TAG + varint(sphere_length) + b"\x0a" + varint(pose_length)
-    return _ObjectParts(e.SerializeToString(), head, middle, tail, size, height)
+    head, tail = sphere_parts(color(rgba))
+    return _ObjectParts(e.SerializeToString(), head, tail, size, height)
 
 
 def _pedestrian(x: float, y: float) -> bytes:
     """A pedestrian's tall yellow cylinder at (x, y), as a SceneEntity's field."""
-    return _field(_CYLINDERS_TAG, CylinderPrimitive(
+    return field(CYLINDERS_TAG, CylinderPrimitive(
         pose=pose(x, y, 0.9), size=Vector3(x=0.6, y=0.6, z=1.8), bottom_scale=1.0,
         top_scale=1.0, color=_color(PEDESTRIAN_COLOR)).SerializeToString())
 
@@ -412,8 +257,9 @@ MIO_LINE_CHARS = 40
 MIO_FIRST, LEAD_NEXT, TRACKS_NEXT, DETECTIONS_LAST = 0, 1, 2, 3
 
 
-#: The metadata keys of an object's entity as wire bytes (KeyValuePair.key).
-_IDS_KEY, _PLACE_KEY, _VX_KEY = (_field(b"\x0a", k.encode()) for k in ("ids", "place", "vx"))
+#: The metadata keys of an object's entity and of the lead's.
+_IDS_KEY, _PLACE_KEY, _VX_KEY, _LABEL_KEY = (
+    metadata_key(k) for k in ("ids", "place", "vx", "label"))
 
 #: What names an object drawn (its group and ids): its entity's id, its ids as a label names
 #: them (Drawn.id_text), and the entity's id field and "ids" metadata as wire bytes.
@@ -425,8 +271,8 @@ def _name(group: str, ids: tuple[int, ...]) -> _Named:
     """What names the object ``ids`` of ``group`` (held in _NAMES, for the next ticks)."""
     entity_id = f"{group}-{ids[0]}"
     id_text = "/".join(str(i) for i in ids)
-    named = (entity_id, id_text, _field(_ID_TAG, entity_id.encode()),
-             _field(_METADATA_TAG, _IDS_KEY + _field(b"\x12", id_text.encode())))
+    named = (entity_id, id_text, field(ID_TAG, entity_id.encode()),
+             metadata(_IDS_KEY, id_text))
     if len(_NAMES) >= 4096:  # the objects of many ticks; a drive renumbers them now and then
         _NAMES.clear()
     _NAMES[group, ids] = named
@@ -455,7 +301,7 @@ _SPEEDS: dict[float, bytes] = {}
 
 def _speed(vx: float) -> bytes:
     """The "vx" metadata item of ``vx``, held in :data:`_SPEEDS` (but zero)."""
-    item = _metadata(_VX_KEY, f"{vx:.2f} m/s")
+    item = metadata(_VX_KEY, f"{vx:.2f} m/s")
     if vx:
         if len(_SPEEDS) >= 8192:
             _SPEEDS.clear()
@@ -479,9 +325,8 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
     block carries it). Each entity (a :class:`WireEntity`, added to ``into``) carries its
     label's text once laid out (:func:`draw_labels`); its metadata holds its ids, place and
     velocity."""
-    stamp = _stamp_field(t_ns)
-    pack = _VECTOR.pack
-    metadata = _metadata
+    stamp = stamp_field(t_ns)
+    pack = VECTOR.pack
     hundredths, speeds = _HUNDREDTHS, _SPEEDS
     # camera.scale(x, y, DETECTION_SIZE)'s terms
     cos, sin = camera.sight
@@ -513,7 +358,7 @@ def object_entities(into: list[WireEntity], objects: Iterable[Drawn], kind: Sens
             y2 = _hundredths(y)
         fields = [
             parts.template, stamp, id_field,
-            parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), parts.middle,
+            parts.head, pack(0x0A, 27, 0x09, x, 0x11, y, 0x19, OBJECT_Z * f), ORIENTATION,
             pack(0x12, 27, 0x09, size, 0x11, size, 0x19, parts.height * f), parts.tail,
             ids_field, metadata(_PLACE_KEY, f"x {x2} m, y {y2} m")]
         vx = first.vx
@@ -556,20 +401,8 @@ def _lead_template(lifetime_s: float) -> SceneEntity:
 def _lead_parts(lifetime_s: float) -> tuple[bytes, bytes]:
     """The lead's template (:func:`_lead_template`) as wire bytes: the entity without its box,
     and the box (a CubePrimitive) without its pose."""
-    e = SceneEntity()
-    e.CopyFrom(_lead_template(lifetime_s))
-    cube = e.cubes[0]
-    cube.ClearField("pose")
-    rest: bytes = cube.SerializeToString()
-    e.ClearField("cubes")
-    head: bytes = e.SerializeToString()
-    return head, rest
-
-
-_CUBES_TAG = varint(_FIELDS["cubes"].number << 3 | 2)
-#: A primitive's pose (field 1: a position, then the orientation) up to its position's x, y, z.
-_POSE_HEAD = b"\x0a" + varint(_VECTOR.size + len(_field(b"\x12",
-                                                          _IDENTITY.SerializeToString())))
+    template = _lead_template(lifetime_s)
+    return without(template, "cubes"), without(template.cubes[0], "pose")
 
 
 def lead_entities(into: list[WireEntity], lead: ObjectObservation | None, t_ns: int,
@@ -590,12 +423,11 @@ def lead_entities(into: list[WireEntity], lead: ObjectObservation | None, t_ns: 
                                             if track is not None else "")
     head, rest = _lead_parts(lifetime_s)
     # the template's box moved to the lead: its centre half a box ahead of the lead's place
-    place = _VECTOR.pack(0x0A, 27, 0x09, lead.x + LEAD_BOX[0] / 2, 0x11, lead.y, 0x19,
+    place = VECTOR.pack(0x0A, 27, 0x09, lead.x + LEAD_BOX[0] / 2, 0x11, lead.y, 0x19,
                          LEAD_BOX[2] / 2)
     wire = WireEntity("lead", [
-        head, _stamp_field(t_ns),
-        _field(_CUBES_TAG, _POSE_HEAD + place + _ORIENTATION + rest),
-        _pair("label", label)], lifetime_s)
+        head, stamp_field(t_ns), field(CUBES_TAG, POSE_HEAD + place + ORIENTATION + rest),
+        metadata(_LABEL_KEY, label)], lifetime_s)
     into.append(wire)
     return [Label(wire, lead.x, lead.y, LEAD_BOX[2] + 1.4, label, compact, compact,
                   (LEAD_NEXT, lead.x))]
@@ -622,13 +454,10 @@ def mio_entities(into: list[WireEntity], check: MioCheck, t_ns: int,
     return [Label(wire, x, y, 3.2, words, "MIO CHECK", "MIO CHECK", (MIO_FIRST, x))]
 
 
-#: A label's text as wire bytes: a TextPrimitive's pose up to its position, the pose's
-#: orientation, then its other fields but the text (billboard, font size, scale invariance,
+#: A label's TextPrimitive but its pose and text (billboard, font size, scale invariance,
 #: colour), as :func:`add_text` sets them.
 _TEXT_REST = TextPrimitive(billboard=True, font_size=FONT_SIZE, scale_invariant=True,
                            color=color(TEXT_COLOR)).SerializeToString()
-_ORIENTATION = _field(b"\x12", _IDENTITY.SerializeToString())  # Pose.orientation
-_TEXT_POSE_HEAD = b"\x0a" + varint(_VECTOR.size + len(_ORIENTATION))  # TextPrimitive.pose
 
 
 def _leader_head() -> bytes:
@@ -655,20 +484,18 @@ def draw_labels(into: list[WireEntity], blocks: Iterable[Block], t_ns: int) -> N
     """Each laid-out block as an entity of its own (added to ``into``), with the id and lifetime
     of the entity it names (its ``owner``, a :class:`WireEntity`); a block moved off its place
     with a thin leader line from where its label would have stood to its edge."""
-    pack = _VECTOR.pack
-    stamp = _stamp_field(t_ns)
+    pack = VECTOR.pack
+    stamp = stamp_field(t_ns)
     for b in blocks:
         owner = b.owner
         assert isinstance(owner, WireEntity)
-        parts = [_label_head(owner.id, owner.lifetime_s), stamp, _field(_TEXTS_TAG, b"".join((
-            _TEXT_POSE_HEAD, pack(0x0A, 27, 0x09, b.x, 0x11, b.y, 0x19, b.z), _ORIENTATION,
-            _TEXT_REST, _field(b"\x32", b.text.encode()))))]
+        parts = [_label_head(owner.id, owner.lifetime_s), stamp, field(TEXTS_TAG, b"".join((
+            POSE_HEAD, pack(0x0A, 27, 0x09, b.x, 0x11, b.y, 0x19, b.z), ORIENTATION,
+            _TEXT_REST, field(TEXT_STRING_TAG, b.text.encode()))))]
         if b.leader is not None:
-            parts.append(_field(_LINES_TAG, _LEADER_HEAD + b"".join(
-                [pack(_POINTS_TAG, 27, 0x09, x, 0x11, y, 0x19, z) for x, y, z in b.leader])))
+            parts.append(field(LINES_TAG, _LEADER_HEAD + b"".join(
+                [pack(POINTS_TAG, 27, 0x09, x, 0x11, y, 0x19, z) for x, y, z in b.leader])))
         into.append(WireEntity(owner.id, parts, owner.lifetime_s))
-
-
 
 
 #: Each profile's transforms without their timestamps, as wire bytes (each FrameTransform's
@@ -693,9 +520,9 @@ def frame_transforms(profile: Profile, t_ns: int) -> FrameTransforms:
             _TRANSFORMS.clear()
         held = _TRANSFORMS[id(profile)] = (profile, tuple(transforms))
     # each transform (FrameTransforms field 1) with the tick's stamp (FrameTransform field 1)
-    stamp = _stamp_field(t_ns)  # FrameTransform's timestamp is field 1, as SceneEntity's
+    stamp = stamp_field(t_ns)
     out: FrameTransforms = FrameTransforms.FromString(b"".join(
-        [_field(b"\x0a", stamp + transform) for transform in held[1]]))
+        [field(b"\x0a", stamp + transform) for transform in held[1]]))
     return out
 
 
@@ -709,27 +536,22 @@ class SceneState:
 def update(topic: str, entities: Iterable[SceneEntity], t_ns: int,
            state: SceneState) -> SceneUpdate:
     """A SceneUpdate of ``entities`` that also deletes what was sent before and is gone now."""
-    return with_deletions(topic, SceneUpdate(entities=entities), t_ns, state)
+    made = SceneUpdate(entities=entities)
+    return _delete(topic, made, {e.id for e in made.entities}, t_ns, state)
 
 
-def with_deletions(topic: str, scene_update: SceneUpdate, t_ns: int,
-                   state: SceneState) -> SceneUpdate:
-    """``scene_update`` with deletions of what was sent on ``topic`` before and is gone now."""
-    return _delete(topic, scene_update, {e.id for e in scene_update.entities}, t_ns, state)
-
-
-def _delete(topic: str, scene_update: SceneUpdate, ids: set[str], t_ns: int,
+def _delete(topic: str, message: SceneUpdate, ids: set[str], t_ns: int,
             state: SceneState) -> SceneUpdate:
-    """``scene_update`` (its entities' ``ids``) with deletions of what was sent on ``topic``
+    """``message`` (its entities' ``ids``) with deletions of what was sent on ``topic``
     before and is gone now."""
     sent = state.sent.get(topic)
     state.sent[topic] = ids
     if sent and not sent <= ids:
         stamp = timestamp(t_ns)
-        scene_update.deletions.extend(
+        message.deletions.extend(
             SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.MATCHING_ID, id=i)
             for i in sorted(sent - ids))
-    return scene_update
+    return message
 
 
 def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
@@ -754,9 +576,8 @@ def scene_updates(world: World, lanes: LaneModel, check: MioCheck, t_ns: int,
         out[name] = []
         return out[name]
 
-    category("ego").append(WireEntity("ego", [_ego_bytes(profile.vehicle),
-                                              _stamp_field(t_ns)]))
-    _lane_wire(category("lanes"), lanes, t_ns)
+    category("ego").append(WireEntity("ego", [_ego_bytes(profile.vehicle), stamp_field(t_ns)]))
+    lane_entities(category("lanes"), lanes, t_ns)
     if lead_track is None and check.ok and check.lead is not None:
         lead_track = check.expected
     drawn = {name: drawn_objects(world.objects[name], twins.get(name, {}))

@@ -1,4 +1,6 @@
-"""Semantic messages: the world as typed protobuf (schemas/perception.proto) to plot and analyse."""
+"""The perception topics: the world as typed protobuf messages (schemas/perception.proto) to plot
+and analyse, each parsed from its wire bytes in one call (the message that setting its fields
+makes)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
 from operator import attrgetter
 
-from bridge.frame import NS, timestamp
+from bridge.frame import NS
 from bridge.pb.perception_pb2 import (
     EgoState,
     Lanes,
@@ -19,7 +21,8 @@ from bridge.pb.perception_pb2 import (
 )
 from bridge.profile.model import ObjectClass as Kind
 from bridge.profile.model import Profile
-from bridge.protowire import varint
+from bridge.protowire import DOUBLE, ONE_BYTE, field, string, varint
+from bridge.scene.wire import stamp_field
 from bridge.topics import VEHICLE_FRAME
 from bridge.world.lead import SteadyLead
 from bridge.world.model import LaneModel, MioCheck, World, steering_curvature
@@ -48,23 +51,17 @@ def perceived(o: ObjectObservation, t_ns: int, twins: Sequence[int] = ()) -> Per
     return msg
 
 
-# An object of PerceivedObjects as wire bytes (what :func:`perceived` makes, serialised): parsed
-# at once into the group's message, faster than building each object. Fields by number: id 1
-# (varint), x 2, y 3, vx 4, vy 5, probability 6 (doubles), object_class 7 (varint), distance 8,
-# age 9 (doubles), twins 10 (packed varints); the objects are field 6 of PerceivedObjects, whose
-# other fields (timestamp 1, frame_id 2, group 3, sensor 4, count 5: a varint) are written
-# before them, and the whole message is parsed at once. A field written with its default value
-# (proto3, not optional) is dropped when parsed, as if not set: the message is the same
-# (tests/test_semantic_wire.py, tests/test_drive_bytes.py).
-_DOUBLE = struct.Struct("<Bd")
-_XY = struct.Struct("<BdBd")
-_TAIL = struct.Struct("<BdBd")
-
-
-#: The one-byte varints (0 to 127).
-_SMALL = [bytes((n,)) for n in range(0x80)]
+# An object of PerceivedObjects as wire bytes (what :func:`perceived` makes, serialised). Fields
+# by number: id 1 (varint), x 2, y 3, vx 4, vy 5, probability 6 (doubles), object_class 7
+# (varint), distance 8, age 9 (doubles), twins 10 (packed varints); the objects are field 6 of
+# PerceivedObjects, whose other fields (timestamp 1, frame_id 2, group 3, sensor 4, count 5: a
+# varint) are written before them. A field written with its default value (proto3, not
+# optional) is dropped when parsed, as if not set: the message is the same.
+_TWO_DOUBLES = struct.Struct("<BdBd")
+#: A double field (tag, value). Bound here: a method of an imported name is looked up slower.
+_double = DOUBLE.pack
 #: The first field of an object (its id 1, a varint) as wire bytes, for the ids under 128.
-_SMALL_IDS = [b"\x08" + n for n in _SMALL]
+_SMALL_IDS = [b"\x08" + n for n in ONE_BYTE]
 #: Each class's field (object_class 7, a varint) as wire bytes.
 #: (by the class's value: a str hashes faster than an Enum member)
 _CLASS_FIELDS = {kind._value_: b"\x38" + varint(value) for kind, value in _CLASSES.items()}
@@ -73,23 +70,23 @@ _CLASS_FIELDS = {kind._value_: b"\x38" + varint(value) for kind, value in _CLASS
 def _object_bytes(o: ObjectObservation, t_ns: int, twins: Sequence[int]) -> bytes:
     x, y = o.x, o.y
     i = o.object_id
-    parts = [_SMALL_IDS[i] if i < 0x80 else b"\x08" + varint(i), _XY.pack(0x11, x, 0x19, y)]
+    parts = [_SMALL_IDS[i] if i < 0x80 else b"\x08" + varint(i),
+             _TWO_DOUBLES.pack(0x11, x, 0x19, y)]
     if o.vx is not None:
-        parts.append(_DOUBLE.pack(0x21, o.vx))
+        parts.append(_double(0x21, o.vx))
     if o.vy is not None:
-        parts.append(_DOUBLE.pack(0x29, o.vy))
+        parts.append(_double(0x29, o.vy))
     if o.probability is not None:
-        parts.append(_DOUBLE.pack(0x31, o.probability))
+        parts.append(_double(0x31, o.probability))
     parts += (_CLASS_FIELDS[o.object_class._value_],
-              _TAIL.pack(0x41, math.hypot(x, y), 0x49, (t_ns - o.t_ns) / NS))
+              _TWO_DOUBLES.pack(0x41, math.hypot(x, y), 0x49, (t_ns - o.t_ns) / NS))
     if twins:
-        others = b"".join([_SMALL[t] if t < 0x80 else varint(t) for t in twins if t != i])
+        others = b"".join([ONE_BYTE[t] if t < 0x80 else varint(t) for t in twins if t != i])
         if others:
-            n = len(others)
-            parts += (b"\x52", _SMALL[n] if n < 0x80 else varint(n), others)
+            parts.append(field(b"\x52", others))
     data = b"".join(parts)
     n = len(data)
-    return b"\x32" + (_SMALL[n] if n < 0x80 else varint(n)) + data
+    return b"\x32" + (ONE_BYTE[n] if n < 0x80 else varint(n)) + data  # field(b"\x32", data)
 
 
 @lru_cache(maxsize=64)
@@ -98,13 +95,6 @@ def _objects_head(group: str, sensor: str) -> bytes:
     data: bytes = PerceivedObjects(frame_id=VEHICLE_FRAME, group=group,
                                    sensor=sensor).SerializeToString()
     return data
-
-
-@lru_cache(maxsize=4)
-def _stamp_field(t_ns: int) -> bytes:
-    """PerceivedObjects' timestamp (field 1) as wire bytes."""
-    data: bytes = timestamp(t_ns).SerializeToString()
-    return b"\x0a" + varint(len(data)) + data
 
 
 _ID = attrgetter("object_id")
@@ -118,22 +108,14 @@ def objects(group: str, sensor: str, found: Iterable[ObjectObservation], t_ns: i
     items = [_object_bytes(o, t_ns, twins.get(o.object_id, ()))
              for o in sorted(found, key=_ID)]
     msg: PerceivedObjects = PerceivedObjects.FromString(b"".join([
-        _stamp_field(t_ns), _objects_head(group, sensor), b"\x28",
-        _SMALL[len(items)] if len(items) < 0x80 else varint(len(items)),
+        stamp_field(t_ns), _objects_head(group, sensor), b"\x28",
+        ONE_BYTE[len(items)] if len(items) < 0x80 else varint(len(items)),
         *items]))
     return msg
 
 
-# LeadVehicle, Lanes and EgoState are parsed from their wire bytes too, as the objects are:
-# what setting their fields makes (tests/test_semantic_wire.py). A string field as wire bytes:
-def _text(tag: bytes, words: str) -> bytes:
-    data = words.encode()
-    n = len(data)
-    return tag + (_SMALL[n] if n < 0x80 else varint(n)) + data
-
-
 #: LeadVehicle's frame (field 2), Lanes' (field 2): the vehicle frame.
-_FRAME = _text(b"\x12", VEHICLE_FRAME)
+_FRAME = string(b"\x12", VEHICLE_FRAME)
 #: LeadVehicle's bools: present 3, expected_present 5, mio_ok 7 (a varint 1 when true).
 _PRESENT, _EXPECTED_PRESENT, _MIO_OK = b"\x18\x01", b"\x28\x01", b"\x38\x01"
 
@@ -149,7 +131,7 @@ def regrouped(message: PerceivedObjects, group: str, sensor: str) -> PerceivedOb
 
 def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVehicle:
     """The lead and its MIO check; ``steady`` gives its serial number and why it changed."""
-    parts = [_stamp_field(t_ns), _FRAME]
+    parts = [stamp_field(t_ns), _FRAME]
     # each object as perceived() makes it, from its wire bytes (:func:`_object_bytes`, the
     # field of PerceivedObjects: 6, as LeadVehicle's expected; its object is field 4)
     if check.lead is not None:
@@ -158,9 +140,9 @@ def lead(check: MioCheck, t_ns: int, steady: SteadyLead | None = None) -> LeadVe
         parts += (_EXPECTED_PRESENT, _object_bytes(check.expected, t_ns, ()))
     if check.ok:
         parts.append(_MIO_OK)
-    parts.append(_text(b"\x42", check.reason))  # mio_reason 8
+    parts.append(string(b"\x42", check.reason))  # mio_reason 8
     if steady is not None:  # lead_number 9 (a varint), change 10
-        parts += (b"\x48", varint(steady.serial), _text(b"\x52", steady.change))
+        parts += (b"\x48", varint(steady.serial), string(b"\x52", steady.change))
     msg: LeadVehicle = LeadVehicle.FromString(b"".join(parts))
     return msg
 
@@ -170,13 +152,13 @@ _COEFFICIENTS = struct.Struct("<BdBdBdBd")
 
 
 def lanes(model: LaneModel, t_ns: int) -> Lanes:
-    parts = [_stamp_field(t_ns), _FRAME, _text(b"\x1a", model.source)]  # source 3
+    parts = [stamp_field(t_ns), _FRAME, string(b"\x1a", model.source)]  # source 3
     pack = _COEFFICIENTS.pack
     for line in model.lines:  # lines 4: each a LaneLine (name 1, c0 to c3)
         c0, c1, c2, c3 = line.coefficients
-        data = _text(b"\x0a", line.name) + pack(0x11, c0, 0x19, c1, 0x21, c2, 0x29, c3)
-        parts += (b"\x22", _SMALL[len(data)] if len(data) < 0x80 else varint(len(data)), data)
-    parts.append(_DOUBLE.pack(0x29, model.camera_age_s))  # camera_age 5
+        parts.append(field(b"\x22", string(b"\x0a", line.name)
+                           + pack(0x11, c0, 0x19, c1, 0x21, c2, 0x29, c3)))
+    parts.append(_double(0x29, model.camera_age_s))  # camera_age 5
     msg: Lanes = Lanes.FromString(b"".join(parts))
     return msg
 
@@ -187,10 +169,10 @@ _EGO = struct.Struct("<BdBdBd")
 
 def ego(world: World, profile: Profile, t_ns: int) -> EgoState:
     state = world.ego
-    parts = [_stamp_field(t_ns), _EGO.pack(0x11, state.speed or 0.0, 0x19, state.yaw_rate or 0.0,
+    parts = [stamp_field(t_ns), _EGO.pack(0x11, state.speed or 0.0, 0x19, state.yaw_rate or 0.0,
                                            0x21, state.steering_wheel_angle or 0.0)]
     if state.steering_wheel_angle is not None:  # curvature 5
-        parts.append(_DOUBLE.pack(0x29, steering_curvature(
+        parts.append(_double(0x29, steering_curvature(
             state.steering_wheel_angle, profile.vehicle.wheelbase_m,
             profile.vehicle.steering_ratio)))
     msg: EgoState = EgoState.FromString(b"".join(parts))

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, NamedTuple, Protocol
 
-from bridge.decode.decoder import Decoded
+from bridge.decode.codec import Decoded
 from bridge.sinks.raw import RawBlock
 
 

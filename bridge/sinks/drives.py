@@ -30,7 +30,7 @@ from typing import Any, ClassVar, cast
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
-from bridge.decode.decoder import Decoded
+from bridge.decode.codec import Decoded
 from bridge.errors import FileError
 from bridge.frame import timestamp
 from bridge.health.alarms import AlarmKind, Notice, alarm_notice

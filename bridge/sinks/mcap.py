@@ -38,7 +38,7 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge import __version__
-from bridge.decode.decoder import Decoded, MessageCodec
+from bridge.decode.codec import Decoded, MessageCodec
 from bridge.fences import MCAP
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.sinks.base import Serialized, Sink

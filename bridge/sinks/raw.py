@@ -11,7 +11,7 @@ Rows, not packed columns: in Foxglove a row keeps its fields together, so the fr
 are found with a message-path filter (``/can/can0/frames.frames[:]{id==528}``) in the Raw
 Messages panel; packed columns were measured 12 % smaller (0.45x the BLF) and would lose that.
 
-How blocks are cut (:class:`Blocker`, fed every frame the pipeline sees, in its order): a bus's
+How blocks are cut (:class:`BlockCutter`, fed every frame the pipeline sees, in its order): a bus's
 block opens at its first frame that falls in no open block of the bus, whose time is the block's
 log time, and holds the bus's frames stamped in ``[start, start + WINDOW_NS)``. The bus's first
 frame outside it (later, or earlier: a clock that stepped back) closes it, and so does the
@@ -40,8 +40,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple
 
-from bridge.block import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, FrameBlock
 from bridge.frame import END_NS, EXTENDED_KEY, Frame
+from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 from bridge.protowire import varint
 
 #: The longest window of one block (20 ms: measured smallest with zstd, ``tools/bench_size.py``).
@@ -114,12 +114,12 @@ def _row(frame: Frame, t_ns: int) -> bytes:
     return starts[len(offset)] + data + offset + tail
 
 
-#: (frame key, flags, DLC, data length) of a row of a FrameBlock -> its kind's fixed parts
+#: (frame key, flags, DLC, data length) of a row of a PackedFrames -> its kind's fixed parts
 _BLOCK_KINDS: dict[tuple[int, int, int, int], tuple[tuple[bytes, ...], bytes]] = {}
 
 
 def _block_kind(key: int, flags: int, dlc: int, n: int) -> tuple[tuple[bytes, ...], bytes]:
-    """The fixed parts of the rows of a kind of frame, from a FrameBlock's columns."""
+    """The fixed parts of the rows of a kind of frame, from a PackedFrames's columns."""
     extended = bool(flags & EXTENDED)
     kind = _kind((key ^ EXTENDED_KEY if extended else key, extended, bool(flags & FD),
                   bool(flags & ERROR), bool(flags & REMOTE), bool(flags & BRS), bool(flags & ESI),
@@ -136,11 +136,11 @@ def encode_block(bus: str, t_ns: int, frames: Iterable[Frame]) -> bytes:
     return _name(bus) + b"".join(_row(frame, t_ns) for frame in frames)
 
 
-class Blocker:
+class BlockCutter:
     """Cuts a drive's frames into blocks, and hands closed blocks to ``emit``.
 
     Feed every frame in the pipeline's order (:meth:`add`, or :meth:`add_rows` for rows of a
-    :class:`~bridge.block.FrameBlock`: the same blocks). A bus's block opens at its first
+    :class:`~bridge.packed.PackedFrames`: the same blocks). A bus's block opens at its first
     frame that falls in no open block of the bus, and closes at the bus's first frame outside
     ``[start, start + window)``, or when the pipeline's time passes its end (checked at every
     frame, and by :meth:`due` / :meth:`flush_due` for live's clock), or at :meth:`flush` (a clock
@@ -183,7 +183,7 @@ class Blocker:
             offset = _offset(t - block[0])
         block[2].append(starts[len(offset)] + data + offset + tail)
 
-    def add_rows(self, frames: FrameBlock, i: int, j: int) -> None:
+    def add_rows(self, frames: PackedFrames, i: int, j: int) -> None:
         """Rows ``i`` to ``j`` (excluded) of a block of frames, as :meth:`add` of each."""
         ts, bus_of, names = frames.t, frames.bus, frames.buses
         payloads, keys, flags, dlcs = frames.payloads(), frames.key, frames.flags, frames.dlc
@@ -232,8 +232,8 @@ class Blocker:
 def cut(frames: Iterable[Frame], *, window_ns: int = WINDOW_NS) -> list[RawBlock]:
     """The blocks of ``frames``, cut as the pipeline cuts them (every window closed)."""
     blocks: list[RawBlock] = []
-    blocker = Blocker(blocks.extend, window_ns=window_ns)
+    cutter = BlockCutter(blocks.extend, window_ns=window_ns)
     for frame in frames:
-        blocker.add(frame)
-    blocker.flush()
+        cutter.add(frame)
+    cutter.flush()
     return blocks

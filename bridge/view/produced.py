@@ -16,6 +16,7 @@ from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool
 
+from bridge.decode.outcome import Undecoded
 from bridge.frame import Frame
 from bridge.pipeline.drive import Drive, Stages, load_stages
 from bridge.pipeline.marks import Marks
@@ -101,7 +102,7 @@ def health_sample(monitor: Any, buses: Iterable[str]) -> Any:
     once each of ``buses`` has carried a frame: every bus, message family, sensor pair and alarm
     it reports (bus alarms appear with their bus). ``monitor`` is used up."""
     for bus in buses:
-        monitor.on_frame(Frame(0, bus, 0, b"", is_remote=True), None)
+        monitor.on_frame(Frame(0, bus, 0, b"", is_remote=True), Undecoded.REMOTE)
     for output in monitor.tick(0):
         if output.topic == HEALTH_TOPIC:
             return output.message

@@ -38,7 +38,8 @@ def load(spec: str) -> Callable[[], Iterable[tuple[float, Any]]]:
     module_spec = importlib.util.spec_from_file_location(Path(path).stem, path)
     assert module_spec is not None and module_spec.loader is not None
     module = importlib.util.module_from_spec(module_spec)
-    sys.path.insert(0, str(Path(path).parent))
+    # as pytest runs it: its folder and tests/ (conftest, waiting) importable
+    sys.path[:0] = [str(Path(path).parent), str(Path(__file__).resolve().parents[1])]
     module_spec.loader.exec_module(module)
     func: Callable[[], Iterable[tuple[float, Any]]] = getattr(module, name)
     return func

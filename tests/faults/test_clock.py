@@ -21,7 +21,7 @@ import pytest
 from harness import Viewer, assert_survived, start, steady
 from mcap.reader import make_reader
 
-from bridge.decode.decoder import Decoded
+from bridge.decode.codec import Decoded
 from bridge.frame import NS, Frame
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import Drive, load_stages
@@ -158,14 +158,17 @@ def check_live_step(tmp_path: Path, script: str, steps: int) -> None:
     assert len(metadata["clock_steps"]) == steps, metadata["clock_steps"]
 
 
+@pytest.mark.slow
 def test_live_goes_on_through_a_30_s_step_back(tmp_path: Path) -> None:
     check_live_step(tmp_path, "back_30_s", 1)
 
 
+@pytest.mark.slow
 def test_live_goes_on_through_a_step_of_3_s_ahead(tmp_path: Path) -> None:
     check_live_step(tmp_path, "ahead_3_s", 1)
 
 
+@pytest.mark.slow
 def test_one_frame_stamped_a_year_ahead_does_not_stop_the_scene(tmp_path: Path) -> None:
     check_live_step(tmp_path, "one_frame_a_year_ahead", 2)
 

@@ -17,7 +17,7 @@ from conftest import T0, WriteLog, message
 
 from bridge.apps.inspect import format_summary, summarize_file
 from bridge.cli import main
-from bridge.decode.decoder import load_database
+from bridge.decode.database import load_database
 
 DOOR_DBC = """VERSION ""
 BS_:
@@ -149,7 +149,7 @@ def test_live_warns_at_start_about_a_database_and_a_bus_it_will_never_decode(
 def test_a_database_and_a_profile_saved_with_a_byte_order_mark_load(tmp_path: Path) -> None:
     """Editors on Windows save UTF-8 with a byte-order mark (EF BB BF): cantools then failed at
     line 1, column 1, and TOML too, neither naming the mark. Both load as without it."""
-    from bridge.decode.decoder import load_database
+    from bridge.decode.database import load_database
     from bridge.profile.loader import load_profile
     from bridge.resources import data_dir
 

@@ -177,6 +177,7 @@ def full_disk() -> Iterator[tuple[float, Any]]:
     yield from (f for f in frames if f[0] >= 4.5)
 
 
+@pytest.mark.slow
 def test_live_survives_a_full_disk_and_records_every_frame(tmp_path: Path) -> None:
     with tmpfs(tmp_path / "disk", 48):
         car = start(tmp_path, f"{__file__}:full_disk", "--drives",

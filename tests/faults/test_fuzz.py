@@ -33,8 +33,9 @@ FORMATS = [".blf", ".asc", ".log", ".trc", ".csv", ".db", ".blf.gz", ".asc.gz", 
 #: The formats tankviz has a writer for, whose real logs get damaged.
 WRITTEN = [f for f in FORMATS if f != ".mf4"]
 
-pytestmark = pytest.mark.skipif(not DBC.is_file(),
-                                reason=f"public DBC not found at {DBC}: {SHARED_DBC_ORIGIN}")
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not DBC.is_file(),
+                                 reason=f"public DBC not found at {DBC}: {SHARED_DBC_ORIGIN}")]
 
 # The same examples on every run (a failure does not come and go); no deadline (a loaded machine
 # is slow, not wrong: the time limit of within_limit catches hangs).

@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import termios
-import time
 from pathlib import Path
 
 import pytest
@@ -43,16 +42,20 @@ def become_controlled_by_the_terminal() -> None:
 
 def read_until(fd: int, wanted: bytes, process: subprocess.Popen[bytes]) -> bytes:
     seen = b""
-    until = time.monotonic() + LIMIT_S * timeout_scale()
-    while wanted not in seen and time.monotonic() < until:
+
+    def read_or_ended() -> bool:  # True once ``wanted`` came or nothing more can
+        nonlocal seen
         if select.select([fd], [], [], 0.1)[0]:
             try:
                 chunk = os.read(fd, 4096)
             except OSError:  # the terminal's process ended (EIO)
-                break
+                return True
             if not chunk:
-                break
+                return True
             seen += chunk
+        return wanted in seen
+
+    wait_for(read_or_ended, LIMIT_S * timeout_scale(), step=0.0)
     assert wanted in seen, seen.decode(errors="replace")
     return seen
 

@@ -8,6 +8,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import pytest
 from harness import Viewer, assert_survived, start, steady
 
 
@@ -15,6 +16,7 @@ def clean_drive() -> Iterator[tuple[float, Any]]:
     yield from steady(3.0)
 
 
+@pytest.mark.slow
 def test_a_drive_without_a_fault_is_watched_and_recorded_whole(tmp_path: Path) -> None:
     car = start(tmp_path, f"{__file__}:clean_drive")
     viewer = Viewer(car.url)

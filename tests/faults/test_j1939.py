@@ -20,10 +20,12 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from bridge.apps.inspect import summarize_file
-from bridge.block import FrameBlock
 from bridge.cli import main
-from bridge.decode.decoder import Decoder, Outcome, load_database
+from bridge.decode.codec import Decoded
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
 from bridge.frame import EXTENDED_KEY, Frame
+from bridge.packed import PackedFrames
 
 T0 = 1_700_000_000.0
 J1939_DBC = """VERSION ""
@@ -76,7 +78,7 @@ def dbc(tmp_path: Path) -> Path:
 def test_every_source_and_priority_of_a_pgn_decodes_and_keeps_its_source(dbc: Path) -> None:
     decoder = Decoder({None: [load_database(dbc)]})
     results = [decoder.decode(f) for f in frames()]
-    assert all(r is not None for r in results)
+    assert all(isinstance(r, Decoded) for r in results)
     assert decoder.stats.unknown == {}
     for frame, decoded in zip(frames(), results, strict=True):
         assert decoded is not None
@@ -99,19 +101,17 @@ def test_every_source_and_priority_of_a_pgn_decodes_and_keeps_its_source(dbc: Pa
 
 
 def test_blocks_decode_as_frame_by_frame_and_the_health_census_agrees(dbc: Path) -> None:
-    one, block = (Decoder({None: [load_database(dbc)]}) for _ in range(2))
+    one, pack = (Decoder({None: [load_database(dbc)]}) for _ in range(2))
     by_frame = [one.decode(f) for f in frames()]
-    by_block = block.decode_block(FrameBlock.from_frames(frames()))
+    by_block = pack.decode_packed(PackedFrames.from_frames(frames()))
     assert [d.payload if d else None for d in by_frame] == [
         d.payload if d else None for d in by_block]
-    assert block.stats.unknown == {}
+    assert pack.stats.unknown == {}
     other = j1939_id(6, 0xFEF1, 0x99) | EXTENDED_KEY
-    assert block.knows("can0", other)
-    assert not block.knows("can0", j1939_id(6, 0xFEF2, 0x99) | EXTENDED_KEY)
-    assert not block.knows("can0", 0x4FE)  # a standard id is no J1939 frame
-    assert block.outcome(Frame(0, "can0", other & ~EXTENDED_KEY, b"", is_extended=True),
-                         None) is Outcome.DECODE_ERROR  # (fed by hand: it would decode)
-    found = block.message_of("can0", other)
+    assert pack.knows("can0", other)
+    assert not pack.knows("can0", j1939_id(6, 0xFEF2, 0x99) | EXTENDED_KEY)
+    assert not pack.knows("can0", 0x4FE)  # a standard id is no J1939 frame
+    found = pack.message_of("can0", other)
     assert found is not None and found.name == "CCVS1"
 
 
@@ -134,8 +134,8 @@ def test_vframeformat_j1939pg_is_j1939_too(tmp_path: Path) -> None:
         'BA_DEF_ BO_ "VFrameFormat" ENUM "StandardCAN","ExtendedCAN","reserved","J1939PG";\n'
         'BA_DEF_DEF_ "VFrameFormat" "J1939PG";\n'))
     decoder = Decoder({None: [load_database(path)]})
-    assert decoder.decode(Frame(0, "can0", j1939_id(7, 0xF004, 0x42), bytes(8),
-                                is_extended=True)) is not None
+    assert isinstance(decoder.decode(Frame(0, "can0", j1939_id(7, 0xF004, 0x42), bytes(8),
+                                           is_extended=True)), Decoded)
 
 
 def test_convert_decodes_every_source_and_bring_up_calls_none_unknown(

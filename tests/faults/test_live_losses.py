@@ -29,9 +29,11 @@ from typing import Any
 
 import can
 import pytest
+from conftest import timeout_scale
 from harness import Viewer, assert_survived, start, steady, with_fault
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from waiting import wait_for
 
 from bridge.io.buses import (
     BusLink,
@@ -71,6 +73,7 @@ def _json(text: str) -> Any:
         return text  # a string value
 
 
+@pytest.mark.slow
 def test_frames_stamped_nan_are_kept_stamped_when_received_and_counted(tmp_path: Path) -> None:
     car = start(tmp_path, f"{__file__}:nan_stamps")
     viewer = Viewer(car.url)
@@ -132,6 +135,17 @@ def test_the_receive_buffer_is_raised_as_far_as_the_os_allows() -> None:
         assert size == s.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= before
 
 
+def backlog_drops() -> int:
+    """The packets this host dropped before any socket: the kernel's per-CPU input queue
+    (netdev_max_backlog) was full, as a loopback's multicast finds it when the machine is too
+    busy to empty it (``/proc/net/softnet_stat``, its second column; 0 where it is not)."""
+    try:
+        lines = Path("/proc/net/softnet_stat").read_text().split("\n")
+    except OSError:
+        return 0
+    return sum(int(line.split()[1], 16) for line in lines if line.strip())
+
+
 def test_a_udp_multicast_bus_counts_the_frames_the_kernel_dropped() -> None:
     group = f"239.74.{os.getpid() % 250}.{time.monotonic_ns() % 250}"
     try:
@@ -141,25 +155,31 @@ def test_a_udp_multicast_bus_counts_the_frames_the_kernel_dropped() -> None:
     probe.shutdown()
     link = BusLink(BusSpec("can0", "udp_multicast", group), __import__("queue").SimpleQueue())
     link.start()
-    assert link.opened.wait(10)
+    assert link.opened.wait(10 * timeout_scale())
     sent = 60_000
+    backlog_before = backlog_drops()
     with can.Bus(interface="udp_multicast", channel=group) as tx:
         for i in range(sent):
             tx.send(can.Message(arbitration_id=i & 0x7FF, data=b"12345678"))
+            if i % 200 == 199:
+                time.sleep(0.0005)  # the kernel's input queue empties (the socket is not read)
     received = 0
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:
+
+    def all_read() -> bool:
+        nonlocal received
         got = len(link.poll())
         received += got
-        if not got and received + link.receive.kernel_drops >= sent:
-            break
-        if not got:
-            time.sleep(0.05)
+        return not got and received + link.receive.kernel_drops >= sent - lost_before
+
+    # Each frame is in the socket or counted as dropped there, but for those the host dropped
+    # before any socket (its input queue was full on a loaded machine): none where nothing was.
+    lost_before = backlog_drops() - backlog_before
+    assert wait_for(all_read, 30 * timeout_scale(), step=0.05)
     link.stop()
     link.close()
     assert link.receive.receive_buffer_bytes and link.receive.receive_buffer_bytes > 212992
     assert link.receive.kernel_drops > 0
-    assert received + link.receive.kernel_drops == sent
+    assert sent - lost_before <= received + link.receive.kernel_drops <= sent, lost_before
 
 
 class SocketBus(can.BusABC):
@@ -200,13 +220,14 @@ def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
                 open_bus=open_bus, say=lambda text: None)
     runner = threading.Thread(target=live.run)
     runner.start()
-    deadline = time.monotonic() + 10
-    while not opened and time.monotonic() < deadline:
-        time.sleep(0.01)
+    assert wait_for(lambda: bool(opened), 10 * timeout_scale())
     overflow(opened[0].socket, 60_000)  # more than the receive buffer takes
     dropped = kernel_drops(opened[0].socket)
     assert dropped
-    time.sleep(2.5)  # a few health checks
+    health = live.drive.health
+    assert health is not None
+    assert wait_for(lambda: "bus.can0.frames_lost" in {a.id for a in health.active_alarms()},
+                    10 * timeout_scale())  # a health check raised it
     live.stop()
     runner.join(20)
 

@@ -70,6 +70,7 @@ async def hostile(url: str) -> dict[str, Any]:
             "flooded_s": flooded_s}
 
 
+@pytest.mark.slow
 def test_hostile_marking_viewers_get_a_status_and_a_limit_and_every_frame_is_recorded(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     car, stop = drive_until_told(tmp_path, monkeypatch, f"{__file__}:on_time")

@@ -91,6 +91,7 @@ async def three_marks(url: str) -> tuple[Marker, list[int]]:
     return marker, published
 
 
+@pytest.mark.slow
 def test_a_viewers_marks_land_at_the_drives_clock_hours_off_the_laptops(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     car, stop = drive_until_told(tmp_path, monkeypatch, f"{__file__}:hours_off")

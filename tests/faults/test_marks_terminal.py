@@ -13,12 +13,12 @@ import signal
 import subprocess
 import sys
 import termios
-import time
 from pathlib import Path
 
 from conftest import timeout_scale
 from harness import recorded
 from test_marks_live import block_times
+from waiting import wait_for
 
 from bridge.frame import NS
 
@@ -45,14 +45,15 @@ class Terminal:
         self.seen = b""
 
     def until(self, wanted: bytes) -> None:
-        until = time.monotonic() + LIMIT_S * timeout_scale()
-        while wanted not in self.seen and time.monotonic() < until:
+        def read_or_ended() -> bool:  # True once ``wanted`` came or nothing more can
             if select.select([self.fd], [], [], 0.1)[0]:
                 try:
-                    chunk = os.read(self.fd, 4096)
+                    self.seen += os.read(self.fd, 4096)
                 except OSError:  # the program ended (EIO)
-                    break
-                self.seen += chunk
+                    return True
+            return wanted in self.seen
+
+        wait_for(read_or_ended, LIMIT_S * timeout_scale(), step=0.0)
         assert wanted in self.seen, self.seen.decode(errors="replace")
 
     def type(self, text: bytes) -> None:

@@ -13,11 +13,12 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+from conftest import timeout_scale
 from mcap.reader import make_reader
+from waiting import wait_for
 
 from bridge.cli import main
 from bridge.frame import Frame
@@ -135,10 +136,8 @@ def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signu
     process = subprocess.Popen([sys.executable, "-m", "bridge", "convert", str(log), "-o",
                                 str(out), "--dbc", str(tmp_path / "door.dbc"), "--quiet"],
                                stderr=subprocess.PIPE, text=True)
-    until = time.monotonic() + 60
-    while (not list(tmp_path.glob(".door.mcap.*.partial")) and process.poll() is None
-           and time.monotonic() < until):
-        time.sleep(0.01)
+    wait_for(lambda: bool(list(tmp_path.glob(".door.mcap.*.partial")))
+             or process.poll() is not None, 60 * timeout_scale())
     assert process.poll() is None, "finished before it could be stopped: make the log longer"
     process.send_signal(signum)
     _, err = process.communicate(timeout=60)
@@ -155,10 +154,8 @@ def test_simulate_stopped_by_sigterm_leaves_nothing_behind(tmp_path: Path, name:
     process = subprocess.Popen([sys.executable, "-m", "bridge", "simulate", "-o", name,
                                 "--duration", "3600"], cwd=tmp_path, stderr=subprocess.PIPE,
                                text=True)
-    until = time.monotonic() + 60
-    while (not list(tmp_path.glob(partial)) and process.poll() is None
-           and time.monotonic() < until):
-        time.sleep(0.01)
+    wait_for(lambda: bool(list(tmp_path.glob(partial))) or process.poll() is not None,
+             60 * timeout_scale())
     assert process.poll() is None, process.stderr
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=120)

@@ -13,13 +13,13 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from conftest import timeout_scale
 from mcap.writer import IndexType, Writer
+from waiting import wait_for
 
 from bridge.apps.replay import replay_mcap
 from bridge.cli import main
@@ -77,17 +77,19 @@ def ended(process: subprocess.Popen[str]) -> tuple[str, str]:
 
 def wait_for_line(process: subprocess.Popen[str], wanted: str) -> None:
     """Reads the replay's output until ``wanted`` (within :data:`LIMIT_S`)."""
-    assert process.stdout is not None
-    until = time.monotonic() + LIMIT_S * timeout_scale()
-    seen = []
-    while time.monotonic() < until:
-        if select.select([process.stdout], [], [], 0.1)[0]:
-            line = process.stdout.readline()
-            if line.strip() == wanted:
-                return
-            if not line:
-                break
+    stdout = process.stdout
+    assert stdout is not None
+    seen: list[str] = []
+
+    def said_or_ended() -> bool:
+        if select.select([stdout], [], [], 0.1)[0]:
+            line = stdout.readline()
             seen.append(line)
+            return line.strip() == wanted or not line
+        return False
+
+    if wait_for(said_or_ended, LIMIT_S * timeout_scale(), step=0.0) and seen[-1].strip() == wanted:
+        return
     process.kill()
     pytest.fail(f"the replay never said {wanted!r}; it said: {''.join(seen)}")
 

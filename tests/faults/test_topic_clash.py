@@ -25,7 +25,8 @@ from harness import recorded, start
 from mcap.reader import make_reader
 
 from bridge.cli import main
-from bridge.decode.decoder import Decoder, load_database
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
 from bridge.frame import Frame
 from bridge.topics import (
     BITS_LABELS_TOPIC,
@@ -168,6 +169,7 @@ def live_script() -> Iterator[tuple[float, Any]]:
             yield i * 0.01, Frame(now + i * 10_000_000, "can0", id_, bytes([i] * 8))
 
 
+@pytest.mark.slow
 def test_live_moves_the_message_and_records_every_raw_frame(tmp_path: Path) -> None:
     dbc = tmp_path / "clash.dbc"
     dbc.write_text(CLASH_DBC)

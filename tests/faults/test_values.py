@@ -391,6 +391,7 @@ def _tmp(folder: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_live_goes_on_through_an_infinite_steering_angle(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("VALUES_TMP", str(tmp_path))

@@ -114,6 +114,7 @@ async def send_garbage(url: str) -> tuple[list[dict[str, Any]], str, bytes]:
                 return statuses, f"{host}:{port}", raw
 
 
+@pytest.mark.slow
 def test_garbage_from_a_viewer_gets_a_status_and_one_line_and_everyone_goes_on(
         tmp_path: Path, shared_dbc: Path) -> None:
     """A laptop on the car's network (``--host 0.0.0.0``, the printed address) sends garbage

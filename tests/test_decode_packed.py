@@ -1,4 +1,4 @@
-"""Decoding in blocks (a column per (bus, id)) gives, row for row, what decoding frame by frame
+"""Decoding in packs (a column per (bus, id)) gives, row for row, what decoding frame by frame
 gives, and leaves the same statistics: on ecocar's frames and on a radar unlike ecocar's, with
 truncated and longer payloads, unknown ids, error and remote frames, extended ids, payloads
 cantools cannot decode (a multiplexer value no signal is defined for) and non-finite floats."""
@@ -19,12 +19,15 @@ from conftest import ECOCAR_DBC
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.block import FrameBlock
-from bridge.decode import decoder as decoder_module
+from bridge.decode import codec as codec_module
+from bridge.decode.codec import Decoded
 from bridge.decode.compiled import compile_column_decoder, compile_decoder
-from bridge.decode.decoder import Decoded, Decoder, load_database
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Outcome
 from bridge.frame import Frame
 from bridge.io.can_logs import LogSource
+from bridge.packed import PackedFrames
 from bridge.resources import data_dir
 
 
@@ -33,8 +36,8 @@ def same_value(a: Any, b: Any) -> bool:
                                               and math.isnan(b)))
 
 
-def same_decoded(a: Decoded | None, b: Decoded | None) -> bool:
-    if a is None or b is None:
+def same_decoded(a: Outcome, b: Outcome) -> bool:
+    if type(a) is not Decoded or type(b) is not Decoded:
         return a is b
     return (a.codec.topic == b.codec.topic and a.payload == b.payload
             and a.non_finite == b.non_finite and list(a.signals) == list(b.signals)
@@ -51,33 +54,33 @@ def counts(decoder: Decoder) -> tuple[Any, ...]:
                    for c in decoder.codecs()))
 
 
-def per_frame(decoder: Decoder, frames: Sequence[Frame]) -> list[Decoded | None]:
+def per_frame(decoder: Decoder, frames: Sequence[Frame]) -> list[Outcome]:
     return [decoder.decode(f) for f in frames]
 
 
 def in_blocks(decoder: Decoder, frames: Sequence[Frame], sizes: Sequence[int]
-              ) -> list[Decoded | None]:
-    out: list[Decoded | None] = []
+              ) -> list[Outcome]:
+    out: list[Outcome] = []
     at, turn = 0, 0
     while at < len(frames):
         size = sizes[turn % len(sizes)]
-        block = FrameBlock.from_bytes(FrameBlock.from_frames(frames[at:at + size]).to_bytes())
-        out += decoder.decode_block(block)
+        pack = PackedFrames.from_bytes(PackedFrames.from_frames(frames[at:at + size]).to_bytes())
+        out += decoder.decode_packed(pack)
         at, turn = at + size, turn + 1
     return out
 
 
 def assert_same(databases: dict[str | None, list[Any]], frames: list[Frame],
                 sizes: Sequence[int] = (4096, 1000, 37, 1)) -> tuple[Decoder, Decoder]:
-    one, block = Decoder(databases), Decoder(databases)
+    one, pack = Decoder(databases), Decoder(databases)
     expected = per_frame(one, frames)
-    got = in_blocks(block, frames, sizes)
+    got = in_blocks(pack, frames, sizes)
     assert len(got) == len(expected)
     wrong = [i for i, (a, b) in enumerate(zip(expected, got, strict=True))
              if not same_decoded(a, b)]
     assert not wrong, f"rows {wrong[:10]} differ, e.g. {frames[wrong[0]]}"
-    assert counts(block) == counts(one)
-    return one, block
+    assert counts(pack) == counts(one)
+    return one, pack
 
 
 def ecocar_frames() -> list[Frame]:
@@ -142,7 +145,7 @@ def test_ecocar_frames_decode_the_same_in_blocks() -> None:
 
 def test_payloads_that_repeat_beyond_the_cache_and_messages_that_stop_caching() -> None:
     """Long columns: a message whose payloads never repeat stops caching frame by frame, while
-    the block path counts its trials per distinct payload; the results are the same."""
+    the pack path counts its trials per distinct payload; the results are the same."""
     database = load_database(ECOCAR_DBC)
     base = list(LogSource(data_dir() / "ecocar_sample.blf"))
     rng = random.Random(3)
@@ -202,7 +205,7 @@ def test_a_column_decodes_as_its_frames_do() -> None:
     one, many = Decoder({None: [database]}), Decoder({None: [database]})
 
     expected = per_frame(one, column)
-    got = many.decode_column(column[0].bus, key, [f.data for f in column])
+    got = many.decode_packed(PackedFrames.from_frames(column))
 
     assert all(same_decoded(a, b) for a, b in zip(expected, got, strict=True))
     assert counts(many) == counts(one)
@@ -222,7 +225,7 @@ def test_a_codec_decodes_a_column_in_one_step_with_the_same_counts() -> None:
             expected.append(codec_one.decode(data))
         except Exception as exc:
             expected.append(type(exc))
-    got = codec_many.decode_many(datas)
+    got, _ = codec_many.decode_many(datas)
 
     assert [type(g) if isinstance(g, Exception) else g.payload for g in got] == \
         [e if isinstance(e, type) else e.payload for e in expected]
@@ -235,15 +238,15 @@ def test_the_block_path_is_checked_against_a_wrong_count(monkeypatch: pytest.Mon
     """The comparison above can fail: a column that forgot its truncated frames is caught."""
     database = load_database(ECOCAR_DBC)
     frames = ecocar_frames()[:5000]
-    real = decoder_module.MessageCodec._decode_many
+    real = codec_module.MessageCodec.decode_many
 
-    def forgetful(self: decoder_module.MessageCodec, datas: Sequence[bytes]) -> Any:
+    def forgetful(self: codec_module.MessageCodec, datas: Sequence[bytes]) -> Any:
         truncated = self.truncated
         out = real(self, datas)
         self.truncated = truncated
         return out
 
-    monkeypatch.setattr(decoder_module.MessageCodec, "_decode_many", forgetful)
+    monkeypatch.setattr(codec_module.MessageCodec, "decode_many", forgetful)
     with pytest.raises(AssertionError):
         assert_same({None: [database]}, frames)
 
@@ -278,7 +281,7 @@ def test_the_column_decoder_gives_each_payloads_signals(path: Path) -> None:
 
 
 def test_a_standard_id_with_bit_31_is_counted_under_its_own_number() -> None:
-    """A block without extended frames: a key with bit 31 set is a (damaged) standard id, not
+    """A pack without extended frames: a key with bit 31 set is a (damaged) standard id, not
     an extended one, and is counted as decoding it frame by frame counts it."""
     database = load_database(ECOCAR_DBC)
     frames = [Frame(1, "can0", 0x8000_0123, bytes(8), dlc=8), Frame(2, "can0", 0x123, bytes(8))]
