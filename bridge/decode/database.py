@@ -24,7 +24,7 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 from cantools.database.errors import Error as CantoolsError
 
-from bridge.decode.cache import cached, store
+from bridge.decode.cache import CodeCache, cached, entry_key, store
 from bridge.decode.proto_schema import rounded_range
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import frame_key
@@ -46,6 +46,8 @@ class DatabaseFile:
     db: Database = field(repr=False, compare=False)
     #: what in it silences, moves or rounds a message (:func:`database_warnings`), one line each
     warnings: tuple[str, ...] = field(default=(), compare=False)
+    #: the compiled code of its messages' generated functions (kept with the parsed database)
+    code: CodeCache = field(default_factory=CodeCache, repr=False, compare=False)
 
 
 def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
@@ -146,9 +148,9 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
     sha256 = hashlib.sha256(content).hexdigest()
     found = cached(content, path.suffix)
     if found is not None:
-        db, notes = found
-        return DatabaseFile(path, name or path.stem, sha256, content, db,
-                            tuple(f"{path}: {text}" for text in notes))
+        return DatabaseFile(path, name or path.stem, sha256, content, found[0],
+                            tuple(f"{path}: {text}" for text in found[1]),
+                            CodeCache(entry_key(content, path.suffix)))
     # a UTF-8 byte-order mark (editors on Windows write one): read as UTF-8 without it
     encoding = "utf-8-sig" if content.startswith(codecs.BOM_UTF8) else None
     with _cantools_lines() as said:
@@ -167,7 +169,8 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
     if not told:  # (what cantools says may name the file: such a database is parsed each time)
         store(content, path.suffix, db, notes)
     return DatabaseFile(path, name or path.stem, sha256, content, db,
-                        tuple(f"{path}: {text}" for text in notes) + told)
+                        tuple(f"{path}: {text}" for text in notes) + told,
+                        CodeCache(entry_key(content, path.suffix)))
 
 
 def parse_dbc_option(text: str) -> tuple[str | None, Path]:
