@@ -47,14 +47,15 @@ HELP_GOAL_S = 0.1
 IMPORTS = "import can, cantools, mcap_protobuf.writer"
 
 
-def timed(command: list[str], env: Mapping[str, str] | None = None
+def timed(command: list[str], env: Mapping[str, str] | None = None, cwd: Path = ROOT
           ) -> Callable[[], tuple[float, float]]:
-    """A run of ``command`` in a new process: its CPU seconds (user + system, its children's
-    included) and its wall seconds; a failure ends the benchmark."""
+    """A run of ``command`` in a new process in ``cwd`` (``python -m bridge`` imports the
+    ``bridge`` there first): its CPU seconds (user + system, its children's included) and its
+    wall seconds; a failure ends the benchmark."""
     def run() -> tuple[float, float]:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         started = time.perf_counter()
-        done = subprocess.run(command, env=dict(env) if env is not None else None,
+        done = subprocess.run(command, env=dict(env) if env is not None else None, cwd=cwd,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         wall = time.perf_counter() - started
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -104,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.ref:
         compileall.compile_dir(str(worktree(args.ref) / "bridge"), quiet=1)
         ref_env = revision_env(args.ref) | {"XDG_CACHE_HOME": str(cache)}
-        contenders[f"convert at {args.ref}"] = timed(convert(out / "ref.mcap", ref_env), ref_env)
+        contenders[f"convert at {args.ref}"] = timed(convert(out / "ref.mcap", ref_env), ref_env,
+                                                     worktree(args.ref))
     for run in contenders.values():  # warm: the page cache, bytecode, the database cache
         run()
     print(f"tankviz start-up (issue #36): {log.name}, {meta['frames']:,} frames, --dbc ecocar; "
