@@ -6,7 +6,7 @@ and 0x2E0 on can1 no database of it defines:
 - ``/can/<bus>/unknown``: every frame of the unknown ids to a viewer, at most ``FILE_HZ`` a
   second per id (the first of each slot of log time) into a file; never a known id;
 - ``/can/bits`` (a PNG, read back with the small reader below) and ``/can/bits/labels``;
-- the same messages frame by frame, in live's reads and in blocks; none with ``--no-bring-up``.
+- the same messages frame by frame, in live's reads and in packs; none with ``--no-bring-up``.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def highway(seconds: float = 6.0) -> list[Frame]:
 
 def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages:
     """Every message a viewer gets of a drive of ``frames``: fed one by one, in live's reads or
-    in blocks of ``size``."""
+    in packs of ``size``."""
     viewer = Viewer()
     drive = Drive(load_stages([], "highway"), [viewer])
     if feed == "frames":
@@ -80,7 +80,7 @@ def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages
         for i in range(0, len(frames), size):
             drive.pipeline.process_many(frames[i:i + size])
     else:
-        drive.run_blocks(PackedFrames.from_frames(frames[i:i + size])
+        drive.run_packed(PackedFrames.from_frames(frames[i:i + size])
                          for i in range(0, len(frames), size))
     drive.finish()
     return dict(viewer.topics)
@@ -91,7 +91,7 @@ def recorded(frames: list[Frame], *, bring_up: bool = True) -> Messages:
     drive = Drive(load_stages([], "highway"), bring_up=bring_up)
     out = io.BytesIO()
     drive.record(out, attachment_time_ns=0)
-    drive.run_blocks([PackedFrames.from_frames(frames)])
+    drive.run_packed([PackedFrames.from_frames(frames)])
     drive.finish()
     out.seek(0)
     topics: Messages = defaultdict(list)
@@ -327,7 +327,7 @@ def test_frame_by_frame_in_reads_and_in_blocks_a_viewer_gets_the_same_messages()
               for i, f in enumerate(frames)]
     one_by_one = viewed(frames)
     assert one_by_one[unknown_topic("can0")] and one_by_one[BITS_TOPIC]
-    for feed, size in (("reads", 83), ("blocks", 1), ("blocks", 97), ("blocks", 4096)):
+    for feed, size in (("reads", 83), ("packs", 1), ("packs", 97), ("packs", 4096)):
         assert viewed(frames, feed, size) == one_by_one, (feed, size)
 
 

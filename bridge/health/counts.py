@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from bridge.frame import NEVER_NS, NS, key_id
 from bridge.health.alarms import AlarmKind, HealthSettings, alarm_id
-from bridge.health.wire import FrameKind, KindKey
+from bridge.health.bus_bits import FrameKind, KindKey
 from bridge.pb import health_pb2
 from bridge.profile.model import Profile, Sensor
 from bridge.world.observe import LEAD_GROUP
@@ -55,7 +55,7 @@ class BusCounts:
         self.ids: Counter[int] = Counter()  # frames per frame key (bridge.frame.frame_key)
         self.cycles: dict[int, float] = {}  # frame key -> database cycle time (s)
         self.families: set[str] = set()
-        #: the bits of each kind of frame (exact for a sample, else its mean: bridge.health.wire)
+        #: the bits of each kind of frame (exact for a sample, else its mean: health.bus_bits)
         self.kinds: dict[KindKey, FrameKind] = {}
 
 

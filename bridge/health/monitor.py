@@ -5,8 +5,8 @@ The seed's team found a radar knocked out of alignment only because the blue sph
 :class:`HealthMonitor` says so itself. It watches
 
 - every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
-  included, :func:`bridge.health.wire.frame_bits`, exact for the first 1024 frames of each kind
-  and a sample after them, the others the sample's mean: :class:`bridge.health.wire.FrameKind`;
+  included, :func:`bridge.health.bus_bits.frame_bits`, exact for the first 1024 frames of each kind
+  and a sample after them, the others the sample's mean: :class:`bridge.health.bus_bits.FrameKind`;
   over the bitrate, the data phase of CAN FD
   frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
   but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
@@ -51,7 +51,7 @@ What it counts per bus and per family, and the figures of ``/health`` made of th
 :mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
 :mod:`bridge.health.sight`.
 
-Frames are counted as they come, one by one or a block at a time (:mod:`bridge.health.traffic`).
+Frames are counted as they come, one by one or a pack at a time (:mod:`bridge.health.traffic`).
 Object checks run at scene ticks (:meth:`HealthMonitor.on_world`): who sees a moving object in
 whose field of view is asked once per object and sensor while the object stays in the world
 (observations are values). :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene

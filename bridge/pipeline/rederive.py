@@ -166,25 +166,25 @@ class CarriedMarks:
                 self._made.made.append(mark)
                 self._pipeline.emit(mark_messages(mark, mark_time(mark)))
 
-    def blocks(self, blocks: Iterable[PackedFrames]) -> Iterator[PackedFrames]:
-        """``blocks`` cut where a mark comes, each mark made between the two parts (when the
+    def packs(self, packs: Iterable[PackedFrames]) -> Iterator[PackedFrames]:
+        """``packs`` cut where a mark comes, each mark made between the two parts (when the
         pipeline asks for the part after it: the frames before it have gone through)."""
         pending = self._pending
-        for block in blocks:
-            ts, i, n = block.t, 0, len(block)
+        for pack in packs:
+            ts, i, n = pack.t, 0, len(pack)
             while pending and i < n:
                 due = mark_time(pending[0])
-                if max(ts) < due:  # (most blocks: no frame reaches the mark)
+                if max(ts) < due:  # (most packs: no frame reaches the mark)
                     break
                 j = next((k for k in range(i, n) if ts[k] >= due), n)
                 if j == n:
                     break
                 if j > i:
-                    yield block.slice(i, j)
+                    yield pack.slice(i, j)
                 self.before(ts[j])
                 i = j
             if i < n:
-                yield block if i == 0 else block.slice(i, n)
+                yield pack if i == 0 else pack.slice(i, n)
 
     def finish(self) -> None:
         """The marks after the last frame (live took them as it stopped)."""

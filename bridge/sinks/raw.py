@@ -232,8 +232,8 @@ class BlockCutter:
 def cut(frames: Iterable[Frame], *, window_ns: int = WINDOW_NS) -> list[RawBlock]:
     """The blocks of ``frames``, cut as the pipeline cuts them (every window closed)."""
     blocks: list[RawBlock] = []
-    blocker = BlockCutter(blocks.extend, window_ns=window_ns)
+    cutter = BlockCutter(blocks.extend, window_ns=window_ns)
     for frame in frames:
-        blocker.add(frame)
-    blocker.flush()
+        cutter.add(frame)
+    cutter.flush()
     return blocks
