@@ -32,6 +32,7 @@ from bridge.bringup import bitmap
 from bridge.bringup.bitmap import MAX_ROWS, MapRow, bit_map
 from bridge.bringup.census import gap_figures
 from bridge.bringup.columns import id_text
+from bridge.bringup.font import ADVANCE, GLYPHS, draw_text, glyph
 from bridge.bringup.monitor import FILE_HZ, FILE_PERIOD_S
 from bridge.bringup.payload import encode, id_field
 from bridge.cli import main
@@ -273,6 +274,38 @@ def test_the_bit_map_is_a_png_with_a_row_per_id_bright_where_a_bit_flips_every_f
     assert cell(BRAKE_ID, 0, 7) == palette[bitmap.NEVER]  # byte 0 is 0xA5, always
     assert cell(CONSTANT_ID, 0, 0) == palette[bitmap.NEVER]
     assert cell(BRAKE_ID, 7, 0) not in (palette[bitmap.NEVER], palette[bitmap.QUIET])  # checksum
+
+
+def _glyph_by_glyph(canvas: np.ndarray, x: int, y: int, text: str, value: int,
+                    scale: int) -> None:
+    """How the font drew a text before it drew it at once: each glyph scaled with np.kron."""
+    height, width = canvas.shape
+    for i, char in enumerate(text):
+        shape = glyph(char)
+        if shape is None:
+            continue
+        big = np.kron(shape, np.ones((scale, scale), dtype=bool))
+        left, top = x + i * ADVANCE * scale, y
+        right, bottom = min(width, left + big.shape[1]), min(height, top + big.shape[0])
+        if left >= width or top >= height or right <= max(left, 0) or bottom <= max(top, 0):
+            continue
+        part = big[max(0, -top):bottom - top, max(0, -left):right - left]
+        canvas[max(top, 0):bottom, max(left, 0):right][part] = value
+
+
+@given(st.text(alphabet=[*GLYPHS, "a", "?", " ", "é"], max_size=12),
+       st.integers(-80, 100), st.integers(-30, 40), st.integers(1, 3),
+       st.integers(1, 40), st.integers(1, 90))
+def test_a_text_is_drawn_at_once_as_glyph_by_glyph(text: str, x: int, y: int, scale: int,
+                                                   height: int, width: int) -> None:
+    """The labels are drawn a whole text at a time (a cached mask: the map of a short drive
+    drew its glyphs for a quarter of a second), pixel for pixel as each glyph scaled alone,
+    cut at every edge of the canvas."""
+    canvas = np.zeros((height, width), dtype=np.uint8)
+    expected = canvas.copy()
+    draw_text(canvas, x, y, text, 7, scale=scale)
+    _glyph_by_glyph(expected, x, y, text, 7, scale)
+    assert np.array_equal(canvas, expected)
 
 
 def test_with_many_ids_the_map_stays_small_and_says_how_many_it_shows() -> None:

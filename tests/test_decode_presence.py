@@ -19,7 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_properties import class_from_descriptor_set
 
-from bridge.decode.decoder import Decoded, Decoder, load_database
+from bridge.decode.codec import Decoded
+from bridge.decode.database import load_database
+from bridge.decode.decoder import Decoder
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
 

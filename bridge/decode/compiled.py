@@ -23,6 +23,8 @@ from cantools.database.conversion import (
     NamedSignalConversion,
 )
 
+from bridge.decode.cache import Compile, compile_source
+
 Decode = Callable[[bytes], dict[str, Any]]
 DecodeColumn = Callable[[Sequence[bytes]], list[dict[str, Any]]]
 
@@ -53,8 +55,10 @@ def compile_column_decoder(message: DbcMessage) -> DecodeColumn | None:
     return None if made is None else made[1]
 
 
-def compile_decoders(message: DbcMessage) -> tuple[Decode, DecodeColumn] | None:
-    """:func:`compile_decoder` and :func:`compile_column_decoder` of ``message``, made at once."""
+def compile_decoders(message: DbcMessage, code: Compile = compile_source
+                     ) -> tuple[Decode, DecodeColumn] | None:
+    """:func:`compile_decoder` and :func:`compile_column_decoder` of ``message``, made at once;
+    ``code`` compiles their source (:class:`bridge.decode.cache.CodeCache`: once for every run)."""
     codecs = getattr(message, "_codecs", None)
     if (message.is_container or message.is_multiplexed() or not isinstance(codecs, dict)
             or codecs.get("multiplexers") or "formats" not in codecs):
@@ -95,7 +99,7 @@ def compile_decoders(message: DbcMessage) -> tuple[Decode, DecodeColumn] | None:
          if unpack == "LE(data[::-1])" else
          f"    return [{result} for u in [{unpack} for data in datas]]"),
     ])
-    exec(source, names)
+    exec(code(source), names)
     decode: Decode = names["decode"]
     try:  # formats cantools built for signals that overlap cannot unpack any payload
         decode(bytes(message.length))

@@ -37,7 +37,7 @@ def _attached_database(drive: ArchiveContents, folder: Path, name: str, data: by
     except DatabaseError as exc:
         raise DatabaseError(where, f"(attached to {drive.path}) {exc.reason}") from None
     return DatabaseFile(where, loaded.name, loaded.sha256, loaded.content, loaded.db,
-                        database_warnings(where, loaded.db))
+                        database_warnings(where, loaded.db), loaded.code)
 
 
 def attached_decoder(drive: ArchiveContents, folder: Path) -> Decoder:

@@ -1,16 +1,9 @@
 """Frames on the bus: the DBC encoding, counters and checksums, and the timing of every family.
 
-Payloads are encoded with cantools against the bundled DBC (:func:`load_ecocar`) or the database
-given to ``simulate``; a :class:`Codec` for a message it lacks is a ``ValueError`` naming it.
-:class:`Codec` clamps values to each signal's range (saturating, never failing); its counter wraps
-at ``2 ** length`` of the ``Counter`` signal. :func:`checksum`: (byte0 + ... + byte6) & 0xFF.
-:class:`Out`: one bus's frames: 11-bit ids, no error or remote frames, a CAN-FD message as CAN-FD
-with BRS. :class:`Slots` keeps an object in its slot while it stays listed; :class:`Ids`: track ids
-1..255, stable while tracked, reused only after a full turn. :class:`Run`: each family sends at
-its DBC cycle time (measures at ``k * cycle``, sent at start + its phase + ``k * cycle`` + jitter),
-a cycle's frames 130 to 169 us apart; every timestamp is ``start_ns`` plus whole microseconds.
-``rng(family)`` is seeded with the seed and the family's name: the same seed gives byte-identical
-frames; the seed changes noise, jitter, phases, counter starts and the ghosts, never the scenario.
+Each family sends at its DBC cycle time with a phase and jitter, every timestamp ``start_ns`` plus
+whole microseconds; ``rng(family)`` is seeded with the seed and the family's name, so the same
+seed gives byte-identical frames, and the seed changes noise, jitter, phases, counter starts and
+the ghosts, never the scenario.
 """
 
 from __future__ import annotations
@@ -53,7 +46,10 @@ def default_database() -> cantools.database.can.Database:
 
 
 class Codec:
-    """One DBC message: clamps values to the signal ranges, encodes, remembers its counter."""
+    """One DBC message: clamps values to the signal ranges (saturating, never failing), encodes,
+    remembers its counter (wrapping at ``2 ** length`` of the ``Counter`` signal). A message the
+    database lacks is a ``ValueError`` naming it.
+    """
 
     __slots__ = ("counter_mod", "fd", "frame_id", "limits", "message")
 
@@ -83,7 +79,9 @@ class Codec:
 
 
 class Out:
-    """Builds frames for one bus."""
+    """Builds frames for one bus: 11-bit ids, no error or remote frames, a CAN-FD message as CAN-FD
+    with BRS.
+    """
 
     def __init__(self, bus: str) -> None:
         self.bus = bus
@@ -172,9 +170,13 @@ def ticks(rng: random.Random, start_ns: int, end_ns: int, cycle_ms: int,
 
 @dataclass
 class Run:
-    """One run as its message families see it: the world's snapshots, the bus, the seed, the
-    run's time span, the codecs, the fault windows, and the object count of the radar's latest
-    cycle (for RadarStatus)."""
+    """One run as its message families see it: the world's snapshots, the bus, the seed, the run's
+    time span, the codecs, the fault windows, and the object count of the radar's latest cycle (for
+    RadarStatus).
+
+    Each family measures at ``k * cycle`` and sends at start + its phase + ``k * cycle`` + jitter, a
+    cycle's frames 130 to 169 us apart.
+    """
 
     world: Snapshots
     out: Out

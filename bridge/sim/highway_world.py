@@ -1,22 +1,9 @@
 """The highway car's world and its ground truth, as pure functions of time (seconds since the start
 of the run; the seed never enters here: :mod:`bridge.sim.highway` adds noise and jitter).
 
-:data:`HIGHWAY` holds the scenario's numbers (the timeline: :mod:`bridge.sim.highway`); every
-function takes the ``highway`` to describe (:data:`ROADS`, default :data:`HIGHWAY`). Ground truth:
-:func:`ego_at` (:class:`EgoTruth`: speed, acceleration, curvature, yaw rate, steering wheel
-angle); :func:`objects_at` (:class:`ObjectTruth`: every road user in the vehicle frame, x forward,
-y left, origin on the rear axle, and whether the radar covers it); :func:`slots_at`
-(:class:`SlotTruth` or ``None`` per slot) and :func:`twins_at`: what the radar cycle measured at
-``floor(t / 0.05) * 0.05`` reports; :func:`twin_episode`, :func:`dropped`; :func:`lead_at` (the
-nearest car ahead in the ego lane).
-
-Geometry: three lanes of :data:`LANE_WIDTH_M`, offsets ``d`` from the middle lane's centre, left
-positive. The ego's rear axle follows its lane centre (a few cm of wander, and the weaving road's
-lane changes); its steering wheel angle is ``STEERING_RATIO * atan(WHEELBASE_M * curvature)``. A
-road user's position is the middle of its rear, ``gap`` m along the road ahead of the radar
-(:data:`RADAR_X_M` ahead of the rear axle) and ``d`` aside; relative velocities and accelerations
-are central differences (+-50 ms) in the turning vehicle frame. Radar coverage: radar x above 1 m,
-range up to ``radar_range_m``, azimuth within +-``radar_fov_deg``.
+Every function takes the ``highway`` to describe (:data:`ROADS`, default :data:`HIGHWAY`); positions
+are in the vehicle frame (x forward, y left, origin on the rear axle), what the radar reports at a
+time is what its cycle measured at ``floor(t / 0.05) * 0.05``.
 """
 
 from __future__ import annotations
@@ -61,9 +48,18 @@ class Highway:
     """The scenario's numbers (seconds since the start of the run, metres, m/s).
 
     The world is made from :data:`HIGHWAY`'s speed, curve, cut-in window and radar coverage; the
-    slots, gaps and the time left_far leaves follow from it (the tests check that they do). The
-    one thing that may differ is the road's curves (``bends``: :data:`ROADS`); a ``Highway`` made
-    with other numbers describes nothing."""
+    slots, gaps and the time left_far leaves follow from it (the tests check that they do). The one
+    thing that may differ is the road's curves (``bends``: :data:`ROADS`); a ``Highway`` made with
+    other numbers describes nothing.
+
+    Geometry: three lanes of :data:`LANE_WIDTH_M`, offsets ``d`` from the middle lane's centre, left
+    positive. The ego's rear axle follows its lane centre (a few cm of wander, and the weaving
+    road's lane changes); its steering wheel angle is ``STEERING_RATIO * atan(WHEELBASE_M *
+    curvature)``. A road user's position is the middle of its rear, ``gap`` m along the road ahead
+    of the radar (:data:`RADAR_X_M` ahead of the rear axle) and ``d`` aside; relative velocities and
+    accelerations are central differences (+-50 ms) in the turning vehicle frame. Radar coverage:
+    radar x above 1 m, range up to ``radar_range_m``, azimuth within +-``radar_fov_deg``.
+    """
 
     #: the ego's mean speed; it varies by +-0.25 m/s over 14 s
     ego_speed_mps: float = 30.0

@@ -1,18 +1,8 @@
 """What the sensors see: the world at one measurement time, in the ego frame, with coverage.
 
-:meth:`Snapshots.at` takes a family's measurement tick (integer ns since the start, not the
-jittered transmit time) and gives the :class:`Snapshot` of :mod:`bridge.sim.world` then (cached;
-a pure function of the tick). It holds the ego and every actor as :class:`Seen`, true values (the
-sensors add noise): position in the ego frame, velocity and acceleration relative to the ego
-(central differences, +-50 ms), lateral offset from the ego lane, speed and acceleration along the
-road, range, and coverage:
-
-- radar: x > 0.5 m, azimuth within +-60 deg, range up to 200 m (four-wheel), 120 m (two-wheel,
-  stationary, unknown) or 100 m (pedestrian);
-- camera: reported types only (not ``CAM_NONE``), x > 2 m, azimuth within +-50 deg, range up to
-  120 m (four-wheel) or 80 m (two-wheel, pedestrian).
-
-An actor is keyed ``(index, visit)``: a wrapping stream's actor is a new object on each visit.
+:meth:`Snapshots.at` takes a family's measurement tick (not the jittered transmit time) and gives
+the true values then (the sensors add noise), cached: a pure function of the tick. An actor is
+keyed ``(index, visit)``: a wrapping stream's actor is a new object on each visit.
 """
 
 from __future__ import annotations
@@ -44,7 +34,15 @@ _CAMERA_FOV = math.radians(50.0)
 
 
 class Seen:
-    """One actor at one instant, in the ego frame (true values, no noise)."""
+    """One actor at one instant, in the ego frame (true values, no noise): position, velocity and
+    acceleration relative to the ego (central differences, +-50 ms), lateral offset from the ego
+    lane, speed and acceleration along the road, range, and coverage:
+
+    - radar: x > 0.5 m, azimuth within +-60 deg, range up to 200 m (four-wheel), 120 m (two-wheel,
+      stationary, unknown) or 100 m (pedestrian);
+    - camera: reported types only (not ``CAM_NONE``), x > 2 m, azimuth within +-50 deg, range up to
+      120 m (four-wheel) or 80 m (two-wheel, pedestrian).
+    """
 
     __slots__ = ("a_abs", "actor", "ax", "camera", "d", "key", "radar", "range", "v_abs", "vx",
                  "vy", "x", "y")
