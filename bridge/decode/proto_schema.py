@@ -250,6 +250,9 @@ def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> En
     tests: list[str] = []
     args: list[str] = []
     formats: list[str] = []
+    # The same with an implicit field's zero among them: the pieces joined, a zero's empty.
+    loose: list[str] = []
+    pieces: list[str] = []
     # Otherwise field by field; an implicit field's zero appends b"" (protobuf does not write it:
     # 0, and 0.0 but not -0.0, whose bits are not zero), so that every key is counted.
     lines = ["    out = []", "    a = out.append"]
@@ -269,10 +272,13 @@ def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> En
         formats.append("B" * len(tag) + ("d" if double else "B"))
         lines += [f"    v = s.get({src!r})", "    if v is not None:"]
         if double:
-            tests.append(f"({v}.__class__ is float or {v}.__class__ is int)"
-                         + (f" and {v} != 0" if bare else ""))
+            loose.append(f"({v}.__class__ is float or {v}.__class__ is int)")
+            tests.append(loose[-1] + (f" and {v} != 0" if bare else ""))
             args.append(v)
             pack = f"D{len(tag)}({', '.join(str(b) for b in tag)}, v)"
+            piece = pack.replace(", v)", f", {v})")
+            pieces.append(f"({piece} if {v} != 0 or M(1.0, {v}) < 0 else b'')" if bare
+                          else piece)
             lines += ["        c = v.__class__",
                       f"        if c is float or c is int: a({pack}"
                       + (" if v != 0 or M(1.0, v) < 0 else b'')" if bare else ")"),
@@ -283,21 +289,27 @@ def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> En
         if small is None:
             small = _SMALL[tag] = tuple(tag + bytes((i,)) for i in range(128))
         names[f"S{n}"], names[f"T{n}"] = small, tag
+        names[f"Z{n}"] = (b"", *small[1:]) if bare else small
         first = 1 if bare else 0
         if how == "zigzag":
-            tests.append(f"{v}.__class__ is int and -64 <= {v} < 64"
-                         + (f" and {v} != 0" if bare else ""))
+            loose.append(f"{v}.__class__ is int and -64 <= {v} < 64")
+            tests.append(loose[-1] + (f" and {v} != 0" if bare else ""))
             args.append(f"({v} << 1) ^ ({v} >> 63)")
+            pieces.append(f"Z{n}[({v} << 1) ^ ({v} >> 63)]")
             small_case = (f"if -64 <= v < 64: a(S{n}[(v << 1) ^ (v >> 63)])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V((v << 1) ^ (v >> 63)))")
         elif how == "int32":
+            loose.append(f"{v}.__class__ is int and 0 <= {v} < 128")
             tests.append(f"{v}.__class__ is int and {first} <= {v} < 128")
             args.append(v)
+            pieces.append(f"Z{n}[{v}]")
             small_case = (f"if 0 <= v < 128: a(S{n}[v])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V(v if v >= 0 else v + {2**64}))")
         else:
+            loose.append(f"{v}.__class__ is int and 0 <= {v} < 128")
             tests.append(f"{v}.__class__ is int and {first} <= {v} < 128")
             args.append(v)
+            pieces.append(f"Z{n}[{v}]")
             small_case = (f"if 0 <= v < 128: a(S{n}[v])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V(v))")
         lines += ["        if v.__class__ is not int: return F(s)",
@@ -315,6 +327,9 @@ def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> En
              "        else:",
              f"            if {' and '.join(tests) or 'True'}:",
              f"                return P({', '.join(args)})",
+             *([f"            if {' and '.join(loose)}:",
+                f"                return b''.join(({', '.join(pieces)},))"] if implicit and keys
+               else []),
              *lines,
              "    if len(out) != len(s): return F(s)",
              "    return b''.join(out)"]
