@@ -76,6 +76,13 @@ def _object_size(data: bytes | bytearray, at: int, largest: int) -> int | None:
     return size
 
 
+#: The object headers (their first 16 bytes, which alone decide :func:`_object_size` inside a
+#: container) found intact, and their sizes: a header met again is known at one dict look-up.
+_INTACT: dict[bytes, int] = {}
+#: The most headers remembered (a log has a few kinds of objects; damaged data may make more).
+_MAX_INTACT = 4096
+
+
 def intact_objects(data: bytes | bytearray, lost: bool = False,
                    ) -> tuple[list[tuple[int, int]], int, int, bool]:
     """Where the intact objects are in the data of a BLF log container: ``(runs, rest, damaged,
@@ -100,11 +107,21 @@ def intact_objects(data: bytes | bytearray, lost: bool = False,
             return [], max(0, n - 3), 0, True
         pos = start = first
         lost = False
-    while pos + _OBJ.size <= n:
+    intact, head = _INTACT.get, _OBJ.size
+    while pos + head <= n:
+        size = intact(data[pos:pos + head])
+        if size is not None:  # a header found intact before: the step below, in short
+            if pos + size > n:
+                break  # goes on in the next container
+            pos += size
+            continue
         at = data.find(b"LOBJ", pos, pos + 8)
         if 0 <= at <= n - _OBJ.size:
             size = _object_size(data, at, _MAX_OBJECT)
             if size is not None:
+                if len(_INTACT) >= _MAX_INTACT:
+                    _INTACT.clear()
+                _INTACT[data[at:at + _OBJ.size]] = size
                 if at + size > n:
                     break  # goes on in the next container
                 pos = at + size
