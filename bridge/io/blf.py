@@ -83,7 +83,7 @@ _INTACT: dict[bytes, int] = {}
 _MAX_INTACT = 4096
 
 
-def intact_objects(data: bytes | bytearray, lost: bool = False,
+def intact_objects(data: bytes, lost: bool = False,
                    ) -> tuple[list[tuple[int, int]], int, int, bool]:
     """Where the intact objects are in the data of a BLF log container: ``(runs, rest, damaged,
     lost)``.
@@ -202,6 +202,13 @@ class BlfReader(can.BLFReader):
                 return skipped
 
     def __iter__(self) -> Generator[can.Message, None, None]:
+        for run in self.runs():
+            yield from self._parse_data(run)
+
+    def runs(self) -> Generator[bytes, None, None]:
+        """The runs of consecutive intact objects, in file order, for python-can's parser
+        (``_parse_data``): what :meth:`__iter__` parses. ``damaged`` is told of each damage
+        after the runs before it are taken."""
         damage_at: int | None = None  # where the damaged bytes being skipped began
         skipped = 0
         while True:
@@ -252,15 +259,15 @@ class BlfReader(can.BLFReader):
             if kind == blf.LOG_CONTAINER:
                 yield from self._container(obj, at)
             elif kind in _BODY_SIZES:  # a frame outside a container (python-can skips those)
-                yield from self._parse_data(obj)
+                yield obj
         if self._tail.find(b"LOBJ") >= 0:
             self._damaged(self._at, "the file ends in the middle of an object; frames in it "
                           "are lost", "stop", "file cut short")
         self.stop()
 
-    def _container(self, obj: bytes, at: int, cut: bool = False) -> Iterator[can.Message]:
-        """The frames of the log container ``obj`` found at byte ``at`` of the file (``cut``: its
-        start only, the file ends in it)."""
+    def _container(self, obj: bytes, at: int, cut: bool = False) -> Iterator[bytes]:
+        """The runs of intact objects of the log container ``obj`` found at byte ``at`` of the
+        file (``cut``: its start only, the file ends in it)."""
         method, _ = _CONTAINER.unpack_from(obj, _OBJ.size)
         packed = obj[_OBJ.size + _CONTAINER.size:]
         if method == blf.NO_COMPRESSION:
@@ -286,7 +293,7 @@ class BlfReader(can.BLFReader):
         data = self._tail + data
         runs, rest, damaged, self._lost = intact_objects(data, self._lost)
         for start, end in runs:
-            yield from self._parse_data(data[start:end])
+            yield data[start:end]
         if damaged:
             self._damaged(at, f"damaged objects in the log container here: {damaged} bytes "
                           "skipped to the next object; frames in them are lost", "damage",
