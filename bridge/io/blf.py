@@ -12,6 +12,7 @@ own reader instead (:class:`~bridge.io.can_logs.LogSource`).
 from __future__ import annotations
 
 import io
+import re
 import zlib
 from collections.abc import Callable, Generator, Iterator
 from typing import IO, Literal
@@ -81,6 +82,18 @@ def _object_size(data: bytes | bytearray, at: int, largest: int) -> int | None:
 _INTACT: dict[bytes, int] = {}
 #: The most headers remembered (a log has a few kinds of objects; damaged data may make more).
 _MAX_INTACT = 4096
+#: The pattern of a run of objects of each header of :data:`_INTACT` met twice in a row.
+_KINDS: dict[bytes, re.Pattern[bytes]] = {}
+
+
+def _kind(header: bytes, size: int) -> re.Pattern[bytes]:
+    """The pattern of objects of ``size`` bytes beginning with ``header`` one after the other:
+    its match from an object on ends after the last of them that is whole."""
+    kind = _KINDS.get(header)
+    if kind is None:
+        kind = _KINDS[header] = re.compile(b"(?:%s(?s:.){%d})*" % (re.escape(header),
+                                                                   size - _OBJ.size))
+    return kind
 
 
 def intact_objects(data: bytes, lost: bool = False,
@@ -108,12 +121,19 @@ def intact_objects(data: bytes, lost: bool = False,
         pos = start = first
         lost = False
     intact, head = _INTACT.get, _OBJ.size
+    before = b""  # the header of the object before
     while pos + head <= n:
-        size = intact(data[pos:pos + head])
+        header = data[pos:pos + head]
+        size = intact(header)
         if size is not None:  # a header found intact before: the step below, in short
             if pos + size > n:
                 break  # goes on in the next container
-            pos += size
+            if header == before:  # objects of one kind in a row: up to the last at once
+                run = _kind(header, size).match(data, pos)  # (at least the one at pos)
+                pos = run.end() if run is not None else pos + size
+            else:
+                pos += size
+                before = header
             continue
         at = data.find(b"LOBJ", pos, pos + 8)
         if 0 <= at <= n - _OBJ.size:
@@ -121,6 +141,7 @@ def intact_objects(data: bytes, lost: bool = False,
             if size is not None:
                 if len(_INTACT) >= _MAX_INTACT:
                     _INTACT.clear()
+                    _KINDS.clear()
                 _INTACT[data[at:at + _OBJ.size]] = size
                 if at + size > n:
                     break  # goes on in the next container

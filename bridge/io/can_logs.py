@@ -82,6 +82,9 @@ _QUIET_LINES = {
 #: have a few tens): a long run of lines without a frame is not held in memory.
 _HEADER_LINES = 1000
 
+#: The most messages of a BLF run converted at once (a batch small enough to stay in the caches).
+_BATCH = 256
+
 #: A frame stamped at or after this (2262-04-11, 2^63 ns) cannot be recorded; nor before 1970.
 _LAST_SECOND = float(2**63 // 10**9)
 
@@ -284,7 +287,7 @@ class LogSource:
                         self._read += len(batch)
                         frames += len(batch)
                         self.frames = frames
-                        last_ns = batch[-1].timestamp_ns
+                        last_ns = batch[-1][0]  # its timestamp_ns
                         yield batch
                         continue
                 for message in messages:
@@ -542,21 +545,26 @@ class LogSource:
                           "frames in it are lost", "stop", "file cut short")
 
     def _parsed(self, reader: BlfReader, run: bytes) -> Iterator[Sequence[can.Message]]:
-        """The messages python-can's parser makes of ``run``, all at once; one at a time where
-        it warns or fails in it (parsed again: each warning is placed at its frame, the frames
-        before a failure come first)."""
+        """The messages python-can's parser makes of ``run``, :data:`_BATCH` at a time; one at
+        a time from where it warns or fails (parsed again: each warning is placed at its
+        frame, the frames before a failure come first)."""
         texts = self._warnings.texts if self._warnings is not None else []
-        told = len(texts)
-        try:
-            messages = list(reader._parse_data(run))
-        except Exception:
-            pass
-        else:
-            if len(texts) == told:
-                yield messages
+        messages = reader._parse_data(run)
+        done = 0
+        while True:
+            told = len(texts)
+            try:
+                batch = list(itertools.islice(messages, _BATCH))
+            except Exception:  # python-can fails: one at a time up to the failure again
+                break
+            if len(texts) != told:
+                del texts[told:]
+                break
+            if not batch:
                 return
-        del texts[told:]
-        for message in reader._parse_data(run):
+            yield batch
+            done += len(batch)
+        for message in itertools.islice(reader._parse_data(run), done, None):
             yield (message,)
 
     def _whole_file(self, reader_type: type[MessageReader],

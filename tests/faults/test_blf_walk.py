@@ -105,6 +105,7 @@ JOINED = b"".join(CONTAINERS)
 
 def both(data: bytes, lost: bool) -> None:
     blf._INTACT.clear()
+    blf._KINDS.clear()
     cold = intact_objects(data, lost)
     warm = intact_objects(data, lost)  # every intact header known now
     assert cold == warm == careful_walk(data, lost)

@@ -113,8 +113,8 @@ def test_a_python_can_warning_in_a_run_is_placed_at_its_frame(write_log: WriteLo
     offset += size + size % 4
     size = struct.unpack_from("<L", whole, offset + 8)[0]
     inner = bytearray(zlib.decompress(whole[offset + 32:offset + size]))
-    tenth = inner.find(b"LOBJ", 20 * 48)
-    struct.pack_into("<H", inner, tenth + 6, 3)
+    odd = inner.find(b"LOBJ", 600 * 48)  # in the third batch of the run
+    struct.pack_into("<H", inner, odd + 6, 3)
     body = struct.pack("<H6xL4x", 2, len(inner)) + zlib.compress(bytes(inner))
     new_size = 16 + len(body)
     obj = struct.pack("<4sHHLL", b"LOBJ", 16, 1, new_size, 10) + body + bytes(new_size % 4)
