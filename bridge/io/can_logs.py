@@ -279,6 +279,7 @@ class LogSource:
         numbered_from = _FIRST_CHANNEL.get(suffix, 0)
         frames = 0
         self._read = 0
+        new = tuple.__new__
         try:
             for messages in self._messages(reader_type, suffix, gzipped):
                 if len(messages) > 1 and not warnings.texts:
@@ -314,19 +315,10 @@ class LogSource:
                     bus = buses.get(channel)
                     if bus is None:
                         bus = buses[channel] = bus_name(channel, numbered_from)
-                    yield (Frame(
-                        ns,
-                        bus,
-                        message.arbitration_id,
-                        bytes(message.data),
-                        message.is_extended_id,
-                        message.is_fd,
-                        message.is_error_frame,
-                        message.is_remote_frame,
-                        message.bitrate_switch,
-                        message.error_state_indicator,
-                        message.dlc,
-                    ),)
+                    yield (new(Frame, (  # Frame(...) without its Python __new__
+                        ns, bus, ident, bytes(message.data), message.is_extended_id,
+                        message.is_fd, message.is_error_frame, message.is_remote_frame,
+                        message.bitrate_switch, message.error_state_indicator, message.dlc)),)
             self._warned(warnings)
             if not frames:
                 first = self.issues[0] if self.issues else None
