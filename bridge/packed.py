@@ -1,48 +1,31 @@
-"""A block of frames as columns: how offline work hands frames over and decodes them in bulk.
+"""A pack of frames as columns: how offline work hands frames over and decodes them in bulk.
 
 A :class:`PackedFrames` holds N frames of any buses, in their order, as one column per field
 (row ``i`` is the ``i``-th frame):
 
-- ``buses``: the bus names, in the order they first come in the block (the bus table);
+- ``buses``: the bus names, in the order they first come in the pack (the bus table);
 - ``t``: ``array('q')``, log time in ns;
 - ``bus``: one byte per frame, its index in ``buses``;
 - ``key``: ``array('I')``, the frame key (:func:`bridge.frame.frame_key`: the arbitration id,
   with :data:`~bridge.frame.EXTENDED_KEY` set for a 29-bit id);
 - ``flags``: one byte per frame, the bits :data:`FD`, :data:`BRS`, :data:`ESI`, :data:`ERROR`,
-  :data:`REMOTE` and :data:`EXTENDED` (the last says again what ``key`` says, so that the
-  arbitration id comes back exactly, see below);
-- ``dlc``: one byte per frame (an ``array('q')`` instead in the rare block with a DLC outside
+  :data:`REMOTE` and :data:`EXTENDED` (the last repeats ``key``'s, so the id comes back exactly);
+- ``dlc``: one byte per frame (an ``array('q')`` instead in the rare pack with a DLC outside
   0-255, which a damaged text log can give);
 - ``data``: every payload, one after the other, in one ``bytes``; ``ends``: ``array('I')``, the
   end offset of each frame's payload in it.
 
-:meth:`PackedFrames.from_frames` makes one of :class:`~bridge.frame.Frame` tuples;
-:meth:`~PackedFrames.frame` (which bring-up reads a few rows with) and iterating give back
-exactly the same tuples (``bool`` flags, ``bytes`` data, ``int`` ids).
-:meth:`~PackedFrames.to_bytes` and :meth:`PackedFrames.from_bytes` carry a block between processes
-as one buffer (a header, the bus names, then each column's raw bytes, in this machine's byte
-order: a hand-over, not a file format), no per-frame object pickled.
-:meth:`~PackedFrames.groups` gives, per ``(bus index, key)``, its rows in order: the columns the
-decoder decodes in one step (:meth:`bridge.decode.decoder.Decoder.decode_block`) and the health
-monitor counts (:meth:`bridge.health.traffic.TrafficCounting.count_block`). A block is not changed
-once made: its groups and payloads are made once, for every stage.
-
-Bounds: a frame's time must fit 64 signed bits, its arbitration id 32 bits (31 bits for an
-extended one: above that its key could not tell the id), its flags ``bool`` (any value is taken
-as true or false); :meth:`PackedFrames.from_frames` raises :class:`ValueError` naming the first
-frame beyond them (a CAN id has 29 bits; tankviz's log and bus readers never make such a frame).
-A block has at most :data:`MAX_BUSES` buses: :meth:`PackedFrames.from_frames` raises
-:class:`ValueError` for more, and :func:`blocks` (which the read-ahead uses) cuts the frames into
-as many blocks as that takes.
-
-The standard library's ``array`` and ``bytes``, not numpy. Every step but one makes Python objects
-of the columns or of Python objects (frames, payloads, ints for the decoder), where numpy's arrays
-only add a conversion; packing and unpacking a block is a copy of each column either way (about
-2 ns a frame here). The one step numpy does faster is grouping the rows by ``(bus, key)``: an
-``argsort`` and a split took 30-60 ns a frame against :meth:`PackedFrames.groups`' 160-170 on
-blocks of 4,096-16,384 frames of the simulated drive (``tools/bench_readahead.py --groups``),
-about 0.1 µs of the 2-3 µs a frame of a block's decode: too little to make numpy, which tankviz
-does not otherwise need (only its ``fleet`` extra brings it), a dependency.
+:meth:`~PackedFrames.to_bytes` and :meth:`PackedFrames.from_bytes` carry a pack between processes
+as one buffer: a header, the bus names, then each column's raw bytes, in this machine's byte order
+(a hand-over, not a file format). :meth:`PackedFrames.from_frames` packs
+:class:`~bridge.frame.Frame` tuples; :meth:`~PackedFrames.frame` and iterating give back exactly
+the same tuples. :meth:`~PackedFrames.groups` gives the rows of each ``(bus index, key)`` in order,
+for :meth:`bridge.decode.decoder.Decoder.decode_packed` and
+:meth:`bridge.health.traffic.TrafficCounting.count_packed`. A pack never changes once made. Bounds:
+a time fits 64 signed bits, an id 32 bits (31 for an extended one), flags are taken as true or
+false, and a pack has at most :data:`MAX_BUSES` buses; :meth:`PackedFrames.from_frames` raises
+:class:`ValueError` naming the first frame beyond them, and :func:`packs` cuts frames into as many
+packs as the bus limit takes.
 """
 
 from __future__ import annotations
@@ -57,7 +40,7 @@ from bridge.frame import EXTENDED_KEY, Frame
 
 #: The flag bits of a frame (one byte per frame in :attr:`PackedFrames.flags`), in this order.
 FD, BRS, ESI, ERROR, REMOTE, EXTENDED = 1, 2, 4, 8, 16, 32
-#: Buses one block can hold (its bus column has one byte per frame).
+#: Buses one pack can hold (its bus column has one byte per frame).
 MAX_BUSES = 255
 
 #: bytes.translate tables: one byte per flags value, 1 where the flag is set
@@ -80,11 +63,11 @@ class PackedFrames:
                  flags: bytes, dlc: bytes | array[int], data: bytes, ends: array[int]) -> None:
         n = len(t)
         if not (len(bus) == len(key) == len(flags) == len(dlc) == len(ends) == n):
-            raise ValueError("the columns of a frame block must have one entry per frame")
+            raise ValueError("the columns of a frame pack must have one entry per frame")
         if len(buses) > MAX_BUSES:
-            raise ValueError(f"a frame block holds at most {MAX_BUSES} buses, not {len(buses)}")
+            raise ValueError(f"a frame pack holds at most {MAX_BUSES} buses, not {len(buses)}")
         if (ends[-1] if n else 0) != len(data):
-            raise ValueError("a frame block's payload ends must end at its data's length")
+            raise ValueError("a frame pack's payload ends must end at its data's length")
         self.buses = buses
         self.t = t
         self.bus = bus
@@ -99,7 +82,7 @@ class PackedFrames:
 
     @classmethod
     def from_frames(cls, frames: Sequence[Frame]) -> PackedFrames:
-        """The block of ``frames``, in their order; :class:`ValueError` for a frame beyond the
+        """The pack of ``frames``, in their order; :class:`ValueError` for a frame beyond the
         module's bounds or more than :data:`MAX_BUSES` buses."""
         n = len(frames)
         if not n:
@@ -108,8 +91,8 @@ class PackedFrames:
          esi_col, dlc_col) = zip(*frames, strict=True)
         buses = tuple(dict.fromkeys(bus_col))
         if len(buses) > MAX_BUSES:
-            raise ValueError(f"a frame block holds at most {MAX_BUSES} buses, these frames have "
-                             f"{len(buses)} (bridge.packed.blocks cuts them into blocks)")
+            raise ValueError(f"a frame pack holds at most {MAX_BUSES} buses, these frames have "
+                             f"{len(buses)} (bridge.packed.packs cuts them into packs)")
         if len(buses) == 1:
             bus = bytes(n)
         else:
@@ -172,7 +155,7 @@ class PackedFrames:
         return f"PackedFrames({len(self)} frames, buses={self.buses!r})"
 
     def all_flags(self) -> int:
-        """Every flag bit set on at least one frame of the block."""
+        """Every flag bit set on at least one frame of the pack."""
         if self._all_flags is None:
             value = 0
             for f in set(self.flags):
@@ -223,7 +206,7 @@ class PackedFrames:
             self.flag(REMOTE), self.flag(BRS), self.flag(ESI), self.dlc, strict=True))
 
     def slice(self, i: int, j: int) -> PackedFrames:
-        """Rows ``i`` to ``j`` (excluded) as a block, with the same bus table."""
+        """Rows ``i`` to ``j`` (excluded) as a pack, with the same bus table."""
         i, j, _ = slice(i, j).indices(len(self.t))
         j = max(i, j)
         start = self.ends[i - 1] if i else 0
@@ -258,7 +241,7 @@ class PackedFrames:
         return {(k >> 32 if shift else 0, k & mask): r for k, r in rows.items()}
 
     def to_bytes(self) -> bytes:
-        """The block as one buffer (:meth:`from_bytes` makes it again)."""
+        """The pack as one buffer (:meth:`from_bytes` makes it again)."""
         dlc = self.dlc
         typecode = b"q" if isinstance(dlc, array) else b"B"
         names = b"".join(_NAME_LENGTH.pack(len(b)) + b
@@ -270,11 +253,11 @@ class PackedFrames:
 
     @classmethod
     def from_bytes(cls, buffer: bytes | bytearray | memoryview) -> PackedFrames:
-        """The block :meth:`to_bytes` made ``buffer`` of."""
+        """The pack :meth:`to_bytes` made ``buffer`` of."""
         view = memoryview(buffer)
         magic, n, bus_count, typecode, data_length = _HEADER.unpack_from(view)
         if magic != _MAGIC:
-            raise ValueError("not a frame block")
+            raise ValueError("not a frame pack")
         at = _HEADER.size
         names = []
         for _ in range(bus_count):
@@ -303,12 +286,12 @@ class PackedFrames:
         at += 2 * n
         data = bytes(view[at:at + data_length])
         if len(data) != data_length or at + data_length != len(view):
-            raise ValueError("a frame block's buffer is cut or too long")
+            raise ValueError("a frame pack's buffer is cut or too long")
         return cls(tuple(names), t, bus, key, flags, dlc, data, ends)
 
 
-def blocks(frames: Sequence[Frame]) -> list[PackedFrames]:
-    """``frames`` as blocks, in order: one, or, where they have more than :data:`MAX_BUSES`
+def packs(frames: Sequence[Frame]) -> list[PackedFrames]:
+    """``frames`` as packs, in order: one, or, where they have more than :data:`MAX_BUSES`
     buses, as many as it takes (each cut where one more bus would not fit)."""
     try:
         return [PackedFrames.from_frames(frames)]
@@ -333,12 +316,12 @@ def _bus_of(frame: Frame) -> str:
 
 
 def _first_beyond(frames: Sequence[Frame]) -> str:
-    """Which frame a block cannot hold, and why."""
+    """Which frame a pack cannot hold, and why."""
     for i, f in enumerate(frames):
         why = _beyond(f)
         if why:
-            return f"frame {i} of the block ({f.bus}, time {f.timestamp_ns!r}): {why}"
-    return "a frame beyond a frame block's bounds"
+            return f"frame {i} of the pack ({f.bus}, time {f.timestamp_ns!r}): {why}"
+    return "a frame beyond a frame pack's bounds"
 
 
 def _beyond(f: Frame) -> str:

@@ -4,7 +4,10 @@ and hypothesis' CI profile."""
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -20,6 +23,12 @@ SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 SHARED_DBC_ORIGIN = ("they come from ../shared/data/dbc beside the project: public DBC files of "
                      "comma.ai's opendbc (MIT), not part of this repository")
 ECOCAR_DBC = data_dir() / "ecocar.dbc"
+
+# A test run's database cache (bridge/decode/cache.py) is its own, not the user's; the commands
+# it runs in subprocesses share it.
+_CACHE_HOME = tempfile.mkdtemp(prefix="tankviz-test-cache-")
+os.environ["XDG_CACHE_HOME"] = _CACHE_HOME
+atexit.register(shutil.rmtree, _CACHE_HOME, ignore_errors=True)
 
 # Under CI (CI=true) no property test fails on hypothesis' per-example deadline or on slow data
 # generation: a loaded machine is slow, not wrong. The examples are the same on every run

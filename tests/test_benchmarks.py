@@ -240,6 +240,7 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     assert "## Details: tools/bench_convert.py on the code before" in text
 
 
+@pytest.mark.slow
 def test_bench_health_tick_replays_every_frame_on_both_monitors_with_the_same_bytes() -> None:
     """tools/bench_health_tick.py in a tiny run: the convert's frames reach the monitors (the
     block engine counts frames without ``on_frame``: the recording must still see each), and
@@ -265,6 +266,7 @@ def test_the_health_tick_reference_takes_the_lateral_check_from_its_revision() -
     assert sys.modules[LateralSignCheck.__module__].LateralSignCheck is LateralSignCheck
 
 
+@pytest.mark.slow
 def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
     """tools/bench_bringup_cli.py on a few seconds of the RAV4-sized drive: every command runs
     and gets its row (the find-signal goal line too)."""
@@ -278,6 +280,7 @@ def test_bench_bringup_cli_times_every_command_against_python_can() -> None:
     assert "find-signal goal" in run.stdout
 
 
+@pytest.mark.slow
 def test_bench_bringup_measures_size_cpu_and_live_with_and_without_bring_up(
         shared_dbc: Path) -> None:
     """tools/bench_bringup.py on a few seconds of the Toyota and the highway car: every row with

@@ -6,7 +6,7 @@ and 0x2E0 on can1 no database of it defines:
 - ``/can/<bus>/unknown``: every frame of the unknown ids to a viewer, at most ``FILE_HZ`` a
   second per id (the first of each slot of log time) into a file; never a known id;
 - ``/can/bits`` (a PNG, read back with the small reader below) and ``/can/bits/labels``;
-- the same messages frame by frame, in live's reads and in blocks; none with ``--no-bring-up``.
+- the same messages frame by frame, in live's reads and in packs; none with ``--no-bring-up``.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from bridge.bringup import bitmap
 from bridge.bringup.bitmap import MAX_ROWS, MapRow, bit_map
 from bridge.bringup.census import gap_figures
 from bridge.bringup.columns import id_text
+from bridge.bringup.font import ADVANCE, GLYPHS, draw_text, glyph
 from bridge.bringup.monitor import FILE_HZ, FILE_PERIOD_S
 from bridge.bringup.payload import encode, id_field
 from bridge.cli import main
@@ -70,7 +71,7 @@ def highway(seconds: float = 6.0) -> list[Frame]:
 
 def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages:
     """Every message a viewer gets of a drive of ``frames``: fed one by one, in live's reads or
-    in blocks of ``size``."""
+    in packs of ``size``."""
     viewer = Viewer()
     drive = Drive(load_stages([], "highway"), [viewer])
     if feed == "frames":
@@ -79,7 +80,7 @@ def viewed(frames: list[Frame], feed: str = "frames", size: int = 0) -> Messages
         for i in range(0, len(frames), size):
             drive.pipeline.process_many(frames[i:i + size])
     else:
-        drive.run_blocks(PackedFrames.from_frames(frames[i:i + size])
+        drive.run_packed(PackedFrames.from_frames(frames[i:i + size])
                          for i in range(0, len(frames), size))
     drive.finish()
     return dict(viewer.topics)
@@ -90,7 +91,7 @@ def recorded(frames: list[Frame], *, bring_up: bool = True) -> Messages:
     drive = Drive(load_stages([], "highway"), bring_up=bring_up)
     out = io.BytesIO()
     drive.record(out, attachment_time_ns=0)
-    drive.run_blocks([PackedFrames.from_frames(frames)])
+    drive.run_packed([PackedFrames.from_frames(frames)])
     drive.finish()
     out.seek(0)
     topics: Messages = defaultdict(list)
@@ -275,6 +276,38 @@ def test_the_bit_map_is_a_png_with_a_row_per_id_bright_where_a_bit_flips_every_f
     assert cell(BRAKE_ID, 7, 0) not in (palette[bitmap.NEVER], palette[bitmap.QUIET])  # checksum
 
 
+def _glyph_by_glyph(canvas: np.ndarray, x: int, y: int, text: str, value: int,
+                    scale: int) -> None:
+    """How the font drew a text before it drew it at once: each glyph scaled with np.kron."""
+    height, width = canvas.shape
+    for i, char in enumerate(text):
+        shape = glyph(char)
+        if shape is None:
+            continue
+        big = np.kron(shape, np.ones((scale, scale), dtype=bool))
+        left, top = x + i * ADVANCE * scale, y
+        right, bottom = min(width, left + big.shape[1]), min(height, top + big.shape[0])
+        if left >= width or top >= height or right <= max(left, 0) or bottom <= max(top, 0):
+            continue
+        part = big[max(0, -top):bottom - top, max(0, -left):right - left]
+        canvas[max(top, 0):bottom, max(left, 0):right][part] = value
+
+
+@given(st.text(alphabet=[*GLYPHS, "a", "?", " ", "é"], max_size=12),
+       st.integers(-80, 100), st.integers(-30, 40), st.integers(1, 3),
+       st.integers(1, 40), st.integers(1, 90))
+def test_a_text_is_drawn_at_once_as_glyph_by_glyph(text: str, x: int, y: int, scale: int,
+                                                   height: int, width: int) -> None:
+    """The labels are drawn a whole text at a time (a cached mask: the map of a short drive
+    drew its glyphs for a quarter of a second), pixel for pixel as each glyph scaled alone,
+    cut at every edge of the canvas."""
+    canvas = np.zeros((height, width), dtype=np.uint8)
+    expected = canvas.copy()
+    draw_text(canvas, x, y, text, 7, scale=scale)
+    _glyph_by_glyph(expected, x, y, text, 7, scale)
+    assert np.array_equal(canvas, expected)
+
+
 def test_with_many_ids_the_map_stays_small_and_says_how_many_it_shows() -> None:
     rows = [MapRow("can0", key, None if key % 3 else "M", 8, np.ones(64, dtype=np.bool_),
                    np.full(64, 0.5)) for key in range(400)]
@@ -294,7 +327,7 @@ def test_frame_by_frame_in_reads_and_in_blocks_a_viewer_gets_the_same_messages()
               for i, f in enumerate(frames)]
     one_by_one = viewed(frames)
     assert one_by_one[unknown_topic("can0")] and one_by_one[BITS_TOPIC]
-    for feed, size in (("reads", 83), ("blocks", 1), ("blocks", 97), ("blocks", 4096)):
+    for feed, size in (("reads", 83), ("packs", 1), ("packs", 97), ("packs", 4096)):
         assert viewed(frames, feed, size) == one_by_one, (feed, size)
 
 

@@ -138,7 +138,7 @@ def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
 def test_each_frame_has_one_outcome_alone_or_in_a_block(
         ecocar: cantools.database.can.Database) -> None:
     """What the decoder made of a frame is its decoded message or why there is none, the same
-    whether it came alone or in a block."""
+    whether it came alone or in a pack."""
     bad_mux = frame(ecocar, "SensorDiag")._replace(data=bytes([9]) + bytes(7))
     cases = [
         (frame(ecocar, "EgoMotion"), Decoded),
@@ -149,10 +149,10 @@ def test_each_frame_has_one_outcome_alone_or_in_a_block(
         (Frame(3, "can0", 0x100, b"", is_remote=True, dlc=8), Undecoded.REMOTE),
     ]
     alone = [decoder().decode(f) for f, _ in cases]
-    in_block = decoder().decode_block(PackedFrames.from_frames([f for f, _ in cases]))
-    for (_, want), one, block in zip(cases, alone, in_block, strict=True):
+    in_block = decoder().decode_packed(PackedFrames.from_frames([f for f, _ in cases]))
+    for (_, want), one, pack in zip(cases, alone, in_block, strict=True):
         assert (type(one) if want is Decoded else one) is want
-        assert (type(block) if want is Decoded else block) is want
+        assert (type(pack) if want is Decoded else pack) is want
 
 
 def test_a_frame_key_tells_a_29_bit_id_from_an_11_bit_one() -> None:

@@ -28,9 +28,9 @@ from bridge.errors import UsageError
 from bridge.frame import NS, Frame
 from bridge.health import alarms
 from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings, alarm_id, alarm_notice
+from bridge.health.bus_bits import estimate_frame_bits, frame_bits
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
-from bridge.health.wire import estimate_frame_bits, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception

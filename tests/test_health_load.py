@@ -3,11 +3,11 @@ then one in about sixteen, and the others count the running mean of their kind; 
 within 1 % of the exact one on real-like traffic, and everything else the monitor counts per
 frame stays exact.
 
-The traffic is nothing like ecocar's own sample: the simulated three-bus drive of
-``tools/bench_convert.py`` (rolling counters, checksums, CAN FD radar frames, noisy signals) and a
-candump-like log of a car without a profile (``tools/bench_health.py``: ~100 ids, 11- and 29-bit,
-counters, checksums, random bytes, CAN FD frames with and without bit rate switch, remote and
-error frames). "Exact" is :func:`bridge.health.wire.frame_bits` summed over every frame.
+The traffic: the benches' simulated ecocar drive on three buses (``tools/benchlib.py``: CAN FD
+radar frames, noisy signals) and a candump-like log of a car without a profile
+(``tools/bench_health.py``: ~100 ids, 11- and 29-bit, counters, checksums, random bytes, CAN
+FD frames with and without bit rate switch, remote and error frames). "Exact" is
+:func:`bridge.health.bus_bits.frame_bits` summed over every frame.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import pytest
 
 from bridge.decode.decoder import Decoder
 from bridge.frame import NS, Frame
+from bridge.health.bus_bits import EXACT_FIRST, FrameKind, frame_bits
 from bridge.health.monitor import HealthMonitor
-from bridge.health.wire import EXACT_FIRST, FrameKind, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.topics import HEALTH_TOPIC
 
@@ -46,9 +46,9 @@ def tool(name: str) -> types.ModuleType:
 
 @functools.cache
 def simulated_drive() -> list[Frame]:
-    """250,000 frames (~100 s) of bench_convert's simulated drive: radar objects at 20 Hz get
-    well past the exactly counted first frames of their kind."""
-    return tool("bench_health").synthetic_frames(250_000)
+    """250,000 frames (~100 s) of the benches' simulated drive (bridge.sim's ecocar): radar
+    objects at 20 Hz get well past the exactly counted first frames of their kind."""
+    return list(tool("benchlib").ecocar_frames(250_000))
 
 
 @functools.cache

@@ -153,12 +153,12 @@ def through(frames: list[Frame], how: str, profile: str = "highway") -> list[tup
             pipeline.process_many(frames[k:k + 7])
     else:
         for k in range(0, len(frames), 50):
-            pipeline.process_block(PackedFrames.from_frames(frames[k:k + 50]))
+            pipeline.process_packed(PackedFrames.from_frames(frames[k:k + 50]))
     drive.finish()
     return collect.marks()
 
 
-@pytest.mark.parametrize("how", ["process", "process_many", "process_block"])
+@pytest.mark.parametrize("how", ["process", "process_many", "process_packed"])
 def test_the_pipeline_marks_at_the_frame_that_makes_the_rule_true(how: str) -> None:
     # a 20 ms press between two scene ticks (50 ms apart) marks too
     pattern = "---XXXXXX----XX---------X"

@@ -368,7 +368,7 @@ def check_between_their_frames(events: list[tuple[str, int]], made: list[Mark]) 
 
 
 def test_carried_marks_come_between_the_frames_before_and_after_them() -> None:
-    from bridge.packed import blocks
+    from bridge.packed import packs
     from bridge.pipeline.drive import Drive
     from bridge.pipeline.rederive import CarriedMarks
 
@@ -376,12 +376,12 @@ def test_carried_marks_come_between_the_frames_before_and_after_them() -> None:
     start, end = frames[0].timestamp_ns, frames[-1].timestamp_ns
     made = [Mark(timestamp=timestamp(t), number=n, text=f"m{n}") for n, t in enumerate(
         [start, start + 1, (start + end) // 2, (start + end) // 2, end, end + NS], 1)]
-    for cut in (64, 4096):  # marks inside blocks, and at their edges
+    for cut in (64, 4096):  # marks inside packs, and at their edges
         sink = Collected()
         drive = Drive(load_stages([], "ecocar"), [sink])
         carried = CarriedMarks(made, drive.pipeline)
-        assert drive.run_blocks(carried.blocks(
-            b for i in range(0, len(frames), cut) for b in blocks(frames[i:i + cut]))) == len(
+        assert drive.run_packed(carried.packs(
+            b for i in range(0, len(frames), cut) for b in packs(frames[i:i + cut]))) == len(
             frames)
         carried.finish()
         check_between_their_frames(sink.events, made)

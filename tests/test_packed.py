@@ -1,4 +1,4 @@
-"""A frame block gives back exactly the frames it was made of (every flag, extended ids, empty
+"""A frame pack gives back exactly the frames it was made of (every flag, extended ids, empty
 and 64-byte CAN FD payloads), through its buffer too; its slices and its groups by (bus, key)
 are those of the frames."""
 
@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from bridge.frame import Frame, frame_key
-from bridge.packed import MAX_BUSES, PackedFrames, blocks
+from bridge.packed import MAX_BUSES, PackedFrames, packs
 
 
 def every_kind() -> list[Frame]:
@@ -32,9 +32,9 @@ def every_kind() -> list[Frame]:
 
 
 def check_round_trip(frames: list[Frame]) -> PackedFrames:
-    block = PackedFrames.from_frames(frames)
-    again = PackedFrames.from_bytes(block.to_bytes())
-    for made in (block, again):
+    pack = PackedFrames.from_frames(frames)
+    again = PackedFrames.from_bytes(pack.to_bytes())
+    for made in (pack, again):
         assert len(made) == len(frames)
         got = list(made)
         assert got == frames
@@ -42,24 +42,24 @@ def check_round_trip(frames: list[Frame]) -> PackedFrames:
         for g, f in zip(got, frames, strict=True):  # the same types, not only equal values
             assert type(g) is Frame
             assert [type(v) for v in g] == [type(v) for v in f]
-    assert again == block
-    return block
+    assert again == pack
+    return pack
 
 
 def test_every_kind_of_frame_comes_back_the_same() -> None:
-    block = check_round_trip(every_kind())
+    pack = check_round_trip(every_kind())
 
-    assert block.buses == ("can0", "can1", "can2", "x.y-z")
-    assert block.key[1] == frame_key(0x1ABCDEF, True)
-    assert block.frame(-1) == every_kind()[-1]
+    assert pack.buses == ("can0", "can1", "can2", "x.y-z")
+    assert pack.key[1] == frame_key(0x1ABCDEF, True)
+    assert pack.frame(-1) == every_kind()[-1]
     with pytest.raises(IndexError):
-        block.frame(len(block))
+        pack.frame(len(pack))
 
 
 def test_an_empty_block() -> None:
-    block = check_round_trip([])
+    pack = check_round_trip([])
 
-    assert block.groups() == {} and block.payloads() == [] and len(block.slice(0, 5)) == 0
+    assert pack.groups() == {} and pack.payloads() == [] and len(pack.slice(0, 5)) == 0
 
 
 frame_strategy = st.builds(
@@ -89,17 +89,17 @@ def test_a_slice_is_the_block_of_those_frames(frames: list[Frame], i: int, j: in
 
 @given(st.lists(frame_strategy, max_size=80))
 def test_the_groups_are_the_rows_of_each_bus_and_key_in_order(frames: list[Frame]) -> None:
-    block = PackedFrames.from_frames(frames)
+    pack = PackedFrames.from_frames(frames)
     expected: dict[tuple[int, int], list[int]] = defaultdict(list)
     for i, f in enumerate(frames):
-        expected[(block.buses.index(f.bus), frame_key(f.arbitration_id, f.is_extended))].append(i)
+        expected[(pack.buses.index(f.bus), frame_key(f.arbitration_id, f.is_extended))].append(i)
 
-    groups = block.groups()
+    groups = pack.groups()
 
     assert {k: list(v) for k, v in groups.items()} == expected
     assert list(groups) == list(expected)  # in the order of their first row
     assert all(isinstance(v, array) and v.typecode == "I" for v in groups.values())
-    assert block.payloads() == [f.data for f in frames]
+    assert pack.payloads() == [f.data for f in frames]
 
 
 def test_the_buffer_has_no_pickled_frames_and_is_compact() -> None:
@@ -120,7 +120,7 @@ def test_a_dlc_beyond_a_byte_still_comes_back() -> None:
 
 
 def test_frames_beyond_the_bounds_are_a_clear_error() -> None:
-    with pytest.raises(ValueError, match=r"frame 1 of the block .*id 2147483648 is beyond"):
+    with pytest.raises(ValueError, match=r"frame 1 of the pack .*id 2147483648 is beyond"):
         PackedFrames.from_frames([Frame(0, "can0", 1, b""),
                                 Frame(0, "can0", 1 << 31, b"", is_extended=True)])
     with pytest.raises(ValueError, match=r"frame 0 .*time 9223372036854775808 does not fit"):
@@ -129,19 +129,19 @@ def test_frames_beyond_the_bounds_are_a_clear_error() -> None:
         PackedFrames.from_frames([Frame(0, f"b{i}", 1, b"") for i in range(MAX_BUSES + 1)])
     with pytest.raises(ValueError, match="cut or too long"):
         PackedFrames.from_bytes(PackedFrames.from_frames(every_kind()).to_bytes()[:-1])
-    with pytest.raises(ValueError, match="not a frame block"):
+    with pytest.raises(ValueError, match="not a frame pack"):
         PackedFrames.from_bytes(b"\0" * 32)
 
 
 def test_more_buses_than_a_block_holds_make_more_blocks() -> None:
     frames = [Frame(i, f"bus{i % 600}", i, bytes([i % 256])) for i in range(2000)]
 
-    made = blocks(frames)
+    made = packs(frames)
 
-    assert len(made) == -(-2000 // MAX_BUSES)  # every bus new in its block: cut at each 256th
+    assert len(made) == -(-2000 // MAX_BUSES)  # every bus new in its pack: cut at each 256th
     assert all(len(b.buses) <= MAX_BUSES for b in made)
     assert [f for b in made for f in b] == frames
-    assert len(blocks(frames[:100])) == 1
+    assert len(packs(frames[:100])) == 1
 
 
 def test_flags_of_other_types_are_taken_as_true_or_false() -> None:

@@ -69,12 +69,12 @@ def test_rows_are_written_as_protobuf_writes_them(frames: list[Frame]) -> None:
 def cut_in_rows(frames: list[Frame], size: int) -> list[RawBlock]:
     """The blocks of ``frames`` fed as rows of FrameBlocks of ``size`` (offline convert)."""
     blocks: list[RawBlock] = []
-    blocker = BlockCutter(blocks.extend)
+    cutter = BlockCutter(blocks.extend)
     for i in range(0, len(frames), size):
         rows = PackedFrames.from_frames(frames[i:i + size])
         for j in range(0, len(rows), 2):  # in runs, as the pipeline feeds them
-            blocker.add_rows(rows, j, min(j + 2, len(rows)))
-    blocker.flush()
+            cutter.add_rows(rows, j, min(j + 2, len(rows)))
+    cutter.flush()
     return blocks
 
 
@@ -124,16 +124,16 @@ def test_a_frame_before_its_block_closes_it() -> None:
 
 def test_the_clock_passing_a_window_closes_it() -> None:
     out: list[RawBlock] = []
-    blocker = BlockCutter(out.extend)
-    blocker.add(frame(0))
-    blocker.add(frame(15, "radar"))
-    assert not blocker.due(T0 + 19 * MS)
-    assert blocker.due(T0 + 20 * MS)
-    blocker.flush_due(T0 + 20 * MS)
+    cutter = BlockCutter(out.extend)
+    cutter.add(frame(0))
+    cutter.add(frame(15, "radar"))
+    assert not cutter.due(T0 + 19 * MS)
+    assert cutter.due(T0 + 20 * MS)
+    cutter.flush_due(T0 + 20 * MS)
     assert [(b.bus, b.frames) for b in out] == [("can0", 1)]
-    blocker.flush()
+    cutter.flush()
     assert [b.bus for b in out] == ["can0", "radar"]
-    blocker.flush()  # nothing open: nothing more
+    cutter.flush()  # nothing open: nothing more
     assert len(out) == 2
 
 

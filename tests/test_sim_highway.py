@@ -401,6 +401,7 @@ def perception(path: Path) -> tuple[dict[int, list[Any]], dict[int, Any]]:
     return tracks, leads
 
 
+@pytest.mark.slow
 def test_simulate_car_highway_mcap_has_the_tracks_and_the_lead_from_them(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "highway.mcap"

@@ -13,7 +13,7 @@ process, interleaved, best of ``--repeat`` (default 3):
 (c) optionally, each ``--compare NAME=PATH``: another decoder module (a file), or with
     ``--compare NAME=@REV`` the decoder of git revision REV (``benchlib.modules_at``), timed
     the same way as (b);
-(d) with ``--block N``: tankviz's column decode, :meth:`Decoder.decode_block` on the same frames
+(d) with ``--pack N``: tankviz's column decode, :meth:`Decoder.decode_packed` on the same frames
     as :class:`bridge.packed.PackedFrames` s of N frames (made before the clock starts: they are
     what the read-ahead hands over), also printed as a ratio to (b);
 
@@ -36,7 +36,7 @@ Logs:
     python tools/bench_decode.py
     python tools/bench_decode.py --log real-like
     python tools/bench_decode.py --compare old=@HEAD~3
-    python tools/bench_decode.py --block 4096 --block 16384 [--warm]
+    python tools/bench_decode.py --pack 4096 --pack 16384 [--warm]
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def decoder_runner(module: ModuleType, path: Path, warm: bool = False) -> Fresh:
 
 
 class FreshBlocks(Fresh):
-    """(d): Decoder.decode_block on blocks of ``size`` frames (made once per list of frames,
+    """(d): Decoder.decode_packed on packs of ``size`` frames (made once per list of frames,
     outside the timing), with a new decoder per round as :class:`Fresh` makes it."""
 
     def __init__(self, path: Path, size: int, warm: bool) -> None:
@@ -180,14 +180,14 @@ class FreshBlocks(Fresh):
         self.made: dict[int, list[PackedFrames]] = {}
 
     def __call__(self, frames: list[Frame]) -> list[bytes | None]:
-        blocks = self.made.get(id(frames))
-        if blocks is None:
-            blocks = self.made[id(frames)] = [PackedFrames.from_frames(frames[i:i + self.size])
+        packs = self.made.get(id(frames))
+        if packs is None:
+            packs = self.made[id(frames)] = [PackedFrames.from_frames(frames[i:i + self.size])
                                               for i in range(0, len(frames), self.size)]
-        decode = self.decoder.decode_block
+        decode = self.decoder.decode_packed
         out: list[bytes | None] = []
-        for block in blocks:
-            out += [getattr(d, "payload", None) for d in decode(block)]
+        for pack in packs:
+            out += [getattr(d, "payload", None) for d in decode(pack)]
         return out
 
 
@@ -253,8 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--compare", action="append", default=[], metavar="NAME=PATH",
                         help="another decoder module to time like (b)")
-    parser.add_argument("--block", action="append", type=int, default=[], metavar="N",
-                        help="also time Decoder.decode_block on blocks of N frames (d)")
+    parser.add_argument("--pack", action="append", type=int, default=[], metavar="N",
+                        help="also time Decoder.decode_packed on packs of N frames (d)")
     parser.add_argument("--warm", action="store_true",
                         help="tankviz's decoders have prepared every message before the clock "
                         "starts (one frame of each id decoded): the steady state")
@@ -266,8 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.compare:
         name, _, path = spec.partition("=")
         runners[f"c {name}"] = decoder_runner(load_module(name, Path(path)), dbc, args.warm)
-    for size in args.block:
-        runners[f"d blocks of {size}"] = FreshBlocks(dbc, size, args.warm)
+    for size in args.pack:
+        runners[f"d packs of {size}"] = FreshBlocks(dbc, size, args.warm)
 
     reference = runners["a naive"](frames)
     for name, run in runners.items():

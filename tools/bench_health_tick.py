@@ -111,14 +111,14 @@ def record(log: Path, profile: str, folder: Path) -> tuple[list[Call], dict[str,
     def frame_by_frame(self: Pipeline, block: Any) -> None:
         # The block engine counts a block's frames at once (not through on_frame, which the
         # reference monitor may lack a block counterpart of): the recording takes the per-frame
-        # path, which makes the same drive (tests/test_block_pipeline.py).
+        # path, which makes the same drive (tests/test_packed_pipeline.py).
         for frame in block:
             self.process(frame)
 
     patches = {(P, "feed"): feed, (P, "tick"): tick, (H, "on_frame"): on_frame,
                (H, "on_world"): on_world, (H, "advance"): advance, (H, "finish"): finish,
-               (H, "rebase"): rebase, (Pipeline, "process_block"): frame_by_frame}
-    originals[Pipeline, "process_block"] = Pipeline.process_block
+               (H, "rebase"): rebase, (Pipeline, "process_packed"): frame_by_frame}
+    originals[Pipeline, "process_packed"] = Pipeline.process_packed
     for (cls, name), function in patches.items():
         setattr(cls, name, function)
     try:

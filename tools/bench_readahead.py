@@ -8,9 +8,9 @@ the frames over) and times, interleaved, best of ``--runs`` (default 3):
 
 - ``old frames``: the module as ``--ref`` has it (default ``HEAD``, from a worktree of it, beside
   the working tree's): iterating its frames (pickled tuples made into frames here);
-- ``new frames``: this checkout's module, iterating its frames (made here from the blocks);
-- ``new blocks``: this checkout's module, iterating :meth:`ReadAhead.blocks` (no frame made here:
-  what the block engine reads).
+- ``new frames``: this checkout's module, iterating its frames (made here from the packs);
+- ``new packs``: this checkout's module, iterating :meth:`ReadAhead.packs` (no frame made here:
+  what the pack engine reads).
 
 It does the same for the hand-over alone (``memory``): the BLF's frames read once, before the
 clock starts, into a list the forked child iterates (a source that costs nothing to read), so
@@ -25,8 +25,8 @@ takes the frames) and the CPU time of this process and of the child (user + syst
 ratios old / new (above 1: new is faster). The child's CPU is python-can's reading plus the
 packing; this process's is the hand-over's other half.
 
-With ``--groups`` it also times grouping a block's rows by (bus, key), PackedFrames.groups (a dict
-of ``array('I')``) against a numpy ``argsort`` split (when numpy is installed), on blocks of
+With ``--groups`` it also times grouping a pack's rows by (bus, key), PackedFrames.groups (a dict
+of ``array('I')``) against a numpy ``argsort`` split (when numpy is installed), on packs of
 4,096 and 16,384 frames of the same drive: the measurement behind bridge/packed.py's choice of
 the standard library.
 
@@ -111,8 +111,8 @@ def count_blocks(module: ModuleType, path: Path | list[Frame]) -> int:
     reading = module.ReadAhead([source(path)])
     assert reading.ahead
     n = 0
-    for block in reading.blocks():
-        n += len(block)
+    for pack in reading.packs():
+        n += len(pack)
     return n
 
 
@@ -179,7 +179,7 @@ def hand_over(args: argparse.Namespace) -> None:
         contenders: dict[str, tuple[Timing, Callable[[], int]]] = {
             "old frames": (Timing(), partial(count_frames, old, path)),
             "new frames": (Timing(), partial(count_frames, new_module, path)),
-            "new blocks": (Timing(), partial(count_blocks, new_module, path)),
+            "new packs": (Timing(), partial(count_blocks, new_module, path)),
             "child old": (Timing(), partial(child_alone, old, path)),
             "child new": (Timing(), partial(child_alone, new_module, path)),
         }
@@ -211,12 +211,12 @@ def groups(args: argparse.Namespace) -> None:
         np = None
     frames = list(ecocar_frames(20_000, args.seed))
 
-    def numpy_groups(block: PackedFrames) -> dict[tuple[int, int], Any]:
+    def numpy_groups(pack: PackedFrames) -> dict[tuple[int, int], Any]:
         from array import array
 
         assert np is not None
-        combined = (np.frombuffer(block.key, dtype=np.uint32).astype(np.uint64)
-                    | (np.frombuffer(block.bus, dtype=np.uint8).astype(np.uint64)
+        combined = (np.frombuffer(pack.key, dtype=np.uint32).astype(np.uint64)
+                    | (np.frombuffer(pack.bus, dtype=np.uint8).astype(np.uint64)
                        << np.uint64(32)))
         order = np.argsort(combined, kind="stable")
         ordered = combined[order]
@@ -227,16 +227,16 @@ def groups(args: argparse.Namespace) -> None:
             out[(k >> 32, k & 0xFFFFFFFF)] = array("I", rows.tobytes())
         return dict(sorted(out.items(), key=lambda kv: kv[1][0]))  # in first-row order
 
-    print("grouping a block's rows by (bus, key), best of 20:")
+    print("grouping a pack's rows by (bus, key), best of 20:")
     for size in (4096, 16384):
-        block = PackedFrames.from_frames(frames[:size])
-        ways: dict[str, Callable[[], Any]] = {"PackedFrames.groups": block.groups}
+        pack = PackedFrames.from_frames(frames[:size])
+        ways: dict[str, Callable[[], Any]] = {"PackedFrames.groups": pack.groups}
         if np is not None:
-            assert {k: list(v) for k, v in numpy_groups(block).items()} == \
-                {k: list(v) for k, v in block.groups().items()}
-            ways["numpy argsort"] = partial(numpy_groups, block)
+            assert {k: list(v) for k, v in numpy_groups(pack).items()} == \
+                {k: list(v) for k, v in pack.groups().items()}
+            ways["numpy argsort"] = partial(numpy_groups, pack)
         best = best_of({name: cpu_seconds(way) for name, way in ways.items()}, 20)
-        print(f"  blocks of {size}: " + "   ".join(
+        print(f"  packs of {size}: " + "   ".join(
             f"{name} {seconds / size * 1e9:.0f} ns/frame" for name, seconds in best.items()))
 
 

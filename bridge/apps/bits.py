@@ -1,10 +1,8 @@
 """``tankviz bits``: the bit-change map of one id, or the bits that switch between two windows
 of time across every id.
 
-The map counts, per bit, the frames of the id that differ in it from the id's frame before (in
-the window); it is printed as a grid, a row per byte and a column per bit (bit 7 on the left, as
-a byte is written), each cell the share of frames that flipped it, shaded (in colour on a
-terminal that has it), and for a known id a letter per bit naming the signal that covers it.
+The map is a grid, a row per byte and a column per bit (bit 7 on the left), each cell the share
+of the id's frames that flipped that bit, with a letter per bit naming a known id's signal.
 """
 
 from __future__ import annotations
@@ -94,11 +92,11 @@ def _map(args: argparse.Namespace) -> int:
     frames_of_id = 0
     with opened(args) as source:
         window: tuple[int, int] | None = None
-        for block in source.blocks():
+        for pack in source.packs():
             assert source.origin_ns is not None
             window = window or window_ns(source.origin_ns, (start_s, end_s))
-            buses.update(block.buses)
-            columns = data_frames(block)
+            buses.update(pack.buses)
+            columns = data_frames(pack)
             b = columns.buses.index(bus) if bus in columns.buses else -1
             rows = np.flatnonzero((columns.bus == b) & (columns.key == key))
             frames_of_id += len(rows)
@@ -199,12 +197,12 @@ def _compare(args: argparse.Namespace) -> int:
     second = parse_window(args.compare[1], "--compare")
     steadiness: Steadiness | None = None
     with opened(args) as source:
-        for block in source.blocks():
+        for pack in source.packs():
             if steadiness is None:
                 assert source.origin_ns is not None
                 steadiness = Steadiness(window_ns(source.origin_ns, first),
                                         window_ns(source.origin_ns, second))
-            steadiness.add(data_frames(block))
+            steadiness.add(data_frames(pack))
         assert steadiness is not None
         for w, text in enumerate(args.compare):
             if not steadiness.frames(w):

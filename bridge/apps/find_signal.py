@@ -87,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
         ref_t: list[Array] = []
         ref_payloads: list[Bytes] = []
         last_ns = 0
-        for block in source.blocks():
-            columns = data_frames(block)
+        for pack in source.packs():
+            columns = data_frames(pack)
             if len(columns.t):
                 last_ns = max(last_ns, int(columns.t.max()))
             for bus, key, rows in by_id(columns):

@@ -39,8 +39,8 @@ def add_parser(sub: Subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     census = Census()
     with opened(args) as source:
-        for block in source.blocks():
-            census.add(data_frames(block))
+        for pack in source.packs():
+            census.add(data_frames(pack))
         rows = census.rows(source.message)
     if args.json:
         for row in rows:

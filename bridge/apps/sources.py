@@ -1,11 +1,9 @@
 """The source of the bring-up commands (``ids``, ``bits``, ``find-signal``): what ``convert``
 reads, read as ``convert`` reads it.
 
-Logs of any format python-can reads, or one recorded drive (its raw frames, decoded with its
-attached databases unless ``--dbc`` names others); the frames come as the block columns of the
-read-ahead (:class:`~bridge.io.readahead.ReadAhead`), a progress line on a terminal. Times on the
-command line are seconds from the source's first frame, the seconds ``tankviz replay --start``
-takes.
+Logs of any format python-can reads, or one recorded drive (decoded with its attached databases
+unless ``--dbc`` names others), as packed frames from the read-ahead; times on the command line
+are seconds from the source's first frame, as ``tankviz replay --start`` takes them.
 """
 
 from __future__ import annotations
@@ -47,28 +45,28 @@ class Source:
     decoder: Decoder
     sources: list[Any]
     quiet: bool
-    #: the first frame's log time, once the first block is read
+    #: the first frame's log time, once the first pack is read
     origin_ns: int | None = None
     _messages: dict[str, dict[int, Any]] | None = None
 
-    def blocks(self) -> Iterator[PackedFrames]:
-        """The frames in blocks, in order, with a progress line."""
+    def packs(self) -> Iterator[PackedFrames]:
+        """The frames in packs, in order, with a progress line."""
         from bridge.io.readahead import ReadAhead
 
         reading = ReadAhead(self.sources)
         bar = None if self.quiet else ProgressBar(sys.stderr)
         frames = 0
         try:
-            for block in reading.blocks():
-                if not len(block):
+            for pack in reading.packs():
+                if not len(pack):
                     continue
                 if self.origin_ns is None:
-                    self.origin_ns = block.t[0]
-                frames += len(block)
+                    self.origin_ns = pack.t[0]
+                frames += len(pack)
                 if bar is not None:
                     done, total = reading.progress()
                     bar(frames, done / total if total else None)
-                yield block
+                yield pack
         finally:
             if bar is not None:
                 bar.close()

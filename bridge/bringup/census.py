@@ -1,10 +1,7 @@
 """What each (bus, id) of a source sends: frames, periods, lengths and how often each bit flips.
 
-A :class:`Census` is fed data frames as columns (:mod:`bridge.bringup.columns`) in as many
-pieces as come, and keeps per id a :class:`Tally`; :meth:`Census.rows` tells each id as an
-:class:`IdRow`, with its database message (or none) and the changing bits no signal covers. Gaps
-are kept whole, or those of the latest ``history`` pieces or ``window_ns``; a short payload
-counts its missing bytes as zeros; a clock stepping back gives no gap.
+A :class:`Census` is fed data frames as columns in as many pieces as come, and tells each id as
+an :class:`IdRow`, with its database message (or none) and the changing bits no signal covers.
 """
 
 from __future__ import annotations
@@ -176,7 +173,11 @@ def gap_figures(gaps: Array) -> tuple[float | None, float | None, float | None]:
 
 
 class Census:
-    """Every id's :class:`Tally` of the frames fed so far."""
+    """Every id's :class:`Tally` of the frames fed so far.
+
+    Gaps are kept whole, or those of the latest ``history`` pieces or ``window_ns``; a short payload
+    counts its missing bytes as zeros; a clock stepping back gives no gap.
+    """
 
     def __init__(self, *, history: int | None = None, window_ns: int | None = None) -> None:
         #: how many pieces of gaps an id keeps (None: all), and of how long before its latest

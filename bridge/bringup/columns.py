@@ -1,10 +1,8 @@
-"""A frame block's data frames as numpy columns, grouped per (bus, id).
+"""Data frames as numpy columns, grouped per (bus, id).
 
-:func:`data_frames` takes the rows of a :class:`~bridge.packed.PackedFrames` (all, or a range) that
-carry data (error and remote frames carry none and are left out) as :class:`Columns`: times,
-bus names, frame keys, and the payloads as one ``uint8`` matrix, a row per frame, zero-padded to
-the longest payload. :func:`by_id` gives each (bus, key)'s rows of it, in their order;
-:func:`concat` makes one of several, in order.
+:func:`data_frames` gives the rows of a :class:`~bridge.packed.PackedFrames` that carry data as
+:class:`Columns` (times, buses, frame keys, payloads as one zero-padded ``uint8`` matrix);
+:func:`by_id` and :func:`concat` split and join them, in order.
 """
 
 from __future__ import annotations
@@ -45,23 +43,23 @@ def id_text(key: int) -> str:
     return f"0x{key:03X}"
 
 
-def data_frames(block: PackedFrames, i: int = 0, j: int | None = None) -> Columns:
-    """Rows ``i`` to ``j`` of ``block`` that carry data, as columns."""
-    n = len(block)
+def data_frames(pack: PackedFrames, i: int = 0, j: int | None = None) -> Columns:
+    """Rows ``i`` to ``j`` of ``pack`` that carry data, as columns."""
+    n = len(pack)
     i, j, _ = slice(i, j).indices(n)
     j = max(i, j)
-    t = np.frombuffer(block.t, dtype=np.int64, count=n)[i:j]
-    bus = np.frombuffer(block.bus, dtype=np.uint8, count=n)[i:j].astype(np.int64)
-    key = np.frombuffer(block.key, dtype=np.uint32, count=n)[i:j].astype(np.int64)
-    # (the ends of rows i - 1 to j only: a run of a few rows of a large block costs a few)
-    ends = np.frombuffer(block.ends, dtype=np.uint32, count=n)[max(i - 1, 0):j].astype(np.int64)
+    t = np.frombuffer(pack.t, dtype=np.int64, count=n)[i:j]
+    bus = np.frombuffer(pack.bus, dtype=np.uint8, count=n)[i:j].astype(np.int64)
+    key = np.frombuffer(pack.key, dtype=np.uint32, count=n)[i:j].astype(np.int64)
+    # (the ends of rows i - 1 to j only: a run of a few rows of a large pack costs a few)
+    ends = np.frombuffer(pack.ends, dtype=np.uint32, count=n)[max(i - 1, 0):j].astype(np.int64)
     starts = ends[:-1] if i else np.concatenate(([0], ends[:-1]))
     length = (ends[1:] if i else ends) - starts
-    if block.all_flags() & (ERROR | REMOTE):
-        flags = np.frombuffer(block.flags, dtype=np.uint8, count=n)[i:j]
+    if pack.all_flags() & (ERROR | REMOTE):
+        flags = np.frombuffer(pack.flags, dtype=np.uint8, count=n)[i:j]
         keep = (flags & (ERROR | REMOTE)) == 0
         t, bus, key, starts, length = t[keep], bus[keep], key[keep], starts[keep], length[keep]
-    data = np.frombuffer(block.data, dtype=np.uint8)
+    data = np.frombuffer(pack.data, dtype=np.uint8)
     width = int(length.max()) if len(length) else 0
     if width == 0:
         payload = np.zeros((len(t), 0), dtype=np.uint8)
@@ -69,7 +67,7 @@ def data_frames(block: PackedFrames, i: int = 0, j: int | None = None) -> Column
         at = starts[:, None] + np.arange(width)
         inside = np.arange(width) < length[:, None]
         payload = np.where(inside, data[np.minimum(at, len(data) - 1)], 0).astype(np.uint8)
-    return Columns(t, block.buses, bus, key, payload, length)
+    return Columns(t, pack.buses, bus, key, payload, length)
 
 
 def by_id(columns: Columns) -> Iterator[tuple[str, int, Array]]:

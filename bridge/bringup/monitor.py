@@ -1,6 +1,6 @@
 """The bring-up stage: what every id of every bus sends, published while a drive goes on.
 
-:class:`BringUpMonitor` is fed like the health monitor (every frame live, a block's rows
+:class:`BringUpMonitor` is fed like the health monitor (every frame live, a pack's rows
 offline: the same figures either way) and ticked on log time at whole seconds. It publishes
 ``/can/<bus>/ids`` (``tankviz.CanIds``: a row per id, sorted), ``/can/bits`` and
 ``/can/bits/labels`` (the bit-change map, :mod:`bridge.bringup.bitmap`), and on
@@ -32,7 +32,7 @@ from bridge.decode.codec import Decoded
 from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome
 from bridge.frame import EXTENDED_KEY, NEVER_NS, NS, Frame
-from bridge.packed import ERROR, REMOTE, PackedFrames, blocks
+from bridge.packed import ERROR, REMOTE, PackedFrames, packs
 from bridge.pb.bringup_pb2 import CanIds, CanPayload
 from bridge.topics import (
     BITS_LABELS_TOPIC,
@@ -52,9 +52,9 @@ FILE_HZ = 0.5
 FILE_PERIOD_S = 60.0
 #: What a message of no database is called in ``/can/<bus>/ids`` and the map's labels.
 UNKNOWN = "unknown"
-#: Frames fed one by one kept as they are before they are packed into a block.
+#: Frames fed one by one kept as they are before they are packed into a pack.
 _PACK = 16384
-#: Rows of a block counted as frames again, with their neighbours (columns of a few rows cost
+#: Rows of a pack counted as frames again, with their neighbours (columns of a few rows cost
 #: more than their frames).
 _FEW = 64
 
@@ -130,15 +130,15 @@ class BringUpMonitor:
         self.kept: list[bool] = []
         #: frames fed one by one since the last count (the pipeline appends them itself)
         self.pending: list[Frame] = []
-        #: what came before them since the last count: rows of blocks, in order
+        #: what came before them since the last count: rows of packs, in order
         self._pieces: list[list[Any]] = []
         #: (bus, key) -> the unknown id, or None for a known one
         self._ids: dict[tuple[str, int], _Unknown | None] = {}
         #: each id's frames when its share of flips started to be counted
         self._frames_then: dict[tuple[str, int], int] = {}
-        #: the block whose unknown rows are found (:meth:`on_rows`), and they: the rows files
+        #: the pack whose unknown rows are found (:meth:`on_rows`), and they: the rows files
         #: keep and all of them, each with its id, in row order
-        self._block: PackedFrames | None = None
+        self._last_pack: PackedFrames | None = None
         self._rows: tuple[list[int], list[_Unknown], list[int], list[_Unknown]] = (
             [], [], [], [])
 
@@ -173,18 +173,18 @@ class BringUpMonitor:
         self.made.append(self.envelope(unknown.topic, CanPayload, unknown.write(data), t))
         self.kept.append(keep)
 
-    def on_rows(self, block: PackedFrames, i: int, j: int) -> None:
-        """Rows ``i`` to ``j`` (excluded) of a block, after those before them, as
+    def on_rows(self, pack: PackedFrames, i: int, j: int) -> None:
+        """Rows ``i`` to ``j`` (excluded) of a pack, after those before them, as
         :meth:`on_frame` of each."""
         if self.pending:
             self._pack()
         pieces = self._pieces
-        if pieces and pieces[-1][0] is block and pieces[-1][2] == i:
+        if pieces and pieces[-1][0] is pack and pieces[-1][2] == i:
             pieces[-1][2] = j
         else:
-            pieces.append([block, i, j])
-        if block is not self._block:
-            self._find_unknown(block)
+            pieces.append([pack, i, j])
+        if pack is not self._last_pack:
+            self._find_unknown(pack)
         kept_rows, kept_ids, all_rows, all_ids = self._rows
         rows, ids = (all_rows, all_ids) if self.everyone else (kept_rows, kept_ids)
         a, b = bisect_left(rows, i), bisect_left(rows, j)
@@ -192,7 +192,7 @@ class BringUpMonitor:
             return
         kept = (set(kept_rows[bisect_left(kept_rows, i):bisect_left(kept_rows, j)])
                 if self.everyone else None)
-        ts, payloads, names, buses = block.t, block.payloads(), block.buses, block.bus
+        ts, payloads, names, buses = pack.t, pack.payloads(), pack.buses, pack.bus
         envelope, made, keeps = self.envelope, self.made, self.kept
         for r, unknown in zip(rows[a:b], ids[a:b], strict=True):
             if not unknown.told:
@@ -201,29 +201,29 @@ class BringUpMonitor:
             keeps.append(kept is None or r in kept)
 
     def bound(self) -> None:
-        """Pack the frames fed one by one into a block once there are many (call it now and
-        then: a block holds them in far less memory)."""
+        """Pack the frames fed one by one once there are many (call it now and then: packed,
+        they take far less memory)."""
         if len(self.pending) >= _PACK:
             self._pack()
 
     def _pack(self) -> None:
-        """The frames fed one by one, packed into blocks (rows to count)."""
-        self._pieces += [[block, 0, len(block)] for block in blocks(self.pending)]
+        """The frames fed one by one, packed (rows to count)."""
+        self._pieces += [[pack, 0, len(pack)] for pack in packs(self.pending)]
         self.pending.clear()
 
-    def _find_unknown(self, block: PackedFrames) -> None:
-        """A new block's data rows of unknown ids, and which of them files keep (the first of
-        their id in each slot of log time: decided here for the whole block, in row order)."""
-        self._block = block
-        names = block.buses
-        n = len(block)
-        times = np.frombuffer(block.t, dtype=np.int64, count=n)
-        flags = (np.frombuffer(block.flags, dtype=np.uint8, count=n)
-                 if block.all_flags() & (ERROR | REMOTE) else None)
+    def _find_unknown(self, pack: PackedFrames) -> None:
+        """A new pack's data rows of unknown ids, and which of them files keep (the first of
+        their id in each slot of log time: decided here for the whole pack, in row order)."""
+        self._last_pack = pack
+        names = pack.buses
+        n = len(pack)
+        times = np.frombuffer(pack.t, dtype=np.int64, count=n)
+        flags = (np.frombuffer(pack.flags, dtype=np.uint8, count=n)
+                 if pack.all_flags() & (ERROR | REMOTE) else None)
         ids: list[_Unknown] = []
         rows_of: list[npt.NDArray[np.int64]] = []
         keep_of: list[npt.NDArray[np.bool_]] = []
-        for (k, key), group in block.groups().items():
+        for (k, key), group in pack.groups().items():
             bus = names[k]
             unknown = self._ids.get((bus, key), _NOT_SEEN)
             if unknown is _NOT_SEEN:
@@ -337,20 +337,20 @@ class BringUpMonitor:
             self.census.add(columns)
 
     def _columns(self) -> list[Columns]:
-        """The rows to count as columns; runs of a few rows (blocks of a few frames) made one
-        block again first."""
+        """The rows to count as columns; runs of a few rows (packs of a few frames) made one
+        pack again first."""
         out: list[Columns] = []
         few: list[Frame] = []
-        for block, i, j in self._pieces:
+        for pack, i, j in self._pieces:
             if j - i < _FEW:
-                few += map(block.frame, range(i, j))
+                few += map(pack.frame, range(i, j))
                 continue
             if few:
-                out += [data_frames(b) for b in blocks(few)]
+                out += [data_frames(b) for b in packs(few)]
                 few = []
-            out.append(data_frames(block, i, j))
+            out.append(data_frames(pack, i, j))
         if few:
-            out += [data_frames(b) for b in blocks(few)]
+            out += [data_frames(b) for b in packs(few)]
         return out
 
     def _start_shares(self) -> None:

@@ -1,10 +1,8 @@
 """``/can/<bus>/unknown``'s messages, ``tankviz.CanPayload`` (schemas/bringup.proto), written in
-protobuf's wire format by hand: byte for byte what ``SerializeToString`` gives
-(tests/test_bringup_topics.py).
+protobuf's wire format by hand: byte for byte what ``SerializeToString`` gives.
 
-A message is its id field (made once per id), then the payload's bytes, its big-endian and its
-little-endian 16-bit words as packed fields of varints. Up to :data:`CACHE_SIZE` repeating
-payloads an id are remembered, then forgotten at once.
+A message is its id field, then the payload's bytes, its big-endian and its little-endian 16-bit
+words as packed fields of varints.
 """
 
 from __future__ import annotations
@@ -72,7 +70,9 @@ def _words(n: int) -> tuple[struct.Struct, struct.Struct, struct.Struct, struct.
 
 
 class PayloadWriter:
-    """One id's messages: its id field, and the payloads it sent lately remembered."""
+    """One id's messages: its id field (made once), and the payloads it sent lately remembered
+    (up to :data:`CACHE_SIZE`, then all forgotten at once).
+    """
 
     __slots__ = ("_cache", "head")
 

@@ -1,11 +1,11 @@
 """The decoder of a drive (:class:`Decoder`): frames to decoded messages by (bus, id), each bus
-with its own databases, one frame at a time or a block of frames a column at a time.
+with its own databases, one frame at a time or a pack of frames a column at a time.
 
 A J1939 message decodes by its PGN from any source address (:mod:`bridge.decode.j1939`: a codec
 is made for each id of it seen, one topic and schema for all). Every frame has one
 :data:`~bridge.decode.outcome.Outcome`; those that do not decode are counted in
-:attr:`Decoder.stats`, never raised (the recorder keeps every raw frame). A block decodes to what
-its frames decode to one by one, with the same counts (tests/test_decode_block.py). What would
+:attr:`Decoder.stats`, never raised (the recorder keeps every raw frame). A pack decodes to what
+its frames decode to one by one, with the same counts (tests/test_decode_packed.py). What would
 silence, move or mix a message without a word is a warning (:meth:`Decoder.warnings`).
 """
 
@@ -33,7 +33,7 @@ from bridge.topics import BUS_LEAVES, bus_segment, own_topic
 # Why a frame did not decode, as module globals (the per-frame path).
 _UNKNOWN_ID, _DECODE_ERROR = Undecoded.UNKNOWN_ID, Undecoded.DECODE_ERROR
 _ERROR_FRAME, _REMOTE = Undecoded.ERROR_FRAME, Undecoded.REMOTE
-#: bytes.translate table of block flags: 1 where the frame is extended, else 0
+#: bytes.translate table of pack flags: 1 where the frame is extended, else 0
 _EXTENDED_ONLY = bytes(1 if f & EXTENDED else 0 for f in range(256))
 
 
@@ -158,27 +158,31 @@ class Decoder:
             if types is None:
                 types = self._type_names[name] = type_names(database.db.messages)
             schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses,
-                                                        types[message.name])
+                                                        types[message.name],
+                                                        database.code.compile)
         return schema
 
-    def _decoders_of(self, message: DbcMessage
+    def _decoders_of(self, database: DatabaseFile, message: DbcMessage
                      ) -> tuple[Callable[[bytes], Any], DecodeColumn | None]:
         made = self._decoders.get(id(message))
         if made is None:
-            made = self._decoders[id(message)] = compile_decoders(message) or (partial(
-                message.decode, decode_choices=False, allow_truncated=True), None)
+            made = self._decoders[id(message)] = compile_decoders(
+                message, database.code.compile) or (partial(
+                    message.decode, decode_choices=False, allow_truncated=True), None)
         return made
 
-    def _decoder(self, message: DbcMessage) -> Callable[[bytes], Any]:
-        return self._decoders_of(message)[0]
+    def _decoder(self, database: DatabaseFile, message: DbcMessage) -> Callable[[bytes], Any]:
+        return self._decoders_of(database, message)[0]
 
-    def _column_decoder(self, message: DbcMessage) -> DecodeColumn | None:
-        return self._decoders_of(message)[1]
+    def _column_decoder(self, database: DatabaseFile, message: DbcMessage
+                        ) -> DecodeColumn | None:
+        return self._decoders_of(database, message)[1]
 
     def _codec(self, bus: str, f: DatabaseFile, message: DbcMessage, j1939_id: int | None,
                derived: bool = False) -> MessageCodec:
         return MessageCodec(message, f, partial(self._schema, f, message), bus,
-                            partial(self._decoder, message), partial(self._column_decoder, message),
+                            partial(self._decoder, f, message),
+                            partial(self._column_decoder, f, message),
                             j1939_id=j1939_id, derived=derived)
 
     def _table(self, bus: str) -> dict[int, MessageCodec]:
@@ -247,20 +251,20 @@ class Decoder:
         self.stats.unknown[(bus, frame.arbitration_id)] += 1
         return _UNKNOWN_ID
 
-    def decode_block(self, block: PackedFrames) -> list[Outcome]:
-        """Decode every frame of ``block``, a column per ``(bus, key)`` in one step: one
+    def decode_packed(self, pack: PackedFrames) -> list[Outcome]:
+        """Decode every frame of ``pack``, a column per ``(bus, key)`` in one step: one
         outcome per row, in row order, what :meth:`decode` of the row's frame returns, with the
         same statistics afterwards as decoding the frames one by one in order."""
-        n = len(block)
+        n = len(pack)
         out: list[Outcome] = [_UNKNOWN_ID] * n
         if not n:
             return out
-        payloads = block.payloads()
+        payloads = pack.payloads()
         # (an FD or BRS bit alone changes nothing in decoding)
-        flags = block.flags if block.all_flags() & (ERROR | REMOTE | EXTENDED) else None
-        buses = block.buses
+        flags = pack.flags if pack.all_flags() & (ERROR | REMOTE | EXTENDED) else None
+        buses = pack.buses
         last: dict[tuple[str, int], tuple[int, str]] = {}
-        for (bus_index, key), rows in block.groups().items():
+        for (bus_index, key), rows in pack.groups().items():
             whole = len(rows) == n
             if whole:
                 datas, these = payloads, flags
@@ -283,9 +287,9 @@ class Decoder:
     def _column(self, bus: str, key: int, datas: Sequence[bytes], flags: bytes | None
                 ) -> tuple[list[Outcome], dict[tuple[str, int], tuple[int, str]]]:
         """The outcomes of a column of frames of one ``bus`` and frame ``key`` (their payloads
-        ``datas``, their ``flags`` as a block has them; None: none set), and per ``(bus, id)``
+        ``datas``, their ``flags`` as a pack has them; None: none set), and per ``(bus, id)``
         of a decode error the position of its last one and its text (for the caller to keep:
-        the last of the block)."""
+        the last of the pack)."""
         table = self._tables.get(bus)
         if table is None:
             table = self._table(bus)

@@ -39,6 +39,7 @@ from cantools.database.conversion import BaseConversion, IdentityConversion, Lin
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from bridge.decode.cache import Compile, compile_source
 from bridge.protowire import varint
 
 FieldType = descriptor_pb2.FieldDescriptorProto
@@ -204,10 +205,11 @@ Encoder = Callable[[Mapping[str, Any]], bytes]
 
 
 
-def compile_encoder(schema: MessageSchema) -> Encoder:
+def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> Encoder:
     """A function from cantools' decoded signals (keyed by signal name, ``decode_choices=False``)
     to the serialized message, byte for byte what the message class's ``SerializeToString``
-    gives (see the module docstring); it falls back to the message class for anything else."""
+    gives (see the module docstring); it falls back to the message class for anything else.
+    ``code`` compiles its source (:class:`bridge.decode.cache.CodeCache`: once for every run)."""
     fallback = schema.serialize_with_protobuf
     field_of = {f.signal: f.field for f in schema.fields if f.kind != "address"}
     field_of.update(schema.renamed)  # a repeated signal name: the last one's field, as kwargs do
@@ -284,7 +286,7 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
              *lines,
              "    if len(out) != len(s): return F(s)",
              "    return b''.join(out)"]
-    exec("\n".join(lines), names)
+    exec(code("\n".join(lines)), names)
     encode: Encoder = names["encode"]
     return encode
 
@@ -294,7 +296,7 @@ class MessageSchema:
 
     def __init__(self, message: DbcMessage, database_name: str,
                  pool: descriptor_pool.DescriptorPool, addresses: tuple[str, ...] = (),
-                 type_name: str | None = None) -> None:
+                 type_name: str | None = None, code: Compile = compile_source) -> None:
         type_name = type_name or identifier(message.name)  # (:func:`type_names`)
         package = f"tankviz.dbc.{identifier(database_name)}"
         file_name = f"tankviz/dbc/{identifier(database_name)}/{type_name}.proto"
@@ -313,7 +315,7 @@ class MessageSchema:
         #: signal name -> field name, only where they differ
         self.renamed = {f.signal: f.field for f in self.fields if f.signal != f.field}
         #: cantools' decoded signals to the serialized message (:func:`compile_encoder`)
-        self.encode = compile_encoder(self)
+        self.encode = compile_encoder(self, code)
 
     def file_descriptor_set(self) -> bytes:
         """The serialized FileDescriptorSet of this type, built as mcap_protobuf builds it."""

@@ -1,12 +1,8 @@
-"""What the health monitor counts of every frame: per bus its frames, bits on the wire, ids,
-gaps, error frames, unknown ids, decode errors and non-finite values, per family its frames and
-when it last came or resumed (:mod:`bridge.health.counts` holds the counts).
+"""What the health monitor counts of every frame, per bus and per family.
 
-Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path: a few dict
-operations, a frame's bits counted exactly only for a sample) or a block at a time, count for
-count the same (:meth:`TrafficCounting.count_block`, then :meth:`TrafficCounting.count_rows` for
-each run of rows between two ticks); either way each frame is counted by the outcome the decoder
-gave it, never sorted again.
+Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path) or a pack at a
+time, count for count the same; either way each frame is counted by the outcome the decoder gave
+it, never sorted again. :mod:`bridge.health.counts` holds the counts.
 """
 
 from __future__ import annotations
@@ -25,8 +21,8 @@ from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome, Undecoded
 from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
+from bridge.health.bus_bits import MAX_KINDS, FrameKind, KindKey
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
-from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 
 # why a frame did not decode (module globals: the per-frame path)
@@ -35,23 +31,23 @@ _ERROR_FRAME, _UNKNOWN_ID, _DECODE_ERROR, _REMOTE = (
 
 
 class BusRows(NamedTuple):
-    """One bus's rows of a block, in row order, with their times, keys and bits."""
+    """One bus's rows of a pack, in row order, with their times, keys and bits."""
 
     rows: Sequence[int]
     times: Sequence[int]
     keys: Sequence[int]
     arbitration: list[float]
-    #: None: no frame of the block switches its bit rate
+    #: None: no frame of the pack switches its bit rate
     data_phase: list[float] | None
 
 
-class BlockCount(NamedTuple):
-    """A block's frames made ready to count (:meth:`TrafficCounting.count_block`)."""
+class PackedCount(NamedTuple):
+    """A pack's frames made ready to count (:meth:`TrafficCounting.count_packed`)."""
 
-    block: PackedFrames
+    pack: PackedFrames
     #: what the decoder made of each row
     decoded: Sequence[Outcome]
-    #: the kinds of frame of each bus, the block's counted in
+    #: the kinds of frame of each bus, the pack's counted in
     kinds: dict[str, dict[KindKey, FrameKind]]
     #: each bus index's rows, in the order of their first row
     buses: dict[int, BusRows]
@@ -152,29 +148,29 @@ class TrafficCounting:
             family.last_ns = t
             family.frames += 1
 
-    def count_block(self, block: PackedFrames,
-                    decoded: Sequence[Outcome]) -> BlockCount | None:
-        """Get a block's frames ready to be counted, a run of rows at a time
+    def count_packed(self, pack: PackedFrames,
+                    decoded: Sequence[Outcome]) -> PackedCount | None:
+        """Get a pack's frames ready to be counted, a run of rows at a time
         (:meth:`count_rows`), as :meth:`on_frame` of each in order counts them; ``decoded``:
-        what the decoder made of each row. None where the block must be counted frame by frame
-        (a bus with so many kinds of frame that the block could make it forget them).
+        what the decoder made of each row. None where the pack must be counted frame by frame
+        (a bus with so many kinds of frame that the pack could make it forget them).
 
         The bits of every frame are counted here, a ``(bus, key)`` column at a time (a kind's
         exact counts and estimates follow its own frames only, whatever comes between them:
         :meth:`FrameKind.bits_of`), and each bus's and family's rows are gathered; the rest is
         counted at :meth:`count_rows`, in row order where order matters (gaps, the sum of the
-        bits, ids and non-finite values first seen, families). A block is counted exactly as
+        bits, ids and non-finite values first seen, families). A pack is counted exactly as
         frame by frame if every run ends right after each row of a message the monitor had not
-        seen (:attr:`BlockCount.cuts`: the bus's gap time may change there)."""
-        n = len(block)
-        names = block.buses
+        seen (:attr:`PackedCount.cuts`: the bus's gap time may change there)."""
+        n = len(pack)
+        names = pack.buses
         for name in names:
             bus = self._buses.get(name)
             if (len(bus.kinds) if bus is not None else 0) + n > MAX_KINDS:
                 return None
-        payloads, flags, dlcs, ts = block.payloads(), block.flags, block.dlc, block.t
-        plain = not block.all_flags()
-        groups = block.groups()
+        payloads, flags, dlcs, ts = pack.payloads(), pack.flags, pack.dlc, pack.t
+        plain = not pack.all_flags()
+        groups = pack.groups()
         bits: list[tuple[float, float]] = [(0.0, 0.0)] * n
         kinds = {name: (self._buses[name].kinds if name in self._buses else {})
                  for name in names}
@@ -242,10 +238,10 @@ class TrafficCounting:
         bad.sort()
         firsts.sort(key=by_row)
         arbitration = list(map(itemgetter(0), bits))
-        data_phase = list(map(itemgetter(1), bits)) if block.all_flags() & BRS else None
+        data_phase = list(map(itemgetter(1), bits)) if pack.all_flags() & BRS else None
         buses: dict[int, BusRows] = {}
         if len(names) == 1:
-            buses[0] = BusRows(range(n), ts, block.key, arbitration, data_phase)
+            buses[0] = BusRows(range(n), ts, pack.key, arbitration, data_phase)
         else:
             of_bus: dict[int, list[array[int]]] = {}
             for (k, _), rows in groups.items():
@@ -254,7 +250,7 @@ class TrafficCounting:
                 merged = sorted(chain.from_iterable(columns))
                 buses[k] = BusRows(
                     merged, list(map(ts.__getitem__, merged)),
-                    list(map(block.key.__getitem__, merged)),
+                    list(map(pack.key.__getitem__, merged)),
                     list(map(arbitration.__getitem__, merged)),
                     None if data_phase is None else list(map(data_phase.__getitem__, merged)))
         families_of: dict[FamilyCounts, tuple[Sequence[int], list[int]]] = {}
@@ -262,14 +258,14 @@ class TrafficCounting:
             fed_rows = (fed_columns[0] if len(fed_columns) == 1
                         else sorted(chain.from_iterable(fed_columns)))
             families_of[family] = (fed_rows, list(map(ts.__getitem__, fed_rows)))
-        return BlockCount(block, decoded, kinds, buses, undecoded, bad, families_of, firsts)
+        return PackedCount(pack, decoded, kinds, buses, undecoded, bad, families_of, firsts)
 
-    def count_rows(self, c: BlockCount, i: int, j: int) -> None:
-        """Count rows ``i`` to ``j`` (excluded) of a block made ready by :meth:`count_block`,
+    def count_rows(self, c: PackedCount, i: int, j: int) -> None:
+        """Count rows ``i`` to ``j`` (excluded) of a pack made ready by :meth:`count_packed`,
         which no run counted yet, as :meth:`on_frame` of each in turn (a run that holds a row
-        of :attr:`BlockCount.cuts` but its last is counted as if that row came last)."""
-        block = c.block
-        names = block.buses
+        of :attr:`PackedCount.cuts` but its last is counted as if that row came last)."""
+        pack = c.pack
+        names = pack.buses
         for k, (rows, times, keys, arbitration, data_phase) in c.buses.items():
             a, b = (i, j) if isinstance(rows, range) else (bisect_left(rows, i),
                                                          bisect_left(rows, j))
@@ -305,10 +301,10 @@ class TrafficCounting:
         for r in c.bad[bisect_left(c.bad, i):bisect_left(c.bad, j)]:
             d = decoded[r]
             assert type(d) is Decoded
-            self._non_finite(self._buses[names[block.bus[r]]], d)
+            self._non_finite(self._buses[names[pack.bus[r]]], d)
         for r, codec in c.firsts[bisect_left(c.firsts, (i,)):bisect_left(c.firsts, (j,))]:
             if codec not in self._families_of:
-                self._resolve(self._buses[names[block.bus[r]]], codec)
+                self._resolve(self._buses[names[pack.bus[r]]], codec)
         for family, (rows, times) in c.families.items():
             a, b = bisect_left(rows, i), bisect_left(rows, j)
             if a == b:

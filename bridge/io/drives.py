@@ -1,14 +1,9 @@
 """Sources: the raw CAN frames of a recorded drive (an MCAP tankviz wrote), and what it holds.
 
-This module only reads. :func:`is_drive` tells a drive by its ``.mcap`` suffix; :func:`read_drive`
-gives its attachments (in file order), its ``tankviz`` metadata (empty for a file cut short), its
-marks, size and SHA-256, and a file that is not a drive is an :class:`~bridge.errors.InputError`
-saying what it lacks. :class:`ArchiveSource` gives every raw frame (``/can/<bus>/frames``, blocks
-or one frame a message) in the order it was recorded, so re-deriving reproduces the drive; a
-drive cut short gives every frame of its complete chunks and one issue pointing to ``tankviz
-recover``; a block or frame that cannot be read, or that no bus carries, is skipped and reported.
-:func:`raw_frame_counts` counts frames per bus; :func:`read_marks` and :func:`drive_marks` read
-``/marks`` in number order, through the indexes where the file has them.
+This module only reads. :class:`ArchiveSource` gives every raw frame in the order it was
+recorded, so re-deriving reproduces the drive; a drive cut short gives every frame of its
+complete chunks and one issue pointing to ``tankviz recover``; a file that is not a drive is an
+:class:`~bridge.errors.InputError` saying what it lacks.
 """
 
 from __future__ import annotations
@@ -99,7 +94,10 @@ def _open(path: Path) -> IO[bytes]:
 
 
 def read_drive(path: Path | str) -> ArchiveContents:
-    """The attachments and metadata of the drive at ``path``; refuses what is not a drive."""
+    """The attachments (in file order) and metadata (empty for a file cut short) of the drive at
+    ``path``, with its marks, size and SHA-256; a file that is not a drive is an
+    :class:`~bridge.errors.InputError` saying what it lacks.
+    """
     path = Path(path)
     attachments: dict[str, bytes] = {}
     metadata: dict[str, Any] = {}

@@ -1,8 +1,8 @@
 """Read ahead: the frames of several sources, read and merged in a second process.
 
 :class:`ReadAhead` reads :func:`~bridge.io.can_logs.merge` of the sources in a forked child, which
-sends them through a pipe as :class:`~bridge.packed.PackedFrames` blocks of :data:`BATCH` frames
-(:meth:`ReadAhead.blocks`; iterating gives their frames), never more than two blocks ahead, so
+sends them through a pipe as :class:`~bridge.packed.PackedFrames` packs of :data:`BATCH` frames
+(:meth:`ReadAhead.packs`; iterating gives their frames), never more than two packs ahead, so
 memory stays flat; :meth:`progress` tells the bytes read. The results are those of reading here:
 each source's ``issues``, ``frames`` and ``backwards`` come back from the child; an
 :class:`~bridge.errors.InputError` it meets is raised here after the frames before it; a bug in
@@ -32,9 +32,9 @@ from typing import Any, Protocol, TypeVar
 from bridge.errors import BridgeError, InputError
 from bridge.frame import Frame
 from bridge.io.can_logs import SourceIssue, merge
-from bridge.packed import PackedFrames, blocks
+from bridge.packed import PackedFrames, packs
 
-#: Frames per hand-over (per block): large enough that a block costs little per frame, small
+#: Frames per hand-over (per pack): large enough that a pack costs little per frame, small
 #: enough that the pipeline starts at once.
 BATCH = 4096
 #: Inputs smaller than this (bytes, all sources) are read in this process.
@@ -50,8 +50,8 @@ THREAD_ITEMS = 4096
 #: Seconds :func:`read_in_thread`'s consumer waits at a time before it looks at its stop again.
 POLL_S = 0.05
 
-#: The first byte of a message from the child: a block (after it, each source's bytes read so
-#: far as ``array('q')``, then the block's buffer) or anything else (a pickled tuple)
+#: The first byte of a message from the child: a pack (after it, each source's bytes read so
+#: far as ``array('q')``, then the pack's buffer) or anything else (a pickled tuple)
 _BLOCK, _PICKLED = b"B", b"P"
 _T = TypeVar("_T")
 
@@ -81,7 +81,7 @@ def can_fork() -> bool:
 class ReadAhead:
     """The frames of ``sources`` in time order, read by a child process when ``ahead`` allows
     it (and :func:`can_fork`, and the inputs are at least :data:`MIN_BYTES`). Iterate once, or
-    take its :meth:`blocks` once."""
+    take its :meth:`packs` once."""
 
     def __init__(self, sources: Sequence[Source], *, ahead: bool = True) -> None:
         self.sources = list(sources)
@@ -101,25 +101,25 @@ class ReadAhead:
             return iter(merge(self.sources))
         return self._frames()
 
-    def blocks(self) -> Iterator[PackedFrames]:
+    def packs(self) -> Iterator[PackedFrames]:
         """The frames as :class:`~bridge.packed.PackedFrames` s of at most :data:`BATCH` frames, in
         order (instead of iterating: one or the other, once)."""
         if not self.ahead:
-            return self._blocks_here()
+            return self._packs_here()
         return self._from_child()
 
     def _frames(self) -> Iterator[Frame]:
         from_child = self._from_child()
         try:
-            for block in from_child:
-                yield from block
+            for pack in from_child:
+                yield from pack
         finally:
             from_child.close()  # the child is ended at once, not when this is collected
 
-    def _blocks_here(self) -> Iterator[PackedFrames]:
+    def _packs_here(self) -> Iterator[PackedFrames]:
         frames = iter(merge(self.sources))
         while batch := list(islice(frames, BATCH)):
-            yield from blocks(batch)
+            yield from packs(batch)
 
     def _from_child(self) -> Generator[PackedFrames, None, None]:
         import multiprocessing
@@ -185,7 +185,7 @@ class ReadAhead:
 
 
 def _read(sources: list[Source], send: Any, receive: Any) -> None:
-    """The child: every frame, in blocks, then how each source ended."""
+    """The child: every frame, in packs, then how each source ended."""
     receive.close()  # the parent's end: once the parent closes it, a write here fails at once
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the parent, which ends this
     for signum in (signal.SIGTERM, signal.SIGHUP):
@@ -203,8 +203,8 @@ def _read(sources: list[Source], send: Any, receive: Any) -> None:
     def flush() -> None:
         if batch:
             done = array("q", [s.progress()[0] for s in sources]).tobytes()
-            for block in blocks(batch):
-                send.send_bytes(b"".join((_BLOCK, done, block.to_bytes())))
+            for pack in packs(batch):
+                send.send_bytes(b"".join((_BLOCK, done, pack.to_bytes())))
             batch.clear()
 
     try:
@@ -240,7 +240,7 @@ _END = object()
 def read_in_thread(items: Iterable[_T], stopping: threading.Event, *,
                    name: str = "tankviz-read") -> Iterator[_T]:
     """``items``, read by a daemon thread; ends when ``stopping`` is set, within :data:`POLL_S`
-    even while a read blocks. An exception of the reading is raised here after the items before
+    even while a read packs. An exception of the reading is raised here after the items before
     it. Once this iterator ends (or is closed), the thread stops at its next item."""
     buffer: deque[Any] = deque()
     ready, room, gone = threading.Event(), threading.Event(), threading.Event()

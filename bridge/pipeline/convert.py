@@ -167,8 +167,8 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
         progress(frames, done / total if total else None)
 
     carried = CarriedMarks(marks, drive.pipeline) if marks else None
-    blocks = reading.blocks() if carried is None else carried.blocks(reading.blocks())
-    frames = drive.run_blocks(blocks, progress=report_progress if progress else None,
+    blocks = reading.packs() if carried is None else carried.packs(reading.packs())
+    frames = drive.run_packed(blocks, progress=report_progress if progress else None,
                               every=every)
     if carried is not None:
         carried.finish()

@@ -5,7 +5,7 @@ decoder and the profile, every name checked against the databases. :class:`Drive
 health monitor, the bring-up stage (on unless ``bring_up=False``) and the
 :class:`~bridge.pipeline.pipeline.Pipeline`, its sinks in the order they are added (the live
 server first: viewers wait for a scene, the recorder does not); :meth:`Drive.run` and
-:meth:`Drive.run_blocks` feed it, :meth:`Drive.finish` emits what is due and finishes every sink.
+:meth:`Drive.run_packed` feed it, :meth:`Drive.finish` emits what is due and finishes every sink.
 A file sink made with :meth:`Drive.record` or :meth:`Drive.record_parts` gets every database and
 the profile as attachments when it (each part) starts, and the ``tankviz`` metadata record
 (:meth:`Drive.describe`, plus :attr:`Drive.extra`) just before it is finished.
@@ -16,6 +16,7 @@ from __future__ import annotations
 import gc
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
+from itertools import islice
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, NamedTuple
 
@@ -145,34 +146,35 @@ class Drive:
             every: int = 16384) -> int:
         """Every frame through the pipeline; ``progress`` is called with the count now and
         then. Returns how many frames there were."""
-        process = self.pipeline.process
+        process = self.pipeline.process_many
         count = 0
+        frames = iter(frames)
         # The hot loop makes millions of short-lived tuples and no reference cycles: the cyclic
         # garbage collector would only walk the long-lived caches over and over (about 8 %).
         collecting = gc.isenabled()
         gc.disable()
         try:
-            for frame in frames:
-                process(frame)
-                count += 1
-                if progress is not None and count % every == 0:
+            while chunk := list(islice(frames, every)):
+                process(chunk)
+                count += len(chunk)
+                if progress is not None and len(chunk) == every:
                     progress(count)
         finally:
             if collecting:
                 gc.enable()
         return count
 
-    def run_blocks(self, blocks: Iterable[PackedFrames], *,
+    def run_packed(self, packs: Iterable[PackedFrames], *,
                    progress: Callable[[int], None] | None = None, every: int = 16384) -> int:
-        """:meth:`run` for frames in blocks (offline: :meth:`Pipeline.process_block`)."""
-        process = self.pipeline.process_block
+        """:meth:`run` for frames in packs (offline: :meth:`Pipeline.process_packed`)."""
+        process = self.pipeline.process_packed
         count = 0
         collecting = gc.isenabled()
         gc.disable()  # as in run
         try:
-            for block in blocks:
-                process(block)
-                before, count = count, count + len(block)
+            for pack in packs:
+                process(pack)
+                before, count = count, count + len(pack)
                 if progress is not None and count // every != before // every:
                     progress(count)
         finally:

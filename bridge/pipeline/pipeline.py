@@ -1,10 +1,9 @@
 """The data path of one drive (:class:`Pipeline`): frames → decode → perception, health and
-bring-up → sinks. Every frame, alone, in a read or in a block, takes the same step: log time
-reaches it (a clock step re-bases every stage, the ticks due before it are made), then it goes
-into its raw block (:mod:`bridge.sinks.raw`), is counted by health and bring-up, and its decoded
-message goes to every sink, to perception and to the profile's ``[marks]`` rules. Every scene
-tick is recorded; a viewer (:meth:`Pipeline.add_viewer`) gets only the latest of a catch-up.
-Each message is serialized once for all sinks.
+bring-up → sinks.
+
+Every frame, alone, in a read or packed, takes the same step: log time reaches it, it goes into
+its raw block, is counted by health and bring-up, and its decoded message goes to every sink,
+perception and the ``[marks]`` rules. Each message is serialized once for all sinks.
 """
 
 from __future__ import annotations
@@ -55,7 +54,12 @@ Feed = Callable[[str, Mapping[str, Any], int], None]
 
 
 class Pipeline:
-    """Runs one drive's frames through decoding, perception and health into its sinks."""
+    """Runs one drive's frames through decoding, perception and health into its sinks.
+
+    When log time reaches a frame, a clock step re-bases every stage and the ticks due before it are
+    made. Every scene tick is recorded; a viewer (:meth:`add_viewer`) gets only the latest of a
+    catch-up.
+    """
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),
@@ -97,7 +101,7 @@ class Pipeline:
         #: that do not
         self._records: list[bool] = []
         self._showing: list[Sink] = []
-        self._blocker = BlockCutter(self._emit_raw)
+        self._cutter = BlockCutter(self._emit_raw)
         self._on_decoded: list[Callable[[int, Decoded], None]] = []
         for sink in sinks:
             self.add_sink(sink)
@@ -134,7 +138,7 @@ class Pipeline:
         log time reaches it (:meth:`_reach`), then it goes into its raw block, is counted by
         health and bring-up, and its decoded message, with those of its run, to the sinks and
         perception (:meth:`_hand`)."""
-        blocker, health, sinks, bringup = self._blocker, self.health, self.sinks, self.bringup
+        cutter, health, sinks, bringup = self._cutter, self.health, self.sinks, self.bringup
         check = self.clock.check
         keep = (bringup.pending if bringup is not None else []).append
         run: list[tuple[int, Decoded]] = []
@@ -150,7 +154,7 @@ class Pipeline:
                     self._hand_made(bringup)
                 self._reach(t, step)
             if sinks:
-                blocker.add(frame)
+                cutter.add(frame)
             decoded = decode(frame)
             if health is not None:
                 health.on_frame(frame, decoded)
@@ -180,27 +184,27 @@ class Pipeline:
         if t_ns >= self._next_tick:
             self.advance(t_ns)
 
-    def process_block(self, block: PackedFrames) -> None:
-        """A block of frames through every stage, as :meth:`process_many` of its frames (the
+    def process_packed(self, pack: PackedFrames) -> None:
+        """A pack of frames through every stage, as :meth:`process_many` of its frames (the
         same messages on every topic, and the same statistics; topics interleave otherwise in
-        the file). Each (bus, id) column of the block is decoded in one step
-        (:meth:`~bridge.decode.decoder.Decoder.decode_block`: decoding depends on no time, and
-        the decoder's counts are read only when a drive is described). Then the block goes
+        the file). Each (bus, id) column of the pack is decoded in one step
+        (:meth:`~bridge.decode.decoder.Decoder.decode_packed`: decoding depends on no time, and
+        the decoder's counts are read only when a drive is described). Then the pack goes
         through the other stages a run of rows at a time: a run ends where a frame steps the
         clock or comes at or after the next scene, health or bring-up tick (which are made
         before it: :meth:`_reach`), or where the health monitor needs it to
-        (:attr:`~bridge.health.traffic.BlockCount.cuts`). A run's frames are counted by health
+        (:attr:`~bridge.health.traffic.PackedCount.cuts`). A run's frames are counted by health
         in bulk (:meth:`~bridge.health.traffic.TrafficCounting.count_rows`), then go through
-        the other stages (:meth:`_rows`). A block whose health must be counted frame by frame
+        the other stages (:meth:`_rows`). A pack whose health must be counted frame by frame
         (a bus with too many kinds of frame) takes the step of :meth:`process_many`."""
-        decoded = self.decoder.decode_block(block)
+        decoded = self.decoder.decode_packed(pack)
         health = self.health
-        counting = health.count_block(block, decoded) if health is not None else None
+        counting = health.count_packed(pack, decoded) if health is not None else None
         if health is not None and counting is None:
             outcomes = iter(decoded)
-            self._step(block, lambda _frame: next(outcomes))
+            self._step(pack, lambda _frame: next(outcomes))
             return
-        ts = block.t
+        ts = pack.t
         n = len(ts)
         cuts = iter([*counting.cuts, n] if counting is not None else [n])
         cut = next(cuts)
@@ -239,21 +243,21 @@ class Pipeline:
             if counting is not None:
                 assert health is not None
                 health.count_rows(counting, i, j)
-            self._rows(block, decoded, i, j)
+            self._rows(pack, decoded, i, j)
             i = j
 
-    def _rows(self, block: PackedFrames, decoded: list[Outcome], i: int, j: int) -> None:
-        """Rows ``i`` to ``j`` of a block, counted by health, through the other stages: their
+    def _rows(self, pack: PackedFrames, decoded: list[Outcome], i: int, j: int) -> None:
+        """Rows ``i`` to ``j`` of a pack, counted by health, through the other stages: their
         raw blocks (:meth:`~bridge.sinks.raw.BlockCutter.add_rows`), bring-up
         (:meth:`~bridge.bringup.monitor.BringUpMonitor.on_rows`), and their decoded messages to
         the sinks and perception (:meth:`_hand`)."""
         if self.sinks:
-            self._blocker.add_rows(block, i, j)
-        ts = block.t
+            self._cutter.add_rows(pack, i, j)
+        ts = pack.t
         self._hand([(ts[r], d) for r, d in enumerate(decoded[i:j], i) if type(d) is Decoded])
         bringup = self.bringup
         if bringup is not None:
-            bringup.on_rows(block, i, j)
+            bringup.on_rows(pack, i, j)
             if bringup.made:
                 self._hand_made(bringup)
         self.frames += j - i
@@ -341,8 +345,8 @@ class Pipeline:
         comes: live's clock), every scene tick in turn, each with the health checks due by
         then."""
         self.clock.passed(t_ns)
-        if self._blocker.due(t_ns):
-            self._blocker.flush_due(t_ns)
+        if self._cutter.due(t_ns):
+            self._cutter.flush_due(t_ns)
         perception, health = self.perception, self.health
         if perception is not None:
             ticks = perception.due_ticks(t_ns)
@@ -396,7 +400,7 @@ class Pipeline:
     def flush_raw(self) -> None:
         """Close the open window of raw frames now: a part of a drive that ends takes every
         frame decoded so far with it (its statistics count them)."""
-        self._blocker.flush()
+        self._cutter.flush()
 
     def _emit_raw(self, blocks: list[RawBlock]) -> None:
         for sink in self.sinks:

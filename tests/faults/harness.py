@@ -202,9 +202,9 @@ def assert_survived(car: LiveCar, viewer: Viewer | None, *, fault_ended: float,
     frames = sum(len(block.frames) for block in recording.get("/can/can0/frames", []))
     assert frames == sent, f"{sent} frames sent, {frames} recorded"
     if viewer is not None:
-        after = viewer.scenes_after(fault_ended)
-        assert after and after[0] - fault_ended < 1.0, (
-            f"no scene within 1 s of the fault's end (next after {after[:1]})")
+        after = viewer.scenes_after(fault_ended)  # (1 s on a machine that is not loaded)
+        assert after and after[0] - fault_ended < 1.0 * timeout_scale(), (
+            f"no scene within {timeout_scale():g} s of the fault's end (next after {after[:1]})")
     if on_log is not None:
         logs = [m.message for m in recording.get("/log", [])]
         assert any(on_log in text for text in logs), f"{on_log!r} not on /log: {logs}"

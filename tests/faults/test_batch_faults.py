@@ -84,6 +84,7 @@ def test_the_summary_names_every_drive_with_damaged_inputs(tmp_path: Path) -> No
         f"tankviz inspect {tmp_path / 'out' / 'week' / 'bad.mcap'} lists them"]
 
 
+@pytest.mark.slow
 def test_a_batch_names_its_damaged_drive_and_refuses_one_log_in_two_formats(
         broken: Path, write_log: WriteLog, tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:

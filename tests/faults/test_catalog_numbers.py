@@ -13,6 +13,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from bridge.apps.recover import recover_file
@@ -59,6 +60,7 @@ def recorded(path: Path, duration_s: float = 12.0) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_recovered_drive_is_catalogued_with_what_it_holds(tmp_path: Path) -> None:
     whole = recorded(tmp_path / "whole.mcap")
     data = whole.read_bytes()
@@ -84,6 +86,7 @@ def test_a_recovered_drive_is_catalogued_with_what_it_holds(tmp_path: Path) -> N
     assert database[1:3] == ("ecocar", sha)
 
 
+@pytest.mark.slow
 def test_a_recovered_drive_with_its_tankviz_record_counts_the_frames_it_holds(
         tmp_path: Path) -> None:
     whole = recorded(tmp_path / "whole.mcap", duration_s=20.0)

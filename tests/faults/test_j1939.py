@@ -101,17 +101,17 @@ def test_every_source_and_priority_of_a_pgn_decodes_and_keeps_its_source(dbc: Pa
 
 
 def test_blocks_decode_as_frame_by_frame_and_the_health_census_agrees(dbc: Path) -> None:
-    one, block = (Decoder({None: [load_database(dbc)]}) for _ in range(2))
+    one, pack = (Decoder({None: [load_database(dbc)]}) for _ in range(2))
     by_frame = [one.decode(f) for f in frames()]
-    by_block = block.decode_block(PackedFrames.from_frames(frames()))
+    by_block = pack.decode_packed(PackedFrames.from_frames(frames()))
     assert [d.payload if d else None for d in by_frame] == [
         d.payload if d else None for d in by_block]
-    assert block.stats.unknown == {}
+    assert pack.stats.unknown == {}
     other = j1939_id(6, 0xFEF1, 0x99) | EXTENDED_KEY
-    assert block.knows("can0", other)
-    assert not block.knows("can0", j1939_id(6, 0xFEF2, 0x99) | EXTENDED_KEY)
-    assert not block.knows("can0", 0x4FE)  # a standard id is no J1939 frame
-    found = block.message_of("can0", other)
+    assert pack.knows("can0", other)
+    assert not pack.knows("can0", j1939_id(6, 0xFEF2, 0x99) | EXTENDED_KEY)
+    assert not pack.knows("can0", 0x4FE)  # a standard id is no J1939 frame
+    found = pack.message_of("can0", other)
     assert found is not None and found.name == "CCVS1"
 
 

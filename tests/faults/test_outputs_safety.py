@@ -210,6 +210,7 @@ def readable(path: Path) -> int:
     return summary.statistics.message_count
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("force", [False, True])
 def test_two_conversions_at_once_to_one_output_leave_one_complete_drive(
         tmp_path: Path, force: bool) -> None:

@@ -1,7 +1,7 @@
-"""Frames in blocks (offline convert: ``Pipeline.process_block``) and in reads (live:
+"""Frames in packs (offline convert: ``Pipeline.process_packed``) and in reads (live:
 ``Pipeline.process_many``) make the same drive as frames one by one (``Pipeline.process``): every
 message of every topic, byte for byte, and the same statistics, on ecocar and on two cars unlike
-it, with damaged frames and clock steps, and with blocks that cut across scene ticks, health
+it, with damaged frames and clock steps, and with packs that cut across scene ticks, health
 checks and steps."""
 
 from __future__ import annotations
@@ -62,8 +62,8 @@ def assert_same_drive(stages: Callable[[], Stages], frames: list[Frame]) -> Topi
     one_by_one = recorded(stages, lambda d: d.run(frames))
     for size in (1, 97, 4096):
         cut = in_blocks(frames, size)
-        assert recorded(stages, lambda d, cut=cut: d.run_blocks(cut)) == one_by_one, (
-            f"blocks of {size}")
+        assert recorded(stages, lambda d, cut=cut: d.run_packed(cut)) == one_by_one, (
+            f"packs of {size}")
     for size in (1, 83):
         assert recorded(stages, lambda d, size=size: in_reads(d, frames, size)) == one_by_one, (
             f"reads of {size}")
@@ -96,12 +96,14 @@ def damaged(frames: list[Frame]) -> list[Frame]:
     return out
 
 
+@pytest.mark.slow
 def test_ecocar_with_damage_and_clock_steps() -> None:
     frames = damaged(list(simulate(duration_s=6.0, seed=3)))
     topics = assert_same_drive(lambda: load_stages([], "ecocar"), frames)
     assert topics["/scene/radar"] and topics["/health"]
 
 
+@pytest.mark.slow
 def test_the_highway_car_on_two_buses() -> None:
     frames = list(simulate_highway(duration_s=6.0, seed=1, road="winding"))
     assert {f.bus for f in frames} == {"can0", "can1"}
@@ -132,7 +134,7 @@ def test_progress_is_told_every_so_many_frames(size: int) -> None:
     frames = list(simulate(duration_s=1.0, seed=1))
     told: list[int] = []
     drive = Drive(load_stages([], "ecocar"))
-    count = drive.run_blocks(in_blocks(frames, size), progress=told.append, every=300)
+    count = drive.run_packed(in_blocks(frames, size), progress=told.append, every=300)
     assert count == len(frames)
     assert len(told) == len(frames) // 300 and told == sorted(told)
     assert all(300 * (k + 1) <= n < 300 * (k + 1) + size for k, n in enumerate(told))

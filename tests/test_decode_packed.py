@@ -1,4 +1,4 @@
-"""Decoding in blocks (a column per (bus, id)) gives, row for row, what decoding frame by frame
+"""Decoding in packs (a column per (bus, id)) gives, row for row, what decoding frame by frame
 gives, and leaves the same statistics: on ecocar's frames and on a radar unlike ecocar's, with
 truncated and longer payloads, unknown ids, error and remote frames, extended ids, payloads
 cantools cannot decode (a multiplexer value no signal is defined for) and non-finite floats."""
@@ -64,23 +64,23 @@ def in_blocks(decoder: Decoder, frames: Sequence[Frame], sizes: Sequence[int]
     at, turn = 0, 0
     while at < len(frames):
         size = sizes[turn % len(sizes)]
-        block = PackedFrames.from_bytes(PackedFrames.from_frames(frames[at:at + size]).to_bytes())
-        out += decoder.decode_block(block)
+        pack = PackedFrames.from_bytes(PackedFrames.from_frames(frames[at:at + size]).to_bytes())
+        out += decoder.decode_packed(pack)
         at, turn = at + size, turn + 1
     return out
 
 
 def assert_same(databases: dict[str | None, list[Any]], frames: list[Frame],
                 sizes: Sequence[int] = (4096, 1000, 37, 1)) -> tuple[Decoder, Decoder]:
-    one, block = Decoder(databases), Decoder(databases)
+    one, pack = Decoder(databases), Decoder(databases)
     expected = per_frame(one, frames)
-    got = in_blocks(block, frames, sizes)
+    got = in_blocks(pack, frames, sizes)
     assert len(got) == len(expected)
     wrong = [i for i, (a, b) in enumerate(zip(expected, got, strict=True))
              if not same_decoded(a, b)]
     assert not wrong, f"rows {wrong[:10]} differ, e.g. {frames[wrong[0]]}"
-    assert counts(block) == counts(one)
-    return one, block
+    assert counts(pack) == counts(one)
+    return one, pack
 
 
 def ecocar_frames() -> list[Frame]:
@@ -145,7 +145,7 @@ def test_ecocar_frames_decode_the_same_in_blocks() -> None:
 
 def test_payloads_that_repeat_beyond_the_cache_and_messages_that_stop_caching() -> None:
     """Long columns: a message whose payloads never repeat stops caching frame by frame, while
-    the block path counts its trials per distinct payload; the results are the same."""
+    the pack path counts its trials per distinct payload; the results are the same."""
     database = load_database(ECOCAR_DBC)
     base = list(LogSource(data_dir() / "ecocar_sample.blf"))
     rng = random.Random(3)
@@ -205,7 +205,7 @@ def test_a_column_decodes_as_its_frames_do() -> None:
     one, many = Decoder({None: [database]}), Decoder({None: [database]})
 
     expected = per_frame(one, column)
-    got = many.decode_block(PackedFrames.from_frames(column))
+    got = many.decode_packed(PackedFrames.from_frames(column))
 
     assert all(same_decoded(a, b) for a, b in zip(expected, got, strict=True))
     assert counts(many) == counts(one)
@@ -281,7 +281,7 @@ def test_the_column_decoder_gives_each_payloads_signals(path: Path) -> None:
 
 
 def test_a_standard_id_with_bit_31_is_counted_under_its_own_number() -> None:
-    """A block without extended frames: a key with bit 31 set is a (damaged) standard id, not
+    """A pack without extended frames: a key with bit 31 set is a (damaged) standard id, not
     an extended one, and is counted as decoding it frame by frame counts it."""
     database = load_database(ECOCAR_DBC)
     frames = [Frame(1, "can0", 0x8000_0123, bytes(8), dlc=8), Frame(2, "can0", 0x123, bytes(8))]

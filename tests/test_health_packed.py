@@ -1,9 +1,9 @@
-"""The health monitor counts a block's frames in bulk (``HealthMonitor.count_block`` and
+"""The health monitor counts a pack's frames in bulk (``HealthMonitor.count_packed`` and
 ``count_rows``, what offline convert uses) exactly as frame by frame (``on_frame``, live): every
 count of every bus, kind of frame and family, in the same order, after drives with what upsets
 counting - gaps, unknown and 29-bit ids, error, remote and short frames, CAN FD frames with bit
 rate switch on a second bus, non-finite values, clock steps - and when a bus has so many kinds
-of frame that the monitor forgets them (those blocks are counted frame by frame)."""
+of frame that the monitor forgets them (those packs are counted frame by frame)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import struct
 from typing import Any
 
 import pytest
-from test_block_pipeline import damaged, in_blocks
+from test_packed_pipeline import damaged, in_blocks
 
 from bridge.frame import NS, Frame
 from bridge.health import traffic
@@ -70,7 +70,7 @@ def counted(frames: list[Frame], size: int | None) -> dict[str, Any]:
     if size is None:
         drive.run(frames)
     else:
-        drive.run_blocks(in_blocks(frames, size))
+        drive.run_packed(in_blocks(frames, size))
     assert drive.health is not None
     return health_state(drive.health)
 
@@ -108,7 +108,7 @@ def test_a_message_first_seen_shortens_its_bus_gap_time_from_the_next_frame_on()
         if size is None:
             drive.run(frames)
         else:
-            drive.run_blocks(in_blocks(frames, size))
+            drive.run_packed(in_blocks(frames, size))
         assert drive.health is not None
         return drive.health._buses["can0"].gaps
 

@@ -1,4 +1,4 @@
-"""Read ahead in blocks: the child hands over frame blocks; ``blocks()`` gives them, read ahead or
+"""Read ahead in packs: the child hands over frame packs; ``packs()`` gives them, read ahead or
 here, with the same frames, notes and errors as reading the sources here."""
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def test_blocks_hold_the_merged_frames_and_the_sources_their_notes(
     sources = [LogSource(p) for p in paths]
     reading = ReadAhead(sources, ahead=ahead)
 
-    made = list(reading.blocks())
+    made = list(reading.packs())
 
     assert reading.ahead is ahead
     assert all(type(b) is PackedFrames and 0 < len(b) <= BATCH for b in made)
@@ -76,7 +76,7 @@ def test_frames_read_ahead_are_the_same_as_blocks_read_ahead(write_log: WriteLog
     paths = logs(write_log)
 
     frames = list(ReadAhead([LogSource(p) for p in paths]))
-    made = list(ReadAhead([LogSource(p) for p in paths]).blocks())
+    made = list(ReadAhead([LogSource(p) for p in paths]).packs())
 
     assert frames == [f for b in made for f in b]
     assert all(type(f) is Frame for f in frames)
@@ -111,13 +111,13 @@ class Counting(ManyBuses):
 
 def test_the_progress_is_what_the_child_has_read_when_it_sent_the_block() -> None:
     reading = ReadAhead([Counting(3 * BATCH), Counting(10 * BATCH)])
-    blocks = reading.blocks()
+    packs = reading.packs()
 
-    next(blocks)
+    next(packs)
     first = reading.progress()
-    next(blocks)
+    next(packs)
     second = reading.progress()
-    blocks.close()  # type: ignore[attr-defined]
+    packs.close()  # type: ignore[attr-defined]
 
     # merged by time (each source one frame ahead of the merge): what was read when sent
     assert BATCH <= first[0] <= BATCH + 2 and first[1] == 13 * BATCH
@@ -127,7 +127,7 @@ def test_the_progress_is_what_the_child_has_read_when_it_sent_the_block() -> Non
 def test_more_buses_than_a_block_holds_are_handed_over_in_more_blocks() -> None:
     reading = ReadAhead([ManyBuses(10_000)])
 
-    made = list(reading.blocks())
+    made = list(reading.packs())
 
     assert all(len(b.buses) <= MAX_BUSES for b in made)
     frames = [f for b in made for f in b]
@@ -142,16 +142,16 @@ def test_an_input_error_comes_after_the_blocks_before_it(write_log: WriteLog) ->
     got: list[PackedFrames] = []
 
     with pytest.raises(InputError, match="line 5001: time jumps backwards"):
-        got.extend(ReadAhead([LogSource(path, strict=True)]).blocks())
+        got.extend(ReadAhead([LogSource(path, strict=True)]).packs())
 
     assert sum(len(b) for b in got) == 5000
 
 
 def test_stopping_the_blocks_early_ends_the_reading_process() -> None:
-    blocks = ReadAhead([ManyBuses(10_000_000)]).blocks()
-    first = next(blocks)
+    packs = ReadAhead([ManyBuses(10_000_000)]).packs()
+    first = next(packs)
 
-    blocks.close()  # type: ignore[attr-defined]
+    packs.close()  # type: ignore[attr-defined]
 
     assert len(first) == BATCH or len(first) == MAX_BUSES
     assert multiprocessing.active_children() == []
@@ -159,7 +159,7 @@ def test_stopping_the_blocks_early_ends_the_reading_process() -> None:
 
 @pytest.mark.slow
 def test_the_benchmarks_run_and_report_every_row(tmp_path: Path) -> None:
-    """tools/bench_readahead.py and bench_decode.py --block run (tiny sizes: no timing is
+    """tools/bench_readahead.py and bench_decode.py --pack run (tiny sizes: no timing is
     checked) and print every contender."""
     tools = Path(__file__).resolve().parents[1] / "tools"
     env = {**os.environ, "PYTHONPATH": str(tools.parent)}
@@ -169,10 +169,10 @@ def test_the_benchmarks_run_and_report_every_row(tmp_path: Path) -> None:
         capture_output=True, text=True, env=env, timeout=600, check=True).stdout
     decode = subprocess.run(
         [sys.executable, str(tools / "bench_decode.py"), "--frames", "5000", "--repeat", "1",
-         "--block", "1000", "--warm"],
+         "--pack", "1000", "--warm"],
         capture_output=True, text=True, env=env, timeout=600, check=True).stdout
 
-    for row in ("old frames", "new frames", "new blocks", "child old", "child new"):
+    for row in ("old frames", "new frames", "new packs", "child old", "child new"):
         assert ahead.count(row) == 2, ahead
-    assert "(d blocks of 1000):" in decode and "ratio to (b)" in decode
+    assert "(d packs of 1000):" in decode and "ratio to (b)" in decode
     assert "MISMATCH" not in decode
