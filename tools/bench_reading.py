@@ -9,7 +9,7 @@ interleaved, best of ``--runs`` (default 5), in CPU seconds with the garbage col
   ``can.CanutilsLogReader``): the yardstick;
 - ``LogSource``: :class:`bridge.io.can_logs.LogSource` iterated to its frames (the damage-safe
   reading and the frame conversion on top of the same reader);
-- ``+ packing``: the same, the frames packed into :class:`bridge.packed.PackedFrames` blocks of
+- ``+ packing``: the same, the frames packed into :class:`bridge.packed.PackedFrames` packs of
   the read-ahead's ``BATCH`` frames, as the read-ahead's child does;
 - with ``--ref REV``, ``LogSource REV``: ``bridge/io`` as REV has it, beside the tree's.
 
@@ -42,7 +42,7 @@ from benchlib import asc_copy, ecocar_log, interleaved, modules_at
 
 from bridge.io.can_logs import LogSource
 from bridge.io.readahead import BATCH
-from bridge.packed import blocks
+from bridge.packed import packs
 
 #: The goal of issue #36: LogSource's own CPU at most this share of python-can's reader's.
 GOAL = 0.3
@@ -88,8 +88,8 @@ def packed(path: Path) -> int:
     n = 0
     frames = iter(LogSource(path))
     while batch := list(islice(frames, BATCH)):
-        for block in blocks(batch):
-            n += len(block)
+        for pack in packs(batch):
+            n += len(pack)
     return n
 
 
