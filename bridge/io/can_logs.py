@@ -265,9 +265,9 @@ class LogSource:
         return itertools.chain.from_iterable(self._batches())
 
     def _batches(self) -> Iterator[Sequence[Frame]]:
-        """The frames, in batches: the messages of a run of a BLF's intact objects converted at
-        once (:func:`_converted`) when none of them needs a word, else one at a time, each
-        issue told after the frames before it."""
+        """The frames, in batches: the messages of a run of a BLF's intact objects converted
+        :data:`_BATCH` at a time (:func:`_converted`) when none of them needs a word, else one
+        at a time, each issue told after the frames before it."""
         suffix, gzipped = _suffix(self.path)
         reader_type = MESSAGE_READERS[suffix]
         last_ns: int | None = None
