@@ -295,3 +295,15 @@ def test_bench_bringup_measures_size_cpu_and_live_with_and_without_bring_up(
     for sinks in ("a viewer and a recorder", "a recorder alone"):
         assert re.search(rf"^live per frame .*{sinks}\s+[+-]\d+\.\d% \(", run.stdout, re.M)
     assert "/can/can0/unknown" in run.stdout and "kB of the archive" in run.stdout
+
+
+def test_bench_reading_reports_the_overhead_of_every_format(tmp_path: Path) -> None:
+    """tools/bench_reading.py in a tiny run (no timing is checked): every contender and the
+    overhead of each format."""
+    out = subprocess.run(
+        [sys.executable, str(TOOLS / "bench_reading.py"), "--frames", "3000", "--runs", "1",
+         "--workdir", str(tmp_path)],
+        capture_output=True, text=True, timeout=600, check=True).stdout
+    for fmt in ("blf", "asc", "log"):
+        assert re.search(rf"overhead of LogSource \({fmt}\): -?\d+\.\d\dx", out), out
+    assert out.count("python-can ") == 3 and out.count("+ packing") == 3, out

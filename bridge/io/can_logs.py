@@ -45,7 +45,7 @@ import itertools
 import logging
 import re
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Literal, get_args
@@ -81,6 +81,9 @@ _QUIET_LINES = {
 #: The most lines before the first frame remembered as the log's header (python-can's formats
 #: have a few tens): a long run of lines without a frame is not held in memory.
 _HEADER_LINES = 1000
+
+#: The most messages of a BLF run converted at once (a batch small enough to stay in the caches).
+_BATCH = 256
 
 #: A frame stamped at or after this (2262-04-11, 2^63 ns) cannot be recorded; nor before 1970.
 _LAST_SECOND = float(2**63 // 10**9)
@@ -224,6 +227,7 @@ class LogSource:
     _where: Callable[[], str] = field(default=lambda: "", repr=False)
     _warnings: _Warnings | None = field(default=None, repr=False)
     _gzip: GzipReader | None = field(default=None, repr=False)
+    _read: int = field(default=0, repr=False)  # messages taken from the reader so far
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -258,6 +262,12 @@ class LogSource:
         self.issues.append(issue)
 
     def __iter__(self) -> Iterator[Frame]:
+        return itertools.chain.from_iterable(self._batches())
+
+    def _batches(self) -> Iterator[Sequence[Frame]]:
+        """The frames, in batches: the messages of a run of a BLF's intact objects converted
+        :data:`_BATCH` at a time (:func:`_converted`) when none of them needs a word, else one
+        at a time, each issue told after the frames before it."""
         suffix, gzipped = _suffix(self.path)
         reader_type = MESSAGE_READERS[suffix]
         last_ns: int | None = None
@@ -268,43 +278,47 @@ class LogSource:
         buses: dict[Any, str] = {}
         numbered_from = _FIRST_CHANNEL.get(suffix, 0)
         frames = 0
+        self._read = 0
+        new = tuple.__new__
         try:
-            for message in self._messages(reader_type, suffix, gzipped):
-                if warnings.texts:
-                    self._warned(warnings)
-                seconds = message.timestamp
-                ident = message.arbitration_id
-                if not (isinstance(seconds, (float, int)) and 0.0 <= seconds < _LAST_SECOND
-                        and isinstance(ident, int) and 0 <= ident < 1 << 29
-                        and isinstance(message.dlc, int) and len(message.data) <= 64):
-                    self._problem(self._where(), *_unrecordable(message))
-                    continue
-                ns = round(seconds * 1_000_000) * 1000  # to_ns(), inlined
-                if last_ns is not None and ns < last_ns:
-                    self.backwards += 1
-                    self._problem(self._where(), f"time jumps backwards by "
-                                  f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own time)",
-                                  "note", "time jumps backwards")
-                last_ns = ns
-                frames += 1
-                self.frames = frames
-                channel = message.channel
-                bus = buses.get(channel)
-                if bus is None:
-                    bus = buses[channel] = bus_name(channel, numbered_from)
-                yield Frame(
-                    ns,
-                    bus,
-                    message.arbitration_id,
-                    bytes(message.data),
-                    message.is_extended_id,
-                    message.is_fd,
-                    message.is_error_frame,
-                    message.is_remote_frame,
-                    message.bitrate_switch,
-                    message.error_state_indicator,
-                    message.dlc,
-                )
+            for messages in self._messages(reader_type, suffix, gzipped):
+                if len(messages) > 1 and not warnings.texts:
+                    batch = _converted(messages, buses, numbered_from, last_ns)
+                    if batch is not None:
+                        self._read += len(batch)
+                        frames += len(batch)
+                        self.frames = frames
+                        last_ns = batch[-1][0]  # its timestamp_ns
+                        yield batch
+                        continue
+                for message in messages:
+                    self._read += 1
+                    if warnings.texts:
+                        self._warned(warnings)
+                    seconds = message.timestamp
+                    ident = message.arbitration_id
+                    if not (isinstance(seconds, (float, int)) and 0.0 <= seconds < _LAST_SECOND
+                            and isinstance(ident, int) and 0 <= ident < 1 << 29
+                            and isinstance(message.dlc, int) and len(message.data) <= 64):
+                        self._problem(self._where(), *_unrecordable(message))
+                        continue
+                    ns = round(seconds * 1_000_000) * 1000  # to_ns(), inlined
+                    if last_ns is not None and ns < last_ns:
+                        self.backwards += 1
+                        self._problem(self._where(), f"time jumps backwards by "
+                                      f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own "
+                                      "time)", "note", "time jumps backwards")
+                    last_ns = ns
+                    frames += 1
+                    self.frames = frames
+                    channel = message.channel
+                    bus = buses.get(channel)
+                    if bus is None:
+                        bus = buses[channel] = bus_name(channel, numbered_from)
+                    yield (new(Frame, (  # Frame(...) without its Python __new__
+                        ns, bus, ident, bytes(message.data), message.is_extended_id,
+                        message.is_fd, message.is_error_frame, message.is_remote_frame,
+                        message.bitrate_switch, message.error_state_indicator, message.dlc)),)
             self._warned(warnings)
             if not frames:
                 first = self.issues[0] if self.issues else None
@@ -323,8 +337,10 @@ class LogSource:
         warnings.texts.clear()
 
     def _messages(self, reader_type: type[MessageReader], suffix: str,
-                  gzipped: bool) -> Iterator[can.Message]:
-        """The messages; ``self._where()`` names the place of the message just read."""
+                  gzipped: bool) -> Iterator[Sequence[can.Message]]:
+        """The messages, one at a time or a run of a BLF's intact objects at once;
+        ``self._where()`` names the place of the message just read (with ``self._read``
+        counting the messages taken)."""
         if suffix in {".db", ".mf4"}:
             yield from self._whole_file(reader_type)
             return
@@ -367,7 +383,7 @@ class LogSource:
                           "stop", "file unreadable from here")
 
     def _text(self, reader_type: type[MessageReader], text: Iterator[str],
-              suffix: str) -> Iterator[can.Message]:
+              suffix: str) -> Iterator[Sequence[can.Message]]:
         header: list[str] = []
         kwargs = {"relative_timestamp": False} if reader_type is can.ASCReader else {}
         quiet = _QUIET_LINES.get(suffix)
@@ -432,7 +448,7 @@ class LogSource:
                     if (candump and message.is_extended_id and not message.is_error_frame
                             and candump_error(lines.text)):
                         message = error_frame(message)
-                    yield message
+                    yield (message,)
                 lines.done()
                 if lines.cut and not cut:  # a blank line or a comment, cut short
                     cut_short(lines.line, "whatever followed is lost")
@@ -473,12 +489,11 @@ class LogSource:
                 lines.header = None
 
     def _binary(self, reader_type: type[MessageReader],
-                binary: IO[bytes]) -> Iterator[can.Message]:
+                binary: IO[bytes]) -> Iterator[Sequence[can.Message]]:
         stream = Bytes(binary)
-        count = 0
 
         def where() -> str:
-            return f"frame {count}"
+            return f"frame {self._read}"
 
         self._where = where
 
@@ -502,9 +517,12 @@ class LogSource:
         last_failure: int | None = None
         while True:
             try:
-                for message in reader:
-                    count += 1
-                    yield message
+                if isinstance(reader, BlfReader):
+                    for run in reader.runs():
+                        yield from self._parsed(reader, run)
+                else:
+                    for message in reader:
+                        yield (message,)
                 break
             except InputError:
                 raise  # --strict
@@ -518,7 +536,31 @@ class LogSource:
             self._problem(f"byte {stream.cut_at}", "the file ends in the middle of an object; "
                           "frames in it are lost", "stop", "file cut short")
 
-    def _whole_file(self, reader_type: type[MessageReader]) -> Iterator[can.Message]:
+    def _parsed(self, reader: BlfReader, run: bytes) -> Iterator[Sequence[can.Message]]:
+        """The messages python-can's parser makes of ``run``, :data:`_BATCH` at a time; one at
+        a time from where it warns or fails (parsed again: each warning is placed at its
+        frame, the frames before a failure come first)."""
+        texts = self._warnings.texts if self._warnings is not None else []
+        messages = reader._parse_data(run)
+        done = 0
+        while True:
+            told = len(texts)
+            try:
+                batch = list(itertools.islice(messages, _BATCH))
+            except Exception:  # python-can fails: one at a time up to the failure again
+                break
+            if len(texts) != told:
+                del texts[told:]
+                break
+            if not batch:
+                return
+            yield batch
+            done += len(batch)
+        for message in itertools.islice(reader._parse_data(run), done, None):
+            yield (message,)
+
+    def _whole_file(self, reader_type: type[MessageReader],
+                    ) -> Iterator[Sequence[can.Message]]:
         count = 0
         what = "row" if reader_type is can.SqliteReader else "record"
 
@@ -538,13 +580,48 @@ class LogSource:
         try:
             for message in reader:
                 count += 1
-                yield message
+                yield (message,)
         except Exception as exc:
             self._problem(f"{what} {count + 1}", f"stopped at {what} {count + 1}, which python-can "
                           f"cannot read ({type(exc).__name__}: {exc}): the rest of the file is "
                           "not read", "stop", f"stopped at a {what} python-can cannot read")
         finally:
             reader.stop()
+
+
+def _converted(messages: Sequence[can.Message], buses: dict[Any, str], first: int,
+               last_ns: int | None) -> list[Frame] | None:
+    """The frames of ``messages`` when every one is recordable and none goes back in time (from
+    ``last_ns`` on), as :meth:`LogSource._batches` makes them one at a time; None when one of
+    them needs a word (then they are converted one at a time). ``buses`` gets each new channel's
+    bus name (numbered from ``first``). The loop of about 0.6 µs a frame: local names, the
+    tuple made without Frame's Python ``__new__``, ``round`` called as its method."""
+    frames: list[Frame] = []
+    append = frames.append
+    new = tuple.__new__
+    last = -1 if last_ns is None else last_ns
+    for message in messages:
+        seconds = message.timestamp
+        ident = message.arbitration_id
+        dlc = message.dlc
+        data = message.data
+        # the checks of _batches, narrower (an int time or a bool id goes the careful way)
+        if not (type(seconds) is float and 0.0 <= seconds < _LAST_SECOND
+                and type(ident) is int and 0 <= ident < 1 << 29
+                and type(dlc) is int and len(data) <= 64):
+            return None
+        ns = (seconds * 1e6).__round__() * 1000  # to_ns()
+        if ns < last:
+            return None
+        last = ns
+        channel = message.channel
+        bus = buses.get(channel)
+        if bus is None:
+            bus = buses[channel] = bus_name(channel, first)
+        append(new(Frame, (ns, bus, ident, bytes(data), message.is_extended_id, message.is_fd,
+                           message.is_error_frame, message.is_remote_frame,
+                           message.bitrate_switch, message.error_state_indicator, dlc)))
+    return frames
 
 
 def _unrecordable(message: can.Message) -> tuple[str, IssueKind, str]:

@@ -1,0 +1,160 @@
+#!/usr/bin/env python3
+"""Benchmark the reading process: LogSource's own work on top of python-can's reader (a report).
+
+On ``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_log``, cached), as a BLF of
+``--frames`` frames (default 200,000) and its ASC and candump (``.log``) copies, it times,
+interleaved, best of ``--runs`` (default 5), in CPU seconds with the garbage collector off:
+
+- ``python-can``: python-can's bare reader iterated (``can.BLFReader(path)``, ``can.ASCReader``,
+  ``can.CanutilsLogReader``): the yardstick;
+- ``LogSource``: :class:`bridge.io.can_logs.LogSource` iterated to its frames (the damage-safe
+  reading and the frame conversion on top of the same reader);
+- ``+ packing``: the same, the frames packed into :class:`bridge.packed.PackedFrames` packs of
+  the read-ahead's ``BATCH`` frames, as the read-ahead's child does;
+- with ``--ref REV``, ``LogSource REV``: ``bridge/io`` as REV has it, beside the tree's.
+
+It prints, per format, each contender's µs/frame and issue #36's figure, the overhead
+``(LogSource - python-can) / python-can`` (goal ≤ 0.3 on BLF), and that of packing.
+
+    python tools/bench_reading.py
+    python tools/bench_reading.py --frames 50000 --runs 3 --format blf --ref main
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from functools import partial
+from itertools import islice
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import can
+from benchlib import asc_copy, ecocar_log, interleaved, modules_at
+
+from bridge.io.can_logs import LogSource
+from bridge.io.readahead import BATCH
+from bridge.packed import packs
+
+#: The goal of issue #36: LogSource's own CPU at most this share of python-can's reader's.
+GOAL = 0.3
+
+
+def candump_copy(blf: Path) -> Path:
+    """The same frames as ``blf`` as a candump log (python-can's CanutilsLogWriter, channels
+    named ``can0``...), cached beside it."""
+    path = blf.with_suffix(".log")
+    if path.is_file():
+        return path
+    partial_path = blf.with_name(f".{blf.stem}.log.partial")
+    with can.CanutilsLogWriter(str(partial_path)) as writer:
+        for msg in can.BLFReader(str(blf)):
+            msg.channel = f"can{msg.channel}"
+            writer.on_message_received(msg)
+    os.replace(partial_path, path)
+    return path
+
+
+def bare(path: Path) -> int:
+    """python-can's own reader of ``path``, iterated."""
+    suffix = path.suffix
+    reader: Any = (can.BLFReader(str(path)) if suffix == ".blf" else
+                   can.ASCReader(str(path), relative_timestamp=False) if suffix == ".asc" else
+                   can.CanutilsLogReader(str(path)))
+    n = 0
+    for _ in reader:
+        n += 1
+    reader.stop()
+    return n
+
+
+def source(source_type: type[LogSource], path: Path) -> int:
+    n = 0
+    for _ in source_type(path):
+        n += 1
+    return n
+
+
+def packed(path: Path) -> int:
+    """LogSource's frames packed as the read-ahead's child packs them."""
+    n = 0
+    frames = iter(LogSource(path))
+    while batch := list(islice(frames, BATCH)):
+        for pack in packs(batch):
+            n += len(pack)
+    return n
+
+
+def cpu(work: Callable[[], int]) -> Callable[[], tuple[float, int]]:
+    def timed() -> tuple[float, int]:
+        gc.collect()
+        gc.disable()  # as tankviz convert runs
+        try:
+            started = time.process_time()
+            n = work()
+            return time.process_time() - started, n
+        finally:
+            gc.enable()
+    return timed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=200_000)
+    parser.add_argument("--runs", type=int, default=5, help="interleaved rounds, best of (5)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--format", action="append", choices=("blf", "asc", "log"),
+                        help="only these formats (default: all three)")
+    parser.add_argument("--ref", help="also time LogSource as this git revision has it")
+    parser.add_argument("--workdir", type=Path,
+                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
+                        help="where the logs are cached")
+    args = parser.parse_args(argv)
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    blf, _ = ecocar_log(args.workdir, args.frames, args.seed)
+    paths = {"blf": blf, "asc": asc_copy(blf), "log": candump_copy(blf)}
+    old: type[LogSource] | None = None
+    if args.ref:
+        old = modules_at(args.ref, ["bridge.io.can_logs"],
+                         own=["bridge.io"])["bridge.io.can_logs"].LogSource
+    print(f"reading {args.frames} simulated frames, CPU, best of {args.runs}, interleaved "
+          f"(goal: LogSource's own work ≤ {GOAL}x python-can's)")
+    for fmt in args.format or list(paths):
+        path = paths[fmt]
+        contenders: dict[str, Callable[[], tuple[float, int]]] = {
+            "python-can": cpu(partial(bare, path)),
+            "LogSource": cpu(partial(source, LogSource, path)),
+            "+ packing": cpu(partial(packed, path)),
+        }
+        if old is not None:
+            contenders[f"LogSource {args.ref}"] = cpu(partial(source, old, path))
+        runs = interleaved(contenders, args.runs)
+        counts = {n for done in runs.values() for _, n in done}
+        assert len(counts) == 1, f"the contenders read different frame counts: {counts}"
+        n = counts.pop()
+        best = {name: min(s for s, _ in done) for name, done in runs.items()}
+        base = best["python-can"]
+        print(f"{fmt} ({path.stat().st_size / 1e6:.1f} MB, {n} frames):")
+        for name, seconds in best.items():
+            extra = ""
+            if name.startswith("LogSource"):
+                extra = f"   overhead {(seconds - base) / base:5.2f}x"
+            elif name == "+ packing":
+                extra = f"   packing {(seconds - best['LogSource']) / base:5.2f}x"
+            print(f"  {name:18} {seconds:6.3f} s  {seconds / n * 1e6:5.2f} µs/frame{extra}")
+        overhead = (best["LogSource"] - base) / base
+        print(f"  overhead of LogSource ({fmt}): {overhead:.2f}x   goal ≤ {GOAL}x  "
+              f"{'ok' if overhead <= GOAL else 'MISSED'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
