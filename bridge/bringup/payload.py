@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 
 from bridge.bringup.columns import id_text
-from bridge.protowire import varint
+from bridge.protowire import ONE_BYTE, string, varint
 
 #: Payloads remembered per id (their messages), then forgotten all at once.
 CACHE_SIZE = 512
@@ -25,13 +25,12 @@ class _Varints(dict[int, bytes]):
         return made
 
 
-_VARINTS = _Varints((v, bytes((v,))) for v in range(0x80))
+_VARINTS = _Varints(enumerate(ONE_BYTE))
 
 
 def id_field(key: int) -> bytes:
     """The ``id`` field of a frame key's messages (``0x2C4``)."""
-    text = id_text(key).encode()
-    return b"\x0a" + varint(len(text)) + text
+    return string(b"\x0a", id_text(key))
 
 
 def encode(head: bytes, data: bytes) -> bytes:

@@ -47,7 +47,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from bridge.decode.cache import Compile, compile_source
-from bridge.protowire import varint
+from bridge.protowire import DOUBLE, varint
 
 FieldType = descriptor_pb2.FieldDescriptorProto
 
@@ -242,7 +242,7 @@ def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> En
             return fallback
         source[name] = key
     names: dict[str, Any] = {"F": fallback, "V": varint, "M": math.copysign,
-                             "D1": struct.Struct("<Bd").pack, "D2": struct.Struct("<BBd").pack}
+                             "D1": DOUBLE.pack, "D2": struct.Struct("<BBd").pack}
     # Every signal present (a whole frame of a message without multiplexing) with every integer
     # below 128 as a varint, none of them an implicit field's zero: one struct.pack of the tags
     # and values.

@@ -29,7 +29,7 @@ from typing import Any, NamedTuple
 
 from bridge.frame import END_NS, EXTENDED_KEY, Frame
 from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
-from bridge.protowire import varint
+from bridge.protowire import string, varint
 
 #: The longest window of one block (20 ms: measured smallest with zstd, ``tools/bench_size.py``).
 WINDOW_NS = 20_000_000
@@ -86,8 +86,7 @@ def _offset(offset_ns: int) -> bytes:
 
 def _name(bus: str) -> bytes:
     """A block's ``bus`` field."""
-    name = bus.encode()
-    return b"\x0a" + varint(len(name)) + name if name else b""
+    return string(b"\x0a", bus) if bus else b""
 
 
 def _row(frame: Frame, t_ns: int) -> bytes:
