@@ -14,6 +14,7 @@ exits non-zero (``--debug``: the traceback). The tree::
         ├── MessagePathError         bridge.errors: a layout's message path (a layout problem)
         ├── ExpressionError          bridge.profile.expr: a rule (told as a ProfileError)
         ├── ServerError              bridge.errors: the live server cannot start
+        ├── HelperDied               bridge.errors: a process of tankviz's ended without a word
         └── ViewerInputError         bridge.errors: a viewer's message (told to the viewer)
             └── TooManyMarks         bridge.sinks.server.viewer_input (told once per burst)
 
@@ -98,6 +99,16 @@ class ServerError(BridgeError):
         self.port = port
         self.reason = reason
         super().__init__(f"cannot serve on {host}:{port}: {reason}")
+
+
+class HelperDied(BridgeError):
+    """A process tankviz started for part of its work ended without a word (killed, out of
+    memory): ``the process <role> ended without a word (<how>); <instead>``."""
+
+    def __init__(self, role: str, how: str, instead: str) -> None:
+        self.role = role
+        self.how = how
+        super().__init__(f"the process {role} ended without a word ({how}); {instead}")
 
 
 class ViewerInputError(BridgeError):

@@ -18,7 +18,7 @@ import cantools
 import pytest
 from conftest import ECOCAR_DBC, T0, WriteLog, summary_counts
 
-from bridge.errors import BridgeError, InputError
+from bridge.errors import HelperDied, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.can_logs import LogSource, SourceIssue, merge
@@ -148,7 +148,7 @@ class Killed(PidSource):
 
 
 def test_a_reading_process_that_dies_is_one_line_not_a_short_drive() -> None:
-    with pytest.raises(BridgeError, match=r"^the process reading the inputs ahead ended without "
+    with pytest.raises(HelperDied, match=r"^the process reading the inputs ahead ended without "
                        r"a word \(exit code 137; out of memory\?\); --no-read-ahead"):
         list(ReadAhead([Killed(10_000)]))
 
