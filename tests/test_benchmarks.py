@@ -307,3 +307,18 @@ def test_bench_reading_reports_the_overhead_of_every_format(tmp_path: Path) -> N
     for fmt in ("blf", "asc", "log"):
         assert re.search(rf"overhead of LogSource \({fmt}\): -?\d+\.\d\dx", out), out
     assert out.count("python-can ") == 3 and out.count("+ packing") == 3, out
+
+
+@pytest.mark.slow
+def test_bench_batch_prints_one_row_per_worker_count(tmp_path: Path) -> None:
+    """tools/bench_batch.py on two 2 s drives, 1 worker vs 2, two rounds (benchlib's
+    interleaved, the fastest kept): the speed-up line and a row per worker count."""
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_batch.py"), "--drives", "2",
+                          "--duration", "2", "--workers", "2", "--runs", "2",
+                          "--workdir", str(tmp_path)], capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert re.search(r"^speed-up per added core: -?\d+\.\d\d \(2 workers vs 1", run.stdout, re.M)
+    for workers in (1, 2):
+        assert re.search(rf"^\s+{workers}\s+2\s+[\d.]+\s+[\d.]+\s+[\d.]+\s+[\d,]+\s+[\d,]+$",
+                         run.stdout, re.M), run.stdout

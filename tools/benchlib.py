@@ -217,6 +217,16 @@ def ecocar_frames(frames: int, seed: int = 1) -> Iterator[Frame]:
         yield frame._replace(bus=bus.get(frame.arbitration_id, "can2"))
 
 
+def ecocar_drive(duration_s: float, seed: int = 1) -> Iterator[Frame]:
+    """Every frame of ``duration_s`` seconds of ``bridge/sim``'s ecocar drive, on the three buses
+    of :func:`ecocar_frames` (a drive of a given length, not a given frame count)."""
+    from bridge.sim.ecocar import simulate
+
+    bus = _bus_of_id()
+    for frame in simulate(duration_s=duration_s, seed=seed):
+        yield frame._replace(bus=bus.get(frame.arbitration_id, "can2"))
+
+
 def _simulator_version() -> str:
     digest = hashlib.sha256(ECOCAR_DBC.read_bytes())
     for path in sorted((ROOT / "bridge" / "sim").glob("*.py")):
