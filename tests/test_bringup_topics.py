@@ -175,6 +175,7 @@ def test_a_viewer_gets_every_frame_of_the_unknown_ids_and_no_known_one() -> None
     assert all((b - a) % 16 == 1 for a, b in pairwise(counters))
 
 
+@pytest.mark.slow
 def test_a_file_gets_the_first_frame_of_each_id_in_each_slot_and_the_tables_now_and_then(
 ) -> None:
     frames = highway(12.0)
@@ -319,6 +320,7 @@ def test_with_many_ids_the_map_stays_small_and_says_how_many_it_shows() -> None:
     assert len(shown) == MAX_ROWS and all(t.endswith("unknown") for t in shown)
 
 
+@pytest.mark.slow
 def test_frame_by_frame_in_reads_and_in_blocks_a_viewer_gets_the_same_messages() -> None:
     frames = highway(4.0)
     # a clock that steps back 3 s, and forward a minute

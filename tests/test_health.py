@@ -134,6 +134,7 @@ FAULTS = {
 }
 
 
+@pytest.mark.slow
 def test_a_clean_drive_raises_no_alarm_over_its_whole_length() -> None:
     clean = drive("clean")
     assert clean.events() == []
@@ -150,6 +151,7 @@ def test_a_clean_drive_raises_no_alarm_over_its_whole_length() -> None:
         assert abs(bias.angular_offset_deg) < 0.6 and abs(bias.lateral_offset_m) < 0.4
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("scenario", "alarm"), FAULTS.items())
 def test_each_fault_raises_its_alarm_within_two_seconds_and_clears_after_recovery(
         scenario: str, alarm: str) -> None:
@@ -216,6 +218,7 @@ def test_a_silent_bus_is_reported_in_log_time_although_no_frame_comes() -> None:
     assert silent.health_at(FAULT_RECOVERY_S + 2).buses[0].gaps_total == 1
 
 
+@pytest.mark.slow
 def test_without_cycle_times_in_the_dbc_the_rates_are_learned(tmp_path: Path) -> None:
     text = (data_dir() / "ecocar.dbc").read_text()
     stripped = "\n".join(line for line in text.splitlines()
@@ -378,6 +381,7 @@ def test_the_bus_load_of_known_traffic_is_within_five_percent() -> None:
     assert bus.unknown_ids == len(window) and bus.bitrate == 2_000_000
 
 
+@pytest.mark.slow
 def test_without_a_bitrate_the_load_is_not_guessed() -> None:
     classic = synthetic_traffic(4000, fd=False)
     bus = run(classic, Decoder({}), None).health_at(1.0).buses[0]

@@ -166,12 +166,14 @@ def test_a_short_drive_counts_every_frame_exactly() -> None:
         assert next(b for b in msg.buses if b.bus == bus).load == pytest.approx(load, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_load_of_a_simulated_drive_is_within_one_percent_of_exact() -> None:
     assert_loads_within_one_percent(simulated_drive(),
                                     {"can0": 500_000, "can1": 500_000, "can2": 500_000},
                                     {"can0": 2_000_000})
 
 
+@pytest.mark.slow
 def test_the_load_of_a_candump_log_with_can_fd_is_within_one_percent_of_exact() -> None:
     frames = candump_log()
     assert any(f.is_fd and f.bitrate_switch for f in frames)
@@ -181,6 +183,7 @@ def test_the_load_of_a_candump_log_with_can_fd_is_within_one_percent_of_exact() 
                                     {"can1": 2_000_000})
 
 
+@pytest.mark.slow
 def test_everything_else_is_counted_exactly() -> None:
     """Frames, ids, unknown ids, error frames and the busiest id are counted for every frame."""
     frames = candump_log()[:120_000]

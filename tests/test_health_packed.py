@@ -75,6 +75,7 @@ def counted(frames: list[Frame], size: int | None) -> dict[str, Any]:
     return health_state(drive.health)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [1, 97, 4096])
 def test_a_block_is_counted_as_its_frames_one_by_one(size: int) -> None:
     frames = troubled_drive()
@@ -86,6 +87,7 @@ def test_a_block_is_counted_as_its_frames_one_by_one(size: int) -> None:
     assert counted(frames, size) == one_by_one
 
 
+@pytest.mark.slow
 def test_a_bus_with_more_kinds_than_kept_is_counted_frame_by_frame(
         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(traffic, "MAX_KINDS", 40)

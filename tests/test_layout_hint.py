@@ -113,6 +113,7 @@ def test_live_keeps_a_layout_file_it_did_not_make_and_says_so(
     assert kept_line in captured.out.splitlines()  # the user's, not claimed to be made for it
 
 
+@pytest.mark.slow
 def test_live_that_cannot_write_the_layouts_warns_once_and_records_anyway(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drives = tmp_path / "drives"
@@ -152,6 +153,7 @@ def test_live_without_recording_prints_the_command_and_no_recording(
         LAYOUT_FILES)
 
 
+@pytest.mark.slow
 def test_live_command_names_the_buses_live_reads(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -290,6 +292,7 @@ def test_replay_of_a_log_with_another_profile_prints_the_command(
     assert str(BUNDLED) not in out
 
 
+@pytest.mark.slow
 def test_replay_of_a_drive_live_recorded_points_at_the_layouts_live_wrote(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drives = tmp_path / "drives"

@@ -503,6 +503,7 @@ def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_a_drive_with_the_cars_marks_rederived_has_each_once(highway_log: Path,
                                                              tmp_path: Path) -> None:
     """The profile's [marks] rule marked the drive when it was recorded: re-derived, the drive
@@ -516,6 +517,7 @@ def test_a_drive_with_the_cars_marks_rederived_has_each_once(highway_log: Path,
     check_marks_kept(again, made)
 
 
+@pytest.mark.slow
 def test_a_drive_without_marks_rederived_with_a_marking_profile_gets_its_marks(
         highway_log: Path, tmp_path: Path) -> None:
     """A drive recorded before its profile had a [marks] rule (or without a profile): re-derived

@@ -95,6 +95,7 @@ def drives(tmp_path_factory: pytest.TempPathFactory, sample_drive: Path
     return new, old, as_old_drive(new, old)
 
 
+@pytest.mark.slow
 def test_an_old_drive_holds_one_canframe_a_frame(drives: tuple[Path, Path, int]) -> None:
     new, old, frames = drives
     with old.open("rb") as f:
@@ -108,6 +109,7 @@ def test_an_old_drive_holds_one_canframe_a_frame(drives: tuple[Path, Path, int])
     assert list(ArchiveSource(old)) == list(ArchiveSource(new))
 
 
+@pytest.mark.slow
 def test_an_old_drive_re_derives_to_the_drive_blocks_make(drives: tuple[Path, Path, int],
                                                            tmp_path: Path) -> None:
     new, old, frames = drives
@@ -125,6 +127,7 @@ def test_an_old_drive_re_derives_to_the_drive_blocks_make(drives: tuple[Path, Pa
     assert topics(again_old) == topics(again_new)  # blocks again, every topic the same
 
 
+@pytest.mark.slow
 def test_an_old_drive_is_catalogued_and_recovered_with_its_frames(
         drives: tuple[Path, Path, int], tmp_path: Path) -> None:
     _, old, frames = drives
@@ -171,6 +174,7 @@ class Served:
         pass
 
 
+@pytest.mark.slow
 def test_old_and_new_drives_are_replayed_as_recorded(drives: tuple[Path, Path, int]) -> None:
     new, old, frames = drives
     for path, schema, count in ((old, "tankviz.CanFrame", frames),

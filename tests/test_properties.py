@@ -204,6 +204,7 @@ def test_every_generated_schema_loads_in_a_fresh_pool(subject: Subject) -> None:
                 assert {int(v) for v in signal.choices or {}} <= numbers, signal.name
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decode_never_raises_and_accounts_for_every_frame(subject: Subject,
@@ -356,6 +357,7 @@ def _signals_of_one_branch(message: DbcMessage, tree: Sequence[Any],
     return chosen
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_encoded_physical_values_decode_back_within_resolution(subject: Subject,

@@ -182,6 +182,7 @@ def test_small_inputs_and_processes_with_threads_are_read_here(
     assert not reading.ahead and pids == {os.getpid()}
 
 
+@pytest.mark.slow
 def test_convert_writes_the_same_drive_either_way(tmp_path: Path) -> None:
     sample = data_dir() / "ecocar_sample.blf"
     ahead = convert([sample], tmp_path / "ahead.mcap", [], profile="ecocar")
@@ -271,6 +272,7 @@ class FullDisk(io.BytesIO):
         return super().write(data)
 
 
+@pytest.mark.slow
 def test_a_disk_that_fills_while_reading_ahead_stops_the_reader_too(write_log: WriteLog) -> None:
     log = write_log("long.blf", frames(60_000, 0, 0.001))
     decoder, _ = load_stages([str(ECOCAR_DBC)], None)

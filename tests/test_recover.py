@@ -218,6 +218,7 @@ def check_cut(cut: int) -> RecoverReport:
     return report
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.data())
 def test_a_drive_cut_anywhere_gives_back_a_prefix(data: st.DataObject) -> None:

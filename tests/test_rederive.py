@@ -196,6 +196,7 @@ def test_re_deriving_twice_gives_the_same_bytes(bosch_drive: Path, tmp_path: Pat
     assert one.read_bytes() == two.read_bytes()
 
 
+@pytest.mark.slow
 def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path, sample_drive: Path
                                                        ) -> None:
     drive = sample_drive
@@ -229,6 +230,7 @@ def test_an_mcap_that_is_not_a_drive_is_one_line(tmp_path: Path,
         read_drive(text)
 
 
+@pytest.mark.slow
 def test_a_drive_cut_short_re_derives_what_it_holds_and_says_what_is_lost(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     drive = tmp_path / "sample.mcap"
@@ -271,6 +273,7 @@ def test_one_drive_at_a_time_and_no_logs_beside_it(bosch_drive: Path, bosch_log:
         convert([bosch_drive, bosch_log], tmp_path / "out.mcap", [])
 
 
+@pytest.mark.slow
 def test_replay_serves_the_re_derived_scene_live(bosch_drive: Path, shared_dbc: Path,
                                                  tmp_path: Path) -> None:
     flipped = tmp_path / "bosch_right.toml"

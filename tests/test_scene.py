@@ -401,6 +401,7 @@ def message_sequences(draw: st.DrawFn) -> list[tuple[int, str, dict[str, float]]
     return out
 
 
+@pytest.mark.slow
 @settings(max_examples=80, deadline=None)
 @given(sequence=message_sequences())
 def test_observing_at_the_tick_gives_the_world_observing_each_message_gives(

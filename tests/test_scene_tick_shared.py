@@ -67,6 +67,7 @@ def _scenes(profile: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> l
     return out
 
 
+@pytest.mark.slow
 def test_groups_observed_together_make_the_scene_observing_them_apart_makes(
         highway: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> None:
     together = Perception(highway)

@@ -151,6 +151,7 @@ def test_frames_come_in_time_order_on_two_buses_within_the_run() -> None:
     assert not any(f.is_fd or f.is_extended or f.is_error or f.is_remote for f in run)
 
 
+@pytest.mark.slow
 def test_every_frame_decodes_with_the_bundled_database_of_its_bus(frames: list[Frame]) -> None:
     """... but those of the ids the databases do not define (:mod:`bridge.sim.highway_body`)."""
     databases = {RADAR_BUS: highway_database("radar"), CAR_BUS: highway_database("car")}

@@ -94,6 +94,7 @@ def bit(data: bytes, i: int) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_unknown_ids_are_in_no_highway_database_and_on_their_buses() -> None:
     defined = {m.frame_id for name in ("car", "radar") for m in highway_database(name).messages}
     assert not defined & set(UNKNOWN_IDS)
@@ -117,6 +118,7 @@ def test_every_unknown_id_comes_every_cycle_at_its_length(frame_id: int) -> None
     assert max(abs(g - cycle_ms) for g in gaps) < 0.2  # a little jitter
 
 
+@pytest.mark.slow
 def test_0x2c4_carries_the_speedometer_the_brake_switch_and_the_yaw_rate() -> None:
     for road in ROADS:
         frames = of(drive(road), BRAKE_ID)
@@ -183,6 +185,7 @@ def test_the_seed_changes_counter_starts_and_noise_never_the_brake() -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_the_defined_ids_frames_are_the_same_as_without_the_unknown_ids(road: str) -> None:
     """The unknown ids' families draw from randomness of their own, and merge in between."""
@@ -222,12 +225,14 @@ def switches(frames: tuple[Frame, ...], edge: float) -> set[tuple[int, int]]:
 EDGES = sorted(t for press in BRAKE_PRESSES for t in press)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_only_the_brake_switch_switches_at_every_brake_edge(road: str) -> None:
     at = [switches(drive(road), edge) for edge in EDGES]
     assert set.intersection(*at) == {(BRAKE_ID, BRAKE_BIT)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_at_one_brake_edge_nothing_but_the_brake_switch_and_slow_counter_bits_switch(
         road: str) -> None:

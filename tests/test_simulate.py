@@ -377,6 +377,7 @@ def test_during_the_misalignment_the_radar_reports_it_and_its_objects_rotate(
 # --- the timeline scales with the duration ----------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_long_drive_has_every_episode_too(db: cantools.database.can.Database) -> None:
     duration = 60.0
     status = db.get_message_by_name("RadarStatus")
@@ -476,6 +477,7 @@ def test_radar_dropout_silences_the_radar_only_during_the_fault() -> None:
     assert [d for d in frames if fault(d) and d.name.startswith("Cam")]
 
 
+@pytest.mark.slow
 def test_the_yawed_radar_sees_everything_turned_right_and_does_not_know() -> None:
     frames = scenario("radar_yaw")
     assert all(abs(d.signals["HorizontMisalignment"]) < 0.1 for d in named(frames, "RadarStatus"))
@@ -522,6 +524,7 @@ def test_a_silent_bus_carries_no_frame_at_all_during_the_fault() -> None:
     assert frames[-1].t >= SCENARIO_S - 0.1  # and it comes back
 
 
+@pytest.mark.slow
 def test_a_babbling_gateway_floods_the_bus_with_one_frame() -> None:
     frames = scenario("babbling")
     diag = named(frames, "SensorDiag")

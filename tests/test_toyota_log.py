@@ -71,6 +71,7 @@ def test_every_message_at_its_cycle(drive: tl.ToyotaDrive, db: tl.Database) -> N
         assert all(len(m.data) == message.length for m in frames)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".blf", ".log"])
 def test_log_reads_back(tmp_path: Path, drive: tl.ToyotaDrive, suffix: str) -> None:
     path = tl.write_log(drive, tmp_path / f"toyota{suffix}")

@@ -103,6 +103,7 @@ def kind(request: pytest.FixtureRequest) -> str:
     return group
 
 
+@pytest.mark.slow
 def test_closing_the_terminal_finishes_the_drive(tmp_path: Path, kind: str) -> None:
     master, slave = os.openpty()
     process = subprocess.Popen(command(kind, tmp_path), stdin=slave, stdout=slave,
@@ -118,6 +119,7 @@ def test_closing_the_terminal_finishes_the_drive(tmp_path: Path, kind: str) -> N
     assert_finished(tmp_path)
 
 
+@pytest.mark.slow
 def test_a_hangup_whose_output_pipes_are_gone_finishes_the_drive(tmp_path: Path) -> None:
     """An SSH session that ends: its pipes' reader is gone (EPIPE), then the hangup."""
     process = subprocess.Popen(command("demo", tmp_path), stdout=subprocess.PIPE,
@@ -131,6 +133,7 @@ def test_a_hangup_whose_output_pipes_are_gone_finishes_the_drive(tmp_path: Path)
     assert_finished(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGTERM])
 def test_a_hangup_ends_a_run_as_sigterm_does(tmp_path: Path, signum: int) -> None:
     """``kill -HUP`` with the terminal still there: the same end as SIGTERM's, summary too."""

@@ -146,6 +146,7 @@ def backlog_drops() -> int:
     return sum(int(line.split()[1], 16) for line in lines if line.strip())
 
 
+@pytest.mark.slow
 def test_a_udp_multicast_bus_counts_the_frames_the_kernel_dropped() -> None:
     group = f"239.74.{os.getpid() % 250}.{time.monotonic_ns() % 250}"
     try:
@@ -203,6 +204,7 @@ class SocketBus(can.BusABC):
         super().shutdown()
 
 
+@pytest.mark.slow
 def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
         tmp_path: Path) -> None:
     from bridge.pipeline.drive import load_stages
@@ -253,6 +255,7 @@ def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
 
 # --- the end of a run --------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_run_that_got_no_frame_says_so(tmp_path: Path) -> None:
     result = subprocess.run(
         [sys.executable, "-m", "bridge", "live", "--bus", f"can0=virtual:none-{os.getpid()}",

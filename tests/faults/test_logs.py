@@ -200,6 +200,7 @@ def test_a_blf_frame_with_an_impossible_time_is_reported_and_the_rest_converts(
     assert "cannot be recorded" in issue.reason
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(offset=st.floats(0.0, 1.0), length=st.integers(1, 400), seed=st.integers(0, 2**32))
 def test_any_damage_to_a_blf_is_read_past(tmp_path_factory: pytest.TempPathFactory,
@@ -331,6 +332,7 @@ def test_an_empty_input_fails_the_conversion_with_one_line(tmp_path: Path) -> No
     assert not (tmp_path / "out.mcap").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["logs", "logs.blf"])
 def test_a_folder_given_as_a_log_is_one_line(tmp_path: Path, name: str) -> None:
     (tmp_path / name).mkdir()

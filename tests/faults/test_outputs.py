@@ -82,6 +82,7 @@ def test_a_format_without_fd_flags_says_what_it_leaves_out(
     assert f"{fd} CAN FD frames" in err and "FD flag" in err
 
 
+@pytest.mark.slow
 def test_the_drive_as_mcap_holds_every_frame(tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     from conftest import summary_counts
@@ -95,6 +96,7 @@ def test_the_drive_as_mcap_holds_every_frame(tmp_path: Path,
     assert summary_counts(path)[frames_topic("can0")] < len(frames)  # in blocks
 
 
+@pytest.mark.slow
 def test_forcing_over_an_sqlite_log_replaces_it(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """SQLite appends to a table that exists: --force must give the new drive alone."""
@@ -124,6 +126,7 @@ BO_ 1056 DoorState: 8 Door
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signum: int) -> None:
     """As Ctrl+C already did: SIGTERM (systemd, docker stop) and SIGHUP (the terminal closed)
@@ -146,6 +149,7 @@ def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signu
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "partial"), [("drive.mcap", ".drive.mcap.*.partial"),
                                                ("drive.blf", ".drive_partial_*.blf"),
                                                ("drive.db", ".drive_partial_*.db")])

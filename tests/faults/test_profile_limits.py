@@ -60,6 +60,7 @@ def one_second() -> tuple[Frame, ...]:
     return tuple(simulate(duration_s=1.0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("value", EXTREMES)
 @pytest.mark.parametrize("line,key,column", numbers(),
                          ids=[f"line{n + 1}-{key}" for n, key, _ in numbers()])

@@ -94,6 +94,7 @@ def wait_for_line(process: subprocess.Popen[str], wanted: str) -> None:
     pytest.fail(f"the replay never said {wanted!r}; it said: {''.join(seen)}")
 
 
+@pytest.mark.slow
 def test_replay_for_ends_on_time_while_its_input_is_stuck(log: Path) -> None:
     process = replay(str(log), "--for", "1", script=STUCK)
     out, err = ended(process)
@@ -102,6 +103,7 @@ def test_replay_for_ends_on_time_while_its_input_is_stuck(log: Path) -> None:
     assert out.splitlines()[-1].startswith("replayed ")
 
 
+@pytest.mark.slow
 def test_sigterm_ends_a_replay_whose_input_is_stuck(log: Path) -> None:
     process = replay(str(log), script=STUCK)
     wait_for_line(process, "stuck")
@@ -112,6 +114,7 @@ def test_sigterm_ends_a_replay_whose_input_is_stuck(log: Path) -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["log", "mcap"])
 def test_a_start_past_the_end_of_the_drive_is_one_line_naming_its_length(
         log: Path, tmp_path: Path, kind: str) -> None:
@@ -125,6 +128,7 @@ def test_a_start_past_the_end_of_the_drive_is_one_line_naming_its_length(
     assert err.splitlines() == ["error: --start 1000: the drive is only 3.0 s long"]
 
 
+@pytest.mark.slow
 def test_a_start_within_the_drive_is_kept(log: Path) -> None:
     process = replay(str(log), "--start", "2.5")
     out, err = ended(process)
@@ -202,6 +206,7 @@ def test_a_start_in_an_mcap_without_statistics_is_kept_and_checked(tmp_path: Pat
             replay_mcap(path, server, speed=100, start_s=5)
 
 
+@pytest.mark.slow
 def test_a_replay_tells_viewers_it_is_a_replay(log: Path) -> None:
     """serverInfo's metadata said ``{"tankviz": "live"}`` for a replay too."""
     from websockets.sync.client import connect
