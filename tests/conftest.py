@@ -14,6 +14,7 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+import waiting
 from hypothesis import HealthCheck, settings
 
 from bridge.resources import data_dir
@@ -43,17 +44,11 @@ if os.environ.get("CI"):
 
 
 def timeout_scale() -> float:
-    """TANKVIZ_TEST_TIMEOUT_SCALE (default 1): a factor on the tests' time budgets, for a slow or
-    loaded machine. The budgets are what a wait for a condition may take at most; a condition
-    that holds ends its wait at once."""
-    raw = os.environ.get("TANKVIZ_TEST_TIMEOUT_SCALE", "").strip() or "1"
+    """:func:`waiting.timeout_scale`, a wrong value a usage error of pytest's."""
     try:
-        scale = float(raw)
-    except ValueError:
-        scale = 0.0
-    if not scale > 0:
-        raise pytest.UsageError(f"TANKVIZ_TEST_TIMEOUT_SCALE={raw!r}: expected a number > 0")
-    return scale
+        return waiting.timeout_scale()
+    except ValueError as e:
+        raise pytest.UsageError(str(e)) from None
 
 
 #: Where the goldens live: what a test's output must be, byte for byte.

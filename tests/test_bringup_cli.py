@@ -99,6 +99,7 @@ def test_bits_counts_every_flip_of_one_id_exactly(capsys, frames, log) -> None:
     assert expected[0] == 0  # byte 0 is constant
 
 
+@pytest.mark.slow
 def test_bits_window_and_decimal_id(capsys, frames, log) -> None:
     t0 = frames[0].timestamp_ns
     inside = [f.data for f in frames if f.bus == "can0" and f.arbitration_id == HEARTBEAT_ID
@@ -109,6 +110,7 @@ def test_bits_window_and_decimal_id(capsys, frames, log) -> None:
     assert got["flips"][24] == len(inside) - 1  # the counter's lowest bit, byte 3
 
 
+@pytest.mark.slow
 def test_bits_map_names_the_signals_of_a_known_id(capsys, log) -> None:
     out = run(capsys, "bits", str(log), "--dbc", CAR, "--id", "can0/0x0B4")
     assert "(SPEED)" in out.splitlines()[0]

@@ -114,6 +114,7 @@ def flipped(frames: list[Frame], since: int = 0) -> set[int]:
     return bits
 
 
+@pytest.mark.slow
 def test_each_second_the_ids_table_counts_the_frames_before_it() -> None:
     frames = highway()
     got = viewed(frames)
@@ -155,6 +156,7 @@ def test_each_second_the_ids_table_counts_the_frames_before_it() -> None:
                                                                                  "unknown")]
 
 
+@pytest.mark.slow
 def test_a_viewer_gets_every_frame_of_the_unknown_ids_and_no_known_one() -> None:
     frames = highway()
     got = viewed(frames)
@@ -233,6 +235,7 @@ def read_png(data: bytes) -> tuple[np.ndarray[Any, Any], list[tuple[int, int, in
     return per[:, :width], palette
 
 
+@pytest.mark.slow
 def test_the_bit_map_is_a_png_with_a_row_per_id_bright_where_a_bit_flips_every_frame() -> None:
     frames = highway()
     got = viewed(frames)

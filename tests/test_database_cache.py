@@ -76,6 +76,7 @@ def decoded(path: Path) -> list[tuple[str, bytes]]:
     return out
 
 
+@pytest.mark.slow
 def test_a_database_is_parsed_once_and_the_cache_gives_the_same_database(
         tmp_path: Path, parses: list[str], own_cache: Path) -> None:
     parsed = load_database(ECOCAR_DBC)
@@ -152,6 +153,7 @@ def test_a_damaged_cache_entry_is_ignored_and_replaced(tmp_path: Path, parses: l
     assert len(parses) == 6
 
 
+@pytest.mark.slow
 def test_an_unwritable_cache_fails_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                            parses: list[str]) -> None:
     """A cache folder that cannot be made (a file in its way, as a read-only or full disk
@@ -182,6 +184,7 @@ def test_a_failed_write_leaves_no_partial_entry(tmp_path: Path, monkeypatch: pyt
     assert list(own_cache.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_small_input_is_read_without_a_read_ahead_process(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Under MIN_BYTES a process would cost more than it saves: the frames are read here."""

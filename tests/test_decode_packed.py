@@ -131,6 +131,7 @@ def ecocar_frames() -> list[Frame]:
     return out
 
 
+@pytest.mark.slow
 def test_ecocar_frames_decode_the_same_in_blocks() -> None:
     database = load_database(ECOCAR_DBC)
     frames = ecocar_frames()
@@ -236,6 +237,7 @@ def test_a_codec_decodes_a_column_in_one_step_with_the_same_counts() -> None:
         (codec_one.decoded, codec_one.truncated, codec_one.longer, codec_one.longest)
 
 
+@pytest.mark.slow
 def test_the_block_path_is_checked_against_a_wrong_count(monkeypatch: pytest.MonkeyPatch) -> None:
     """The comparison above can fail: a column that forgot its truncated frames is caught."""
     database = load_database(ECOCAR_DBC)

@@ -57,6 +57,7 @@ def test_the_sample_drive_converts_to_the_same_messages(sample_drive: Path) -> N
     check("sample", hashes)
 
 
+@pytest.mark.slow
 def test_a_gm_drive_converts_to_the_same_messages(shared_dbc: Path, write_log: WriteLog,
                                                    tmp_path: Path) -> None:
     import cantools

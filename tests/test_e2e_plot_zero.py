@@ -29,7 +29,7 @@ from test_e2e_browser import (
 from bridge.resources import data_dir
 from bridge.sim.scenario import DEFAULT_START_NS
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 #: VehicleSpeed is 10 m/s but from ZERO_FROM_S to ZERO_TO_S, where it is 0
 ZERO_FROM_S, ZERO_TO_S, DRIVE_S = 3.0, 7.0, 10.0

@@ -196,6 +196,7 @@ def test_health_shows_the_silent_radar_and_when_its_alarm_was_raised() -> None:
     assert not next(a for a in after.alarms if a.id == "radar.silent").active
 
 
+@pytest.mark.slow
 def test_the_yawed_radar_sees_objects_about_three_degrees_to_the_right_of_the_camera() -> None:
     bias = drive("radar_yaw").health_at(FAULT_ONSET_S + 2).biases[0]
     assert (bias.sensor_a, bias.sensor_b) == ("radar", "camera")
@@ -203,12 +204,14 @@ def test_the_yawed_radar_sees_objects_about_three_degrees_to_the_right_of_the_ca
     assert bias.lateral_offset_m < -0.5 and bias.matches >= SETTINGS.bias_min_matches
 
 
+@pytest.mark.slow
 def test_the_babbling_id_is_named_with_its_rate_and_share() -> None:
     bus = drive("babbling").health_at(FAULT_ONSET_S + 2).buses[0]
     assert bus.top_id == 0x700 and bus.top_id_hz == pytest.approx(1000, rel=0.02)
     assert 0.25 < bus.top_id_share < 0.35  # 1000 of about 3350 frames/s
 
 
+@pytest.mark.slow
 def test_a_silent_bus_is_reported_in_log_time_although_no_frame_comes() -> None:
     silent = drive("bus_silent")
     during = silent.health_at(FAULT_ONSET_S + 3)  # published inside the gap
@@ -326,6 +329,7 @@ def synthetic_traffic(count: int, *, seed: int = 1, period_ns: int = 500_000,
     return frames
 
 
+@pytest.mark.slow
 def test_the_bit_estimate_is_within_five_percent_of_the_exact_count() -> None:
     frames = synthetic_traffic(3000)
     exact = sum(exact_bits(f) for f in frames)
@@ -366,6 +370,7 @@ def test_the_data_phase_of_a_bit_rate_switched_frame_counts_at_the_data_bitrate(
     assert estimate_frame_bits(frame) == arbitration + data_phase
 
 
+@pytest.mark.slow
 def test_the_bus_load_of_known_traffic_is_within_five_percent() -> None:
     frames = synthetic_traffic(8000)  # 2000 frames/s for 4 s
     bus = run(frames, Decoder({}), None, bitrates={"can0": 2_000_000},

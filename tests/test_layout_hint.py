@@ -186,6 +186,7 @@ def test_live_with_databases_and_no_profile_says_how_to_make_one(
     assert BUNDLED_LINE not in lines
 
 
+@pytest.mark.slow
 def test_the_draft_command_keeps_the_bus_of_each_database(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -203,6 +204,7 @@ def test_the_draft_command_keeps_the_bus_of_each_database(
     assert written and (tmp_path / written[1]).resolve() == mazda_dbc.resolve()
 
 
+@pytest.mark.slow
 def test_demo_without_recording_points_at_the_bundled_layout(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--port", "0", "--for", "0.5", "--no-record",
@@ -234,6 +236,7 @@ def mazda_drive(mazda_dbc: Path, write_log: WriteLog, tmp_path: Path) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_replay_of_an_ecocar_drive_points_at_the_bundled_layout(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drive = tmp_path / "eco.mcap"
@@ -258,6 +261,7 @@ def test_replay_of_another_drive_prints_the_command_for_it(
     assert str(BUNDLED) not in out and "ecocar" not in out
 
 
+@pytest.mark.slow
 def test_replay_of_a_drive_points_at_the_layouts_made_for_it_beside_it(
         mazda_drive: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     folder = mazda_drive.parent / "layouts" / "mazda_radar"

@@ -110,6 +110,7 @@ FAR = [mark(1, 12.5, "ghost target here", "radar", "viewer", "192.168.1.4:53211"
 
 # --- inspect ------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_inspect_lists_each_mark_with_its_seconds_from_the_drives_start(
         recorded: tuple[Path, list[Mark]], capsys: pytest.CaptureFixture[str]) -> None:
     drive, made = recorded

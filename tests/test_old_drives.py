@@ -274,6 +274,7 @@ def before_36(drives: tuple[Path, Path, int],
     return new, old
 
 
+@pytest.mark.slow
 def test_a_drive_before_36_writes_zeros_and_has_presence_everywhere(
         before_36: tuple[Path, Path]) -> None:
     _, old = before_36
@@ -286,6 +287,7 @@ def test_a_drive_before_36_writes_zeros_and_has_presence_everywhere(
             assert decoded.HasField("VehicleSpeed") and decoded.HasField("Counter")
 
 
+@pytest.mark.slow
 def test_a_drive_before_36_re_derives_its_scene_byte_for_byte(
         before_36: tuple[Path, Path], tmp_path: Path) -> None:
     new, old = before_36
@@ -301,6 +303,7 @@ def test_a_drive_before_36_re_derives_its_scene_byte_for_byte(
         t: v for t, v in new_topics.items() if decoded_topic(t)}
 
 
+@pytest.mark.slow
 def test_a_drive_before_36_is_replayed_recovered_catalogued_and_inspected(
         before_36: tuple[Path, Path], tmp_path: Path) -> None:
     _, old = before_36

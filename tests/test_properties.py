@@ -251,6 +251,7 @@ def test_decode_never_raises_and_accounts_for_every_frame(subject: Subject,
         result.codec.schema.parse(result.payload)
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decoded_values_are_exactly_cantools_values(subject: Subject,
@@ -404,6 +405,7 @@ def _counts(decoder: Decoder) -> tuple[int, int, int]:
             sum(stats["decode_errors"].values()))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decoding_a_frame_again_counts_it_again(subject: Subject, data: st.DataObject) -> None:

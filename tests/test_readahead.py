@@ -74,6 +74,7 @@ def test_the_frames_are_read_in_another_process() -> None:
     assert multiprocessing.active_children() == []
 
 
+@pytest.mark.slow
 def test_merged_logs_give_the_same_frames_and_the_same_notes_as_reading_here(
         write_log: WriteLog) -> None:
     blf = write_log("radar.blf", frames(9000, 0, 0.001))
@@ -245,6 +246,7 @@ def gm_drive_with_a_clock_step_cut_short(dbc: Path, write_log: WriteLog) -> Path
     return log
 
 
+@pytest.mark.slow
 def test_a_car_unlike_ecocar_with_a_clock_step_and_a_cut_log_converts_the_same_ahead(
         shared_dbc: Path, write_log: WriteLog, tmp_path: Path) -> None:
     dbc = shared_dbc / "gm_global_a_object.dbc"

@@ -142,6 +142,7 @@ def test_a_flipped_lateral_sign_mirrors_every_radar_point(
     assert metadata(out)["profile"]["attachment"] == "profile-bosch_right.toml"
 
 
+@pytest.mark.slow
 def test_without_dbc_and_profile_the_attached_ones_are_used(
         bosch_log: Path, shared_dbc: Path, tmp_path: Path) -> None:
     car = tmp_path / "car"
@@ -165,6 +166,7 @@ def test_without_dbc_and_profile_the_attached_ones_are_used(
     assert meta["bus_databases"] == metadata(drive)["bus_databases"]
 
 
+@pytest.mark.slow
 def test_a_profile_whose_databases_point_elsewhere_uses_the_attached_ones(
         bosch_drive: Path, tmp_path: Path) -> None:
     elsewhere = tmp_path / "elsewhere.toml"
@@ -330,6 +332,7 @@ def watch(server: ViewerServer, topic: str, stop: threading.Event, run: Any,
     return payloads
 
 
+@pytest.mark.slow
 def test_replay_drive_cli_with_a_profile(bosch_drive: Path, shared_dbc: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["replay", str(bosch_drive), "--profile", str(BOSCH), "--dbc",

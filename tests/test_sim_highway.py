@@ -301,6 +301,7 @@ def test_dropouts_send_a_slot_invalid_for_a_few_cycles_and_keep_it(cycles: list[
     assert not any(c.slots[HIGHWAY.lead_slot].new for c in cycles[1:])
 
 
+@pytest.mark.slow
 def test_the_cut_in_car_enters_the_ego_lane_in_the_documented_window(
         cycles: list[Cycle], car: dict[str, list[tuple[float, dict[str, Any]]]]) -> None:
     """As the view sees it: its lane from the steering angle (bicycle model) against the

@@ -16,6 +16,8 @@ import sys
 from functools import cache
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The packages of bridge/ in data-path order: each may import those before it.
@@ -104,6 +106,7 @@ def test_imports_only_run_down_the_data_path() -> None:
     assert not wrong, "\n".join(sorted(wrong))
 
 
+@pytest.mark.slow
 def test_no_import_chain_is_deeper_than_the_data_path() -> None:
     """cli → an app → the pipeline → … → a shared module: at most one module per stage, plus
     cli, the modules within one stage that build on each other, and a shared module."""

@@ -49,8 +49,11 @@ def drive(channel: str, script: Iterable[tuple[float, Any]], sent: list[int]) ->
     bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True,
                   receive_own_messages=False)
     try:
-        while len(virtual.channels.get(channel, ())) < 2:  # live's bus is open too
-            time.sleep(0.01)
+        from waiting import timeout_scale, wait_for  # (tests/ is on the path: see load)
+
+        if not wait_for(lambda: len(virtual.channels.get(channel, ())) >= 2,  # live's bus too
+                        60 * timeout_scale()):
+            raise SystemExit(f"car: live never opened its bus {channel}")
         start = time.monotonic()
         for at, what in script:
             delay = start + at - time.monotonic()

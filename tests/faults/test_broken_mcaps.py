@@ -82,6 +82,7 @@ def test_a_file_cut_right_after_it_was_created(drive: Path, tmp_path: Path, size
     assert both(path) == (said, said)
 
 
+@pytest.mark.slow
 def test_replay_refuses_a_file_of_a_few_bytes_before_it_prints(
         drive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from bridge.cli import main

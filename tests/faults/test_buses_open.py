@@ -88,6 +88,7 @@ def test_a_bad_bus_prints_nothing_before_its_error(tmp_path: Path) -> None:
     assert line.startswith("error: --bus nosuch: python-can's configuration has no interface")
 
 
+@pytest.mark.slow
 def test_a_bus_that_never_opens_is_an_error_after_the_wait_and_no_gap() -> None:
     from bridge.pipeline.drive import load_stages
     from bridge.pipeline.live_engine import Live

@@ -46,12 +46,14 @@ def test_a_bad_run_time_in_the_environment_is_named(tmp_path: Path) -> None:
     assert line == "error: TANKVIZ_RUN_FOR='soon': expected a number of seconds > 0"
 
 
+@pytest.mark.slow
 def test_good_settings_in_the_environment_are_the_defaults(tmp_path: Path) -> None:
     result = tankviz("live", "--help", cwd=tmp_path,
                      env={"TANKVIZ_PORT": "9001", "TANKVIZ_RUN_FOR": "2.5"})
     assert result.returncode == 0, result.stderr
 
 
+@pytest.mark.slow
 def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
     (tmp_path / "drives").mkdir()
     line = one_error_line(tankviz("inspect", "drives", cwd=tmp_path))
@@ -59,6 +61,7 @@ def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
     assert "drives/*.mcap" in line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rate", ["0", "-1", "100"])
 @pytest.mark.parametrize("command", ["convert", "batch"])
 def test_a_scene_rate_of_zero_is_refused_as_any_other_out_of_range(

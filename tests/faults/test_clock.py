@@ -196,6 +196,7 @@ def bosch_drive(db: cantools.database.can.Database, starts: Iterable[float],
             yield message(db, "RadarPoint1_B", t + 0.001, Class=1)
 
 
+@pytest.mark.slow
 def test_convert_goes_on_with_the_scene_after_a_step_back(shared_dbc: Path,
                                                            tmp_path: Path) -> None:
     dbc = shared_dbc / "tesla_radar_bosch.dbc"

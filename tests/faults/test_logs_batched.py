@@ -83,6 +83,7 @@ def test_an_intact_blf_is_read_in_batches_as_one_at_a_time(write_log: WriteLog) 
     assert len(frames) == 20_000 and not issues
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32), odd=st.sampled_from([0.0, 0.0005, 0.01]),
        damage=st.lists(st.tuples(st.floats(0.0, 1.0), st.binary(min_size=1, max_size=64)),

@@ -280,6 +280,7 @@ def test_a_dangling_link_in_a_catalogued_folder_is_not_indexed_and_says_why(
 
 # --- a drive being recorded --------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_catalog_skips_a_drive_being_recorded_and_indexes_it_once_finished(
         drives: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     recorder = PartsRecorder(drives, lambda r, part: r.add_metadata(dict(part)))

@@ -57,6 +57,7 @@ def key(frame: Frame, *, fd_flags: bool) -> tuple[object, ...]:
     return (frame.timestamp_ns, frame.arbitration_id, frame.is_extended, frame.data, *flags)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [*FD_FORMATS, *NO_FD_FLAG_FORMATS, MF4])
 def test_every_log_format_reads_back_exactly_the_frames_simulated(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], suffix: str) -> None:
@@ -107,6 +108,7 @@ def test_forcing_over_an_sqlite_log_replaces_it(tmp_path: Path,
     assert said == len(back) == len(list(simulate(duration_s=float(DURATION), seed=3)))
 
 
+@pytest.mark.slow
 def test_trc_cannot_hold_can_fd_and_is_refused_saying_why(tmp_path: Path) -> None:
     result = subprocess.run([sys.executable, "-m", "bridge", "simulate", "-o", "drive.trc",
                              "--duration", DURATION], capture_output=True, text=True,

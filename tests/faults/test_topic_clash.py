@@ -189,6 +189,7 @@ def test_live_moves_the_message_and_records_every_raw_frame(tmp_path: Path) -> N
     assert warnings_of(drive) == expected_warnings(dbc)
 
 
+@pytest.mark.slow
 def test_live_refuses_two_buses_that_share_a_topic_segment(tmp_path: Path) -> None:
     run = subprocess.run(
         [sys.executable, "-m", "bridge", "live", "--bus", f"can.0=virtual:a-{tmp_path.name}",

@@ -79,6 +79,7 @@ def test_a_datagram_python_can_cannot_unpack_is_skipped_and_counted() -> None:
     assert link.receive.kernel_drops == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("groups", "ipv6"), [(2, False), (3, False), (2, True)])
 def test_each_bus_gets_only_its_own_groups_frames(groups: int, ipv6: bool) -> None:
     multicast_or_skip(ipv6=ipv6)
