@@ -40,9 +40,11 @@ VAL_ 256 Gear 0 "P" 1 "R" 2 "N" 3 "D" ;
 @pytest.fixture(autouse=True)
 def own_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
     """Each test with a cache of its own, and cantools' parses counted."""
+    cache._save_all()  # the code other tests compiled goes to their cache, not this one
     home = tmp_path / "cache-home"
     monkeypatch.setenv("XDG_CACHE_HOME", str(home))
     yield home / "tankviz" / "databases"
+    cache._save_all()
 
 
 @pytest.fixture
