@@ -322,3 +322,15 @@ def test_bench_batch_prints_one_row_per_worker_count(tmp_path: Path) -> None:
     for workers in (1, 2):
         assert re.search(rf"^\s+{workers}\s+2\s+[\d.]+\s+[\d.]+\s+[\d.]+\s+[\d,]+\s+[\d,]+$",
                          run.stdout, re.M), run.stdout
+
+
+@pytest.mark.slow
+def test_bench_live_car_measures_live_with_the_car_in_another_process() -> None:
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_live_car.py"), "--rates", "2000",
+                          "--seconds", "2"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    (line,) = [line for line in run.stdout.splitlines() if "frames/s " in line]
+    assert re.search(r"live \d+ +[\d.]+% \([\d.]+ µs/frame\)", line), line
+    assert re.search(r"p50 [\d.]+ ms  p99 [\d.]+ ms", line), line
+    recorded, sent = map(int, re.search(r"recorded (\d+)/(\d+)", line).groups())  # type: ignore[union-attr]
+    assert recorded == sent > 0, line
