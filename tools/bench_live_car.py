@@ -37,17 +37,6 @@ PERIOD_NS = 20_000_000  # the scene period at 50 Hz
 WARMUP_NS = 500_000_000
 CPU_GOAL = 35.0
 P99_GOAL_MS = 50.0
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (utime + stime) of a process, 0 once it is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return 0.0
-    fields = stat[stat.rindex(")") + 2:].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def family(pid: int) -> list[int]:
@@ -75,7 +64,7 @@ def percentile(values: list[float], q: float) -> float:
 
 def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
     """One run of live with the car at ``rate``."""
-    from bench_live import scene_receipts, summary_frame_counts
+    from bench_live import child_cpu, scene_receipts, summary_frame_counts
 
     from bridge.io.drives import ArchiveSource
 
@@ -112,7 +101,7 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
         assert car.stdout is not None and car.stdin is not None
         car.stdout.readline()  # READY
         pids = family(live.pid)
-        before = {pid: cpu_s(pid) for pid in pids}
+        before = {pid: child_cpu(pid) for pid in pids}
         began = time.monotonic()
         car.stdin.write("go\n")
         car.stdin.flush()
@@ -120,7 +109,7 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
         sender = json.loads(car.stdout.readline())
         time.sleep(1.0)
         wall = time.monotonic() - began
-        used = {pid: cpu_s(pid) - before.get(pid, 0.0) for pid in family(live.pid)}
+        used = {pid: child_cpu(pid) - before.get(pid, 0.0) for pid in family(live.pid)}
         car.wait()
         clients.stdin.write("stop\n")
         clients.stdin.flush()
