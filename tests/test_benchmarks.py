@@ -232,7 +232,9 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     (raw,) = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
               if line.startswith("| archive size / BLF size, raw only")]
     before, now = (float(cell.rstrip("x")) for cell in raw[1:3])
-    assert before > 2 * now, raw  # the before column measured the old code
+    # the before column measured the old code: a message per frame, 1.7x the blocks on this
+    # short drive of benchlib's (varied payloads), 3x and more on a long one
+    assert before > 1.4 * now, raw
     assert f"- **before:** {BEFORE_BLOCKS}" in text
     (ab,) = [line for line in text.splitlines()
              if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]

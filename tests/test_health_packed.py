@@ -42,7 +42,9 @@ def health_state(health: HealthMonitor) -> dict[str, Any]:
                  sorted(f.seen_messages)) for f in health.families]
     return {"buses": buses, "families": families, "bad": list(health._bad_values.items()),
             "alarms": list(health._alarms), "first_ns": health.first_ns,
-            "families_of": [c.message.name for c in health._families_of]}
+            # (the codecs whose families are looked up: a message's whole and short frames have
+            # a codec each, and a pack looks up its column's first; the families are by name)
+            "families_of": sorted({c.message.name for c in health._families_of})}
 
 
 def troubled_drive() -> list[Frame]:
