@@ -36,6 +36,19 @@ CONVERT_ROWS = (
     "share of a 1 s log's convert (with scene) spent importing",
 )
 
+#: The start of every row of issue #36's budgets that bench_report measures.
+BUDGET_ROWS = (
+    *(f"archive, {kind} / log: {drive}"
+      for drive in ("simulated ecocar BLF", "highway car BLF", "Toyota candump")
+      for kind in ("full (raw + decoded + scene)", "raw")),
+    *(f"reading, LogSource's own CPU / python-can's reader: {fmt}"
+      for fmt in ("BLF", "ASC", "candump")),
+    "start, a short convert",
+    "start, tankviz --help",
+)
+#: The revision issue #36 starts from: the budgets' before.
+BUDGETS_BEFORE = "304ae15"
+
 
 def tool(name: str) -> ModuleType:
     if str(TOOLS) not in sys.path:
@@ -55,6 +68,7 @@ def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
     run = subprocess.run(
         [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
          "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
+         "--budget-frames", "3000", "--budget-seconds", "3", "--budget-runs", "1",
          "--workdir", str(tmp_path / "bench"),
          "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
         capture_output=True, text=True, timeout=300)
@@ -83,6 +97,20 @@ def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
     assert "## Details: tools/bench_convert.py" in text
     assert "of which message indexes" in text
     assert "real-format log real-gm_global_a_object-5000f" in text
+
+    # issue #36's budgets, before (the code at 304ae15, when this clone has it) and now
+    old = subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e",
+                          f"{BUDGETS_BEFORE}^{{commit}}"], capture_output=True).returncode == 0
+    if old:
+        assert f"## Issue #36's budgets: before (the code at {BUDGETS_BEFORE}) and now" in text
+    number = r"-?\d+\.\d\dx|\d+\.\d{3} s \(\d+\.\d{3} s wall\)"
+    for start in BUDGET_ROWS:
+        (row,) = [cells for measure, cells in table.items() if measure.startswith(start)]
+        before, now, goal, met = row
+        assert re.fullmatch(number, now), (start, row)
+        assert re.fullmatch(number, before) if old else before == "—", (start, row)
+        assert goal.startswith(("≤", "<")) and met in ("ok", "**missed**"), (start, row)
+    assert "Issue #36's budgets" in printed  # the table is printed too
 
 
 def test_real_format_log_rolls_counters_and_checks_its_sums(shared_dbc: Path) -> None:
@@ -217,7 +245,7 @@ def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
     report = tmp_path / "report.md"
     run = subprocess.run(
         [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
-         "--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1",
+         "--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1", "--no-budgets",
          "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
          "--workdir", str(tmp_path / "bench"),
          "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],

@@ -11,7 +11,8 @@ interleaved, best of ``--runs`` (default 5), in CPU seconds with the garbage col
   reading and the frame conversion on top of the same reader);
 - ``+ packing``: the same, the frames packed into :class:`bridge.packed.PackedFrames` packs of
   the read-ahead's ``BATCH`` frames, as the read-ahead's child does;
-- with ``--ref REV``, ``LogSource REV``: ``bridge/io`` as REV has it, beside the tree's.
+- with ``--ref REV``, ``LogSource REV``: ``bridge/io`` as REV has it (``logs.py`` before it was
+  named ``can_logs.py``), beside the tree's.
 
 It prints, per format, each contender's µs/frame and issue #36's figure, the overhead
 ``(LogSource - python-can) / python-can`` (goal ≤ 0.3 on BLF), and that of packing.
@@ -38,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import can
-from benchlib import asc_copy, ecocar_log, interleaved, modules_at
+from benchlib import asc_copy, ecocar_log, interleaved, modules_at, worktree
 
 from bridge.io.can_logs import LogSource
 from bridge.io.readahead import BATCH
@@ -61,6 +62,12 @@ def candump_copy(blf: Path) -> Path:
             writer.on_message_received(msg)
     os.replace(partial_path, path)
     return path
+
+
+def logs(workdir: Path, frames: int, seed: int = 1) -> dict[str, Path]:
+    """The ecocar drive of ``frames`` frames as BLF, ASC and candump, by format (cached)."""
+    blf, _ = ecocar_log(workdir, frames, seed)
+    return {"blf": blf, "asc": asc_copy(blf), "log": candump_copy(blf)}
 
 
 def bare(path: Path) -> int:
@@ -106,6 +113,41 @@ def cpu(work: Callable[[], int]) -> Callable[[], tuple[float, int]]:
     return timed
 
 
+def log_source_at(rev: str) -> type[LogSource]:
+    """LogSource as git revision ``rev`` has it (``bridge/io/can_logs.py``, ``bridge/io/logs.py``
+    before it was named so), its ``bridge.io`` beside the tree's (``benchlib.modules_at``)."""
+    name = ("bridge.io.can_logs" if (worktree(rev) / "bridge" / "io" / "can_logs.py").is_file()
+            else "bridge.io.logs")
+    found: type[LogSource] = modules_at(rev, [name], own=["bridge.io"])[name].LogSource
+    return found
+
+
+def measure(path: Path, runs: int, old: type[LogSource] | None = None,
+            old_name: str = "LogSource before", *, packing: bool = True
+            ) -> tuple[dict[str, float], int]:
+    """Each contender's best CPU seconds reading ``path`` (``python-can``, ``LogSource``,
+    ``+ packing`` unless not ``packing``, and ``old`` as ``old_name``), interleaved, best of
+    ``runs``, and the frames each read (the same for all, else AssertionError)."""
+    contenders: dict[str, Callable[[], tuple[float, int]]] = {
+        "python-can": cpu(partial(bare, path)),
+        "LogSource": cpu(partial(source, LogSource, path)),
+    }
+    if packing:
+        contenders["+ packing"] = cpu(partial(packed, path))
+    if old is not None:
+        contenders[old_name] = cpu(partial(source, old, path))
+    done = interleaved(contenders, runs)
+    counts = {n for results in done.values() for _, n in results}
+    assert len(counts) == 1, f"the contenders read different frame counts: {counts}"
+    return {name: min(s for s, _ in results) for name, results in done.items()}, counts.pop()
+
+
+def overhead(best: dict[str, float], name: str = "LogSource") -> float:
+    """Issue #36's figure: ``name``'s own CPU over python-can's, ``(name - python-can) /
+    python-can``, from :func:`measure`'s best seconds."""
+    return (best[name] - best["python-can"]) / best["python-can"]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=200_000)
@@ -119,28 +161,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="where the logs are cached")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
-    blf, _ = ecocar_log(args.workdir, args.frames, args.seed)
-    paths = {"blf": blf, "asc": asc_copy(blf), "log": candump_copy(blf)}
-    old: type[LogSource] | None = None
-    if args.ref:
-        old = modules_at(args.ref, ["bridge.io.can_logs"],
-                         own=["bridge.io"])["bridge.io.can_logs"].LogSource
+    paths = logs(args.workdir, args.frames, args.seed)
+    old: type[LogSource] | None = log_source_at(args.ref) if args.ref else None
     print(f"reading {args.frames} simulated frames, CPU, best of {args.runs}, interleaved "
           f"(goal: LogSource's own work ≤ {GOAL}x python-can's)")
     for fmt in args.format or list(paths):
         path = paths[fmt]
-        contenders: dict[str, Callable[[], tuple[float, int]]] = {
-            "python-can": cpu(partial(bare, path)),
-            "LogSource": cpu(partial(source, LogSource, path)),
-            "+ packing": cpu(partial(packed, path)),
-        }
-        if old is not None:
-            contenders[f"LogSource {args.ref}"] = cpu(partial(source, old, path))
-        runs = interleaved(contenders, args.runs)
-        counts = {n for done in runs.values() for _, n in done}
-        assert len(counts) == 1, f"the contenders read different frame counts: {counts}"
-        n = counts.pop()
-        best = {name: min(s for s, _ in done) for name, done in runs.items()}
+        best, n = measure(path, args.runs, old, f"LogSource {args.ref}")
         base = best["python-can"]
         print(f"{fmt} ({path.stat().st_size / 1e6:.1f} MB, {n} frames):")
         for name, seconds in best.items():
@@ -150,9 +177,9 @@ def main(argv: list[str] | None = None) -> int:
             elif name == "+ packing":
                 extra = f"   packing {(seconds - best['LogSource']) / base:5.2f}x"
             print(f"  {name:18} {seconds:6.3f} s  {seconds / n * 1e6:5.2f} µs/frame{extra}")
-        overhead = (best["LogSource"] - base) / base
-        print(f"  overhead of LogSource ({fmt}): {overhead:.2f}x   goal ≤ {GOAL}x  "
-              f"{'ok' if overhead <= GOAL else 'MISSED'}")
+        share = overhead(best)
+        print(f"  overhead of LogSource ({fmt}): {share:.2f}x   goal ≤ {GOAL}x  "
+              f"{'ok' if share <= GOAL else 'MISSED'}")
     return 0
 
 

@@ -13,9 +13,10 @@ children: a read-ahead process counts):
 - ``interpreter``: ``python -c pass``.
 
 It prints each one's best CPU seconds, the ratio convert / imports (goal ≤ 1.5x) and, with
-``--ref REV``, the same convert at a git revision (a worktree of it, ``benchlib.revision_env``),
-interleaved with the others, and its ratio. The database cache (``$XDG_CACHE_HOME/tankviz``) is
-warmed before the clock starts (``--cold``: a fresh empty cache folder for every run instead).
+``--ref REV``, the same convert and ``--help`` at a git revision (a worktree of it,
+``benchlib.revision_env``), interleaved with the others, and its ratio. The database cache
+(``$XDG_CACHE_HOME/tankviz``) is warmed before the clock starts (``--cold``: a fresh empty cache
+folder for every run instead).
 
     python tools/bench_startup.py
     python tools/bench_startup.py --runs 11 --ref main
@@ -33,6 +34,7 @@ import tempfile
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -45,6 +47,7 @@ FRAMES = 1_123
 RATIO_GOAL = 1.5
 HELP_GOAL_S = 0.1
 IMPORTS = "import can, cantools, mcap_protobuf.writer"
+WORKDIR = Path(tempfile.gettempdir()) / "tankviz-bench"
 
 
 def timed(command: list[str], env: Mapping[str, str] | None = None, cwd: Path = ROOT
@@ -67,6 +70,54 @@ def timed(command: list[str], env: Mapping[str, str] | None = None, cwd: Path = 
     return run
 
 
+def measure(frames: int = FRAMES, runs: int = 7, ref: str | None = None, cold: bool = False,
+            workdir: Path = WORKDIR, *, say: bool = False
+            ) -> tuple[dict[str, float], dict[str, float], dict[str, Any]]:
+    """Every contender's best CPU and best wall seconds, interleaved, best of ``runs`` (each
+    warmed once first), and the log's statistics (``benchlib.ecocar_log``). With ``ref``,
+    ``convert at REF`` and ``help at REF`` run the code of that git revision (its worktree).
+    ``say``: print the heading before the clock starts."""
+    log, meta = ecocar_log(workdir, frames)
+    out = workdir / "startup"
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(tempfile.mkdtemp(prefix="tankviz-bench-cache-"))
+    env = os.environ | {"XDG_CACHE_HOME": str(cache)}
+    python = sys.executable
+
+    def convert(output: Path) -> list[str]:
+        return [python, "-m", "bridge", "convert", str(log), "-o", str(output), "--dbc",
+                "ecocar", "--quiet", "--force"]
+
+    contenders: dict[str, Callable[[], tuple[float, float]]] = {
+        "interpreter": timed([python, "-c", "pass"]),
+        "imports": timed([python, "-c", IMPORTS]),
+        "convert": timed(convert(out / "now.mcap"), env),
+        "help": timed([python, "-m", "bridge", "--help"]),
+    }
+    if cold:
+        def cold_convert() -> tuple[float, float]:
+            with tempfile.TemporaryDirectory(prefix="tankviz-bench-cold-") as fresh:
+                fresh_env = os.environ | {"XDG_CACHE_HOME": fresh}
+                return timed(convert(out / "now.mcap"), fresh_env)()
+        contenders["convert"] = cold_convert
+    compileall.compile_dir(str(ROOT / "bridge"), quiet=1)  # as pip installs it
+    if ref:
+        tree = worktree(ref)
+        compileall.compile_dir(str(tree / "bridge"), quiet=1)
+        ref_env = revision_env(ref) | {"XDG_CACHE_HOME": str(cache)}
+        contenders[f"convert at {ref}"] = timed(convert(out / "ref.mcap"), ref_env, tree)
+        contenders[f"help at {ref}"] = timed([python, "-m", "bridge", "--help"], ref_env, tree)
+    for run in contenders.values():  # warm: the page cache, bytecode, the database cache
+        run()
+    if say:
+        print(f"tankviz start-up (issue #36): {log.name}, {meta['frames']:,} frames, --dbc "
+              f"ecocar; best of {runs} interleaved runs, CPU seconds (user + system)", flush=True)
+    results = interleaved(contenders, runs)
+    best = {name: min(cpu for cpu, _ in done) for name, done in results.items()}
+    walls = {name: min(wall for _, wall in done) for name, done in results.items()}
+    return best, walls, meta
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--frames", type=int, default=FRAMES, help=f"frames ({FRAMES:,})")
@@ -74,46 +125,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ref", metavar="REV", help="also time the convert at git revision REV")
     parser.add_argument("--cold", action="store_true",
                         help="an empty database cache for every convert (the first run's cost)")
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
+    parser.add_argument("--workdir", type=Path, default=WORKDIR,
                         help="where the log is cached and outputs written")
     args = parser.parse_args(argv)
-    log, meta = ecocar_log(args.workdir, args.frames)
-    out = args.workdir / "startup"
-    out.mkdir(parents=True, exist_ok=True)
-    cache = Path(tempfile.mkdtemp(prefix="tankviz-bench-cache-"))
-    env = os.environ | {"XDG_CACHE_HOME": str(cache)}
-    python = sys.executable
-
-    def convert(output: Path, run_env: Mapping[str, str]) -> list[str]:
-        return [python, "-m", "bridge", "convert", str(log), "-o", str(output), "--dbc",
-                "ecocar", "--quiet", "--force"]
-
-    contenders: dict[str, Callable[[], tuple[float, float]]] = {
-        "interpreter": timed([python, "-c", "pass"]),
-        "imports": timed([python, "-c", IMPORTS]),
-        "convert": timed(convert(out / "now.mcap", env), env),
-        "help": timed([python, "-m", "bridge", "--help"]),
-    }
-    if args.cold:
-        def cold() -> tuple[float, float]:
-            with tempfile.TemporaryDirectory(prefix="tankviz-bench-cold-") as fresh:
-                fresh_env = os.environ | {"XDG_CACHE_HOME": fresh}
-                return timed(convert(out / "now.mcap", fresh_env), fresh_env)()
-        contenders["convert"] = cold
-    compileall.compile_dir(str(ROOT / "bridge"), quiet=1)  # as pip installs it
-    if args.ref:
-        compileall.compile_dir(str(worktree(args.ref) / "bridge"), quiet=1)
-        ref_env = revision_env(args.ref) | {"XDG_CACHE_HOME": str(cache)}
-        contenders[f"convert at {args.ref}"] = timed(convert(out / "ref.mcap", ref_env), ref_env,
-                                                     worktree(args.ref))
-    for run in contenders.values():  # warm: the page cache, bytecode, the database cache
-        run()
-    print(f"tankviz start-up (issue #36): {log.name}, {meta['frames']:,} frames, --dbc ecocar; "
-          f"best of {args.runs} interleaved runs, CPU seconds (user + system)", flush=True)
-    results = interleaved(contenders, args.runs)
-    best = {name: min(cpu for cpu, _ in runs) for name, runs in results.items()}
-    walls = {name: min(wall for _, wall in runs) for name, runs in results.items()}
+    best, walls, _ = measure(args.frames, args.runs, args.ref, args.cold, args.workdir, say=True)
     for name, cpu in best.items():
         print(f"  {name:<28}{cpu:7.3f} s cpu  {walls[name]:7.3f} s wall")
     ratio = best["convert"] / best["imports"]
