@@ -220,10 +220,12 @@ class Census:
                 before[s] = 0
                 before[s, :len(tally.last)] = tally.last
         changed = payload ^ before
+        # each id's rows unpacked and summed: a third of the time of eight add.reduceat calls
+        # over every row, which accumulating uint8 into int64 along the rows makes slow
         flips = np.zeros((len(starts), width * 8), dtype=np.int64)
-        for bit in range(8):
-            flips[:, bit::8] = np.add.reduceat((changed >> bit) & 1, starts, axis=0,
-                                               dtype=np.int64)
+        for i, (s, e) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            flips[i] = np.unpackbits(changed[s:e], axis=1, bitorder="little").sum(
+                axis=0, dtype=np.int64)
         t = columns.t[order]
         since = np.empty_like(t)
         since[1:] = t[:-1]

@@ -61,12 +61,13 @@ def data_frames(pack: PackedFrames, i: int = 0, j: int | None = None) -> Columns
         t, bus, key, starts, length = t[keep], bus[keep], key[keep], starts[keep], length[keep]
     data = np.frombuffer(pack.data, dtype=np.uint8)
     width = int(length.max()) if len(length) else 0
-    if width == 0:
-        payload = np.zeros((len(t), 0), dtype=np.uint8)
-    else:
-        at = starts[:, None] + np.arange(width)
-        inside = np.arange(width) < length[:, None]
-        payload = np.where(inside, data[np.minimum(at, len(data) - 1)], 0).astype(np.uint8)
+    payload = np.zeros((len(t), width), dtype=np.uint8)
+    # the rows of each length at once: their own bytes, not the widest row's for every row (a
+    # few 64-byte FD frames among 8-byte ones made it 8 times the work)
+    for size in np.unique(length).tolist():
+        if size:
+            rows = np.flatnonzero(length == size)
+            payload[rows, :size] = data[starts[rows, None] + np.arange(size)]
     return Columns(t, pack.buses, bus, key, payload, length)
 
 
