@@ -230,6 +230,10 @@ def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
     assert health is not None
     assert wait_for(lambda: "bus.can0.frames_lost" in {a.id for a in health.active_alarms()},
                     10 * timeout_scale())  # a health check raised it
+    # ... and a /health made since says so (it is made once a second: a drive stopped before
+    # then would record the /log line only)
+    next_health = (health.last_tick_ns // health.publish_ns + 1) * health.publish_ns
+    assert wait_for(lambda: health.last_tick_ns >= next_health, 10 * timeout_scale())
     live.stop()
     runner.join(20)
 
