@@ -25,8 +25,6 @@ bus reads on, :func:`one_datagram`) (:class:`ReceiveCounts`, which :mod:`bridge.
 tells on ``/log`` and ``/health``). A udp_multicast bus hears only its own group
 (:func:`own_group_only`: python-can binds every such socket to one port, and Linux gives each
 socket every group the host joined).
-A read of python-can's own udp_multicast bus takes its datagrams straight from its socket
-(:mod:`bridge.io.udp_frames`: the same frames, without a ``can.Message`` each).
 Where python-can exposes the socket (socketcan, udp_multicast), its receive buffer is raised to
 :data:`RECEIVE_BUFFER_BYTES` (as far as the OS allows: :func:`raise_receive_buffer`) and the
 kernel's count of the frames it dropped for want of room is read at each read
@@ -60,7 +58,6 @@ from can.interfaces.udp_multicast import UdpMulticastBus
 from bridge.errors import UsageError
 from bridge.fences import PYTHON_CAN
 from bridge.frame import NS, Frame
-from bridge.io.udp_frames import UdpReader, udp_reader
 
 #: Seconds live waits for every bus to open once before a bus that never opened is an error
 #: (longer than python-can's socketcand spends on one connection attempt, 10 s).
@@ -399,7 +396,6 @@ class BusLink:
         self.receive = ReceiveCounts()
         self._bus: can.BusABC | None = None  # the open bus, handed over by the opener
         self._socket: socket.socket | None = None  # its socket, where python-can exposes it
-        self._reader: UdpReader | None = None  # its socket's own reader (udp_multicast)
         self._drops_before = 0  # the kernel's drops on the sockets of earlier openings
         self._lead_ns: int | None = None  # the bus's clock minus the wall clock, as last read
         self._reopen = threading.Event()  # the opener is wanted
@@ -427,7 +423,6 @@ class BusLink:
     def close(self) -> None:
         bus, self._bus = self._bus, None
         sock, self._socket = self._socket, None
-        self._reader = None
         if sock is not None:
             self._drops_before += kernel_drops(sock) or 0
         if bus is not None:
@@ -470,7 +465,6 @@ class BusLink:
                 self.receive.receive_buffer_bytes = raise_receive_buffer(
                     sock, RECEIVE_BUFFER_BYTES)
             self._socket = sock
-            self._reader = udp_reader(bus)
             self._bus = bus
             self.opened.set()
             if self.stopping.is_set():
@@ -509,17 +503,12 @@ class BusLink:
         frames: list[Frame] = []
         name, to_frame, append = self.spec.name, _frame, frames.append
         failure = None
-        reader = self._reader
         try:
-            if reader is not None and reader.bus is bus:
-                reader.read(name, limit, frames, lambda message: self._take(message, frames),
-                            lambda exc: self._datagram(bus, exc))
-            else:
-                for message in _received(bus, limit, self._skip):
-                    try:
-                        append(to_frame(name, message))
-                    except Exception as exc:  # a stamp that is not a time, or not a frame
-                        self._mend(message, exc, frames)
+            for message in _received(bus, limit, self._skip):
+                try:
+                    append(to_frame(name, message))
+                except Exception as exc:  # a stamp that is not a time, or not a frame at all
+                    self._mend(message, exc, frames)
         except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
             failure = exc
         self.frames_read += len(frames)
@@ -535,20 +524,6 @@ class BusLink:
             if drops is not None:
                 self.receive.kernel_drops = self._drops_before + drops
         return frames
-
-    def _take(self, message: can.Message, frames: list[Frame]) -> None:
-        """A frame python-can gave, onto ``frames`` (mended or skipped: :meth:`_mend`)."""
-        try:
-            frames.append(_frame(self.spec.name, message))
-        except Exception as exc:  # a stamp that is not a time, or not a frame at all
-            self._mend(message, exc, frames)
-
-    def _datagram(self, bus: can.BusABC, exc: Exception) -> None:
-        """Reading ``bus`` raised ``exc``: one datagram skipped and counted
-        (:func:`one_datagram`), or raised again (the bus failed)."""
-        if not one_datagram(bus, exc):
-            raise exc
-        self._skip(exc)
 
     def _skip(self, exc: Exception) -> None:
         """A datagram python-can took and could not read: counted, skipped."""
