@@ -82,7 +82,8 @@ _QUIET_LINES = {
 #: have a few tens): a long run of lines without a frame is not held in memory.
 _HEADER_LINES = 1000
 
-#: The most messages of a BLF run converted at once (a batch small enough to stay in the caches).
+#: The most messages of a BLF run or of a text log's lines converted at once (a batch small
+#: enough to stay in the caches).
 _BATCH = 256
 
 #: A frame stamped at or after this (2262-04-11, 2^63 ns) cannot be recorded; nor before 1970.
@@ -178,7 +179,8 @@ class _Lines:
         return self
 
     def __next__(self) -> str:
-        self.done()
+        if not self.framed:
+            self.done()
         try:
             text = next(self._lines)
         except StopIteration:
@@ -228,6 +230,8 @@ class LogSource:
     _warnings: _Warnings | None = field(default=None, repr=False)
     _gzip: GzipReader | None = field(default=None, repr=False)
     _read: int = field(default=0, repr=False)  # messages taken from the reader so far
+    #: the line of each message of the batch being converted (a line format's), else None
+    _lines_of: list[int] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -291,8 +295,10 @@ class LogSource:
                         last_ns = batch[-1][0]  # its timestamp_ns
                         yield batch
                         continue
-                for message in messages:
+                lines_of = self._lines_of
+                for k, message in enumerate(messages):
                     self._read += 1
+                    where = self._where() if lines_of is None else f"line {lines_of[k]}"
                     if warnings.texts:
                         self._warned(warnings)
                     seconds = message.timestamp
@@ -300,12 +306,12 @@ class LogSource:
                     if not (isinstance(seconds, (float, int)) and 0.0 <= seconds < _LAST_SECOND
                             and isinstance(ident, int) and 0 <= ident < 1 << 29
                             and isinstance(message.dlc, int) and len(message.data) <= 64):
-                        self._problem(self._where(), *_unrecordable(message))
+                        self._problem(where, *_unrecordable(message))
                         continue
                     ns = round(seconds * 1_000_000) * 1000  # to_ns(), inlined
                     if last_ns is not None and ns < last_ns:
                         self.backwards += 1
-                        self._problem(self._where(), f"time jumps backwards by "
+                        self._problem(where, f"time jumps backwards by "
                                       f"{(last_ns - ns) / 1e9:.6f} s (frame kept at its own "
                                       "time)", "note", "time jumps backwards")
                     last_ns = ns
@@ -338,9 +344,10 @@ class LogSource:
 
     def _messages(self, reader_type: type[MessageReader], suffix: str,
                   gzipped: bool) -> Iterator[Sequence[can.Message]]:
-        """The messages, one at a time or a run of a BLF's intact objects at once;
-        ``self._where()`` names the place of the message just read (with ``self._read``
-        counting the messages taken)."""
+        """The messages, a run of a BLF's intact objects or of a text log's lines at once, or
+        one at a time; ``self._where()`` names the place of the message just read (with
+        ``self._read`` counting the messages taken), ``self._lines_of`` a text log's batch's
+        lines."""
         if suffix in {".db", ".mf4"}:
             yield from self._whole_file(reader_type)
             return
@@ -429,6 +436,16 @@ class LogSource:
             return f"line {lines.line}"
 
         self._where = where
+        # The messages read since the last batch handed over, and the line of each: handed over
+        # _BATCH at a time, and before any word about a line after them.
+        batch: list[can.Message] = []
+        batch_lines: list[int] = []
+
+        def handed() -> list[can.Message]:
+            nonlocal batch, batch_lines
+            messages, self._lines_of = batch, batch_lines
+            batch, batch_lines = [], []
+            return messages
 
         failed_at = 0  # the line of the last failure: a fresh reader must read past it
         while True:
@@ -439,21 +456,30 @@ class LogSource:
                         header = lines.header if lines.capped else lines.header[:-1]
                         lines.header = None
                     lines.framed = True
-                    if lines.cut:
-                        cut_short(lines.line, "its frame is not kept")
-                        continue
-                    if "\0" in lines.text:
-                        damage(lines.line, lines.text)
+                    if lines.cut or "\0" in lines.text:
+                        if batch:
+                            yield handed()
+                        if lines.cut:
+                            cut_short(lines.line, "its frame is not kept")
+                        else:
+                            damage(lines.line, lines.text)
                         continue
                     if (candump and message.is_extended_id and not message.is_error_frame
                             and candump_error(lines.text)):
                         message = error_frame(message)
-                    yield (message,)
+                    batch.append(message)
+                    batch_lines.append(lines.line)
+                    if len(batch) == _BATCH:
+                        yield handed()
+                if batch:
+                    yield handed()
                 lines.done()
                 if lines.cut and not cut:  # a blank line or a comment, cut short
                     cut_short(lines.line, "whatever followed is lost")
                 return
             except Exception as exc:  # python-can raises anything from ValueError to IndexError
+                if batch:  # the frames before it first
+                    yield handed()
                 if isinstance(exc, (InputError, OSError, EOFError, zlib.error)):
                     raise  # --strict, or the file cannot be read (not: a line cannot be parsed)
                 bad_line = max(checked, lines.line)
