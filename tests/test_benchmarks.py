@@ -61,17 +61,37 @@ def tool(name: str) -> ModuleType:
     return module
 
 
+#: The code before issue #26: raw frames one message each (2.45x the BLF), not in blocks.
+BEFORE_BLOCKS = "a6fe390"
+
+
+def has_commit(rev: str) -> bool:
+    return subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e", f"{rev}^{{commit}}"],
+                          capture_output=True).returncode == 0
+
+
+def table_of(text: str) -> dict[str, list[str]]:
+    """A markdown report's table rows: the first cell, then the others."""
+    return {cells[0]: cells[1:] for line in text.splitlines() if line.startswith("| ")
+            for cells in [[c.strip() for c in line.strip("|").split(" | ")]]}
+
+
 @pytest.mark.slow
-def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
-                                                                 shared_dbc: Path) -> None:
+def test_bench_report_writes_the_whole_table_before_and_now_with_numeric_ratios(
+        tmp_path: Path, shared_dbc: Path) -> None:
+    """The whole report in one tiny run: issue #15's table and issue #36's budgets, each with a
+    before column measured in the same run by the same tools (``--before REV``: a worktree of
+    REV, its ``bridge``, not this checkout's; the budgets' before is 304ae15)."""
+    before = has_commit(BEFORE_BLOCKS)  # (not in a shallow clone)
     report = tmp_path / "report.md"
     run = subprocess.run(
         [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
+         *(["--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1"] if before else []),
          "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
          "--budget-frames", "3000", "--budget-seconds", "3", "--budget-runs", "1",
          "--workdir", str(tmp_path / "bench"),
          "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
-        capture_output=True, text=True, timeout=300)
+        capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     # bench_convert prints the ratios first, then the details
     printed = run.stdout
@@ -80,35 +100,50 @@ def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
     assert "WARNING" not in printed  # naive and tankviz wrote the same messages per topic
 
     text = report.read_text()
-    table = {cells[0]: cells[1:] for line in text.splitlines() if line.startswith("| ")
-             for cells in [[c.strip() for c in line.strip("|").split(" | ")]]}
+    table = table_of(text)
     for measure in CONVERT_ROWS:
-        now, goal, _ok = table[measure]
+        *ratios, goal, _ok = table[measure]
+        assert len(ratios) == 1 + before, (measure, ratios)
         # a speed ratio shows the other clock's beside it: "2.31x (1.71x cpu)"
         aside = r" \(\d+\.\d\dx cpu\)" if measure.startswith("convert") else ""
-        assert re.fullmatch(r"\d+\.\d\dx?" + aside, now), (measure, now)
+        for ratio in ratios:
+            assert re.fullmatch(r"\d+\.\d\dx?" + aside, ratio), (measure, ratio)
         assert goal.startswith(("≥", "≤")), (measure, goal)
     rss = next(v for k, v in table.items() if k.startswith("peak RSS, with scene"))
-    assert re.fullmatch(r"\d+ → \d+ MB \([+-]\d+ MB\)", rss[0]), rss
     hour = next(v for k, v in table.items() if k.startswith("1 hour of the 3-bus drive"))
-    assert re.fullmatch(r"\d+\.\d min", hour[0]), hour
+    for cell in range(1 + before):
+        assert re.fullmatch(r"\d+ → \d+ MB \([+-]\d+ MB\)", rss[cell]), rss
+        assert re.fullmatch(r"\d+\.\d min", hour[cell]), hour
     for field in ("date", "machine", "git commit", "load average (1 min)", "runs", "commands"):
         assert f"- **{field}:**" in text
     assert "## Details: tools/bench_convert.py" in text
     assert "of which message indexes" in text
     assert "real-format log real-gm_global_a_object-5000f" in text
+    if before:
+        assert "| measure (same run, same machine) | before | now | goal | ok |" in text
+        assert f"- **before:** {BEFORE_BLOCKS}" in text
+        assert "## Details: tools/bench_convert.py on the code before" in text
+        raw = table["archive size / BLF size, raw only"]
+        old, now = (float(cell.rstrip("x")) for cell in raw[:2])
+        # the before column measured the old code: a message per frame, 1.7x the blocks on this
+        # short drive of benchlib's (varied payloads), 3x and more on a long one
+        assert old > 1.4 * now, (old, now)
+        (ab,) = [line for line in text.splitlines()
+                 if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
+        pair = r"\d+\.\d\d, \d+\.\d\d"
+        assert re.search(rf"\| {pair} \| {pair} \(\d+\.\d\dx cpu", ab), ab
 
     # issue #36's budgets, before (the code at 304ae15, when this clone has it) and now
-    old = subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e",
-                          f"{BUDGETS_BEFORE}^{{commit}}"], capture_output=True).returncode == 0
-    if old:
+    old_budgets = has_commit(BUDGETS_BEFORE)
+    if old_budgets:
         assert f"## Issue #36's budgets: before (the code at {BUDGETS_BEFORE}) and now" in text
     number = r"-?\d+\.\d\dx|\d+\.\d{3} s \(\d+\.\d{3} s wall\)"
     for start in BUDGET_ROWS:
         (row,) = [cells for measure, cells in table.items() if measure.startswith(start)]
-        before, now, goal, met = row
-        assert re.fullmatch(number, now), (start, row)
-        assert re.fullmatch(number, before) if old else before == "—", (start, row)
+        budget_before, budget_now, goal, met = row
+        assert re.fullmatch(number, budget_now), (start, row)
+        assert re.fullmatch(number, budget_before) if old_budgets else budget_before == "—", (
+            start, row)
         assert goal.startswith(("≤", "<")) and met in ("ok", "**missed**"), (start, row)
     assert "Issue #36's budgets" in printed  # the table is printed too
 
@@ -226,48 +261,6 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
     # opcode (1) + record length (8) + channel id (2) + array length (4), then (time, offset)s
     assert tool("bench_convert").index_bytes(drive) == 15 * len(indexes) + 16 * report.messages
     assert sum(len(r.records) for r in indexes) == report.messages
-
-
-#: The code before issue #26: raw frames one message each (2.45x the BLF), not in blocks.
-BEFORE_BLOCKS = "a6fe390"
-
-
-@pytest.mark.slow
-def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
-                                                                shared_dbc: Path) -> None:
-    """``--before REV``: the same tools measure a worktree of REV too, its ``bridge`` (not this
-    checkout's: its raw archive is per frame, several times this one's); the table gets a
-    before column."""
-    known = subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e",
-                            f"{BEFORE_BLOCKS}^{{commit}}"], capture_output=True)
-    if known.returncode != 0:
-        pytest.skip(f"this checkout has no commit {BEFORE_BLOCKS} (a shallow clone?)")
-    report = tmp_path / "report.md"
-    run = subprocess.run(
-        [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
-         "--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1", "--no-budgets",
-         "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
-         "--workdir", str(tmp_path / "bench"),
-         "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
-        capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
-    text = report.read_text()
-    assert "| measure (same run, same machine) | before | now | goal | ok |" in text
-    rows = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
-            if line.startswith("| convert raw + decoded, tankviz / naive (BLF")]
-    (row,) = rows
-    assert re.fullmatch(r"\d+\.\d\dx.*", row[1]) and re.fullmatch(r"\d+\.\d\dx.*", row[2]), row
-    (raw,) = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
-              if line.startswith("| archive size / BLF size, raw only")]
-    before, now = (float(cell.rstrip("x")) for cell in raw[1:3])
-    # the before column measured the old code: a message per frame, 1.7x the blocks on this
-    # short drive of benchlib's (varied payloads), 3x and more on a long one
-    assert before > 1.4 * now, raw
-    assert f"- **before:** {BEFORE_BLOCKS}" in text
-    (ab,) = [line for line in text.splitlines()
-             if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
-    assert re.search(r"\| \d+\.\d\d, \d+\.\d\d \| \d+\.\d\d, \d+\.\d\d \(\d+\.\d\dx cpu", ab), ab
-    assert "## Details: tools/bench_convert.py on the code before" in text
 
 
 @pytest.mark.slow
