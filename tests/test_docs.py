@@ -193,7 +193,7 @@ def test_the_front_page_is_short_and_keeps_the_quick_start_ci_runs() -> None:
     commands = [line for line in lines[begin + 1:end] if line and not line.startswith("`")]
     assert commands == [
         "python3 -m venv .venv && .venv/bin/pip install '.[dev]' && .venv/bin/tankviz demo",
-        ".venv/bin/python -m pytest",
+        ".venv/bin/python -m pytest -n 2",
     ]
 
 
