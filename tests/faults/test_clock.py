@@ -145,17 +145,29 @@ def one_frame_a_year_ahead() -> Iterator[tuple[float, Any]]:
             yield at, frame._replace(timestamp_ns=frame.timestamp_ns + YEAR_NS)
 
 
+#: A car sending this late was in a stalled process: its frames came in a burst after live's wall
+#: clock had run on, an artefact of the harness (a kernel stamps and delivers frames on time).
+STALLED_S = 0.5
+
+
 def check_live_step(tmp_path: Path, script: str, steps: int) -> None:
-    car = start(tmp_path, f"{__file__}:{script}")
-    viewer = Viewer(car.url)
-    stepped = car.when("car: clock step")
-    assert_survived(car, viewer, fault_ended=stepped, on_log="clock step")
+    for attempt in (1, 2):  # once more after a stall of the whole process (a loaded machine)
+        folder = tmp_path / f"attempt-{attempt}"
+        folder.mkdir()
+        car = start(folder, f"{__file__}:{script}")
+        viewer = Viewer(car.url)
+        stepped = car.when("car: clock step")
+        assert_survived(car, viewer, fault_ended=stepped, on_log="clock step")
+        if car.late_s < STALLED_S:
+            break
     after = [at for at, topic, _ in viewer.got if topic == HEALTH_TOPIC and at > stepped]
     assert after, "no /health after the step"
     times, metadata = log_times(car.drives)
     assert_every_tick_in_each_timeline(times)
-    assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], metadata["alarms"]
-    assert len(metadata["clock_steps"]) == steps, metadata["clock_steps"]
+    late = f"(the car sent up to {car.late_s:.2f} s late)"
+    assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], (
+        metadata["alarms"], late)
+    assert len(metadata["clock_steps"]) == steps, (metadata["clock_steps"], late)
 
 
 @pytest.mark.slow
