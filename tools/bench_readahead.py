@@ -42,7 +42,6 @@ import gc
 import resource
 import signal
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from functools import partial
@@ -54,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchlib import (
+    add_workdir,
     asc_copy,
     best_of,
     cpu_seconds,
@@ -250,9 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only these inputs (default: all three)")
     parser.add_argument("--groups", action="store_true",
                         help="also time grouping rows by (bus, key), stdlib against numpy")
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
-                        help="where bench_convert's logs are cached")
+    add_workdir(parser, "where bench_convert's logs are cached")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
     hand_over(args)

@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import argparse
 import gc
-import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from functools import partial
@@ -39,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import can
-from benchlib import asc_copy, ecocar_log, interleaved, modules_at, worktree
+from benchlib import add_workdir, ecocar_log, interleaved, log_copy, modules_at, worktree
 
 from bridge.io.can_logs import LogSource
 from bridge.io.readahead import BATCH
@@ -49,25 +47,10 @@ from bridge.packed import packs
 GOAL = 0.3
 
 
-def candump_copy(blf: Path) -> Path:
-    """The same frames as ``blf`` as a candump log (python-can's CanutilsLogWriter, channels
-    named ``can0``...), cached beside it."""
-    path = blf.with_suffix(".log")
-    if path.is_file():
-        return path
-    partial_path = blf.with_name(f".{blf.stem}.log.partial")
-    with can.CanutilsLogWriter(str(partial_path)) as writer:
-        for msg in can.BLFReader(str(blf)):
-            msg.channel = f"can{msg.channel}"
-            writer.on_message_received(msg)
-    os.replace(partial_path, path)
-    return path
-
-
 def logs(workdir: Path, frames: int, seed: int = 1) -> dict[str, Path]:
     """The ecocar drive of ``frames`` frames as BLF, ASC and candump, by format (cached)."""
     blf, _ = ecocar_log(workdir, frames, seed)
-    return {"blf": blf, "asc": asc_copy(blf), "log": candump_copy(blf)}
+    return {"blf": blf, "asc": log_copy(blf, ".asc"), "log": log_copy(blf, ".log")}
 
 
 def bare(path: Path) -> int:
@@ -156,9 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--format", action="append", choices=("blf", "asc", "log"),
                         help="only these formats (default: all three)")
     parser.add_argument("--ref", help="also time LogSource as this git revision has it")
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
-                        help="where the logs are cached")
+    add_workdir(parser, "where the logs are cached")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
     paths = logs(args.workdir, args.frames, args.seed)

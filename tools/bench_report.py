@@ -58,7 +58,7 @@ from typing import Any
 
 TOOLS = Path(__file__).resolve().parent
 sys.path.insert(0, str(TOOLS))
-from benchlib import ROOT, interleaved, revision_env, worktree  # noqa: E402
+from benchlib import ROOT, add_workdir, interleaved, revision_env, worktree  # noqa: E402
 
 #: bench_live rows that go into the main table even though they have no target.
 LIVE_EXTRA = ("reference: the pipeline alone", "garbage collections")
@@ -371,9 +371,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --before: tools/bench_scene.py --ref REV too")
     parser.add_argument("--quick", action="store_true",
                         help="smaller budgets (and bench_convert --quick, passed on)")
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
-                        help="where logs are cached and outputs written (passed on too)")
+    add_workdir(parser, "where logs are cached and outputs written (passed on too)")
     parser.add_argument("--no-budgets", action="store_true", help="leave issue #36's budgets out")
     parser.add_argument("--budgets-before", metavar="REV", default=BUDGETS_BEFORE,
                         help=f"the budgets' before: git revision REV ({BUDGETS_BEFORE})")

@@ -30,7 +30,6 @@ import argparse
 import struct
 import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
 from collections.abc import Mapping
@@ -43,7 +42,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import ECOCAR_DBC, ROOT, ecocar_log
+from benchlib import ECOCAR_DBC, ROOT, add_workdir, ecocar_log
 
 KINDS = {"raw": [], "raw + decoded": ["--dbc", str(ECOCAR_DBC)],
          "with scene": ["--profile", "ecocar"]}
@@ -222,8 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=1_440_000,
                         help="frames of the simulated drive (default: about 650 s)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench")
+    add_workdir(parser)
     parser.add_argument("--levels", action="store_true",
                         help="also measure zstd levels and chunk sizes")
     parser.add_argument("--kinds", default=",".join(KINDS),

@@ -39,7 +39,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchlib import ROOT, ecocar_log, interleaved, revision_env, worktree
+from benchlib import ROOT, WORKDIR, ecocar_log, interleaved, revision_env, worktree
 
 #: The frames of the short drive: the issue's example (about half a second of the ecocar).
 FRAMES = 1_123
@@ -47,7 +47,6 @@ FRAMES = 1_123
 RATIO_GOAL = 1.5
 HELP_GOAL_S = 0.1
 IMPORTS = "import can, cantools, mcap_protobuf.writer"
-WORKDIR = Path(tempfile.gettempdir()) / "tankviz-bench"
 
 
 def timed(command: list[str], env: Mapping[str, str] | None = None, cwd: Path = ROOT
