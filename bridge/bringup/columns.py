@@ -64,7 +64,8 @@ def data_frames(pack: PackedFrames, i: int = 0, j: int | None = None) -> Columns
     payload = np.zeros((len(t), width), dtype=np.uint8)
     # the rows of each length at once: their own bytes, not the widest row's for every row (a
     # few 64-byte FD frames among 8-byte ones made it 8 times the work)
-    for size in np.unique(length).tolist():
+    # (the lengths present by a count of each: np.unique imports numpy.ma, 7 ms of a start)
+    for size in np.flatnonzero(np.bincount(length)).tolist():
         if size:
             rows = np.flatnonzero(length == size)
             payload[rows, :size] = data[starts[rows, None] + np.arange(size)]

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from itertools import chain
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
@@ -37,13 +37,15 @@ from bridge.health.counts import (
 from bridge.health.receive import ReceiveWatch
 from bridge.health.sight import FieldOfView, associate, has_fov
 from bridge.health.traffic import TrafficCounting
-from bridge.io.buses import ReceiveCounts
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
 from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import ObjectObservation
+
+if TYPE_CHECKING:  # (live's buses: a convert never needs them)
+    from bridge.io.buses import ReceiveCounts
 
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
 

@@ -10,13 +10,16 @@ grows, then at most every ``REPORT_S`` seconds, and the alarms ``bus.<bus>.bad_t
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.frame import NS, timestamp
 from bridge.health.alarms import AlarmKind, alarm_id
-from bridge.io.buses import ReceiveCounts
 from bridge.topics import LOG_TOPIC, TopicMessage
+
+if TYPE_CHECKING:  # (live's buses and python-can's interfaces: a convert never needs them)
+    from bridge.io.buses import ReceiveCounts
 
 #: seconds of log time between two /log warnings of the same count
 REPORT_S = 10.0

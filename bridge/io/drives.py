@@ -15,13 +15,11 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
-from mcap.reader import McapReader, make_reader
 from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 
 from bridge.errors import InputError, check_input_path
 from bridge.frame import NEVER_NS, Frame
@@ -29,6 +27,12 @@ from bridge.io.can_logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.topics import MARKS_TOPIC
+
+if TYPE_CHECKING:
+    from mcap.reader import McapReader
+
+# mcap's reader and its decompressors are imported where a drive is read: converting logs (every
+# convert asks is_drive) never needs them.
 
 #: The suffix of a recorded drive.
 DRIVE_SUFFIX = ".mcap"
@@ -98,6 +102,9 @@ def read_drive(path: Path | str) -> ArchiveContents:
     ``path``, with its marks, size and SHA-256; a file that is not a drive is an
     :class:`~bridge.errors.InputError` saying what it lacks.
     """
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+
     path = Path(path)
     attachments: dict[str, bytes] = {}
     metadata: dict[str, Any] = {}
@@ -187,6 +194,8 @@ class ArchiveSource:
         self.issues.append(SourceIssue(str(self.path), where, reason, kind, group))
 
     def __iter__(self) -> Iterator[Frame]:
+        from mcap.stream_reader import StreamReader
+
         kinds: dict[int, str] = {}  # schema id -> name
         channels: dict[int, bool] = {}  # raw-frame channel id -> whether it carries blocks
         merged = BlockMerger()
@@ -427,6 +436,9 @@ def drive_marks(path: Path | str) -> DriveMarks:
     """The marks of the drive at ``path`` (:func:`read_marks`); a drive cut short (no summary)
     is read up to where it is cut. A file that cannot be opened or is not an MCAP is an
     :class:`~bridge.errors.InputError`."""
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+
     path = Path(path)
     with _open(path) as stream:
         try:
