@@ -39,7 +39,7 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import ECOCAR_DBC, MB, add_workdir, asc_copy, ecocar_log, interleaved
+from benchlib import ECOCAR_DBC, MB, add_workdir, ecocar_log, interleaved, log_copy
 
 #: Absolute start of the real-format log (python-can float seconds).
 T0 = 1_700_000_000.0
@@ -642,7 +642,7 @@ def measure_simulated(bench: Bench) -> Simulated:
     """The simulated drive, BLF and ASC: five contenders each, interleaved, best of --runs;
     the naive and tankviz outputs must hold as many messages on every naive topic."""
     blf, meta = ecocar_log(bench.args.workdir, bench.args.frames, bench.args.seed)
-    asc = asc_copy(blf)
+    asc = log_copy(blf, ".asc")
     bench.say(f"simulated drive {blf.name}: {meta['frames']:,} frames, "
               f"{meta['seconds_of_driving']:.0f} s of driving, BLF {blf.stat().st_size / MB:.1f} "
               f"MB, ASC {asc.stat().st_size / MB:.1f} MB; per bus {meta['frames_per_bus']}; "

@@ -54,12 +54,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchlib import (
     add_workdir,
-    asc_copy,
     best_of,
     cpu_seconds,
     ecocar_frames,
     ecocar_log,
     interleaved,
+    log_copy,
     modules_at,
 )
 
@@ -169,7 +169,7 @@ class Timing:
 def hand_over(args: argparse.Namespace) -> None:
     old = old_module(args.ref)
     blf, _ = ecocar_log(args.workdir, args.frames, args.seed)
-    asc = asc_copy(blf)
+    asc = log_copy(blf, ".asc")
     print(f"read-ahead hand-over: {args.frames} simulated frames, old = {args.ref}'s "
           f"readahead.py, best of {args.runs}, interleaved (BATCH {new_module.BATCH})")
     inputs: dict[str, Path | list[Frame]] = {"memory": list(LogSource(blf)), "BLF": blf,

@@ -292,11 +292,6 @@ def log_copy(blf: Path, suffix: str) -> Path:
     return path
 
 
-def asc_copy(blf: Path) -> Path:
-    """The same frames as ``blf`` in Vector ASC, cached beside it."""
-    return log_copy(blf, ".asc")
-
-
 #: Where the benchmarks cache their logs and write their outputs, unless told (``--workdir``).
 WORKDIR = Path(tempfile.gettempdir()) / "tankviz-bench"
 
