@@ -145,29 +145,31 @@ def one_frame_a_year_ahead() -> Iterator[tuple[float, Any]]:
             yield at, frame._replace(timestamp_ns=frame.timestamp_ns + YEAR_NS)
 
 
-#: A car sending this late was in a stalled process: its frames came in a burst after live's wall
-#: clock had run on, an artefact of the harness (a kernel stamps and delivers frames on time).
-STALLED_S = 0.5
-
-
 def check_live_step(tmp_path: Path, script: str, steps: int) -> None:
-    for attempt in (1, 2):  # once more after a stall of the whole process (a loaded machine)
+    """Live through the car's clock step: a /health after it, every scene tick, no bus alarm and
+    ``steps`` steps noted. Tried twice: the car is a thread of live's process (see
+    harness.LiveCar.late_s), so a stall of that process on a loaded machine can hold its frames
+    back for a second, a silence live rightly reports."""
+    failed: list[str] = []
+    for attempt in (1, 2):
         folder = tmp_path / f"attempt-{attempt}"
         folder.mkdir()
         car = start(folder, f"{__file__}:{script}")
         viewer = Viewer(car.url)
         stepped = car.when("car: clock step")
         assert_survived(car, viewer, fault_ended=stepped, on_log="clock step")
-        if car.late_s < STALLED_S:
-            break
-    after = [at for at, topic, _ in viewer.got if topic == HEALTH_TOPIC and at > stepped]
-    assert after, "no /health after the step"
-    times, metadata = log_times(car.drives)
-    assert_every_tick_in_each_timeline(times)
-    late = f"(the car sent up to {car.late_s:.2f} s late)"
-    assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], (
-        metadata["alarms"], late)
-    assert len(metadata["clock_steps"]) == steps, (metadata["clock_steps"], late)
+        try:
+            after = [at for at, topic, _ in viewer.got if topic == HEALTH_TOPIC and at > stepped]
+            assert after, "no /health after the step"
+            times, metadata = log_times(car.drives)
+            assert_every_tick_in_each_timeline(times)
+            assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], (
+                metadata["alarms"])
+            assert len(metadata["clock_steps"]) == steps, metadata["clock_steps"]
+            return
+        except AssertionError as e:
+            failed.append(f"attempt {attempt} (the car sent up to {car.late_s:.2f} s late): {e}")
+    pytest.fail("\n".join(failed))
 
 
 @pytest.mark.slow
