@@ -6,7 +6,6 @@ on a drive converted here; TANKVIZ_E2E_OUT=DIR keeps its screenshot."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -18,12 +17,10 @@ from test_e2e_browser import (
     REPORT_S,
     ROOT,
     WAIT_S,
-    chromium,
+    browser_session,
     drive_time,
-    ensure_node_modules,
     explain,
     run_driver,
-    unavailable,
 )
 
 from bridge.resources import data_dir
@@ -59,13 +56,7 @@ def zero_drive(folder: Path) -> Path:
 
 def test_a_signal_that_is_0_for_a_stretch_is_plotted_as_0(
         tmp_path_factory: pytest.TempPathFactory) -> None:
-    browser = chromium()
-    if browser is None:
-        unavailable("chromium is not installed (apt-get install chromium)")
-    ensure_node_modules()
-    out = Path(os.environ.get("TANKVIZ_E2E_OUT") or tmp_path_factory.mktemp("e2e-zero"))
-    out = out / "zero"
-    out.mkdir(parents=True, exist_ok=True)
+    browser, out = browser_session(tmp_path_factory, "zero")
     drive = zero_drive(out)
     from mcap.reader import make_reader
 
