@@ -1,9 +1,8 @@
 """The bridge's errors: one class per kind of failure a caller handles differently.
 
-Every error a user can cause is a :class:`BridgeError` whose message is one line, built by its
-class from fields, that names the bad value and where it came from (file, line or record,
-message, signal). The CLI prints it as ``error: <message>`` and exits non-zero; ``--debug``
-shows the traceback. The whole tree (each class says what its message looks like)::
+Every error a user can cause is a :class:`BridgeError` with a one-line message, built by its class
+from fields, naming the bad value and where it came from; the CLI prints ``error: <message>`` and
+exits non-zero (``--debug``: the traceback). The tree::
 
     Exception
     └── BridgeError                  bridge.errors (never raised itself)
@@ -15,14 +14,13 @@ shows the traceback. The whole tree (each class says what its message looks like
         ├── MessagePathError         bridge.errors: a layout's message path (a layout problem)
         ├── ExpressionError          bridge.profile.expr: a rule (told as a ProfileError)
         ├── ServerError              bridge.errors: the live server cannot start
+        ├── HelperDied               bridge.errors: a process of tankviz's ended without a word
         └── ViewerInputError         bridge.errors: a viewer's message (told to the viewer)
             └── TooManyMarks         bridge.sinks.server.viewer_input (told once per burst)
 
-Not in the tree, as they never reach the user as errors: ``bridge.apps.options.Stopped`` (a
-``BaseException``, like ``KeyboardInterrupt``: a signal that ends a run),
-``bridge.io.buses.BadTimestamp`` (a ``ValueError``: a frame stamped with something that is not a
-time; the frame is stamped anew, and counted), and the private ``_Unread`` (bridge.profile.loader,
-caught there) and ``_Unreadable`` (bridge.apps.recover_records, caught by the recover app).
+Not errors to the user, so not in it: ``bridge.apps.options.Stopped`` (a ``BaseException``, a
+signal that ends a run), ``bridge.io.buses.BadTimestamp`` (the frame is stamped anew and counted)
+and the private ``_Unread`` and ``_Unreadable``, caught where they are raised.
 """
 
 from __future__ import annotations
@@ -101,6 +99,16 @@ class ServerError(BridgeError):
         self.port = port
         self.reason = reason
         super().__init__(f"cannot serve on {host}:{port}: {reason}")
+
+
+class HelperDied(BridgeError):
+    """A process tankviz started for part of its work ended without a word (killed, out of
+    memory): ``the process <role> ended without a word (<how>); <instead>``."""
+
+    def __init__(self, role: str, how: str, instead: str) -> None:
+        self.role = role
+        self.how = how
+        super().__init__(f"the process {role} ended without a word ({how}); {instead}")
 
 
 class ViewerInputError(BridgeError):

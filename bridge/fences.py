@@ -1,12 +1,8 @@
 """The fences around other libraries' private code: which library, the releases checked, the
 private names used and where.
 
-Each :class:`Fence` holds when the installed release is in its checked range (the range
-pyproject.toml allows). Code behind a fence asks :meth:`Fence.holds` before it uses the private
-names and takes the library's public path when it does not hold, where there is one; either way
-one warning line says so, once. tests/test_fences.py fails with that line on a release the
-fences do not know: check the code behind the fence on it, then widen its range here and in
-pyproject.toml.
+Code behind a fence asks :meth:`Fence.holds` before it uses the private names and takes the
+public path, where there is one, when it does not; either way one warning line says so, once.
 """
 
 from __future__ import annotations
@@ -36,7 +32,12 @@ def release(text: str) -> tuple[int, ...]:
 
 @dataclass(frozen=True)
 class Fence:
-    """One library's private code used by tankviz."""
+    """One library's private code used by tankviz; it holds when the installed release is in its
+    checked range (the range pyproject.toml allows).
+
+    tests/test_fences.py fails on a release the fences do not know: check the code behind the fence
+    on it, then widen its range here and in pyproject.toml.
+    """
 
     distribution: str
     #: the releases checked: from ``lowest`` on, before ``beyond`` (pyproject's bounds)
@@ -90,8 +91,8 @@ MCAP = Fence(
     "mcap", "1.6", "1.7", "bridge/sinks/mcap.py (FastWriter)",
     ("mcap.writer.Writer.__statistics", "Writer.__chunk_builder", "Writer.__chunk_size",
      "Writer.__finalize_chunk", "ChunkBuilder.record_writer._buffer",
-     "ChunkBuilder.message_indices"),
-    "messages are written by mcap's own Writer.add_message and flush")
+     "ChunkBuilder.message_indices", "mcap.writer.zstandard (chunks at another level)"),
+    "messages are written by mcap's own Writer.add_message and flush, chunks at zstd level 3")
 FOXGLOVE_WEBSOCKET = Fence(
     "foxglove-websocket", "0.1.4", "0.1.5", "bridge/sinks/server/internals.py",
     ("FoxgloveServer._clients", "FoxgloveServer._channels",

@@ -1,10 +1,8 @@
 """The one CAN frame type that flows through the bridge, and its time base.
 
 Log time is integer nanoseconds (:data:`NS` a second), since the Unix epoch for sources with
-absolute time, else since the log's start: :func:`to_ns` converts python-can's float seconds
-once, at the source; :func:`timestamp` and :func:`format_time` give it to protobuf and to
-people. :func:`frame_key` makes an id's number and format one int (11- and 29-bit ids differ by
-:data:`EXTENDED_KEY`), the key of every per-id table; :func:`key_id` gives the number back.
+absolute time, else since the log's start; :func:`frame_key` makes an id's number and format one
+int, the key of every per-id table.
 """
 
 from __future__ import annotations

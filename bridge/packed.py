@@ -9,40 +9,23 @@ A :class:`PackedFrames` holds N frames of any buses, in their order, as one colu
 - ``key``: ``array('I')``, the frame key (:func:`bridge.frame.frame_key`: the arbitration id,
   with :data:`~bridge.frame.EXTENDED_KEY` set for a 29-bit id);
 - ``flags``: one byte per frame, the bits :data:`FD`, :data:`BRS`, :data:`ESI`, :data:`ERROR`,
-  :data:`REMOTE` and :data:`EXTENDED` (the last says again what ``key`` says, so that the
-  arbitration id comes back exactly, see below);
+  :data:`REMOTE` and :data:`EXTENDED` (the last repeats ``key``'s, so the id comes back exactly);
 - ``dlc``: one byte per frame (an ``array('q')`` instead in the rare pack with a DLC outside
   0-255, which a damaged text log can give);
 - ``data``: every payload, one after the other, in one ``bytes``; ``ends``: ``array('I')``, the
   end offset of each frame's payload in it.
 
-:meth:`PackedFrames.from_frames` makes one of :class:`~bridge.frame.Frame` tuples;
-:meth:`~PackedFrames.frame` (which bring-up reads a few rows with) and iterating give back
-exactly the same tuples (``bool`` flags, ``bytes`` data, ``int`` ids).
 :meth:`~PackedFrames.to_bytes` and :meth:`PackedFrames.from_bytes` carry a pack between processes
-as one buffer (a header, the bus names, then each column's raw bytes, in this machine's byte
-order: a hand-over, not a file format), no per-frame object pickled.
-:meth:`~PackedFrames.groups` gives, per ``(bus index, key)``, its rows in order: the columns the
-decoder decodes in one step (:meth:`bridge.decode.decoder.Decoder.decode_packed`) and the health
-monitor counts (:meth:`bridge.health.traffic.TrafficCounting.count_packed`). A pack is not changed
-once made: its groups and payloads are made once, for every stage.
-
-Bounds: a frame's time must fit 64 signed bits, its arbitration id 32 bits (31 bits for an
-extended one: above that its key could not tell the id), its flags ``bool`` (any value is taken
-as true or false); :meth:`PackedFrames.from_frames` raises :class:`ValueError` naming the first
-frame beyond them (a CAN id has 29 bits; tankviz's log and bus readers never make such a frame).
-A pack has at most :data:`MAX_BUSES` buses: :meth:`PackedFrames.from_frames` raises
-:class:`ValueError` for more, and :func:`packs` (which the read-ahead uses) cuts the frames into
-as many packs as that takes.
-
-The standard library's ``array`` and ``bytes``, not numpy. Every step but one makes Python objects
-of the columns or of Python objects (frames, payloads, ints for the decoder), where numpy's arrays
-only add a conversion; packing and unpacking a pack is a copy of each column either way (about
-2 ns a frame here). The one step numpy does faster is grouping the rows by ``(bus, key)``: an
-``argsort`` and a split took 30-60 ns a frame against :meth:`PackedFrames.groups`' 160-170 on
-packs of 4,096-16,384 frames of the simulated drive (``tools/bench_readahead.py --groups``),
-about 0.1 µs of the 2-3 µs a frame of a pack's decode: too little to make numpy, which tankviz
-does not otherwise need (only its ``fleet`` extra brings it), a dependency.
+as one buffer: a header, the bus names, then each column's raw bytes, in this machine's byte order
+(a hand-over, not a file format). :meth:`PackedFrames.from_frames` packs
+:class:`~bridge.frame.Frame` tuples; :meth:`~PackedFrames.frame` and iterating give back exactly
+the same tuples. :meth:`~PackedFrames.groups` gives the rows of each ``(bus index, key)`` in order,
+for :meth:`bridge.decode.decoder.Decoder.decode_packed` and
+:meth:`bridge.health.traffic.TrafficCounting.count_packed`. A pack never changes once made. Bounds:
+a time fits 64 signed bits, an id 32 bits (31 for an extended one), flags are taken as true or
+false, and a pack has at most :data:`MAX_BUSES` buses; :meth:`PackedFrames.from_frames` raises
+:class:`ValueError` naming the first frame beyond them, and :func:`packs` cuts frames into as many
+packs as the bus limit takes.
 """
 
 from __future__ import annotations

@@ -64,6 +64,13 @@ def message_topic(bus: str, message_name: str) -> str:
     return f"/can/{bus_segment(bus)}/{message_name}"
 
 
+def short_topic(topic: str) -> str:
+    """The decoded signals of a message's frames shorter than it, beside its ``topic``:
+    ``/can/<bus>/<Message>/short`` (their type lets any signal be absent; the message's own
+    writes a signal that every whole frame has without presence, so 0 is not written)."""
+    return f"{topic}/short"
+
+
 def scene_topic(category: str) -> str:
     """``foxglove.SceneUpdate`` of one category: ego, lanes, lead, mio, or an object group."""
     return f"/scene/{category}"

@@ -4,13 +4,17 @@ and hypothesis' CI profile."""
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import can
 import cantools
 import pytest
+import waiting
 from hypothesis import HealthCheck, settings
 
 from bridge.resources import data_dir
@@ -20,6 +24,12 @@ SHARED_DBC = Path(__file__).resolve().parents[2] / "shared" / "data" / "dbc"
 SHARED_DBC_ORIGIN = ("they come from ../shared/data/dbc beside the project: public DBC files of "
                      "comma.ai's opendbc (MIT), not part of this repository")
 ECOCAR_DBC = data_dir() / "ecocar.dbc"
+
+# A test run's database cache (bridge/decode/cache.py) is its own, not the user's; the commands
+# it runs in subprocesses share it.
+_CACHE_HOME = tempfile.mkdtemp(prefix="tankviz-test-cache-")
+os.environ["XDG_CACHE_HOME"] = _CACHE_HOME
+atexit.register(shutil.rmtree, _CACHE_HOME, ignore_errors=True)
 
 # Under CI (CI=true) no property test fails on hypothesis' per-example deadline or on slow data
 # generation: a loaded machine is slow, not wrong. The examples are the same on every run
@@ -34,17 +44,11 @@ if os.environ.get("CI"):
 
 
 def timeout_scale() -> float:
-    """TANKVIZ_TEST_TIMEOUT_SCALE (default 1): a factor on the tests' time budgets, for a slow or
-    loaded machine. The budgets are what a wait for a condition may take at most; a condition
-    that holds ends its wait at once."""
-    raw = os.environ.get("TANKVIZ_TEST_TIMEOUT_SCALE", "").strip() or "1"
+    """:func:`waiting.timeout_scale`, a wrong value a usage error of pytest's."""
     try:
-        scale = float(raw)
-    except ValueError:
-        scale = 0.0
-    if not scale > 0:
-        raise pytest.UsageError(f"TANKVIZ_TEST_TIMEOUT_SCALE={raw!r}: expected a number > 0")
-    return scale
+        return waiting.timeout_scale()
+    except ValueError as e:
+        raise pytest.UsageError(str(e)) from None
 
 
 #: Where the goldens live: what a test's output must be, byte for byte.

@@ -36,6 +36,19 @@ CONVERT_ROWS = (
     "share of a 1 s log's convert (with scene) spent importing",
 )
 
+#: The start of every row of issue #36's budgets that bench_report measures.
+BUDGET_ROWS = (
+    *(f"archive, {kind} / log: {drive}"
+      for drive in ("simulated ecocar BLF", "highway car BLF", "Toyota candump")
+      for kind in ("full (raw + decoded + scene)", "raw")),
+    *(f"reading, LogSource's own CPU / python-can's reader: {fmt}"
+      for fmt in ("BLF", "ASC", "candump")),
+    "start, a short convert",
+    "start, tankviz --help",
+)
+#: The revision issue #36 starts from: the budgets' before.
+BUDGETS_BEFORE = "304ae15"
+
 
 def tool(name: str) -> ModuleType:
     if str(TOOLS) not in sys.path:
@@ -48,16 +61,37 @@ def tool(name: str) -> ModuleType:
     return module
 
 
+#: The code before issue #26: raw frames one message each (2.45x the BLF), not in blocks.
+BEFORE_BLOCKS = "a6fe390"
+
+
+def has_commit(rev: str) -> bool:
+    return subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e", f"{rev}^{{commit}}"],
+                          capture_output=True).returncode == 0
+
+
+def table_of(text: str) -> dict[str, list[str]]:
+    """A markdown report's table rows: the first cell, then the others."""
+    return {cells[0]: cells[1:] for line in text.splitlines() if line.startswith("| ")
+            for cells in [[c.strip() for c in line.strip("|").split(" | ")]]}
+
+
 @pytest.mark.slow
-def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
-                                                                 shared_dbc: Path) -> None:
+def test_bench_report_writes_the_whole_table_before_and_now_with_numeric_ratios(
+        tmp_path: Path, shared_dbc: Path) -> None:
+    """The whole report in one tiny run: issue #15's table and issue #36's budgets, each with a
+    before column measured in the same run by the same tools (``--before REV``: a worktree of
+    REV, its ``bridge``, not this checkout's; the budgets' before is 304ae15)."""
+    before = has_commit(BEFORE_BLOCKS)  # (not in a shallow clone)
     report = tmp_path / "report.md"
     run = subprocess.run(
         [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
+         *(["--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1"] if before else []),
          "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
+         "--budget-frames", "3000", "--budget-seconds", "3", "--budget-runs", "1",
          "--workdir", str(tmp_path / "bench"),
          "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
-        capture_output=True, text=True, timeout=300)
+        capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     # bench_convert prints the ratios first, then the details
     printed = run.stdout
@@ -66,23 +100,52 @@ def test_bench_report_writes_the_whole_table_with_numeric_ratios(tmp_path: Path,
     assert "WARNING" not in printed  # naive and tankviz wrote the same messages per topic
 
     text = report.read_text()
-    table = {cells[0]: cells[1:] for line in text.splitlines() if line.startswith("| ")
-             for cells in [[c.strip() for c in line.strip("|").split(" | ")]]}
+    table = table_of(text)
     for measure in CONVERT_ROWS:
-        now, goal, _ok = table[measure]
+        *ratios, goal, _ok = table[measure]
+        assert len(ratios) == 1 + before, (measure, ratios)
         # a speed ratio shows the other clock's beside it: "2.31x (1.71x cpu)"
         aside = r" \(\d+\.\d\dx cpu\)" if measure.startswith("convert") else ""
-        assert re.fullmatch(r"\d+\.\d\dx?" + aside, now), (measure, now)
+        for ratio in ratios:
+            assert re.fullmatch(r"\d+\.\d\dx?" + aside, ratio), (measure, ratio)
         assert goal.startswith(("≥", "≤")), (measure, goal)
     rss = next(v for k, v in table.items() if k.startswith("peak RSS, with scene"))
-    assert re.fullmatch(r"\d+ → \d+ MB \([+-]\d+ MB\)", rss[0]), rss
     hour = next(v for k, v in table.items() if k.startswith("1 hour of the 3-bus drive"))
-    assert re.fullmatch(r"\d+\.\d min", hour[0]), hour
+    for cell in range(1 + before):
+        assert re.fullmatch(r"\d+ → \d+ MB \([+-]\d+ MB\)", rss[cell]), rss
+        assert re.fullmatch(r"\d+\.\d min", hour[cell]), hour
     for field in ("date", "machine", "git commit", "load average (1 min)", "runs", "commands"):
         assert f"- **{field}:**" in text
     assert "## Details: tools/bench_convert.py" in text
     assert "of which message indexes" in text
     assert "real-format log real-gm_global_a_object-5000f" in text
+    if before:
+        assert "| measure (same run, same machine) | before | now | goal | ok |" in text
+        assert f"- **before:** {BEFORE_BLOCKS}" in text
+        assert "## Details: tools/bench_convert.py on the code before" in text
+        raw = table["archive size / BLF size, raw only"]
+        old, now = (float(cell.rstrip("x")) for cell in raw[:2])
+        # the before column measured the old code: a message per frame, 1.7x the blocks on this
+        # short drive of benchlib's (varied payloads), 3x and more on a long one
+        assert old > 1.4 * now, (old, now)
+        (ab,) = [line for line in text.splitlines()
+                 if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
+        pair = r"\d+\.\d\d, \d+\.\d\d"
+        assert re.search(rf"\| {pair} \| {pair} \(\d+\.\d\dx cpu", ab), ab
+
+    # issue #36's budgets, before (the code at 304ae15, when this clone has it) and now
+    old_budgets = has_commit(BUDGETS_BEFORE)
+    if old_budgets:
+        assert f"## Issue #36's budgets: before (the code at {BUDGETS_BEFORE}) and now" in text
+    number = r"-?\d+\.\d\dx|\d+\.\d{3} s \(\d+\.\d{3} s wall\)"
+    for start in BUDGET_ROWS:
+        (row,) = [cells for measure, cells in table.items() if measure.startswith(start)]
+        budget_before, budget_now, goal, met = row
+        assert re.fullmatch(number, budget_now), (start, row)
+        assert re.fullmatch(number, budget_before) if old_budgets else budget_before == "—", (
+            start, row)
+        assert goal.startswith(("≤", "<")) and met in ("ok", "**missed**"), (start, row)
+    assert "Issue #36's budgets" in printed  # the table is printed too
 
 
 def test_real_format_log_rolls_counters_and_checks_its_sums(shared_dbc: Path) -> None:
@@ -200,46 +263,6 @@ def test_index_bytes_are_16_per_message_plus_each_index_records_header(tmp_path:
     assert sum(len(r.records) for r in indexes) == report.messages
 
 
-#: The code before issue #26: raw frames one message each (2.45x the BLF), not in blocks.
-BEFORE_BLOCKS = "a6fe390"
-
-
-@pytest.mark.slow
-def test_bench_report_measures_the_code_before_in_the_same_run(tmp_path: Path,
-                                                                shared_dbc: Path) -> None:
-    """``--before REV``: the same tools measure a worktree of REV too, its ``bridge`` (not this
-    checkout's: its raw archive is per frame, several times this one's); the table gets a
-    before column."""
-    known = subprocess.run(["git", "-C", str(TOOLS.parent), "cat-file", "-e",
-                            f"{BEFORE_BLOCKS}^{{commit}}"], capture_output=True)
-    if known.returncode != 0:
-        pytest.skip(f"this checkout has no commit {BEFORE_BLOCKS} (a shallow clone?)")
-    report = tmp_path / "report.md"
-    run = subprocess.run(
-        [sys.executable, str(TOOLS / "bench_report.py"), "--out", str(report),
-         "--before", BEFORE_BLOCKS, "--ab-seconds", "2", "--ab-runs", "1",
-         "--frames", "5000", "--frames2", "10000", "--real-frames", "5000", "--runs", "1",
-         "--workdir", str(tmp_path / "bench"),
-         "--real-dbc", str(shared_dbc / "gm_global_a_object.dbc")],
-        capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
-    text = report.read_text()
-    assert "| measure (same run, same machine) | before | now | goal | ok |" in text
-    rows = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
-            if line.startswith("| convert raw + decoded, tankviz / naive (BLF")]
-    (row,) = rows
-    assert re.fullmatch(r"\d+\.\d\dx.*", row[1]) and re.fullmatch(r"\d+\.\d\dx.*", row[2]), row
-    (raw,) = [[c.strip() for c in line.strip("|").split(" | ")] for line in text.splitlines()
-              if line.startswith("| archive size / BLF size, raw only")]
-    before, now = (float(cell.rstrip("x")) for cell in raw[1:3])
-    assert before > 2 * now, raw  # the before column measured the old code
-    assert f"- **before:** {BEFORE_BLOCKS}" in text
-    (ab,) = [line for line in text.splitlines()
-             if line.startswith("| tankviz convert raw + decoded, 2 s simulated")]
-    assert re.search(r"\| \d+\.\d\d, \d+\.\d\d \| \d+\.\d\d, \d+\.\d\d \(\d+\.\d\dx cpu", ab), ab
-    assert "## Details: tools/bench_convert.py on the code before" in text
-
-
 @pytest.mark.slow
 def test_bench_health_tick_replays_every_frame_on_both_monitors_with_the_same_bytes() -> None:
     """tools/bench_health_tick.py in a tiny run: the convert's frames reach the monitors (the
@@ -295,3 +318,42 @@ def test_bench_bringup_measures_size_cpu_and_live_with_and_without_bring_up(
     for sinks in ("a viewer and a recorder", "a recorder alone"):
         assert re.search(rf"^live per frame .*{sinks}\s+[+-]\d+\.\d% \(", run.stdout, re.M)
     assert "/can/can0/unknown" in run.stdout and "kB of the archive" in run.stdout
+
+
+def test_bench_reading_reports_the_overhead_of_every_format(tmp_path: Path) -> None:
+    """tools/bench_reading.py in a tiny run (no timing is checked): every contender and the
+    overhead of each format."""
+    out = subprocess.run(
+        [sys.executable, str(TOOLS / "bench_reading.py"), "--frames", "3000", "--runs", "1",
+         "--workdir", str(tmp_path)],
+        capture_output=True, text=True, timeout=600, check=True).stdout
+    for fmt in ("blf", "asc", "log"):
+        assert re.search(rf"overhead of LogSource \({fmt}\): -?\d+\.\d\dx", out), out
+    assert out.count("python-can ") == 3 and out.count("+ packing") == 3, out
+
+
+@pytest.mark.slow
+def test_bench_batch_prints_one_row_per_worker_count(tmp_path: Path) -> None:
+    """tools/bench_batch.py on two 2 s drives, 1 worker vs 2, two rounds (benchlib's
+    interleaved, the fastest kept): the speed-up line and a row per worker count."""
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_batch.py"), "--drives", "2",
+                          "--duration", "2", "--workers", "2", "--runs", "2",
+                          "--workdir", str(tmp_path)], capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert re.search(r"^speed-up per added core: -?\d+\.\d\d \(2 workers vs 1", run.stdout, re.M)
+    for workers in (1, 2):
+        assert re.search(rf"^\s+{workers}\s+2\s+[\d.]+\s+[\d.]+\s+[\d.]+\s+[\d,]+\s+[\d,]+$",
+                         run.stdout, re.M), run.stdout
+
+
+@pytest.mark.slow
+def test_bench_live_car_measures_live_with_the_car_in_another_process() -> None:
+    run = subprocess.run([sys.executable, str(TOOLS / "bench_live_car.py"), "--rates", "2000",
+                          "--seconds", "2"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    (line,) = [line for line in run.stdout.splitlines() if "frames/s " in line]
+    assert re.search(r"live \d+ +[\d.]+% \([\d.]+ µs/frame\)", line), line
+    assert re.search(r"p50 [\d.]+ ms  p99 [\d.]+ ms", line), line
+    recorded, sent = map(int, re.search(r"recorded (\d+)/(\d+)", line).groups())  # type: ignore[union-attr]
+    assert recorded == sent > 0, line

@@ -51,6 +51,7 @@ def fails(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
     return capsys.readouterr().err.strip()
 
 
+@pytest.mark.slow
 def test_ids_counts_periods_and_lengths_are_exact(capsys, frames, log) -> None:
     times = defaultdict(list)
     lengths = defaultdict(set)
@@ -74,6 +75,7 @@ def test_ids_counts_periods_and_lengths_are_exact(capsys, frames, log) -> None:
     assert next(r for r in rows if r["id"] == "0x4C8")["changing_bits"] == 0
 
 
+@pytest.mark.slow
 def test_ids_prints_a_table_that_names_unknown_ids(capsys, log) -> None:
     out = run(capsys, "ids", str(log), "--dbc", CAR, "--dbc", RADAR)
     assert "0x2C4" in out and "unknown" in out and "KINEMATICS" in out
@@ -81,6 +83,7 @@ def test_ids_prints_a_table_that_names_unknown_ids(capsys, log) -> None:
     assert "4 ids" in out.splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_bits_counts_every_flip_of_one_id_exactly(capsys, frames, log) -> None:
     payloads = [f.data for f in frames if f.bus == "can0" and f.arbitration_id == BRAKE_ID]
     expected = [0] * 64
@@ -96,6 +99,7 @@ def test_bits_counts_every_flip_of_one_id_exactly(capsys, frames, log) -> None:
     assert expected[0] == 0  # byte 0 is constant
 
 
+@pytest.mark.slow
 def test_bits_window_and_decimal_id(capsys, frames, log) -> None:
     t0 = frames[0].timestamp_ns
     inside = [f.data for f in frames if f.bus == "can0" and f.arbitration_id == HEARTBEAT_ID
@@ -106,6 +110,7 @@ def test_bits_window_and_decimal_id(capsys, frames, log) -> None:
     assert got["flips"][24] == len(inside) - 1  # the counter's lowest bit, byte 3
 
 
+@pytest.mark.slow
 def test_bits_map_names_the_signals_of_a_known_id(capsys, log) -> None:
     out = run(capsys, "bits", str(log), "--dbc", CAR, "--id", "can0/0x0B4")
     assert "(SPEED)" in out.splitlines()[0]
@@ -113,6 +118,7 @@ def test_bits_map_names_the_signals_of_a_known_id(capsys, log) -> None:
     assert "byte 7" in out and "least significant first" in out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("before", "after", "was", "is_now"), [
     ("12.5:13.9", "14.1:15.5", 0, 1), ("15.5:16.9", "17.1:18.5", 1, 0),
     ("43.5:44.9", "45.1:46.5", 0, 1), ("13.4:13.9", "14.1:14.6", 0, 1)])
@@ -132,12 +138,14 @@ def test_compare_around_the_brake_lists_exactly_the_brake_bit(capsys, log, befor
     assert all(s["signal"] for s in every if s["message"] is not None)
 
 
+@pytest.mark.slow
 def test_compare_names_the_signal_a_database_knows(capsys, log) -> None:
     out = run(capsys, "bits", str(log), "--dbc", CAR, "--dbc", RADAR, "--compare", "12.5:13.9",
               "14.1:15.5")
     assert "bit  32 (byte 4 bit 0)  0 -> 1  unknown id" in out
 
 
+@pytest.mark.slow
 def test_find_signal_finds_the_hidden_speed_and_writes_a_dbc_that_decodes_it(
         capsys, tmp_path, frames, log) -> None:
     found = tmp_path / "found.dbc"
@@ -197,6 +205,7 @@ def test_a_counter_that_follows_the_reference_does_not_win() -> None:
     assert all(0 not in c.field.bits() for c in found.candidates)  # not the counter's step
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SHARED_DBC.is_dir(), reason=SHARED_DBC_ORIGIN)
 def test_find_signal_finds_toyota_speed_against_a_csv(capsys, tmp_path) -> None:
     import toyota_log as tl
@@ -231,6 +240,7 @@ def test_find_signal_finds_toyota_speed_against_a_csv(capsys, tmp_path) -> None:
      "no database of bus can0 has a message NOPE"),
     (["find-signal", "LOG", "--like", "CSV"], "words.csv:2: not a number in 'about,fast'"),
 ])
+@pytest.mark.slow
 def test_bad_input_is_one_line_naming_it(capsys, tmp_path, log, argv, says) -> None:
     csv = tmp_path / "words.csv"
     csv.write_text("time,speed\nabout,fast\n")
@@ -245,6 +255,7 @@ def test_the_unknown_ids_are_the_simulators_own(log) -> None:
     assert not {m.frame_id for d in db for m in d.messages} & set(UNKNOWN_IDS)
 
 
+@pytest.mark.slow
 def test_a_recorded_drive_is_a_source_with_its_attached_databases(capsys, tmp_path, log) -> None:
     """A drive converted with the car's databases tells the same ids as the log and the
     databases did: its raw frames, decoded with the databases it carries."""

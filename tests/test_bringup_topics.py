@@ -32,6 +32,7 @@ from bridge.bringup import bitmap
 from bridge.bringup.bitmap import MAX_ROWS, MapRow, bit_map
 from bridge.bringup.census import gap_figures
 from bridge.bringup.columns import id_text
+from bridge.bringup.font import ADVANCE, GLYPHS, draw_text, glyph
 from bridge.bringup.monitor import FILE_HZ, FILE_PERIOD_S
 from bridge.bringup.payload import encode, id_field
 from bridge.cli import main
@@ -113,6 +114,7 @@ def flipped(frames: list[Frame], since: int = 0) -> set[int]:
     return bits
 
 
+@pytest.mark.slow
 def test_each_second_the_ids_table_counts_the_frames_before_it() -> None:
     frames = highway()
     got = viewed(frames)
@@ -154,6 +156,7 @@ def test_each_second_the_ids_table_counts_the_frames_before_it() -> None:
                                                                                  "unknown")]
 
 
+@pytest.mark.slow
 def test_a_viewer_gets_every_frame_of_the_unknown_ids_and_no_known_one() -> None:
     frames = highway()
     got = viewed(frames)
@@ -174,6 +177,7 @@ def test_a_viewer_gets_every_frame_of_the_unknown_ids_and_no_known_one() -> None
     assert all((b - a) % 16 == 1 for a, b in pairwise(counters))
 
 
+@pytest.mark.slow
 def test_a_file_gets_the_first_frame_of_each_id_in_each_slot_and_the_tables_now_and_then(
 ) -> None:
     frames = highway(12.0)
@@ -231,6 +235,7 @@ def read_png(data: bytes) -> tuple[np.ndarray[Any, Any], list[tuple[int, int, in
     return per[:, :width], palette
 
 
+@pytest.mark.slow
 def test_the_bit_map_is_a_png_with_a_row_per_id_bright_where_a_bit_flips_every_frame() -> None:
     frames = highway()
     got = viewed(frames)
@@ -275,6 +280,38 @@ def test_the_bit_map_is_a_png_with_a_row_per_id_bright_where_a_bit_flips_every_f
     assert cell(BRAKE_ID, 7, 0) not in (palette[bitmap.NEVER], palette[bitmap.QUIET])  # checksum
 
 
+def _glyph_by_glyph(canvas: np.ndarray, x: int, y: int, text: str, value: int,
+                    scale: int) -> None:
+    """How the font drew a text before it drew it at once: each glyph scaled with np.kron."""
+    height, width = canvas.shape
+    for i, char in enumerate(text):
+        shape = glyph(char)
+        if shape is None:
+            continue
+        big = np.kron(shape, np.ones((scale, scale), dtype=bool))
+        left, top = x + i * ADVANCE * scale, y
+        right, bottom = min(width, left + big.shape[1]), min(height, top + big.shape[0])
+        if left >= width or top >= height or right <= max(left, 0) or bottom <= max(top, 0):
+            continue
+        part = big[max(0, -top):bottom - top, max(0, -left):right - left]
+        canvas[max(top, 0):bottom, max(left, 0):right][part] = value
+
+
+@given(st.text(alphabet=[*GLYPHS, "a", "?", " ", "é"], max_size=12),
+       st.integers(-80, 100), st.integers(-30, 40), st.integers(1, 3),
+       st.integers(1, 40), st.integers(1, 90))
+def test_a_text_is_drawn_at_once_as_glyph_by_glyph(text: str, x: int, y: int, scale: int,
+                                                   height: int, width: int) -> None:
+    """The labels are drawn a whole text at a time (a cached mask: the map of a short drive
+    drew its glyphs for a quarter of a second), pixel for pixel as each glyph scaled alone,
+    cut at every edge of the canvas."""
+    canvas = np.zeros((height, width), dtype=np.uint8)
+    expected = canvas.copy()
+    draw_text(canvas, x, y, text, 7, scale=scale)
+    _glyph_by_glyph(expected, x, y, text, 7, scale)
+    assert np.array_equal(canvas, expected)
+
+
 def test_with_many_ids_the_map_stays_small_and_says_how_many_it_shows() -> None:
     rows = [MapRow("can0", key, None if key % 3 else "M", 8, np.ones(64, dtype=np.bool_),
                    np.full(64, 0.5)) for key in range(400)]
@@ -286,6 +323,7 @@ def test_with_many_ids_the_map_stays_small_and_says_how_many_it_shows() -> None:
     assert len(shown) == MAX_ROWS and all(t.endswith("unknown") for t in shown)
 
 
+@pytest.mark.slow
 def test_frame_by_frame_in_reads_and_in_blocks_a_viewer_gets_the_same_messages() -> None:
     frames = highway(4.0)
     # a clock that steps back 3 s, and forward a minute

@@ -137,6 +137,7 @@ def rows(catalogue: Path, sql: str, *params: Any) -> list[tuple[Any, ...]]:
 
 # --- the example queries of docs/commands.md ------------------------------------------------------
 
+@pytest.mark.slow
 def test_the_first_drive_with_a_misaligned_radar_and_every_drive_since(
         archive: Path, indexed: Path) -> None:
     d = drives(archive)
@@ -148,6 +149,7 @@ def test_the_first_drive_with_a_misaligned_radar_and_every_drive_since(
     assert clean[2] is None  # the drive since without the alarm is listed with none
 
 
+@pytest.mark.slow
 def test_the_misalignment_is_catalogued_with_the_times_its_health_messages_say(
         archive: Path, indexed: Path) -> None:
     for name in ("c_scripted", "d_yaw"):
@@ -169,6 +171,7 @@ def test_the_misalignment_is_catalogued_with_the_times_its_health_messages_say(
                 ) == [(0,)]
 
 
+@pytest.mark.slow
 def test_drives_longer_than_a_limit_with_a_lead_vehicle_under_20_m(
         archive: Path, indexed: Path) -> None:
     d = drives(archive)
@@ -185,6 +188,7 @@ def test_drives_longer_than_a_limit_with_a_lead_vehicle_under_20_m(
     assert distance < 20.0 < before
 
 
+@pytest.mark.slow
 def test_the_drives_table_holds_what_the_drive_says_of_itself(archive: Path,
                                                               indexed: Path) -> None:
     path = drives(archive)["c_scripted"]
@@ -218,6 +222,7 @@ def counting(read: list[str]) -> catalog.Reader:
     return reader
 
 
+@pytest.mark.slow
 def test_a_reindex_reads_only_new_and_changed_drives_and_forgets_removed_ones(
         archive: Path, tmp_path: Path) -> None:
     root = tmp_path / "drives"
@@ -250,6 +255,7 @@ def test_a_reindex_reads_only_new_and_changed_drives_and_forgets_removed_ones(
 
 # --- bad files -----------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_file_that_is_not_a_tankviz_drive_is_reported_in_one_line_and_the_others_indexed(
         archive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     root = tmp_path / "drives"

@@ -115,8 +115,15 @@ def test_short_frames_decode_what_fits_and_are_counted(
     assert isinstance(decoded, Decoded)
     assert decoded.signals["VehicleSpeed"] == pytest.approx(50)
     assert "Checksum" not in decoded.signals
-    assert decoded.codec.truncated == 1
+    assert [c.truncated for c in d.codecs() if c.truncated] == [1]
     assert d.stats.to_dict(d.codecs())["truncated"] == {"/can/can0/EgoMotion": 1}
+    # its message is of the short type, beside the message's own, where the cut signals are
+    # absent, not 0 (the message's own type writes no presence for them)
+    assert decoded.codec.topic == "/can/can0/EgoMotion/short"
+    assert decoded.codec.schema.full_name == "tankviz.dbc.ecocar.short.EgoMotion"
+    short = decoded.codec.schema.message_class.FromString(decoded.payload)
+    assert short.HasField("VehicleSpeed") and not short.HasField("Checksum")
+    assert d.decode(whole) is not None and d.decode(whole).codec.topic == "/can/can0/EgoMotion"
 
 
 def test_unknown_ids_error_frames_and_bad_payloads_are_counted_per_bus_and_id(
@@ -227,9 +234,9 @@ def test_a_message_is_prepared_when_it_first_comes_not_with_its_bus(
     made: list[str] = []
 
     class Counted(MessageSchema):
-        def __init__(self, message: object, *args: object) -> None:
+        def __init__(self, message: object, *args: object, **kwargs: bool) -> None:
             made.append(message.name)  # type: ignore[attr-defined]
-            super().__init__(message, *args)  # type: ignore[arg-type]
+            super().__init__(message, *args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(module, "MessageSchema", Counted)
     d = decoder()

@@ -183,6 +183,7 @@ def test_corner_values_and_payloads_encode_as_protobuf_does(
     _same(*data.draw(decoded_payloads(corners)))
 
 
+@pytest.mark.slow
 @settings(suppress_health_check=FIXTURES, deadline=None)  # the first example loads
 @given(data=st.data())
 def test_public_dbc_values_and_payloads_encode_as_protobuf_does(

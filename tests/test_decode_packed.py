@@ -131,6 +131,7 @@ def ecocar_frames() -> list[Frame]:
     return out
 
 
+@pytest.mark.slow
 def test_ecocar_frames_decode_the_same_in_blocks() -> None:
     database = load_database(ECOCAR_DBC)
     frames = ecocar_frames()
@@ -143,6 +144,7 @@ def test_ecocar_frames_decode_the_same_in_blocks() -> None:
     assert any(c.non_finite for c in one.codecs())
 
 
+@pytest.mark.slow
 def test_payloads_that_repeat_beyond_the_cache_and_messages_that_stop_caching() -> None:
     """Long columns: a message whose payloads never repeat stops caching frame by frame, while
     the pack path counts its trials per distinct payload; the results are the same."""
@@ -186,6 +188,7 @@ def radar_frames(db: Database, count: int) -> list[Frame]:
     return frames
 
 
+@pytest.mark.slow
 def test_a_radar_unlike_ecocar_decodes_the_same_in_blocks(shared_dbc: Path) -> None:
     path = shared_dbc / "tesla_radar_bosch.dbc"
     database = load_database(path)
@@ -234,6 +237,7 @@ def test_a_codec_decodes_a_column_in_one_step_with_the_same_counts() -> None:
         (codec_one.decoded, codec_one.truncated, codec_one.longer, codec_one.longest)
 
 
+@pytest.mark.slow
 def test_the_block_path_is_checked_against_a_wrong_count(monkeypatch: pytest.MonkeyPatch) -> None:
     """The comparison above can fail: a column that forgot its truncated frames is caught."""
     database = load_database(ECOCAR_DBC)
@@ -302,6 +306,7 @@ frames_strategy = st.lists(st.builds(
     is_remote=st.booleans(), dlc=st.integers(0, 15)), max_size=120)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)  # a new decoder prepares its messages: slow at first
 @given(frames_strategy, st.lists(st.integers(1, 50), min_size=1, max_size=4))
 def test_any_frames_in_any_blocks_decode_as_one_by_one(frames: list[Frame],

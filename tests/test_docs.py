@@ -193,7 +193,7 @@ def test_the_front_page_is_short_and_keeps_the_quick_start_ci_runs() -> None:
     commands = [line for line in lines[begin + 1:end] if line and not line.startswith("`")]
     assert commands == [
         "python3 -m venv .venv && .venv/bin/pip install '.[dev]' && .venv/bin/tankviz demo",
-        ".venv/bin/python -m pytest",
+        ".venv/bin/python -m pytest -n 2",
     ]
 
 
@@ -214,6 +214,7 @@ def figures(line: str) -> str:
     return _RUN_DEPENDENT.sub("#", line.strip())
 
 
+@pytest.mark.slow
 def test_the_front_page_python_example_runs_and_prints_what_the_front_page_shows(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     blocks = fenced_blocks(README.read_text(encoding="utf-8"))
@@ -250,6 +251,7 @@ def workflow_sessions() -> list[tuple[str, list[str]]]:
     return sessions
 
 
+@pytest.mark.slow
 def test_the_front_page_workflows_run_as_shown(tmp_path: Path) -> None:
     """The front page's commands, typed in a fresh folder in their order, exit 0 and print the
     lines shown, every figure true (only the demo's, made in real time, and the time a command

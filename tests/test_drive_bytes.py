@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 
 import can
+import pytest
 from conftest import GOLDEN, T0, WriteLog, check_golden, message
 from mcap.reader import make_reader
 
@@ -49,12 +50,14 @@ def check(name: str, hashes: dict[str, str]) -> None:
                  f"{name} (these topics: {changed})")
 
 
+@pytest.mark.slow
 def test_the_sample_drive_converts_to_the_same_messages(sample_drive: Path) -> None:
     hashes = topic_hashes(sample_drive)  # (converted as tankviz convert does: conftest)
     assert "/scene/tracks" in hashes and "/can/can0/frames" in hashes
     check("sample", hashes)
 
 
+@pytest.mark.slow
 def test_a_gm_drive_converts_to_the_same_messages(shared_dbc: Path, write_log: WriteLog,
                                                    tmp_path: Path) -> None:
     import cantools

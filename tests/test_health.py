@@ -28,9 +28,9 @@ from bridge.errors import UsageError
 from bridge.frame import NS, Frame
 from bridge.health import alarms
 from bridge.health.alarms import AlarmInfo, AlarmKind, HealthSettings, alarm_id, alarm_notice
+from bridge.health.bus_bits import estimate_frame_bits, frame_bits
 from bridge.health.monitor import HealthMonitor
 from bridge.health.overlay import alarm_entities, fov_entities
-from bridge.health.wire import estimate_frame_bits, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.pipeline.drive import load_stages
 from bridge.pipeline.perception import Perception
@@ -134,6 +134,7 @@ FAULTS = {
 }
 
 
+@pytest.mark.slow
 def test_a_clean_drive_raises_no_alarm_over_its_whole_length() -> None:
     clean = drive("clean")
     assert clean.events() == []
@@ -150,6 +151,7 @@ def test_a_clean_drive_raises_no_alarm_over_its_whole_length() -> None:
         assert abs(bias.angular_offset_deg) < 0.6 and abs(bias.lateral_offset_m) < 0.4
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("scenario", "alarm"), FAULTS.items())
 def test_each_fault_raises_its_alarm_within_two_seconds_and_clears_after_recovery(
         scenario: str, alarm: str) -> None:
@@ -194,6 +196,7 @@ def test_health_shows_the_silent_radar_and_when_its_alarm_was_raised() -> None:
     assert not next(a for a in after.alarms if a.id == "radar.silent").active
 
 
+@pytest.mark.slow
 def test_the_yawed_radar_sees_objects_about_three_degrees_to_the_right_of_the_camera() -> None:
     bias = drive("radar_yaw").health_at(FAULT_ONSET_S + 2).biases[0]
     assert (bias.sensor_a, bias.sensor_b) == ("radar", "camera")
@@ -201,12 +204,14 @@ def test_the_yawed_radar_sees_objects_about_three_degrees_to_the_right_of_the_ca
     assert bias.lateral_offset_m < -0.5 and bias.matches >= SETTINGS.bias_min_matches
 
 
+@pytest.mark.slow
 def test_the_babbling_id_is_named_with_its_rate_and_share() -> None:
     bus = drive("babbling").health_at(FAULT_ONSET_S + 2).buses[0]
     assert bus.top_id == 0x700 and bus.top_id_hz == pytest.approx(1000, rel=0.02)
     assert 0.25 < bus.top_id_share < 0.35  # 1000 of about 3350 frames/s
 
 
+@pytest.mark.slow
 def test_a_silent_bus_is_reported_in_log_time_although_no_frame_comes() -> None:
     silent = drive("bus_silent")
     during = silent.health_at(FAULT_ONSET_S + 3)  # published inside the gap
@@ -216,6 +221,7 @@ def test_a_silent_bus_is_reported_in_log_time_although_no_frame_comes() -> None:
     assert silent.health_at(FAULT_RECOVERY_S + 2).buses[0].gaps_total == 1
 
 
+@pytest.mark.slow
 def test_without_cycle_times_in_the_dbc_the_rates_are_learned(tmp_path: Path) -> None:
     text = (data_dir() / "ecocar.dbc").read_text()
     stripped = "\n".join(line for line in text.splitlines()
@@ -323,6 +329,7 @@ def synthetic_traffic(count: int, *, seed: int = 1, period_ns: int = 500_000,
     return frames
 
 
+@pytest.mark.slow
 def test_the_bit_estimate_is_within_five_percent_of_the_exact_count() -> None:
     frames = synthetic_traffic(3000)
     exact = sum(exact_bits(f) for f in frames)
@@ -363,6 +370,7 @@ def test_the_data_phase_of_a_bit_rate_switched_frame_counts_at_the_data_bitrate(
     assert estimate_frame_bits(frame) == arbitration + data_phase
 
 
+@pytest.mark.slow
 def test_the_bus_load_of_known_traffic_is_within_five_percent() -> None:
     frames = synthetic_traffic(8000)  # 2000 frames/s for 4 s
     bus = run(frames, Decoder({}), None, bitrates={"can0": 2_000_000},
@@ -378,6 +386,7 @@ def test_the_bus_load_of_known_traffic_is_within_five_percent() -> None:
     assert bus.unknown_ids == len(window) and bus.bitrate == 2_000_000
 
 
+@pytest.mark.slow
 def test_without_a_bitrate_the_load_is_not_guessed() -> None:
     classic = synthetic_traffic(4000, fd=False)
     bus = run(classic, Decoder({}), None).health_at(1.0).buses[0]

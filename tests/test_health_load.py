@@ -7,7 +7,7 @@ The traffic: the benches' simulated ecocar drive on three buses (``tools/benchli
 radar frames, noisy signals) and a candump-like log of a car without a profile
 (``tools/bench_health.py``: ~100 ids, 11- and 29-bit, counters, checksums, random bytes, CAN
 FD frames with and without bit rate switch, remote and error frames). "Exact" is
-:func:`bridge.health.wire.frame_bits` summed over every frame.
+:func:`bridge.health.bus_bits.frame_bits` summed over every frame.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import pytest
 
 from bridge.decode.decoder import Decoder
 from bridge.frame import NS, Frame
+from bridge.health.bus_bits import EXACT_FIRST, FrameKind, frame_bits
 from bridge.health.monitor import HealthMonitor
-from bridge.health.wire import EXACT_FIRST, FrameKind, frame_bits
 from bridge.pb.health_pb2 import Health
 from bridge.topics import HEALTH_TOPIC
 
@@ -166,12 +166,14 @@ def test_a_short_drive_counts_every_frame_exactly() -> None:
         assert next(b for b in msg.buses if b.bus == bus).load == pytest.approx(load, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_load_of_a_simulated_drive_is_within_one_percent_of_exact() -> None:
     assert_loads_within_one_percent(simulated_drive(),
                                     {"can0": 500_000, "can1": 500_000, "can2": 500_000},
                                     {"can0": 2_000_000})
 
 
+@pytest.mark.slow
 def test_the_load_of_a_candump_log_with_can_fd_is_within_one_percent_of_exact() -> None:
     frames = candump_log()
     assert any(f.is_fd and f.bitrate_switch for f in frames)
@@ -181,6 +183,7 @@ def test_the_load_of_a_candump_log_with_can_fd_is_within_one_percent_of_exact() 
                                     {"can1": 2_000_000})
 
 
+@pytest.mark.slow
 def test_everything_else_is_counted_exactly() -> None:
     """Frames, ids, unknown ids, error frames and the busiest id are counted for every frame."""
     frames = candump_log()[:120_000]

@@ -42,7 +42,9 @@ def health_state(health: HealthMonitor) -> dict[str, Any]:
                  sorted(f.seen_messages)) for f in health.families]
     return {"buses": buses, "families": families, "bad": list(health._bad_values.items()),
             "alarms": list(health._alarms), "first_ns": health.first_ns,
-            "families_of": [c.message.name for c in health._families_of]}
+            # (the codecs whose families are looked up: a message's whole and short frames have
+            # a codec each, and a pack looks up its column's first; the families are by name)
+            "families_of": sorted({c.message.name for c in health._families_of})}
 
 
 def troubled_drive() -> list[Frame]:
@@ -75,6 +77,7 @@ def counted(frames: list[Frame], size: int | None) -> dict[str, Any]:
     return health_state(drive.health)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [1, 97, 4096])
 def test_a_block_is_counted_as_its_frames_one_by_one(size: int) -> None:
     frames = troubled_drive()
@@ -86,6 +89,7 @@ def test_a_block_is_counted_as_its_frames_one_by_one(size: int) -> None:
     assert counted(frames, size) == one_by_one
 
 
+@pytest.mark.slow
 def test_a_bus_with_more_kinds_than_kept_is_counted_frame_by_frame(
         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(traffic, "MAX_KINDS", 40)

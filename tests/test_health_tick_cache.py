@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import random
 
+import pytest
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
 from bridge.decode.codec import Decoded
@@ -114,6 +115,7 @@ def test_field_of_view_entities_are_the_built_ones_whatever_the_alarms_and_time(
         got[0].lines[0].points[0].x = 1e9
 
 
+@pytest.mark.slow
 def test_active_alarms_follow_every_check_and_clock_step() -> None:
     decoder, _ = load_stages([], "ecocar")
     monitor = HealthMonitor(None, decoder)
@@ -143,6 +145,7 @@ def reference_active(monitor: HealthMonitor) -> list[AlarmInfo]:
     return [a.info() for a in sorted(active, key=lambda a: (a.since_ns or 0, a.id))]
 
 
+@pytest.mark.slow
 def test_who_sees_what_is_asked_of_each_object_once_with_the_same_verdict() -> None:
     """A simulated drive of a blind radar: at every tick each family's witnessed time is the
     one every object asked afresh gives, and so are the overlay's entities."""

@@ -67,6 +67,7 @@ def stacked_labels(drive: Path, view: str) -> tuple[int, list[tuple[float, str, 
     return len(ticks), close
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["highway", "sample"])
 @pytest.mark.parametrize("view", ["chase", "range"])
 def test_no_two_labels_stand_within_2_5_m_in_any_tick(which: str, view: str,
@@ -77,6 +78,7 @@ def test_no_two_labels_stand_within_2_5_m_in_any_tick(which: str, view: str,
     assert close == [], close[:5]
 
 
+@pytest.mark.slow
 def test_twins_are_one_object_in_the_scene_and_named_in_perception(highway: Path) -> None:
     scene = {t: u for t, _, u in messages(highway, "/scene/tracks")}
     blocks = {t: u for t, _, u in messages(highway, "/scene/labels/range")}
@@ -104,6 +106,7 @@ def test_twins_are_one_object_in_the_scene_and_named_in_perception(highway: Path
     assert seen_twins > 100  # "TrackID: 2/8" labels, tick after tick
 
 
+@pytest.mark.slow
 def test_the_lead_changes_once_at_the_cut_in(highway: Path) -> None:
     leads = [((t - DEFAULT_START_NS) / 1e9, m) for t, _, m in messages(highway,
                                                                         "/perception/lead")]

@@ -86,6 +86,7 @@ def test_on_the_weaving_highway_the_ego_changes_lanes_on_a_straight_road() -> No
     assert all(abs(turns[k]) < 0.1 for k in (20, 180, 300, 580))  # at 2, 18, 30 and 58 s
 
 
+@pytest.mark.slow
 def test_vehicles_ahead_leaning_into_the_curves_say_the_sign_is_right(verdict: Verdict) -> None:
     found = verdict("winding", "right")
 
@@ -97,6 +98,7 @@ def test_vehicles_ahead_leaning_into_the_curves_say_the_sign_is_right(verdict: V
                              f'of {found.lean_samples} samples: lateral = "right" agrees')
 
 
+@pytest.mark.slow
 def test_a_flipped_sign_makes_the_vehicles_ahead_lean_out_of_the_curves(verdict: Verdict) -> None:
     found = verdict("winding", FLIPPED)
 
@@ -107,6 +109,7 @@ def test_a_flipped_sign_makes_the_vehicles_ahead_lean_out_of_the_curves(verdict:
         f'{found.lean_samples} samples: lateral = "left" looks wrong, try lateral = "right"')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lateral", ["right", FLIPPED])
 def test_a_straight_highway_gives_no_verdict_and_says_why(verdict: Verdict,
                                                            lateral: str) -> None:
@@ -121,6 +124,7 @@ def test_a_straight_highway_gives_no_verdict_and_says_why(verdict: Verdict,
         r"0\.6°/s or more held for 2 s\)", found.message)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lateral", ["right", FLIPPED])
 def test_lane_changes_on_a_straight_highway_are_no_curves(verdict: Verdict, lateral: str) -> None:
     # changing lanes, the ego turns at up to 2.7 deg/s and swings every vehicle ahead aside
@@ -132,6 +136,7 @@ def test_lane_changes_on_a_straight_highway_are_no_curves(verdict: Verdict, late
                                   "for 2 s)")
 
 
+@pytest.mark.slow
 def test_profile_check_prints_the_verdict_of_a_winding_highway_drive(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = tmp_path / "winding.blf"

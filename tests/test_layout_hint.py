@@ -113,6 +113,7 @@ def test_live_keeps_a_layout_file_it_did_not_make_and_says_so(
     assert kept_line in captured.out.splitlines()  # the user's, not claimed to be made for it
 
 
+@pytest.mark.slow
 def test_live_that_cannot_write_the_layouts_warns_once_and_records_anyway(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drives = tmp_path / "drives"
@@ -152,6 +153,7 @@ def test_live_without_recording_prints_the_command_and_no_recording(
         LAYOUT_FILES)
 
 
+@pytest.mark.slow
 def test_live_command_names_the_buses_live_reads(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -184,6 +186,7 @@ def test_live_with_databases_and_no_profile_says_how_to_make_one(
     assert BUNDLED_LINE not in lines
 
 
+@pytest.mark.slow
 def test_the_draft_command_keeps_the_bus_of_each_database(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -201,6 +204,7 @@ def test_the_draft_command_keeps_the_bus_of_each_database(
     assert written and (tmp_path / written[1]).resolve() == mazda_dbc.resolve()
 
 
+@pytest.mark.slow
 def test_demo_without_recording_points_at_the_bundled_layout(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--port", "0", "--for", "0.5", "--no-record",
@@ -232,6 +236,7 @@ def mazda_drive(mazda_dbc: Path, write_log: WriteLog, tmp_path: Path) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_replay_of_an_ecocar_drive_points_at_the_bundled_layout(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drive = tmp_path / "eco.mcap"
@@ -256,6 +261,7 @@ def test_replay_of_another_drive_prints_the_command_for_it(
     assert str(BUNDLED) not in out and "ecocar" not in out
 
 
+@pytest.mark.slow
 def test_replay_of_a_drive_points_at_the_layouts_made_for_it_beside_it(
         mazda_drive: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     folder = mazda_drive.parent / "layouts" / "mazda_radar"
@@ -290,6 +296,7 @@ def test_replay_of_a_log_with_another_profile_prints_the_command(
     assert str(BUNDLED) not in out
 
 
+@pytest.mark.slow
 def test_replay_of_a_drive_live_recorded_points_at_the_layouts_live_wrote(
         tmp_path: Path, mazda_dbc: Path, capsys: pytest.CaptureFixture[str]) -> None:
     drives = tmp_path / "drives"

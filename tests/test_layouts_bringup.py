@@ -237,6 +237,7 @@ def highway_log(path: Path, seconds: float = 3.0) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_replay_of_a_log_says_which_ids_no_database_knows(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -268,6 +269,7 @@ def test_replay_of_a_log_says_which_ids_no_database_knows(
     assert "bring-up:" not in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_live_recording_without_a_profile_writes_the_bring_up_layout_and_names_it(
         toyota: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`tankviz live --dbc ...` recording: DRIVES/layouts/bring-up.json is written at start

@@ -237,6 +237,7 @@ def unplug_for_a_second(live: Live, source: FlakySource) -> None:
     runner.join(10)
 
 
+@pytest.mark.slow
 def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
     source = FlakySource()
     said: list[str] = []
@@ -262,6 +263,7 @@ def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Pa
     assert gap["bus"] == "chassis" and 0.8e9 < gap["to_ns"] - gap["from_ns"] < 3e9
 
 
+@pytest.mark.slow
 def test_a_lost_bus_is_noted_in_the_log_time_of_its_frames(tmp_path: Path) -> None:
     """An adapter that stamps with its own clock (an hour behind the wall clock here): the bus
     lost and back lines on /log and the gap in the metadata are in the frames' log time, beside
@@ -282,6 +284,7 @@ def test_a_lost_bus_is_noted_in_the_log_time_of_its_frames(tmp_path: Path) -> No
         assert frames[0] <= t_ns <= frames[-1] + NS, (t_ns - frames[-1]) / NS
 
 
+@pytest.mark.slow
 def test_recordings_split_into_complete_parts(tmp_path: Path) -> None:
     live, runner, channel = run_live_on_virtual_bus("split", tmp_path, split_duration_s=0.7)
     sent = 0
@@ -487,6 +490,7 @@ def test_the_read_after_a_tick_sees_it_due_when_the_offset_gets_smaller() -> Non
     assert schedule.offset_ns == -50_000  # the new offset counts from the next read
 
 
+@pytest.mark.slow
 def test_the_scene_goes_on_when_the_buses_fall_silent(tmp_path: Path) -> None:
     live, runner, channel = run_live_on_virtual_bus("silent", tmp_path, scene_rate=50)
     with can.Bus(interface="virtual", channel=channel) as bus:
@@ -530,6 +534,7 @@ def run_cli(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
                           cwd=cwd, timeout=60)
 
 
+@pytest.mark.slow
 def test_simulate_writes_logs_and_drives_and_the_same_seed_the_same_log(tmp_path: Path) -> None:
     for name in ("a.blf", "b.blf", "c.asc", "d.mcap"):
         result = run_cli("simulate", "-o", name, "--duration", "2", cwd=tmp_path)
@@ -543,6 +548,7 @@ def test_simulate_writes_logs_and_drives_and_the_same_seed_the_same_log(tmp_path
     assert refused.returncode == 1 and "exists already" in refused.stderr
 
 
+@pytest.mark.slow
 def test_live_refuses_nonsense(tmp_path: Path) -> None:
     no_bus = run_cli("live", cwd=tmp_path)
     assert no_bus.returncode == 1

@@ -369,6 +369,7 @@ def test_a_wrong_signal_in_marks_stops_convert_with_one_error_line(
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_live_marks_the_drive_when_the_button_is_pressed_on_the_bus(tmp_path: Path) -> None:
     channel = f"marks-car-{threading.get_ident()}"
     said: list[str] = []

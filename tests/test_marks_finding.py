@@ -110,6 +110,7 @@ FAR = [mark(1, 12.5, "ghost target here", "radar", "viewer", "192.168.1.4:53211"
 
 # --- inspect ------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_inspect_lists_each_mark_with_its_seconds_from_the_drives_start(
         recorded: tuple[Path, list[Mark]], capsys: pytest.CaptureFixture[str]) -> None:
     drive, made = recorded
@@ -503,6 +504,7 @@ def highway_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_a_drive_with_the_cars_marks_rederived_has_each_once(highway_log: Path,
                                                              tmp_path: Path) -> None:
     """The profile's [marks] rule marked the drive when it was recorded: re-derived, the drive
@@ -516,6 +518,7 @@ def test_a_drive_with_the_cars_marks_rederived_has_each_once(highway_log: Path,
     check_marks_kept(again, made)
 
 
+@pytest.mark.slow
 def test_a_drive_without_marks_rederived_with_a_marking_profile_gets_its_marks(
         highway_log: Path, tmp_path: Path) -> None:
     """A drive recorded before its profile had a [marks] rule (or without a profile): re-derived

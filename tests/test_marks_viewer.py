@@ -263,6 +263,7 @@ def test_a_replay_takes_no_marks() -> None:
     assert marks == []
 
 
+@pytest.mark.slow
 def test_a_message_over_a_mebibyte_closes_its_viewers_connection_only() -> None:
     from bridge.sinks.server.viewer_server import VIEWER_MESSAGE_BYTES
 

@@ -103,6 +103,7 @@ def test_ecocar_with_damage_and_clock_steps() -> None:
     assert topics["/scene/radar"] and topics["/health"]
 
 
+@pytest.mark.slow
 def test_the_highway_car_on_two_buses() -> None:
     frames = list(simulate_highway(duration_s=6.0, seed=1, road="winding"))
     assert {f.bus for f in frames} == {"can0", "can1"}
@@ -110,6 +111,7 @@ def test_the_highway_car_on_two_buses() -> None:
     assert topics["/scene/tracks"] and "/can/can1/frames" in topics
 
 
+@pytest.mark.slow
 def test_a_gm_car_with_polar_tracks(shared_dbc: Path) -> None:
     dbc = shared_dbc / "gm_global_a_object.dbc"
     db = cantools.database.load_file(dbc)

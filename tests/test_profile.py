@@ -1270,6 +1270,7 @@ def test_the_random_edits_reach_every_kind_of_value() -> None:
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(text=random_edits)
 # values that crashed the loader once (TypeError, KeyError, OverflowError, UnicodeDecodeError)
+@pytest.mark.slow
 @example(text=edit(radar_classes("5")))
 @example(text=edit(radar_classes('{ 1 = ["car"] }')))
 @example(text=edit(('speed = { signal = "EgoMotion.VehicleSpeed", scale = 0.2777778 }',

@@ -117,6 +117,7 @@ def test_ego_speed_is_the_mean_wheel_speed_and_the_steering_angle_the_sum_of_its
     assert ego.yaw_rate == pytest.approx(YAW_RATE, abs=2e-4)
 
 
+@pytest.mark.slow
 def test_lanes_come_from_the_steering_and_the_healthy_drive_raises_no_alarm(
         converted: Path) -> None:
     lanes = topic(converted, LANES_TOPIC)

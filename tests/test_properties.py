@@ -30,6 +30,7 @@ from hypothesis import strategies as st
 from bridge.decode.codec import Decoded
 from bridge.decode.database import DatabaseFile, load_database
 from bridge.decode.decoder import Decoder
+from bridge.decode.outcome import Undecoded
 from bridge.decode.proto_schema import MessageSchema
 from bridge.frame import Frame
 from bridge.resources import data_dir
@@ -203,6 +204,7 @@ def test_every_generated_schema_loads_in_a_fresh_pool(subject: Subject) -> None:
                 assert {int(v) for v in signal.choices or {}} <= numbers, signal.name
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decode_never_raises_and_accounts_for_every_frame(subject: Subject,
@@ -235,11 +237,12 @@ def test_decode_never_raises_and_accounts_for_every_frame(subject: Subject,
     (outcome,) = moved - {"frames"}
     assert after[outcome] == before[outcome] + 1
     if frame.is_error:
-        assert (result, outcome) == (None, "error_frames")
+        assert (result, outcome) == (Undecoded.ERROR_FRAME, "error_frames")
     elif frame.is_remote:
-        assert (result, outcome) == (None, "remote_frames")
-    elif result is None:
-        assert outcome in ("unknown", "errors")
+        assert (result, outcome) == (Undecoded.REMOTE, "remote_frames")
+    elif isinstance(result, Undecoded):
+        assert (result, outcome) in ((Undecoded.UNKNOWN_ID, "unknown"),
+                                     (Undecoded.DECODE_ERROR, "errors"))
     else:
         assert isinstance(result, Decoded)
         assert outcome == "decoded"
@@ -248,6 +251,7 @@ def test_decode_never_raises_and_accounts_for_every_frame(subject: Subject,
         result.codec.schema.parse(result.payload)
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decoded_values_are_exactly_cantools_values(subject: Subject,
@@ -266,18 +270,29 @@ def test_decoded_values_are_exactly_cantools_values(subject: Subject,
                                                        allow_truncated=True))
     except Exception:
         errors = sum(subject.decoder.stats.errors.values())
-        assert subject.decoder.decode(frame_for(message, payload)) is None
+        assert subject.decoder.decode(frame_for(message, payload)) is Undecoded.DECODE_ERROR
         assert sum(subject.decoder.stats.errors.values()) == errors + 1
         return
     decoded = subject.decoder.decode(frame_for(message, payload))
-    assert decoded is not None, subject.decoder.stats.last_error
+    assert isinstance(decoded, Decoded), subject.decoder.stats.last_error
     assert decoded.codec.message is message
     assert dict(decoded.signals) == expected or _nan_equal(dict(decoded.signals), expected)
     schema = decoded.codec.schema
     assert_same_values(schema, schema.parse(decoded.payload), expected)
     reader = subject.reader_class(schema).FromString(decoded.payload)
     by_field = {f.field: f.signal for f in schema.fields}
-    assert_same_values(schema, {by_field[d.name]: v for d, v in reader.ListFields()}, expected)
+    assert_same_values(schema, {by_field[k]: v for k, v in read_signals(reader).items()},
+                       expected)
+
+
+def read_signals(decoded: Any) -> dict[str, Any]:
+    """A decoded message's fields as a reader sees them: those with presence that are set, and
+    every field of implicit presence (0 where none was written)."""
+    out = {d.name: v for d, v in decoded.ListFields()}
+    for d in decoded.DESCRIPTOR.fields:
+        if not d.has_presence:
+            out.setdefault(d.name, getattr(decoded, d.name))
+    return out
 
 
 def _nan_equal(a: dict[str, Any], b: dict[str, Any]) -> bool:
@@ -343,6 +358,7 @@ def _signals_of_one_branch(message: DbcMessage, tree: Sequence[Any],
     return chosen
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_encoded_physical_values_decode_back_within_resolution(subject: Subject,
@@ -361,7 +377,7 @@ def test_encoded_physical_values_decode_back_within_resolution(subject: Subject,
                                else data.draw(physical_value(signal), label=signal.name))
     payload = message.encode(values, scaling=True, padding=False, strict=False)
     decoded = subject.decoder.decode(frame_for(message, payload))
-    assert decoded is not None, subject.decoder.stats.last_error
+    assert isinstance(decoded, Decoded), subject.decoder.stats.last_error
     got = decoded.codec.schema.parse(decoded.payload)
     assert set(got) == set(values)
     kind = kinds(decoded.codec.schema)
@@ -389,6 +405,7 @@ def _counts(decoder: Decoder) -> tuple[int, int, int]:
             sum(stats["decode_errors"].values()))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=EXAMPLES, deadline=None)
 def test_decoding_a_frame_again_counts_it_again(subject: Subject, data: st.DataObject) -> None:
@@ -404,9 +421,11 @@ def test_decoding_a_frame_again_counts_it_again(subject: Subject, data: st.DataO
     middle = _counts(decoder)
     second = decoder.decode(frame)
     after = _counts(decoder)
-    assert (first is None) == (second is None)
-    if first is not None and second is not None:
+    assert type(first) is type(second)
+    if isinstance(first, Decoded) and isinstance(second, Decoded):
         assert first.payload == second.payload
+    else:
+        assert first == second
     assert [m - b for m, b in zip(middle, before, strict=True)] == [
         a - m for a, m in zip(after, middle, strict=True)]
 
@@ -443,5 +462,5 @@ def test_a_value_table_on_a_32_bit_signal_keeps_every_raw_value(wide_enum: Subje
     from 2**31 failed to serialize and the frame was counted as a decode error.)"""
     message = wide_enum.messages[0]
     decoded = wide_enum.decoder.decode(frame_for(message, raw.to_bytes(4, "little")))
-    assert decoded is not None, wide_enum.decoder.stats.last_error
+    assert isinstance(decoded, Decoded), wide_enum.decoder.stats.last_error
     assert decoded.codec.schema.parse(decoded.payload) == {"Code": raw}

@@ -18,7 +18,7 @@ import cantools
 import pytest
 from conftest import ECOCAR_DBC, T0, WriteLog, summary_counts
 
-from bridge.errors import BridgeError, InputError
+from bridge.errors import HelperDied, InputError
 from bridge.frame import Frame
 from bridge.io import readahead
 from bridge.io.can_logs import LogSource, SourceIssue, merge
@@ -74,6 +74,7 @@ def test_the_frames_are_read_in_another_process() -> None:
     assert multiprocessing.active_children() == []
 
 
+@pytest.mark.slow
 def test_merged_logs_give_the_same_frames_and_the_same_notes_as_reading_here(
         write_log: WriteLog) -> None:
     blf = write_log("radar.blf", frames(9000, 0, 0.001))
@@ -148,7 +149,7 @@ class Killed(PidSource):
 
 
 def test_a_reading_process_that_dies_is_one_line_not_a_short_drive() -> None:
-    with pytest.raises(BridgeError, match=r"^the process reading the inputs ahead ended without "
+    with pytest.raises(HelperDied, match=r"^the process reading the inputs ahead ended without "
                        r"a word \(exit code 137; out of memory\?\); --no-read-ahead"):
         list(ReadAhead([Killed(10_000)]))
 
@@ -182,6 +183,7 @@ def test_small_inputs_and_processes_with_threads_are_read_here(
     assert not reading.ahead and pids == {os.getpid()}
 
 
+@pytest.mark.slow
 def test_convert_writes_the_same_drive_either_way(tmp_path: Path) -> None:
     sample = data_dir() / "ecocar_sample.blf"
     ahead = convert([sample], tmp_path / "ahead.mcap", [], profile="ecocar")
@@ -244,6 +246,7 @@ def gm_drive_with_a_clock_step_cut_short(dbc: Path, write_log: WriteLog) -> Path
     return log
 
 
+@pytest.mark.slow
 def test_a_car_unlike_ecocar_with_a_clock_step_and_a_cut_log_converts_the_same_ahead(
         shared_dbc: Path, write_log: WriteLog, tmp_path: Path) -> None:
     dbc = shared_dbc / "gm_global_a_object.dbc"
@@ -271,6 +274,7 @@ class FullDisk(io.BytesIO):
         return super().write(data)
 
 
+@pytest.mark.slow
 def test_a_disk_that_fills_while_reading_ahead_stops_the_reader_too(write_log: WriteLog) -> None:
     log = write_log("long.blf", frames(60_000, 0, 0.001))
     decoder, _ = load_stages([str(ECOCAR_DBC)], None)

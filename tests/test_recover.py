@@ -218,12 +218,14 @@ def check_cut(cut: int) -> RecoverReport:
     return report
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.data())
 def test_a_drive_cut_anywhere_gives_back_a_prefix(data: st.DataObject) -> None:
     check_cut(data.draw(st.integers(0, len(drive().data) - 1), label="cut"))
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(st.data())
 def test_a_later_cut_never_recovers_less(data: st.DataObject) -> None:
@@ -248,6 +250,7 @@ def test_every_cut_across_a_chunk_and_the_attachment() -> None:
     assert counts == sorted(counts) and counts[0][1:] == (0, 0) and counts[-1][1:] == (1, 1)
 
 
+@pytest.mark.slow
 def test_a_cut_right_after_a_chunk_keeps_all_its_messages() -> None:
     d = drive()
     before = 0

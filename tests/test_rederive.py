@@ -14,6 +14,7 @@ import asyncio
 import json
 import shutil
 import threading
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,9 +31,12 @@ from bridge.apps.replay import replay_drive
 from bridge.cli import main
 from bridge.errors import InputError
 from bridge.io.drives import ArchiveSource, read_drive
+from bridge.pipeline import drive as drive_module
 from bridge.pipeline.convert import convert
 from bridge.pipeline.drive import load_stages
 from bridge.profile.model import ProfileError
+from bridge.resources import data_dir
+from bridge.sinks.mcap import Recorder
 from bridge.sinks.server import ViewerServer
 
 PROFILES = Path(__file__).resolve().parent / "profiles"
@@ -138,6 +142,7 @@ def test_a_flipped_lateral_sign_mirrors_every_radar_point(
     assert metadata(out)["profile"]["attachment"] == "profile-bosch_right.toml"
 
 
+@pytest.mark.slow
 def test_without_dbc_and_profile_the_attached_ones_are_used(
         bosch_log: Path, shared_dbc: Path, tmp_path: Path) -> None:
     car = tmp_path / "car"
@@ -161,6 +166,7 @@ def test_without_dbc_and_profile_the_attached_ones_are_used(
     assert meta["bus_databases"] == metadata(drive)["bus_databases"]
 
 
+@pytest.mark.slow
 def test_a_profile_whose_databases_point_elsewhere_uses_the_attached_ones(
         bosch_drive: Path, tmp_path: Path) -> None:
     elsewhere = tmp_path / "elsewhere.toml"
@@ -192,6 +198,7 @@ def test_re_deriving_twice_gives_the_same_bytes(bosch_drive: Path, tmp_path: Pat
     assert one.read_bytes() == two.read_bytes()
 
 
+@pytest.mark.slow
 def test_the_sample_drive_re_derives_to_the_same_scene(tmp_path: Path, sample_drive: Path
                                                        ) -> None:
     drive = sample_drive
@@ -225,13 +232,22 @@ def test_an_mcap_that_is_not_a_drive_is_one_line(tmp_path: Path,
         read_drive(text)
 
 
+@pytest.mark.slow
 def test_a_drive_cut_short_re_derives_what_it_holds_and_says_what_is_lost(
-        tmp_path: Path, sample_drive: Path) -> None:
-    drive = sample_drive
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    drive = tmp_path / "sample.mcap"
+    with monkeypatch.context() as patch:  # chunks of 1 MiB: the sample drive has several
+        patch.setattr(drive_module, "Recorder", partial(Recorder, chunk_size=1024 * 1024))
+        convert([data_dir() / "ecocar_sample.blf"], drive, [], profile="ecocar")
     whole = len(list(ArchiveSource(drive)))
     cut = tmp_path / "cut.mcap"
     data = drive.read_bytes()
-    cut.write_bytes(data[: len(data) * 3 // 4])  # a power loss: the last chunk is incomplete
+    with drive.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) > 1
+    last = max(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    # a power loss: the last chunk is incomplete
+    cut.write_bytes(data[: last.chunk_start_offset + last.chunk_length // 2])
     out = tmp_path / "out.mcap"
     report = convert([cut], out, [])  # the attachments are at the start: still there
     assert 0 < report.frames < whole
@@ -259,6 +275,7 @@ def test_one_drive_at_a_time_and_no_logs_beside_it(bosch_drive: Path, bosch_log:
         convert([bosch_drive, bosch_log], tmp_path / "out.mcap", [])
 
 
+@pytest.mark.slow
 def test_replay_serves_the_re_derived_scene_live(bosch_drive: Path, shared_dbc: Path,
                                                  tmp_path: Path) -> None:
     flipped = tmp_path / "bosch_right.toml"
@@ -315,6 +332,7 @@ def watch(server: ViewerServer, topic: str, stop: threading.Event, run: Any,
     return payloads
 
 
+@pytest.mark.slow
 def test_replay_drive_cli_with_a_profile(bosch_drive: Path, shared_dbc: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["replay", str(bosch_drive), "--profile", str(BOSCH), "--dbc",

@@ -73,6 +73,7 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_drive_is_served_in_log_time_with_server_time(drive: Path) -> None:
     with ViewerServer(port=0, server_time=True) as server:
         started = time.monotonic()
@@ -86,6 +87,7 @@ def test_a_drive_is_served_in_log_time_with_server_time(drive: Path) -> None:
     assert 1.0 < took < 5 * timeout_scale()  # 2 s of drive at 1.5x
 
 
+@pytest.mark.slow
 def test_a_can_log_goes_through_the_pipeline(tmp_path: Path) -> None:
     log = tmp_path / "drive.blf"
     with can.Logger(log) as logger:

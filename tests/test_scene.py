@@ -344,6 +344,7 @@ signal_values = st.dictionaries(
     st.floats(min_value=-1e6, max_value=1e6, allow_nan=False), min_size=0, max_size=5)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(frames=st.lists(st.tuples(st.integers(0, 31), signal_values, st.integers(0, 400)),
                        max_size=40))
@@ -401,6 +402,7 @@ def message_sequences(draw: st.DrawFn) -> list[tuple[int, str, dict[str, float]]
     return out
 
 
+@pytest.mark.slow
 @settings(max_examples=80, deadline=None)
 @given(sequence=message_sequences())
 def test_observing_at_the_tick_gives_the_world_observing_each_message_gives(

@@ -67,6 +67,7 @@ def _scenes(profile: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> l
     return out
 
 
+@pytest.mark.slow
 def test_groups_observed_together_make_the_scene_observing_them_apart_makes(
         highway: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> None:
     together = Perception(highway)
@@ -81,6 +82,7 @@ def test_groups_observed_together_make_the_scene_observing_them_apart_makes(
     assert shared == apart
 
 
+@pytest.mark.slow
 def test_the_scene_tick_s_shortcuts_make_the_scene_the_long_way_makes(
         highway: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> None:
     """Every object evaluated anew (a fresh observation each tick, its rule judged), no number
@@ -104,6 +106,7 @@ def test_the_scene_tick_s_shortcuts_make_the_scene_the_long_way_makes(
     assert short == long
 
 
+@pytest.mark.slow
 def test_an_unchanged_invalid_observation_is_given_again_a_valid_one_at_its_new_time(
         highway: Profile, drive: list[tuple[int, str, dict[str, Any]]]) -> None:
     observer = observe.Observer(highway)

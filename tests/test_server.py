@@ -160,6 +160,7 @@ def test_a_flush_sends_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
         assert asyncio.run(session()) == (1, 2)
 
 
+@pytest.mark.slow
 def test_a_channel_added_later_is_advertised_to_connected_clients() -> None:
     with ViewerServer(port=0) as server:
 
@@ -194,6 +195,7 @@ def test_server_time_for_replays() -> None:
         asyncio.run(session())
 
 
+@pytest.mark.slow
 def test_a_viewer_hears_the_time_before_the_first_channel() -> None:
     """Foxglove Studio takes its clock when the first channels come as the start of the
     timeline, zero without a time: a replay advertising its channels before its first frame made
@@ -228,6 +230,7 @@ def test_a_taken_port_is_a_clear_error() -> None:
             ViewerServer(port=port).start()
 
 
+@pytest.mark.slow
 def test_a_stalled_client_loses_its_own_oldest_messages_and_nobody_waits() -> None:
     """One client never reads; another keeps receiving every message at the scene rate."""
     rate, seconds = 50, 3.0

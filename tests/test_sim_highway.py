@@ -151,6 +151,7 @@ def test_frames_come_in_time_order_on_two_buses_within_the_run() -> None:
     assert not any(f.is_fd or f.is_extended or f.is_error or f.is_remote for f in run)
 
 
+@pytest.mark.slow
 def test_every_frame_decodes_with_the_bundled_database_of_its_bus(frames: list[Frame]) -> None:
     """... but those of the ids the databases do not define (:mod:`bridge.sim.highway_body`)."""
     databases = {RADAR_BUS: highway_database("radar"), CAR_BUS: highway_database("car")}
@@ -300,6 +301,7 @@ def test_dropouts_send_a_slot_invalid_for_a_few_cycles_and_keep_it(cycles: list[
     assert not any(c.slots[HIGHWAY.lead_slot].new for c in cycles[1:])
 
 
+@pytest.mark.slow
 def test_the_cut_in_car_enters_the_ego_lane_in_the_documented_window(
         cycles: list[Cycle], car: dict[str, list[tuple[float, dict[str, Any]]]]) -> None:
     """As the view sees it: its lane from the steering angle (bicycle model) against the
@@ -401,6 +403,7 @@ def perception(path: Path) -> tuple[dict[int, list[Any]], dict[int, Any]]:
     return tracks, leads
 
 
+@pytest.mark.slow
 def test_simulate_car_highway_mcap_has_the_tracks_and_the_lead_from_them(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "highway.mcap"

@@ -94,6 +94,7 @@ def bit(data: bytes, i: int) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_unknown_ids_are_in_no_highway_database_and_on_their_buses() -> None:
     defined = {m.frame_id for name in ("car", "radar") for m in highway_database(name).messages}
     assert not defined & set(UNKNOWN_IDS)
@@ -103,6 +104,7 @@ def test_the_unknown_ids_are_in_no_highway_database_and_on_their_buses() -> None
     assert (CAR_BUS, RADAR_BUS) == ("can0", "can1")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frame_id", sorted(LAYOUT))
 def test_every_unknown_id_comes_every_cycle_at_its_length(frame_id: int) -> None:
     _, cycle_ms, length = LAYOUT[frame_id]
@@ -117,6 +119,7 @@ def test_every_unknown_id_comes_every_cycle_at_its_length(frame_id: int) -> None
     assert max(abs(g - cycle_ms) for g in gaps) < 0.2  # a little jitter
 
 
+@pytest.mark.slow
 def test_0x2c4_carries_the_speedometer_the_brake_switch_and_the_yaw_rate() -> None:
     for road in ROADS:
         frames = of(drive(road), BRAKE_ID)
@@ -144,6 +147,7 @@ def test_0x2c4_carries_the_speedometer_the_brake_switch_and_the_yaw_rate() -> No
         assert all(b == (a + 1) % 16 for a, b in itertools.pairwise(counters))
 
 
+@pytest.mark.slow
 def test_the_speed_fields_changing_bits_span_more_than_a_byte_on_every_road() -> None:
     """30 m/s +-0.25 m/s read 1.5 % high: raw about 50190 to 50710 (0xC40E to 0xC616)."""
     for road in ROADS:
@@ -171,6 +175,7 @@ def test_the_counted_and_constant_ids() -> None:
     assert {data for _, data in of(drive(), CONSTANT_ID)} == {b"\x00\x10"}
 
 
+@pytest.mark.slow
 def test_the_seed_changes_counter_starts_and_noise_never_the_brake() -> None:
     one = of(tuple(simulate_highway(duration_s=20.0, seed=1)), BRAKE_ID)
     two = of(tuple(simulate_highway(duration_s=20.0, seed=2)), BRAKE_ID)
@@ -183,6 +188,7 @@ def test_the_seed_changes_counter_starts_and_noise_never_the_brake() -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_the_defined_ids_frames_are_the_same_as_without_the_unknown_ids(road: str) -> None:
     """The unknown ids' families draw from randomness of their own, and merge in between."""
@@ -222,12 +228,14 @@ def switches(frames: tuple[Frame, ...], edge: float) -> set[tuple[int, int]]:
 EDGES = sorted(t for press in BRAKE_PRESSES for t in press)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_only_the_brake_switch_switches_at_every_brake_edge(road: str) -> None:
     at = [switches(drive(road), edge) for edge in EDGES]
     assert set.intersection(*at) == {(BRAKE_ID, BRAKE_BIT)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("road", list(ROADS))
 def test_at_one_brake_edge_nothing_but_the_brake_switch_and_slow_counter_bits_switch(
         road: str) -> None:

@@ -124,6 +124,7 @@ def test_the_same_seed_gives_the_same_frames_and_another_seed_other_frames() -> 
     assert [f.timestamp_ns for f in other] != [f.timestamp_ns for f in first]
 
 
+@pytest.mark.slow
 def test_passing_the_database_explicitly_changes_nothing() -> None:
     assert list(simulate(duration_s=1.0, database=load_ecocar())) == list(
         simulate(duration_s=1.0))
@@ -377,6 +378,7 @@ def test_during_the_misalignment_the_radar_reports_it_and_its_objects_rotate(
 # --- the timeline scales with the duration ----------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_long_drive_has_every_episode_too(db: cantools.database.can.Database) -> None:
     duration = 60.0
     status = db.get_message_by_name("RadarStatus")
@@ -459,6 +461,7 @@ def test_every_fault_scenario_has_its_fault_at_the_documented_times() -> None:
         simulate(duration_s=1.0, scenario="no_such_scenario")
 
 
+@pytest.mark.slow
 def test_the_clean_scenario_has_no_fault_at_all() -> None:
     clean = scenario("clean")
     assert all(d.signals["Source"] == "camera" for d in clean if d.name in LANE_MESSAGES)
@@ -468,6 +471,7 @@ def test_the_clean_scenario_has_no_fault_at_all() -> None:
     assert max(b - a for a, b in itertools.pairwise(headers)) < 0.06
 
 
+@pytest.mark.slow
 def test_radar_dropout_silences_the_radar_only_during_the_fault() -> None:
     frames = scenario("radar_dropout")
     radar = [d for d in frames if d.name.startswith("Radar")]
@@ -476,6 +480,7 @@ def test_radar_dropout_silences_the_radar_only_during_the_fault() -> None:
     assert [d for d in frames if fault(d) and d.name.startswith("Cam")]
 
 
+@pytest.mark.slow
 def test_the_yawed_radar_sees_everything_turned_right_and_does_not_know() -> None:
     frames = scenario("radar_yaw")
     assert all(abs(d.signals["HorizontMisalignment"]) < 0.1 for d in named(frames, "RadarStatus"))
@@ -494,6 +499,7 @@ def test_the_yawed_radar_sees_everything_turned_right_and_does_not_know() -> Non
     assert abs(sum(outside) / len(outside)) < 1.0
 
 
+@pytest.mark.slow
 def test_the_blind_radar_sends_every_frame_but_no_valid_object() -> None:
     frames = scenario("radar_blind")
     objects = [o for o in radar_objects(frames) if FAULT_ONSET_S <= o["t"] < FAULT_RECOVERY_S]
@@ -502,6 +508,7 @@ def test_the_blind_radar_sends_every_frame_but_no_valid_object() -> None:
     assert any(o["Valid"] == "valid" for o in radar_objects(frames) if o["t"] >= 11.1)
 
 
+@pytest.mark.slow
 def test_the_slow_radar_sends_one_cycle_in_three() -> None:
     headers = [d for d in named(scenario("radar_slow"), "RadarHeader")]
     inside = [d for d in headers if fault(d)]
@@ -511,17 +518,20 @@ def test_the_slow_radar_sends_one_cycle_in_three() -> None:
         FAULT_ONSET_S * 20, abs=1)
 
 
+@pytest.mark.slow
 def test_lane_loss_reports_no_lanes_during_the_fault() -> None:
     lanes = [d for d in scenario("lane_loss") if d.name in LANE_MESSAGES]
     assert all((d.signals["Source"] == "none") == fault(d) for d in lanes)
 
 
+@pytest.mark.slow
 def test_a_silent_bus_carries_no_frame_at_all_during_the_fault() -> None:
     frames = scenario("bus_silent")
     assert not [d for d in frames if fault(d)]
     assert frames[-1].t >= SCENARIO_S - 0.1  # and it comes back
 
 
+@pytest.mark.slow
 def test_a_babbling_gateway_floods_the_bus_with_one_frame() -> None:
     frames = scenario("babbling")
     diag = named(frames, "SensorDiag")

@@ -238,6 +238,25 @@ def test_backwards_time_is_kept_counted_and_strict_makes_it_an_error(tmp_path: P
         read(path, strict=True)
 
 
+def test_a_long_text_log_names_the_line_of_each_issue_and_keeps_the_frames_in_order(
+        tmp_path: Path) -> None:
+    """Lines are read in batches: an issue deep in one still names its own line, and the frames
+    around a damaged line keep their order."""
+    lines = [f"({1700000000 + i / 100:.6f}) can0 {i % 0x700:03X}#{i % 256:02X}\n"
+             for i in range(1000)]
+    lines[399] = "(1699999999.000000) can0 123#45\n"  # line 400: a second back in time
+    lines[600] = "(1700000006.000000) can0 1\0\0#00\n"  # line 601: zero bytes
+    path = tmp_path / "drive.log"
+    path.write_text("".join(lines))
+
+    frames, source = read(path)
+
+    assert [(i.where, i.group) for i in source.issues] == [
+        ("line 400", "time jumps backwards"), ("line 601", "zero bytes in a line")]
+    assert [f.timestamp_ns for f in frames] == [
+        to_ns(float(line[1:18])) for n, line in enumerate(lines) if n != 600]
+
+
 def test_strict_stops_at_the_first_bad_line(write_log: WriteLog) -> None:
     path = write_log("drive.log", [classic(i) for i in range(3)])
     path.write_text(path.read_text() + "nonsense\n")

@@ -169,3 +169,27 @@ def test_live_applies_the_collector_settings(tmp_path: Path) -> None:
     live.run()
     assert seen and set(seen) == {collector.LIVE_THRESHOLDS}
     assert gc.get_threshold() == before
+
+
+@pytest.mark.parametrize("given", [None, "2"])
+def test_a_command_starts_no_blas_threads_unless_told(tmp_path: Path, given: str | None) -> None:
+    """numpy's OpenBLAS starts a thread per core at import, a tenth of a second of CPU for
+    nothing: tankviz does no linear algebra that threads speed up (find-signal's products
+    take as long on one). A user's own OPENBLAS_NUM_THREADS is kept."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    probe = textwrap.dedent("""
+        import os
+        from bridge.cli import main
+        main(["layouts"])
+        import numpy
+        print(os.environ.get("OPENBLAS_NUM_THREADS"), len(os.listdir("/proc/self/task")))
+    """)
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                            cwd=tmp_path, env=env, timeout=120)
+    assert result.returncode == 0, result.stderr
+    setting, threads = result.stdout.split()[-2:]
+    assert setting == (given or "1")
+    if given is None:
+        assert threads == "1"

@@ -16,6 +16,8 @@ import sys
 from functools import cache
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The packages of bridge/ in data-path order: each may import those before it.
@@ -104,6 +106,7 @@ def test_imports_only_run_down_the_data_path() -> None:
     assert not wrong, "\n".join(sorted(wrong))
 
 
+@pytest.mark.slow
 def test_no_import_chain_is_deeper_than_the_data_path() -> None:
     """cli → an app → the pipeline → … → a shared module: at most one module per stage, plus
     cli, the modules within one stage that build on each other, and a shared module."""
@@ -113,7 +116,6 @@ def test_no_import_chain_is_deeper_than_the_data_path() -> None:
     assert len(chain) <= 16, chain
 
 
-def report(root: Path) -> str:
 #: The most lines a module of bridge/ may have: a newcomer reads one in a sitting.
 MAX_LINES = 800
 
@@ -130,6 +132,7 @@ def test_no_module_is_longer_than_the_cap() -> None:
                         + ", ".join(f"{name} ({lines})" for name, lines in sorted(longer.items())))
 
 
+def report(root: Path) -> str:
     edges = graph(root)
     chain = longest_chain(edges)
     sizes = sorted(((lines, n) for n, lines in module_lines(root).items()), reverse=True)

@@ -57,6 +57,7 @@ def test_dbc_without_speed_to_a_file(tmp_path: Path) -> None:
         tl.load_toyota(path).get_message_by_name("SPEED")
 
 
+@pytest.mark.slow
 def test_every_message_at_its_cycle(drive: tl.ToyotaDrive, db: tl.Database) -> None:
     assert drive.frames[0].timestamp == tl.T0 == drive.start
     stamps = [m.timestamp for m in drive.frames]
@@ -71,6 +72,7 @@ def test_every_message_at_its_cycle(drive: tl.ToyotaDrive, db: tl.Database) -> N
         assert all(len(m.data) == message.length for m in frames)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".blf", ".log"])
 def test_log_reads_back(tmp_path: Path, drive: tl.ToyotaDrive, suffix: str) -> None:
     path = tl.write_log(drive, tmp_path / f"toyota{suffix}")

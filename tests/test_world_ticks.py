@@ -230,6 +230,7 @@ def sequences(draw: st.DrawFn) -> list[tuple[int, str, dict[str, Any]]]:
     return out
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(sequence=sequences())
 def test_reusing_unchanged_observations_gives_the_world_evaluating_every_one_gives(

@@ -9,8 +9,23 @@ holds ends the wait at once; the budget is only what a slow machine may take at 
 from __future__ import annotations
 
 import asyncio
+import os
 import time
 from collections.abc import Awaitable, Callable
+
+
+def timeout_scale() -> float:
+    """TANKVIZ_TEST_TIMEOUT_SCALE (default 1): a factor on the tests' time budgets, for a slow or
+    loaded machine. The budgets are what a wait for a condition may take at most; a condition
+    that holds ends its wait at once."""
+    raw = os.environ.get("TANKVIZ_TEST_TIMEOUT_SCALE", "").strip() or "1"
+    try:
+        scale = float(raw)
+    except ValueError:
+        scale = 0.0
+    if not scale > 0:
+        raise ValueError(f"TANKVIZ_TEST_TIMEOUT_SCALE={raw!r}: expected a number > 0")
+    return scale
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 5.0, step: float = 0.01) -> bool:

@@ -1,17 +1,10 @@
-#!/usr/bin/env python3
-"""Benchmark ``tankviz batch``: drives per minute and frames/s with 1 worker and with N workers
-(default N = the machine's cores), over the same simulated drives in the same run (a report, not
-a test).
-
-It simulates ``--drives`` drives of ``--duration`` seconds (the ecocar drive with different seeds
-and fault scenarios, written as BLF logs into ``--workdir``, reused when present), then for each
-worker count starts a local Dask cluster (as ``tankviz batch`` does: one process per worker, one
-thread each), converts every drive with the ecocar profile through the very task of ``tankviz
-batch`` (:func:`bridge.fleet.batch.convert_task` running
-:func:`bridge.pipeline.convert.convert`), and times it from the first task submitted to the last
-result (the cluster's start is timed apart). It prints the speed-up per added core first, then
-the table. On a machine that others share, the figures say what the machine gave, not what the
-code can do.
+"""Benchmark ``tankviz batch`` (a report, not a test): ``--drives`` simulated ecocar drives (seeds
+and fault scenarios, BLF logs cached in ``--workdir``) converted with the ecocar profile through
+the very task of ``tankviz batch`` on a local Dask cluster of 1 worker and of N (default: the
+cores), timed from the first task submitted to the last result (the cluster's start apart),
+the worker counts in turn (:func:`benchlib.interleaved`; ``--runs`` rounds, the fastest kept).
+It prints the speed-up per added core, then the table; on a shared machine the figures say what
+the machine gave, not what the code can do.
 
     python tools/bench_batch.py                 # 8 drives of 20 s, 1 vs all cores
     python tools/bench_batch.py --drives 16 --duration 60 --workers 4
@@ -26,6 +19,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import interleaved
 
 from bridge.fleet.batch import (
     ConvertJob,
@@ -73,17 +69,27 @@ def run(logs: list[Path], out: Path, workers: int) -> dict[str, float]:
             "frames": frames, "frames_per_s": frames / seconds}
 
 
+def fastest(logs: list[Path], workdir: Path, counts: list[int], runs: int
+            ) -> list[dict[str, float]]:
+    """:func:`run` for each worker count in turn, ``runs`` rounds: each count's fastest run."""
+    done = interleaved({str(n): functools.partial(run, logs, workdir / f"out{n}", n)
+                        for n in counts}, runs)
+    return [min(rows, key=lambda r: r["seconds"]) for rows in done.values()]
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split(":")[0])
     parser.add_argument("--drives", type=int, default=8)
     parser.add_argument("--duration", type=float, default=20.0, help="seconds per drive")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                         help="N, the worker count compared with 1 (default: cores)")
     parser.add_argument("--workdir", type=Path,
                         default=Path(tempfile.gettempdir()) / "tankviz-bench-batch")
+    parser.add_argument("--runs", type=int, default=1,
+                        help="rounds of every worker count, the fastest kept (1)")
     args = parser.parse_args()
     logs = make_drives(args.workdir / "logs", args.drives, args.duration)
-    rows = [run(logs, args.workdir / f"out{n}", n) for n in sorted({1, args.workers})]
+    rows = fastest(logs, args.workdir, sorted({1, args.workers}), args.runs)
     one, many = rows[0], rows[-1]
     speedup = many["seconds"] and one["seconds"] / many["seconds"]
     added = many["workers"] - one["workers"]

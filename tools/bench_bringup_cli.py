@@ -1,12 +1,8 @@
 """Time ``tankviz ids``, ``bits`` and ``find-signal`` on a drive the size of a real 2017 RAV4's
-60 s (four buses, 175 ids, about 135,000 frames; here 139 of the ids no database knows, the
-real drive's 115 and more), against
-python-can reading the same log bare (the fixed reference, same run, interleaved, best of
-``--runs``), and print each command's peak memory.
-
-The drive: the simulated highway car (its two buses, 40 ids), plus made-up traffic on ``can2``
-and ``can3`` and more ids on ``can0`` (counters, checksums, constant bytes, smooth fields,
-noise). ``--minutes N`` makes it N minutes long (the memory of a long drive).
+60 s (four buses, 175 ids, about 135,000 frames: the simulated highway car plus made-up traffic,
+139 ids no database knows) against python-can reading the same log bare (the fixed reference),
+interleaved, best of ``--runs`` (:func:`benchlib.interleaved`), and print each command's peak
+memory; ``--minutes N`` makes the drive N minutes long.
 
     python tools/bench_bringup_cli.py [--runs 3] [--minutes 1]
 """
@@ -21,11 +17,13 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+from benchlib import interleaved  # noqa: E402
 
 from bridge.frame import NS, Frame  # noqa: E402
 from bridge.resources import data_dir  # noqa: E402
@@ -34,6 +32,8 @@ from bridge.sinks.can_log_writer import write_log  # noqa: E402
 
 #: Made-up ids: (bus, how many, first id, cycle ms).
 EXTRA = (("can0", 35, 0x300, 100), ("can2", 50, 0x100, 100), ("can3", 50, 0x400, 150))
+#: The fixed reference's row.
+REFERENCE = "python-can reads the log (reference)"
 
 
 def _extra(bus: str, ident: int, cycle_ms: int, seconds: float, seed: int) -> Iterator[Frame]:
@@ -93,6 +93,35 @@ def peak_of(argv: list[str]) -> float:
     return int(done.stderr.strip().splitlines()[-1]) / 1024
 
 
+def timed(argv: list[str]) -> Callable[[], tuple[float, float]]:
+    """A run of the command ``argv``: its wall seconds and its peak RSS (MB)."""
+    def run() -> tuple[float, float]:
+        started = time.perf_counter()
+        peak = peak_of(argv)
+        return time.perf_counter() - started, peak
+    return run
+
+
+def commands(log: Path, minutes: float) -> dict[str, list[str]]:
+    """The commands timed, by row name: the reference first."""
+    dbcs = ["--dbc", f"can0={data_dir() / 'highway_car.dbc'}",
+            "--dbc", f"can1={data_dir() / 'highway_radar.dbc'}"]
+    tankviz = [sys.executable, "-m", "bridge"]
+    # around the first brake press (14 s), or early in a drive too short for it
+    windows = (["12.5:13.9", "14.1:15.5"] if minutes * 60 > 16 else ["1:2", "3:4"])
+    return {
+        REFERENCE: [
+            sys.executable, "-c", f"import can\nfor m in can.LogReader({str(log)!r}): pass"],
+        "tankviz ids": [*tankviz, "ids", str(log), *dbcs, "-q"],
+        "tankviz bits --id": [*tankviz, "bits", str(log), "--id", "can0/0x2C4", "-q"],
+        "tankviz bits --compare": [*tankviz, "bits", str(log), *dbcs, "--compare",
+                                   *windows, "-q"],
+        "tankviz find-signal": [*tankviz, "find-signal", str(log), *dbcs, "--like",
+                                "can0/SPEED.SPEED", "-q"],
+    }
+
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=3)
@@ -105,37 +134,17 @@ def main() -> None:
         ids = {(f.bus, f.arbitration_id) for f in frames}
         print(f"drive: {len(frames):,} frames, {len(ids)} ids, {args.minutes:g} min, "
               f"{log.stat().st_size / 1e6:.1f} MB BLF")
-        dbcs = ["--dbc", f"can0={data_dir() / 'highway_car.dbc'}",
-                "--dbc", f"can1={data_dir() / 'highway_radar.dbc'}"]
-        tankviz = [sys.executable, "-m", "bridge"]
-        # around the first brake press (14 s), or early in a drive too short for it
-        windows = (["12.5:13.9", "14.1:15.5"] if args.minutes * 60 > 16 else ["1:2", "3:4"])
-        commands = {
-            "python-can reads the log (reference)": [
-                sys.executable, "-c", f"import can\nfor m in can.LogReader({str(log)!r}): pass"],
-            "tankviz ids": [*tankviz, "ids", str(log), *dbcs, "-q"],
-            "tankviz bits --id": [*tankviz, "bits", str(log), "--id", "can0/0x2C4", "-q"],
-            "tankviz bits --compare": [*tankviz, "bits", str(log), *dbcs, "--compare",
-                                       *windows, "-q"],
-            "tankviz find-signal": [*tankviz, "find-signal", str(log), *dbcs, "--like",
-                                    "can0/SPEED.SPEED", "-q"],
-        }
-        best: dict[str, float] = {name: math.inf for name in commands}
-        peaks: dict[str, float] = {}
-        for _ in range(args.runs):
-            for name, argv in commands.items():
-                started = time.perf_counter()
-                peak = peak_of(argv)
-                best[name] = min(best[name], time.perf_counter() - started)
-                peaks[name] = peak
-        reference = best["python-can reads the log (reference)"]
-        print(f"{'command (best of ' + str(args.runs) + ', wall)':<40}{'s':>8}{'x reference':>13}"
-              f"{'peak MB':>10}")
-        for name in commands:
-            print(f"{name:<40}{best[name]:>8.2f}{best[name] / reference:>13.2f}"
-                  f"{peaks[name]:>10.0f}")
-        print(f"find-signal goal: <= 60 s for 60 s of this drive on a 2-core machine: "
-              f"{'ok' if best['tankviz find-signal'] <= 60 * args.minutes else 'MISSED'}")
+        runs = interleaved({name: timed(argv) for name, argv in
+                            commands(log, args.minutes).items()}, args.runs)
+    best = {name: min(seconds for seconds, _ in done) for name, done in runs.items()}
+    peaks = {name: done[-1][1] for name, done in runs.items()}  # the last run's
+    print(f"{'command (best of ' + str(args.runs) + ', wall)':<40}{'s':>8}{'x reference':>13}"
+          f"{'peak MB':>10}")
+    for name in runs:
+        print(f"{name:<40}{best[name]:>8.2f}{best[name] / best[REFERENCE]:>13.2f}"
+              f"{peaks[name]:>10.0f}")
+    print(f"find-signal goal: <= 60 s for 60 s of this drive on a 2-core machine: "
+          f"{'ok' if best['tankviz find-signal'] <= 60 * args.minutes else 'MISSED'}")
 
 
 if __name__ == "__main__":

@@ -39,7 +39,7 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import ECOCAR_DBC, MB, asc_copy, ecocar_log, interleaved
+from benchlib import ECOCAR_DBC, MB, add_workdir, ecocar_log, interleaved, log_copy
 
 #: Absolute start of the real-format log (python-can float seconds).
 T0 = 1_700_000_000.0
@@ -642,7 +642,7 @@ def measure_simulated(bench: Bench) -> Simulated:
     """The simulated drive, BLF and ASC: five contenders each, interleaved, best of --runs;
     the naive and tankviz outputs must hold as many messages on every naive topic."""
     blf, meta = ecocar_log(bench.args.workdir, bench.args.frames, bench.args.seed)
-    asc = asc_copy(blf)
+    asc = log_copy(blf, ".asc")
     bench.say(f"simulated drive {blf.name}: {meta['frames']:,} frames, "
               f"{meta['seconds_of_driving']:.0f} s of driving, BLF {blf.stat().st_size / MB:.1f} "
               f"MB, ASC {asc.stat().st_size / MB:.1f} MB; per bus {meta['frames_per_bus']}; "
@@ -872,9 +872,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="200k / 400k simulated and 50k real frames, to iterate")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
-                        help="where logs are cached and outputs written")
+    add_workdir(parser, "where logs are cached and outputs written")
     parser.add_argument("--clock", choices=("cpu", "wall"), default="wall",
                         help="compare elapsed time (default: what a user waits) or CPU time "
                         "(steadier on a shared machine; counts the second core's work)")

@@ -35,7 +35,6 @@ import gc
 import hashlib
 import pstats
 import random
-import subprocess
 import sys
 import tempfile
 import time
@@ -47,6 +46,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench_health import reference_package  # noqa: E402
+from benchlib import simulated_logs  # noqa: E402
 
 from bridge.health import monitor as current_monitor  # noqa: E402
 from bridge.health import overlay as current_overlay  # noqa: E402
@@ -57,9 +57,6 @@ from bridge.pipeline.pipeline import Pipeline  # noqa: E402
 #: One recorded call: ("feed", message, values, t), ("tick", t) of the perception; ("frame",
 #: frame, decoded), ("world", t), ("advance", t), ("finish", t), ("rebase", shift, t) of health.
 Call = tuple[Any, ...]
-DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
-
-
 def reference_health(ref: str) -> dict[str, types.ModuleType]:
     """Every module of ``bridge/health`` at git revision ``ref``, with the lateral sign check
     it runs at each tick (``bridge/world/lateral.py``), beside the working tree's
@@ -226,11 +223,7 @@ def main() -> int:
     same = True
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        for car, profile_name, ext in DRIVES:
-            log = folder / f"{car}.{ext}"
-            subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", car,
-                            "-o", str(log), "--duration", f"{args.duration:g}"],
-                           cwd=ROOT, check=True, capture_output=True)
+        for car, profile_name, log in simulated_logs(folder, args.duration):
             calls, setup = record(log, profile_name, folder)
             ticks = sum(1 for call in calls if call[0] == "world")
             best = {(name, part): float("inf") for name in ("reference", "current")

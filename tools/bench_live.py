@@ -1,103 +1,16 @@
 #!/usr/bin/env python3
-"""Benchmark ``tankviz live`` under a heavy three-bus load (a report, not a test).
+"""Benchmark ``tankviz live`` under a heavy three-bus load (a report, not a test): three python-can
+``virtual`` buses carry 4,000 frames/s each of ``bridge/sim``'s ecocar drive into the live bridge
+(ecocar profile, scene at 50 Hz, drives recorded) while three WebSocket clients read every
+``/scene/*`` topic and a fourth stalls. It prints one table (metric, value, target, ok?): send
+rates, frames recorded / sent, the bridge's CPU against references measured in the same run,
+latency from a frame to the scene at the clients, GC pauses, RSS; a ``TARGET MISSED: ...`` line
+per missed target; it exits 0 regardless. How each figure is taken: :class:`Sender`,
+:func:`measure_references`, :func:`cpu_use`, :func:`analyse` and :func:`latency_rows`.
 
-Three python-can ``virtual`` buses (``radar``, ``camera``, ``chassis``) each carry 4,000 frames/s
-for ``--duration`` seconds (default 60, ``--quick``: 10) into the live bridge
-(:class:`bridge.pipeline.live_engine.Live` + :class:`bridge.sinks.server.ViewerServer`, the
-bundled ecocar profile, scene at 50 Hz, drives recorded into a temporary folder), while four
-``foxglove.websocket.v1`` clients watch: three subscribe to every ``/scene/*`` topic and read
-everything, one subscribes to every channel (raw frames and decoded signals included) and then never
-reads (``transport.pause_reading()``). It prints one table (metric, value, target, ok?), a
-``TARGET MISSED: ...`` line for each missed target, and exits 0 regardless: this is a report.
-
-Processes. python-can's ``virtual`` interface only connects buses inside one process, so the
-bridge and the three sender threads (the "car") share this process; the WebSocket clients run in
-a separate process (this script with ``--client``), so their CPU is not counted. The CPU that
-other processes used during the run is printed too (``/proc/<pid>/stat``): other processes on a
-small machine distort every figure here, latency most.
-
-Traffic. The payloads are the simulated ecocar drive (:func:`bridge.sim.ecocar.simulate`, every
-payload encoded with the bundled DBC), split by sensor: ``radar`` carries RadarObj*/RadarHeader/
-RadarStatus, ``camera`` CamObstacle*/CamLane*, ``chassis`` everything else (fusion tracks, lead
-vehicle, ego motion, steering, driver inputs, position, diagnostics). Each sender cycles through
-its list at 4,000 frames/s - faster than the car's own cycle times, so the scene moves quickly,
-but every frame decodes and feeds perception like real traffic. Frames are paced in real time in
-small batches (``--batch-ms``, default 1 ms: 4 frames per bus): a sender sleeps to its schedule
-and sends what is due; the achieved rate and the worst lateness per bus are printed. The virtual
-bus stamps each frame with the wall clock at ``send``, so a frame's timestamp is when the car
-sent it. The prepared messages are hidden from the garbage collector (``gc.freeze()``) so they do
-not slow the bridge's full collections. Every collection's pause is timed (``gc.callbacks``): in
-wall time (what the pipeline and the server wait) and in the collecting thread's CPU time (what
-the collector itself costs, whatever else the machine runs); the target is no pause > 5 ms.
-
-Frames recorded vs sent. The senders stop first; once the pipeline has processed every frame and
-the server has passed on everything queued for the reading clients (at most 60 s), the clients
-and then the bridge (``live.stop()``) stop. The ``/can/<bus>/frames`` message counts in the
-drive's MCAP summary must equal each sender's count.
-
-CPU. ``bridge CPU = Δ process CPU (getrusage(RUSAGE_SELF), user+system, all threads) - Σ sender
-CPU (time.thread_time() measured inside each sender thread around its send loop) - Δ CPU of this
-script's main thread (the harness: it sleeps and samples backlogs every 50 ms)``, over the window
-from just before the senders start until everything is processed and passed on (above), divided
-by that wall time: % of one core. The clients' process is not included. A cross-check sums
-``/proc/self/task/<tid>/stat`` (utime+stime) of the bridge's own threads (pipeline, bus openers,
-server) over the same window; the per-thread breakdown is printed. The fixed reference of issue
-#15, measured in the same run just before the bridge starts (in a process of its own): bare
-python-can receive of the same traffic on the same virtual buses (one thread per bus calling
-``recv`` in a loop while the same senders send, the best of three 5 s passes), as % of one
-core; the ratio bridge / bare receive says what tankviz costs beyond taking the frames in. The
-target, < 20 % of one core, is a third of what the bridge took when issue #15 was filed (57 %).
-Two more references, tankviz's own code: the same pipeline alone in one thread, without buses,
-threads or clients (the best of three passes over 24,000 frames of the same traffic at the
-same rate), as % of one core; and the same pipeline paced as live reads
-(in real time, the frames stamped by then taken three times per scene period by live's own
-ReadSchedule, sleeping between: the best of three passes). How fast this machine is varies
-from hour to hour (the same code has measured 34 % and 45 %); the ratio bridge / reference tells
-what live adds to the work itself on the machine as it was, and bridge / paced what it adds
-beyond doing that work in 150 short bursts a second (reading the buses, the server thread, the
-senders' GIL), which this machine charges more for than for the same work done at once. The
-senders share the GIL with the bridge: their CPU is subtracted, their contention for the GIL is
-not (a real CAN adapter costs the bridge no GIL), so CPU and latency here are somewhat
-pessimistic.
-
-Latency. "From a frame's timestamp to a client receiving the scene that contains it." The scene
-tick at log time T (the WebSocket message timestamp; ticks are multiples of 20 ms at 50 Hz) is
-emitted by the pipeline when it processes the first frame stamped >= T (or at its read of the
-buses just after T, if none came), and contains exactly the frames processed before it: the
-harness notes how many that is at every tick, and takes the drive's frames, read back from
-their blocks, in that order (a frame stamped before T but read after scene T went out lands in
-the next scene, and is counted so). A reading client has received scene T
-when it has as many ``/scene/*`` messages stamped T as the drive recorded: the arrival of the last
-one (wall clock, in the client process; the same clock as the frame stamps). Then per frame and
-reading client::
-
-    latency = receive time of the containing scene - frame timestamp
-
-pooled over all frames and the three reading clients (10 µs bins). A frame sent just after a tick
-waits for the next one, so latency spans 0 ... one scene period (20 ms) + the delivery delay; the
-target is p99 < scene period + 5 ms = 25 ms. Also printed: the scene delivery delay
-(receive - T: the latency of the newest frame a scene can contain), the latency of each scene's
-oldest frame, and where the delivery delay goes: the wall times at which the pipeline starts
-computing tick T, has computed it, and has serialised, recorded and handed it to the server
-(two methods of the running pipeline are wrapped to note them; 50 calls/s), then the server and
-the network to the client. The first 0.5 s (warm-up) and the last 0.1 s of sending (the last
-scene is emitted by the idle timer once the buses go quiet) are left out of the latency figures.
-While the car drives, the harness samples every 50 ms how far the pipeline is behind (wall clock
-minus the newest frame processed) and the backlog of the server inbox.
-
-RSS. ``ru_maxrss`` of this process (bridge + senders + the prepared traffic), taken before the
-drive is read back; the RSS before the bridge started is printed for comparison.
-
-Options for looking closer: ``--stages N`` runs N frames of the same traffic through the
-pipeline alone in one thread (no buses, no clients, no other thread) and prints the cost per
-frame as decoding, recording, health, perception and serving are added; ``--cprofile``
-profiles the pipeline thread (thread CPU time) and prints the share of each stage;
-``--stalled-topics scene`` lets the stalled client subscribe to the scene only (what do the raw
-and decoded topics cost?); ``--switch-interval`` sets ``sys.setswitchinterval`` (GIL hand-over)
-for this process.
-
-    python tools/bench_live.py --quick      # 10 s
-    python tools/bench_live.py              # 60 s
+    python tools/bench_live.py --quick            # 10 s
+    python tools/bench_live.py                    # 60 s
+    python tools/bench_live.py --stages 120000    # the pipeline alone, stage by stage
 """
 
 from __future__ import annotations
@@ -115,14 +28,37 @@ import tempfile
 import threading
 import time
 from array import array
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import can
+
+_path = list(sys.path)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import best_of, ecocar_drive  # noqa: E402
+
+# benchlib puts the working tree first on the path: this bench measures the ``bridge`` the path
+# had (``bench_report.py --before`` runs it on a revision's).
+sys.path[:] = _path
+
+if TYPE_CHECKING:
+    import cProfile
+    import pstats
+
+    from bridge.frame import Frame
+    from bridge.io.buses import BusSpec
+    from bridge.pipeline.live_engine import Live
+    from bridge.pipeline.pipeline import Pipeline
+    from bridge.sinks.base import Sink
+    from bridge.sinks.server import ViewerServer
 
 MS = 1_000_000
 NS = 1_000_000_000
 BUSES = ("radar", "camera", "chassis")
+#: This bench's name of each of benchlib's buses.
+SENSOR = {"can0": "radar", "can1": "camera", "can2": "chassis"}
 SCENE_RATE = 50.0
 WARMUP_S = 0.5
 TAIL_S = 0.1
@@ -137,69 +73,19 @@ _HEADER = struct.Struct("<BIQ")  # opcode, subscription id, timestamp (ns)
 # --- the clients' process ---------------------------------------------------------------------
 
 async def run_clients(url: str, out_path: str, readers: int, stalled_topics: str) -> None:
-    """``readers`` clients read every /scene/* topic, one stalls; results go to ``out_path``."""
-    import websockets
-
-    loop = asyncio.get_running_loop()
-    proto = [websockets.Subprotocol(SUBPROTOCOL)]
-
-    async def connect(**options: Any) -> tuple[Any, dict[str, int]]:
-        ws = await websockets.connect(url, subprotocols=proto, max_size=None, compression=None,
-                                      **options)
-        channels: dict[str, int] = {}
-        while "/scene/radar" not in channels:
-            message = await asyncio.wait_for(ws.recv(), 10)
-            if isinstance(message, str):
-                data = json.loads(message)
-                if data.get("op") == "advertise":
-                    channels.update({c["topic"]: c["id"] for c in data["channels"]})
-        return ws, channels
-
-    def address(ws: Any) -> str:
-        host, port = ws.local_address[:2]
-        return f"{host}:{port}"
-
+    """``readers`` clients read every /scene/* topic, one stalls; results go to ``out_path``.
+    Runs in a process of its own (``--client``), so that the clients' CPU is not the bridge's."""
     clients: list[dict[str, Any]] = []
-    tasks = []
+    tasks: list[asyncio.Task[None]] = []
     for _ in range(readers):
-        ws, channels = await connect()
-        scene = sorted(t for t in channels if t.startswith("/scene/"))
-        subscriptions = {i: topic for i, topic in enumerate(scene, start=1)}
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": i, "channelId": channels[t]} for i, t in subscriptions.items()]}))
-        got: dict[str, list[list[int]]] = {t: [] for t in scene}
-        client = {"role": "reader", "address": address(ws), "scenes": got, "messages": 0}
+        client, task = await _reader(*await _connect(url))
         clients.append(client)
-
-        async def read(ws: Any = ws, subscriptions: dict[int, str] = subscriptions,
-                       got: dict[str, list[list[int]]] = got,
-                       client: dict[str, Any] = client) -> None:
-            clock = time.time_ns
-            unpack = _HEADER.unpack_from
-            while True:
-                data = await ws.recv()
-                now = clock()
-                if isinstance(data, bytes) and data[0] == 1:
-                    _, sub, t_ns = unpack(data)
-                    got[subscriptions[sub]].append([t_ns, now])
-                    client["messages"] += 1
-
-        tasks.append(loop.create_task(read()))
-    # No keepalive pings from the stalled one (a browser sends none): the server's pong to a
-    # client it cannot write to fails with an AssertionError in websockets' legacy protocol.
-    # (The server's own keepalive ping, 20 s in, fails the same way and logs a traceback; the
-    # connection stays registered and is fed until the end, so it still counts as stalled.)
-    stalled, channels = await connect(ping_interval=None)
-    if stalled_topics == "scene":
-        channels = {t: c for t, c in channels.items() if t.startswith("/scene/")}
-    await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [
-        {"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]}))
-    stalled.transport.pause_reading()
-    clients.append({"role": "stalled", "address": address(stalled),
-                    "subscribed": len(channels)})
+        tasks.append(task)
+    stalled, client = await _stalled(url, stalled_topics)
+    clients.append(client)
     print("READY " + json.dumps([c["address"] for c in clients]), flush=True)
 
-    await loop.run_in_executor(None, sys.stdin.readline)  # the bridge says stop
+    await asyncio.get_running_loop().run_in_executor(None, sys.stdin.readline)  # say stop
     for task in tasks:
         task.cancel()
     stalled.transport.abort()
@@ -208,23 +94,79 @@ async def run_clients(url: str, out_path: str, readers: int, stalled_topics: str
     os._exit(0)  # the readers' sockets need no goodbye
 
 
+async def _connect(url: str, **options: Any) -> tuple[Any, dict[str, int]]:
+    """A connected client and the channels advertised to it (once the scene's are)."""
+    import websockets
+
+    ws = await websockets.connect(url, subprotocols=[websockets.Subprotocol(SUBPROTOCOL)],
+                                  max_size=None, compression=None, **options)
+    channels: dict[str, int] = {}
+    while "/scene/radar" not in channels:
+        message = await asyncio.wait_for(ws.recv(), 10)
+        if isinstance(message, str):
+            data = json.loads(message)
+            if data.get("op") == "advertise":
+                channels.update({c["topic"]: c["id"] for c in data["channels"]})
+    return ws, channels
+
+
+def _address(ws: Any) -> str:
+    host, port = ws.local_address[:2]
+    return f"{host}:{port}"
+
+
+async def _reader(ws: Any, channels: dict[str, int]
+                  ) -> tuple[dict[str, Any], asyncio.Task[None]]:
+    """Subscribe ``ws`` to every /scene/* topic: its record and the task that reads it."""
+    scene = sorted(t for t in channels if t.startswith("/scene/"))
+    subscriptions = {i: topic for i, topic in enumerate(scene, start=1)}
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": channels[t]} for i, t in subscriptions.items()]}))
+    got: dict[str, list[list[int]]] = {t: [] for t in scene}
+    client = {"role": "reader", "address": _address(ws), "scenes": got, "messages": 0}
+    task = asyncio.get_running_loop().create_task(_read(ws, subscriptions, got, client))
+    return client, task
+
+
+async def _read(ws: Any, subscriptions: dict[int, str], got: dict[str, list[list[int]]],
+                client: dict[str, Any]) -> None:
+    """Note (timestamp, wall-clock arrival) of every message, by topic."""
+    clock = time.time_ns
+    unpack = _HEADER.unpack_from
+    while True:
+        data = await ws.recv()
+        now = clock()
+        if isinstance(data, bytes) and data[0] == 1:
+            _, sub, t_ns = unpack(data)
+            got[subscriptions[sub]].append([t_ns, now])
+            client["messages"] += 1
+
+
+async def _stalled(url: str, stalled_topics: str) -> tuple[Any, dict[str, Any]]:
+    """A client that subscribes to every channel (or the scene's) and then never reads."""
+    # No keepalive pings from the stalled one (a browser sends none): the server's pong to a
+    # client it cannot write to fails with an AssertionError in websockets' legacy protocol.
+    # (The server's own keepalive ping, 20 s in, fails the same way and logs a traceback; the
+    # connection stays registered and is fed until the end, so it still counts as stalled.)
+    stalled, channels = await _connect(url, ping_interval=None)
+    if stalled_topics == "scene":
+        channels = {t: c for t, c in channels.items() if t.startswith("/scene/")}
+    await stalled.send(json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": c} for i, c in enumerate(channels.values(), start=1)]}))
+    stalled.transport.pause_reading()
+    return stalled, {"role": "stalled", "address": _address(stalled),
+                     "subscribed": len(channels)}
+
+
 # --- the car: three senders -----------------------------------------------------------------
 
-def traffic(duration_s: float) -> dict[str, list[Any]]:
-    """The simulated ecocar drive's frames as python-can messages, split by sensor bus."""
-    import can
-
-    from bridge.sim.ecocar import simulate
-    from bridge.sim.frames import load_ecocar
-
-    db = load_ecocar()
-    names = {m.frame_id: m.name for m in db.messages}
-    out: dict[str, list[Any]] = {bus: [] for bus in BUSES}
-    for frame in simulate(duration_s=duration_s):
-        name = names.get(frame.arbitration_id, "")
-        bus = ("radar" if name.startswith("Radar") else
-               "camera" if name.startswith("Cam") else "chassis")
-        out[bus].append(can.Message(
+def traffic(duration_s: float) -> dict[str, list[can.Message]]:
+    """The simulated ecocar drive (:func:`benchlib.ecocar_drive`, every payload encoded with the
+    bundled DBC) as python-can messages, split by sensor: ``radar`` carries RadarObj*/
+    RadarHeader/RadarStatus, ``camera`` CamObstacle*/CamLane*, ``chassis`` everything else."""
+    out: dict[str, list[can.Message]] = {bus: [] for bus in BUSES}
+    for frame in ecocar_drive(duration_s, seed=0):
+        out[SENSOR[frame.bus]].append(can.Message(
             arbitration_id=frame.arbitration_id, data=frame.data,
             is_extended_id=frame.is_extended, is_fd=frame.is_fd,
             bitrate_switch=frame.bitrate_switch, dlc=frame.dlc))
@@ -233,9 +175,16 @@ def traffic(duration_s: float) -> dict[str, list[Any]]:
 
 @dataclass
 class Sender:
+    """One bus of the car: cycles through its messages at ``rate`` frames/s for ``duration_s``,
+    paced in real time in small batches (``batch_s``): it sleeps to its schedule and sends what
+    is due; the achieved rate and the worst lateness are noted. The virtual bus stamps each
+    frame with the wall clock at ``send``, so a frame's timestamp is when the car sent it. Its
+    CPU (``time.thread_time()`` around the send loop) is subtracted from the bridge's; its
+    contention for the GIL is not (a real adapter costs the bridge no GIL)."""
+
     bus: str
     channel: str
-    messages: list[Any]
+    messages: list[can.Message]
     rate: float
     duration_s: float
     batch_s: float
@@ -252,8 +201,6 @@ class Sender:
 
     def _run(self, go: threading.Event, start_at: list[float],
              opened: threading.Barrier) -> None:
-        import can
-
         bus = can.Bus(interface="virtual", channel=self.channel)
         opened.wait()
         go.wait()
@@ -286,6 +233,46 @@ class Sender:
             self.late_max_s = late
             bus.shutdown()
             self.cpu_s = time.thread_time() - cpu0
+
+
+@dataclass
+class Car:
+    """The senders, one a bus, each waiting for :meth:`drive` on its open bus."""
+
+    senders: list[Sender]
+    go: threading.Event
+    start_at: list[float]
+
+    def drive(self) -> None:
+        self.start_at[0] = time.monotonic()
+        self.go.set()
+
+    def driving(self) -> bool:
+        return any(s.thread is not None and s.thread.is_alive() for s in self.senders)
+
+    def join(self) -> None:
+        for sender in self.senders:
+            assert sender.thread is not None
+            sender.thread.join()
+
+    @property
+    def sent(self) -> int:
+        return sum(s.sent for s in self.senders)
+
+
+def start_car(channels: dict[str, str], messages: dict[str, list[can.Message]], rate: float,
+              seconds: float, batch_s: float, opened: threading.Barrier,
+              go: threading.Event) -> Car:
+    """A :class:`Sender` on each bus (``channels``: bus -> virtual channel), its bus open when
+    this returns (``opened``: one party per sender and one for this thread, more if others
+    wait too); they send once ``go`` is set (:meth:`Car.drive`)."""
+    start_at = [0.0]
+    senders = [Sender(bus, channel, messages[bus], rate, seconds, batch_s)
+               for bus, channel in channels.items()]
+    for sender in senders:
+        sender.start(go, start_at, opened)
+    opened.wait()
+    return Car(senders, go, start_at)
 
 
 # --- measuring ------------------------------------------------------------------------------
@@ -339,11 +326,127 @@ def rss_now_mb() -> float:
     return float("nan")
 
 
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+@dataclass
+class CpuMark:
+    """The clocks at one end of the window: wall, this process, the harness (main thread),
+    each thread of this process, every other process, the clients' process."""
+
+    wall: float
+    process: float
+    harness: float
+    threads: dict[int, float]
+    others: dict[int, float]
+    clients: float
+
+
+def mark_start(clients_pid: int) -> CpuMark:
+    """The clocks just before the car drives (this process's and the wall clock last)."""
+    threads = thread_cpu()
+    others = other_processes_cpu({os.getpid(), clients_pid})
+    clients = child_cpu(clients_pid)
+    process, harness = process_cpu(), time.thread_time()
+    return CpuMark(time.monotonic(), process, harness, threads, others, clients)
+
+
+def mark_end(clients_pid: int) -> CpuMark:
+    """The clocks once everything is passed on (the wall clock and this process's first)."""
+    wall = time.monotonic()
+    process, harness = process_cpu(), time.thread_time()
+    threads = thread_cpu()
+    return CpuMark(wall, process, harness, threads,
+                   other_processes_cpu({os.getpid(), clients_pid}), child_cpu(clients_pid))
+
+
+@dataclass
+class CpuUse:
+    """CPU seconds over the window, by whom (see :func:`cpu_use`)."""
+
+    wall: float
+    process: float
+    senders: float
+    harness: float
+    by_thread: dict[str, float]
+    clients: float
+    others: float
+
+    def pct(self, seconds: float) -> float:
+        """``seconds`` of CPU over the window, as % of one core."""
+        return 100 * seconds / self.wall
+
+    @property
+    def bridge_pct(self) -> float:
+        return self.pct(self.process - self.senders - self.harness)
+
+    @property
+    def bridge_threads_pct(self) -> float:
+        return self.pct(sum(v for k, v in self.by_thread.items() if k.startswith("tankviz-")))
+
+
+def thread_names(senders: Sequence[Sender]) -> dict[int, str]:
+    """The name of every thread of this process (the senders' too), by native id."""
+    names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+    names.update({s.thread.native_id: s.thread.name for s in senders
+                  if s.thread is not None and s.thread.native_id is not None})
+    names[threading.main_thread().native_id or 0] = "harness (main thread)"
+    return names
+
+
+def cpu_use(start: CpuMark, end: CpuMark, senders: Sequence[Sender],
+            names: dict[int, str]) -> CpuUse:
+    """``bridge CPU = Δ process CPU (getrusage, all threads) - Σ sender CPU - Δ CPU of the
+    harness (the main thread: it sleeps and samples backlogs every 50 ms)`` over the window
+    from just before the senders start until everything is processed and passed on, divided by
+    its wall time: % of one core; the clients' process is not included. The cross-check sums
+    ``/proc/self/task/<tid>/stat`` of the bridge's own threads over the same window. The CPU
+    of other processes (those alive at both ends) says how loaded the machine was."""
+    by_thread: dict[str, float] = {}
+    for tid, after in end.threads.items():
+        name = names.get(tid, f"thread {tid}")
+        by_thread[name] = by_thread.get(name, 0.0) + after - start.threads.get(tid, 0.0)
+    others = sum(cpu - start.others[pid] for pid, cpu in end.others.items()
+                 if pid in start.others)
+    return CpuUse(end.wall - start.wall, end.process - start.process,
+                  sum(s.cpu_s for s in senders), end.harness - start.harness, by_thread,
+                  end.clients - start.clients, others)
+
+
+class GcWatch:
+    """Every garbage collection's pause (a ``gc.callbacks`` entry): in wall time (what the
+    pipeline and the server wait) and in the collecting thread's CPU time (what the collector
+    itself costs, whatever else the machine runs)."""
+
+    def __init__(self) -> None:
+        self.pauses: list[tuple[int, float]] = []  # (generation, wall seconds)
+        self.cpu: list[float] = []
+        self._started = (0.0, 0.0)
+
+    def __call__(self, phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            self._started = time.perf_counter(), time.thread_time()
+        else:
+            self.pauses.append((info["generation"], time.perf_counter() - self._started[0]))
+            self.cpu.append(time.thread_time() - self._started[1])
+
+    @property
+    def longest_ms(self) -> float:
+        return 1e3 * max((d for _, d in self.pauses), default=0)
+
+
 def percentile(values: Sequence[float], q: float) -> float:
     if not values:
         return float("nan")
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, max(0, int(q * len(ordered) + 0.5) - 1))]
+
+
+def spread(values: Sequence[float]) -> str:
+    """``p50 / p99 / max ms`` of ``values`` (ms)."""
+    return (f"{percentile(values, 0.5):.1f} / {percentile(values, 0.99):.1f} / "
+            f"{max(values, default=float('nan')):.1f} ms")
 
 
 class Histogram:
@@ -396,6 +499,7 @@ def summary_frame_counts(files: Sequence[Path]) -> dict[str, int]:
     blocks, as ``bench_report.py --before`` measures it: one frame a message)."""
     from mcap.reader import make_reader
 
+    raw_frame_counts: Callable[[Any], dict[str, int]]
     try:
         from bridge.io.drives import raw_frame_counts
     except ImportError:
@@ -418,31 +522,28 @@ def _message_counts(reader: Any) -> dict[str, int]:
     return out
 
 
-def analyse(files: Sequence[Path], received: list[dict[int, tuple[int, int]]],
-            window: tuple[int, int], frames_before: dict[int, int]) -> DriveAnalysis:
-    """Which scene contains which frame, and the latencies at the readers.
-
-    ``received``: per reading client, tick -> (when the last of its /scene/* messages stamped
-    with that tick arrived, how many arrived). A tick counts as received when the client got as
-    many /scene/* messages stamped with it as the drive recorded. ``frames_before``: tick -> how
-    many frames the pipeline had processed when it began the tick (:func:`time_scene_stages`):
-    the tick's scene contains them. The drive's frames, read back from their blocks
-    (:class:`bridge.io.drives.ArchiveSource`), are taken in that order.
-    """
-    from mcap.reader import make_reader
-
+def scene_contents(files: Sequence[Path], frames_before: dict[int, int],
+                   window: tuple[int, int]) -> list[tuple[int, array[int]]]:
+    """Each tick and the stamps of the frames its scene contains (those in the window): the
+    drive's frames, read back from their blocks (:class:`bridge.io.drives.ArchiveSource`), in
+    order, cut where the pipeline had processed ``frames_before[tick]`` of them."""
     from bridge.io.drives import ArchiveSource
 
-    result = DriveAnalysis(summary_frame_counts(files), 0, Histogram(),
-                           scenes_missed=[0] * len(received))
     lo, hi = window
     stamps = array("q", (f.timestamp_ns for path in files for f in ArchiveSource(path)))
-    scenes: list[tuple[int, array[int]]] = []  # tick, the frames it contains (in the window)
+    scenes: list[tuple[int, array[int]]] = []
     done = 0
     for tick, before in sorted(frames_before.items()):
         scenes.append((tick, array("q", (t for t in stamps[done:before] if lo <= t < hi))))
         done = max(done, before)
-    recorded: dict[int, int] = {}  # tick -> /scene/* messages recorded with that time
+    return scenes
+
+
+def scene_parts_recorded(files: Sequence[Path]) -> dict[int, int]:
+    """Tick -> how many /scene/* messages the drive recorded with that time."""
+    from mcap.reader import make_reader
+
+    recorded: dict[int, int] = {}
     for path in files:
         with path.open("rb") as f:
             reader = make_reader(f)
@@ -451,31 +552,56 @@ def analyse(files: Sequence[Path], received: list[dict[int, tuple[int, int]]],
                       if c.topic.startswith("/scene/")] if summary is not None else []
             for _, _, message in reader.iter_messages(topics=topics):
                 recorded[message.log_time] = recorded.get(message.log_time, 0) + 1
+    return recorded
+
+
+def analyse(files: Sequence[Path], received: list[dict[int, tuple[int, int]]],
+            window: tuple[int, int], frames_before: dict[int, int]) -> DriveAnalysis:
+    """Which scene contains which frame, and the latencies at the readers.
+
+    The scene tick T is emitted when the pipeline processes the first frame stamped >= T (or at
+    its read of the buses just after T) and contains exactly the frames processed before it
+    (``frames_before``: tick -> that count, :func:`time_scene_stages`), so a frame stamped
+    before T but read after scene T went out lands in the next scene. ``received``: per
+    reading client, tick -> (when the last of its /scene/* messages stamped T arrived, how many
+    arrived); a client has scene T when it got as many as the drive recorded. Then per frame
+    and reader ``latency = receive time of the containing scene - frame timestamp`` (the same
+    wall clock), pooled in 10 µs bins; frames outside ``window`` (warm-up, tail) left out."""
+    result = DriveAnalysis(summary_frame_counts(files), 0, Histogram(),
+                           scenes_missed=[0] * len(received))
+    scenes = scene_contents(files, frames_before, window)
+    recorded = scene_parts_recorded(files)
     result.scenes = len(scenes)
-    complete = result.complete = [
+    result.complete = [
         {t: at for t, (at, n) in got.items() if n >= recorded.get(t, 0)} for got in received]
-    hist = result.frame_latency
     for tick, frames in scenes:
-        in_window = lo <= tick < hi
-        result.scenes_in_window += in_window
-        if not frames and not in_window:
-            continue
-        result.frames_in_window += len(frames)
-        oldest = min(frames) if frames else None
-        for r, got in enumerate(complete):
-            at = got.get(tick)
-            if at is None:
-                result.scenes_missed[r] += in_window
-                result.frames_without_scene += len(frames)
-                continue
-            if in_window:
-                result.delivery_ms.append((at - tick) / MS)
-                result.delivery_at.append(tick)
-            if oldest is not None:
-                result.oldest_ms.append((at - oldest) / MS)
-            for t in frames:
-                hist.add(at - t)
+        _add_scene(result, tick, frames, window)
     return result
+
+
+def _add_scene(result: DriveAnalysis, tick: int, frames: array[int],
+               window: tuple[int, int]) -> None:
+    """Scene ``tick`` (containing ``frames``) as each reader received it, or did not."""
+    lo, hi = window
+    in_window = lo <= tick < hi
+    result.scenes_in_window += in_window
+    if not frames and not in_window:
+        return
+    result.frames_in_window += len(frames)
+    oldest = min(frames) if frames else None
+    for r, got in enumerate(result.complete):
+        at = got.get(tick)
+        if at is None:
+            result.scenes_missed[r] += in_window
+            result.frames_without_scene += len(frames)
+            continue
+        if in_window:
+            result.delivery_ms.append((at - tick) / MS)
+            result.delivery_at.append(tick)
+        if oldest is not None:
+            result.oldest_ms.append((at - oldest) / MS)
+        for t in frames:
+            result.frame_latency.add(at - t)
 
 
 def scene_receipts(client: dict[str, Any]) -> dict[int, tuple[int, int]]:
@@ -489,14 +615,14 @@ def scene_receipts(client: dict[str, Any]) -> dict[int, tuple[int, int]]:
     return {t: (at, parts[t]) for t, at in last.items()}
 
 
-def time_scene_stages(pipeline: Any) -> dict[int, list[int]]:
+def time_scene_stages(pipeline: Pipeline) -> dict[int, list[int]]:
     """Wall times of each scene tick inside the bridge: tick -> [the pipeline starts computing
     it, computed, serialised + recorded + handed to the server, and the frames processed before
     it (the frames its scene contains)]. Wraps two methods of this
     pipeline's instances (50 calls a second; the bridge's code is unchanged): the perception's
     ``tick`` (one scene tick) and the pipeline's ``emit``."""
     stages: dict[int, list[int]] = {}
-    perception = pipeline.perception
+    perception: Any = pipeline.perception
     tick, emit = perception.tick, pipeline.emit
 
     def timed_tick(t_ns: int) -> Any:
@@ -514,7 +640,7 @@ def time_scene_stages(pipeline: Any) -> dict[int, list[int]]:
             noted[2] = time.time_ns()
 
     perception.tick = timed_tick
-    pipeline.emit = timed_emit
+    pipeline.emit = timed_emit  # type: ignore[method-assign]
     return stages
 
 
@@ -532,9 +658,9 @@ PROFILE_PARTS = (
 )
 
 
-def print_profile_summary(stats: Any) -> None:
+def print_profile_summary(stats: pstats.Stats) -> None:
     """Inclusive CPU time of the pipeline's stages, as a share of the thread's CPU time."""
-    entries = stats.stats  # (file, line, function) -> (calls, ncalls, tottime, cumtime, callers)
+    entries: dict[Any, Any] = stats.stats  # type: ignore[attr-defined]
     total = sum(e[2] for e in entries.values()) or 1.0
     print(f"\npipeline thread under cProfile: {total:.1f} s CPU; inclusive share per stage "
           "(scene emit includes its publish):")
@@ -546,333 +672,458 @@ def print_profile_summary(stats: Any) -> None:
         print(f"  {100 * cum / total:5.1f} %  {label}  ({calls:,} calls)")
 
 
-# --- the run ----------------------------------------------------------------------------------
+# --- the run: set-up ----------------------------------------------------------------------------
 
-def run(args: argparse.Namespace) -> None:
-    import can  # noqa: F401  (imported before the CPU window)
+def prepared_traffic(traffic_s: float) -> dict[str, list[can.Message]]:
+    """:func:`traffic`, said so."""
+    t = time.perf_counter()
+    messages = traffic(traffic_s)
+    print("traffic: " + ", ".join(f"{b} cycles {len(m):,} simulated frames"
+                                  for b, m in messages.items())
+          + f" (prepared in {time.perf_counter() - t:.1f} s)")
+    return messages
 
+
+@dataclass(frozen=True)
+class References:
+    """The same work without live, µs per frame, and bare receive, % of one core."""
+
+    pipeline_us: float
+    paced_us: float
+    bare_pct: float
+    frames_per_s: float
+
+    @property
+    def pipeline_pct(self) -> float:
+        return self.pipeline_us * self.frames_per_s / 1e4
+
+    @property
+    def paced_pct(self) -> float:
+        return self.paced_us * self.frames_per_s / 1e4
+
+
+def measure_references(args: argparse.Namespace) -> References:
+    """The references, measured now on this machine as it is, in a process of its own (so that
+    its memory is not this one's; ``--reference``): the fixed reference of issue #15, bare
+    python-can receive of the same traffic on the same virtual buses (:func:`bare_receive_pct`);
+    the same pipeline alone in one thread over 24,000 frames of the same traffic at the same
+    rate (bridge / reference: what live adds to the work itself); and the same pipeline paced
+    as live reads (bridge / paced: what live adds beyond doing that work in 150 short bursts a
+    second). Each the best of three, interleaved (:func:`benchlib.best_of`)."""
+    pipeline_us, paced_us, bare_pct = map(float, subprocess.run(
+        [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
+         str(args.traffic_s), "--rate", str(args.rate), "--batch-ms", str(args.batch_ms)],
+        check=True, capture_output=True, text=True).stdout.split())
+    return References(pipeline_us, paced_us, bare_pct, len(BUSES) * args.rate)
+
+
+@dataclass
+class Bridge:
+    """The live bridge under test: its server, buses and pipeline thread."""
+
+    live: Live
+    server: ViewerServer
+    specs: list[BusSpec]
+    runner: threading.Thread
+    stages: dict[int, list[int]]  # time_scene_stages
+    outcome: dict[str, Any]  # "report" (live.run's), "profile" (with --cprofile)
+    said: list[str]
+    drives: Path
+    rss_before: float
+
+
+def start_bridge(drives: Path, cprofile: bool) -> Bridge:
+    """``tankviz live`` on three virtual buses (the ecocar profile, scene at 50 Hz, recording
+    into ``drives``), serving on a free port, its pipeline running in a thread."""
     from bridge.io.buses import BusSpec
     from bridge.pipeline.drive import load_stages
     from bridge.pipeline.live_engine import Live
     from bridge.sinks.server import ViewerServer
-    from tests.waiting import wait_for
 
-    duration = 10.0 if args.quick else args.duration
-    period_ms = 1000 / SCENE_RATE
-    print(f"tankviz live benchmark: {len(BUSES)} virtual buses x {args.rate:,.0f} frames/s for "
-          f"{duration:g} s, scene at {SCENE_RATE:g} Hz, 4 WebSocket clients (1 stalled)")
-    t = time.perf_counter()
-    messages = traffic(args.traffic_s)
-    print("traffic: " + ", ".join(f"{b} cycles {len(m):,} simulated frames"
-                                  for b, m in messages.items())
-          + f" (prepared in {time.perf_counter() - t:.1f} s)")
-
-    # The reference, measured now on this machine as it is: the same work without live (in a
-    # process of its own, so that its memory is not this one's).
-    reference_us, paced_us, bare_pct = map(float, subprocess.run(
-        [sys.executable, __file__, "--reference", str(REFERENCE_FRAMES), "--traffic-s",
-         str(args.traffic_s), "--rate", str(args.rate), "--batch-ms", str(args.batch_ms)],
-        check=True, capture_output=True, text=True).stdout.split())
-    reference_pct = reference_us * len(BUSES) * args.rate / 1e4
-    paced_pct = paced_us * len(BUSES) * args.rate / 1e4
-    # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
-    # view, so that the bridge's full collections cost what they would cost without it.
-    gc.freeze()
     ecocar = load_stages([], "ecocar")
-    tmp = tempfile.TemporaryDirectory(prefix="tankviz-bench-live-")
-    drives = Path(args.drives) if args.drives else Path(tmp.name)
     said: list[str] = []
-    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rss_before = peak_rss_mb()
     server = ViewerServer(port=0)
     server.start()
-    pid = os.getpid()
-    specs = [BusSpec(bus, "virtual", f"bench-live-{pid}-{bus}") for bus in BUSES]
+    specs = [BusSpec(bus, "virtual", f"bench-live-{os.getpid()}-{bus}") for bus in BUSES]
     live = Live(specs, ecocar, scene_rate=SCENE_RATE, drives=drives,
                 server=server, say=said.append)
     live.start()
     outcome: dict[str, Any] = {}
     stages = time_scene_stages(live.pipeline)
-
-    def pipeline() -> None:
-        if args.cprofile:
-            import cProfile
-
-            profiler = cProfile.Profile(time.thread_time)  # CPU, not GIL waits
-            outcome["profile"] = profiler
-            profiler.enable()
-        try:
-            outcome["report"] = live.run()
-        finally:
-            if args.cprofile:
-                profiler.disable()
-
-    runner = threading.Thread(target=pipeline, name="tankviz-pipeline")
+    runner = threading.Thread(target=run_pipeline, args=(live, outcome, cprofile),
+                              name="tankviz-pipeline")
     runner.start()
+    return Bridge(live, server, specs, runner, stages, outcome, said, drives, rss_before)
 
-    results = Path(tmp.name) / "clients.json"
-    clients = subprocess.Popen(
+
+def run_pipeline(live: Live, outcome: dict[str, Any], cprofile: bool) -> None:
+    """``live.run()``, under cProfile (thread CPU time, not GIL waits) if asked."""
+    profiler: cProfile.Profile | None = None
+    if cprofile:
+        import cProfile
+
+        profiler = cProfile.Profile(time.thread_time)
+        outcome["profile"] = profiler
+        profiler.enable()
+    try:
+        outcome["report"] = live.run()
+    finally:
+        if profiler is not None:
+            profiler.disable()
+
+
+@dataclass
+class Clients:
+    """The clients' process (``--client``) and each client's address (the stalled one last)."""
+
+    process: subprocess.Popen[str]
+    addresses: list[str]
+    results: Path
+
+    @property
+    def stalled(self) -> str:
+        return self.addresses[-1]
+
+    def stop(self) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write("stop\n")
+        self.process.stdin.flush()
+        self.process.wait(30)
+
+    def readers(self) -> list[dict[str, Any]]:
+        """What each reading client received (once stopped)."""
+        data = json.loads(self.results.read_text())
+        return [c for c in data["clients"] if c["role"] == "reader"]
+
+
+def start_clients(server: ViewerServer, folder: Path, stalled_topics: str) -> Clients:
+    """The four WebSocket clients, in a process of their own, subscribed."""
+    from tests.waiting import wait_for
+
+    results = folder / "clients.json"
+    process = subprocess.Popen(
         [sys.executable, os.path.abspath(__file__), "--client", server.url, str(results),
-         "--stalled-topics", args.stalled_topics],
+         "--stalled-topics", stalled_topics],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    assert clients.stdout is not None and clients.stdin is not None
-    line = clients.stdout.readline()
+    assert process.stdout is not None
+    line = process.stdout.readline()
     if not line.startswith("READY "):
-        raise SystemExit(f"the clients did not start: {line!r}, exit {clients.wait()}")
-    addresses = json.loads(line[len("READY "):])
+        raise SystemExit(f"the clients did not start: {line!r}, exit {process.wait()}")
     wait_for(lambda: len(server._wanted) > 0, timeout=5)  # subscriptions have landed
     time.sleep(0.5)
+    return Clients(process, json.loads(line[len("READY "):]), results)
 
-    opened = threading.Barrier(len(BUSES) + 1)
-    go = threading.Event()
-    start_at: list[float] = [0.0]
-    senders = [Sender(bus, spec.channel or "", messages[bus], args.rate, duration,
-                      args.batch_ms / 1000) for bus, spec in zip(BUSES, specs, strict=True)]
-    for sender in senders:
-        sender.start(go, start_at, opened)
-    opened.wait()
 
-    if args.switch_interval:
-        sys.setswitchinterval(args.switch_interval / 1000)
-    gc_pauses: list[tuple[int, float]] = []
-    gc_cpu: list[float] = []  # the same pauses in the collecting thread's CPU time
-    gc_started = [0.0, 0.0]
+# --- the run: the window ------------------------------------------------------------------------
 
-    def gc_watch(phase: str, info: dict[str, Any]) -> None:
-        if phase == "start":
-            gc_started[:] = time.perf_counter(), time.thread_time()
-        else:
-            gc_pauses.append((info["generation"], time.perf_counter() - gc_started[0]))
-            gc_cpu.append(time.thread_time() - gc_started[1])
+@dataclass
+class Measured:
+    """Everything the table says, taken over one drive."""
 
-    gc.callbacks.append(gc_watch)
-    threads_before = thread_cpu()
-    exclude = {os.getpid(), clients.pid}
-    others_before, clients_before = other_processes_cpu(exclude), child_cpu(clients.pid)
-    cpu_before, main_before = process_cpu(), time.thread_time()
-    wall_before = time.monotonic()
-    send_start_ns = time.time_ns()
-    start_at[0] = time.monotonic()
-    go.set()
-    # While the car drives, the harness samples how far behind the pipeline and the server are.
+    senders: list[Sender]
+    cpu: CpuUse
+    gc: GcWatch
+    lag_ms: list[float]
+    inbox: list[int]
+    drained: bool
+    stats: dict[str, Any]  # the server's ClientStats, by address
+    send_start_ns: int
+    window: tuple[int, int]
+    stages: dict[int, list[int]]  # time_scene_stages
+    files: list[Path]
+    analysis: DriveAnalysis
+    analyse_s: float
+    rss: tuple[float, float, float]  # before the bridge, peak, at the end (MB)
+
+
+def sample_while_driving(car: Car, bridge: Bridge) -> tuple[list[float], list[int]]:
+    """Every 50 ms while the car drives: how far behind the pipeline is (wall clock minus the
+    newest frame processed, ms) and the backlog of the server's inbox."""
     lag_ms: list[float] = []
     inbox: list[int] = []
-    while any(s.thread is not None and s.thread.is_alive() for s in senders):
+    while car.driving():
         time.sleep(0.05)
-        last = live.pipeline.last_ns
+        last = bridge.live.pipeline.last_ns
         if last is not None:
             lag_ms.append((time.time_ns() - last) / MS)
-        inbox.append(len(server._inbox))
-    for sender in senders:
-        assert sender.thread is not None
-        sender.thread.join()
-    send_end_ns = time.time_ns()
-    sent_total = sum(s.sent for s in senders)
-    stalled_address = addresses[-1]
+        inbox.append(len(bridge.server._inbox))
+    car.join()
+    return lag_ms, inbox
+
+
+def wait_delivered(bridge: Bridge, sent: int, stalled: str) -> bool:
+    """Wait (at most 60 s) until the pipeline has processed every frame sent and the server has
+    passed on everything queued for the reading clients: whether it did."""
+    from tests.waiting import wait_for
+
+    server = bridge.server
 
     def delivered() -> bool:
-        """Every frame processed, and the server has passed on all the readers' messages."""
-        return (live.pipeline.frames >= sent_total and not server._inbox
+        return (bridge.live.pipeline.frames >= sent and not server._inbox
                 and all(not c.queue for c in list(server._clients.values())
-                        if c.stats.address != stalled_address))
+                        if c.stats.address != stalled))
 
-    drained = wait_for(delivered, timeout=60, step=0.002)
-    wall_after = time.monotonic()
-    cpu_after, main_after = process_cpu(), time.thread_time()
-    threads_after = thread_cpu()
-    others_after, clients_after = other_processes_cpu(exclude), child_cpu(clients.pid)
-    gc.callbacks.remove(gc_watch)
-    names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+    return wait_for(delivered, timeout=60, step=0.002)
+
+
+def stop(bridge: Bridge, clients: Clients) -> None:
+    clients.stop()
+    bridge.live.stop()
+    bridge.runner.join(60)
+    bridge.server.stop()
+
+
+def measure(bridge: Bridge, clients: Clients, car: Car) -> Measured:
+    """Drive the car, time the window (senders start → everything passed on), stop everyone,
+    read the drive back: the senders stop first, then the clients, then the bridge."""
+    watch = GcWatch()
+    gc.callbacks.append(watch)
+    start = mark_start(clients.process.pid)
+    send_start_ns = time.time_ns()
+    car.drive()
+    lag_ms, inbox = sample_while_driving(car, bridge)
+    send_end_ns = time.time_ns()
+    drained = wait_delivered(bridge, car.sent, clients.stalled)
+    end = mark_end(clients.process.pid)
+    gc.callbacks.remove(watch)
+    cpu = cpu_use(start, end, car.senders, thread_names(car.senders))
     time.sleep(0.2)  # the idle timer's last scene reaches the clients
-    stats = {s.address: s for s in server.client_stats()}
-
-    clients.stdin.write("stop\n")
-    clients.stdin.flush()
-    clients.wait(30)
-    live.stop()
-    runner.join(60)
-    server.stop()
-    peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    rss_end = rss_now_mb()
-
-    # --- CPU ---
-    wall = wall_after - wall_before
-    sender_cpu = sum(s.cpu_s for s in senders)
-    process_delta = cpu_after - cpu_before
-    bridge_cpu = process_delta - sender_cpu - (main_after - main_before)
-    bridge_pct = 100 * bridge_cpu / wall
-    names.update({s.thread.native_id: s.thread.name for s in senders
-                  if s.thread is not None and s.thread.native_id is not None})
-    names[threading.main_thread().native_id or 0] = "harness (main thread)"
-    by_thread: dict[str, float] = {}
-    for tid, after in threads_after.items():
-        name = names.get(tid, f"thread {tid}")
-        by_thread[name] = by_thread.get(name, 0.0) + after - threads_before.get(tid, 0.0)
-    bridge_threads = sum(v for k, v in by_thread.items() if k.startswith("tankviz-"))
-
-    # --- frames, scenes, latency ---
-    data = json.loads(results.read_text())
-    readers = [c for c in data["clients"] if c["role"] == "reader"]
-    receipts = [scene_receipts(c) for c in readers]
+    stats = {s.address: s for s in bridge.server.client_stats()}
+    stop(bridge, clients)
+    rss = (bridge.rss_before, peak_rss_mb(), rss_now_mb())
+    receipts = [scene_receipts(c) for c in clients.readers()]
     window = (send_start_ns + round(WARMUP_S * NS), send_end_ns - round(TAIL_S * NS))
-    report = outcome.get("report")
-    files = list(report.files) if report is not None else sorted(drives.glob("*.mcap"))
+    report = bridge.outcome.get("report")
+    files = list(report.files) if report is not None else sorted(bridge.drives.glob("*.mcap"))
     t = time.perf_counter()
     analysis = analyse(files, receipts, window,
-                       {tick: noted[3] for tick, noted in stages.items()})
-    analyse_s = time.perf_counter() - t
-    drive_mb = sum(p.stat().st_size for p in files) / 1e6
+                       {tick: noted[3] for tick, noted in bridge.stages.items()})
+    return Measured(car.senders, cpu, watch, lag_ms, inbox, drained, stats, send_start_ns,
+                    window, bridge.stages, files, analysis, time.perf_counter() - t, rss)
 
-    # --- the table ---
-    rows: list[tuple[str, str, str, str]] = []
-    missed: list[str] = []
 
-    def row(metric: str, value: str, target: str = "", ok: bool | None = None,
-            miss: str = "") -> None:
-        rows.append((metric, value, target, "" if ok is None else ("ok" if ok else "MISSED")))
+# --- the run: the table -------------------------------------------------------------------------
+
+class Table:
+    """Rows (metric, value, target, ok?) and the targets missed."""
+
+    HEADER = ("metric", "value", "target", "ok?")
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, str, str, str]] = []
+        self.missed: list[str] = []
+
+    def row(self, metric: str, value: str, target: str = "", ok: bool | None = None) -> None:
+        self.rows.append((metric, value, target, "" if ok is None else ("ok" if ok else "MISSED")))
         if ok is False:
-            missed.append(miss or f"{metric}: {value} (target {target})")
+            self.missed.append(f"{metric}: {value} (target {target})")
 
-    for s in senders:
+    def print(self, caption: str) -> None:
+        width = [max(len(r[i]) for r in [*self.rows, self.HEADER]) for i in range(4)]
+        print()
+        print(caption)
+        line = "  ".join(f"{h:<{w}}" for h, w in zip(self.HEADER, width, strict=True))
+        print(line)
+        print("-" * len(line))
+        for r in self.rows:
+            print("  ".join(f"{c:<{w}}" for c, w in zip(r, width, strict=True)).rstrip())
+
+
+def sender_rows(table: Table, m: Measured, rate: float) -> None:
+    """Each sender's achieved rate, and the frames the drive recorded of what it sent (the
+    ``/can/<bus>/frames`` counts of the drive's summary)."""
+    for s in m.senders:
         achieved = s.sent / s.elapsed_s if s.elapsed_s else float("nan")
-        row(f"send rate {s.bus}", f"{achieved:,.0f} frames/s (max late {s.late_max_s * 1e3:.1f} "
-            f"ms)", f"{args.rate:,.0f} frames/s", abs(achieved - args.rate) <= 0.01 * args.rate)
-    for s in senders:
-        recorded = analysis.frames_by_bus.get(s.bus, 0)
-        row(f"frames recorded / sent {s.bus}", f"{recorded:,} / {s.sent:,}", "equal",
-            recorded == s.sent)
-    recorded_total = sum(analysis.frames_by_bus.values())
-    row("frames recorded / sent, total", f"{recorded_total:,} / {sent_total:,}", "equal",
-        recorded_total == sent_total)
-    row("bridge CPU (process - senders - harness)", f"{bridge_pct:.1f} % of one core",
-        f"< {CPU_TARGET:g} %", bridge_pct < CPU_TARGET)
-    row("  cross-check: bridge threads (/proc)", f"{100 * bridge_threads / wall:.1f} %")
-    row("  reference: bare python-can receive, same run", f"{bare_pct:.1f} %; bridge / bare "
-        f"receive = {bridge_pct / bare_pct:.2f}")
-    row("  reference: the pipeline alone, same run", f"{reference_pct:.1f} % ({reference_us:.1f} "
-        f"µs/frame); bridge / reference = {bridge_pct / reference_pct:.2f}")
-    row("  reference paced as live reads, same run", f"{paced_pct:.1f} % ({paced_us:.1f} "
-        f"µs/frame); bridge / paced = {bridge_pct / paced_pct:.2f}")
-    row("  senders (subtracted)", f"{100 * sender_cpu / wall:.1f} %")
+        table.row(f"send rate {s.bus}", f"{achieved:,.0f} frames/s (max late "
+                  f"{s.late_max_s * 1e3:.1f} ms)", f"{rate:,.0f} frames/s",
+                  abs(achieved - rate) <= 0.01 * rate)
+    for s in m.senders:
+        recorded = m.analysis.frames_by_bus.get(s.bus, 0)
+        table.row(f"frames recorded / sent {s.bus}", f"{recorded:,} / {s.sent:,}", "equal",
+                  recorded == s.sent)
+    recorded_total = sum(m.analysis.frames_by_bus.values())
+    sent_total = sum(s.sent for s in m.senders)
+    table.row("frames recorded / sent, total", f"{recorded_total:,} / {sent_total:,}", "equal",
+              recorded_total == sent_total)
+
+
+def cpu_rows(table: Table, cpu: CpuUse, refs: References) -> None:
+    """The bridge's CPU (:func:`cpu_use`), against the references (:func:`measure_references`)."""
+    bridge = cpu.bridge_pct
+    table.row("bridge CPU (process - senders - harness)", f"{bridge:.1f} % of one core",
+              f"< {CPU_TARGET:g} %", bridge < CPU_TARGET)
+    table.row("  cross-check: bridge threads (/proc)", f"{cpu.bridge_threads_pct:.1f} %")
+    table.row("  reference: bare python-can receive, same run", f"{refs.bare_pct:.1f} %; "
+              f"bridge / bare receive = {bridge / refs.bare_pct:.2f}")
+    table.row("  reference: the pipeline alone, same run", f"{refs.pipeline_pct:.1f} % "
+              f"({refs.pipeline_us:.1f} µs/frame); bridge / reference = "
+              f"{bridge / refs.pipeline_pct:.2f}")
+    table.row("  reference paced as live reads, same run", f"{refs.paced_pct:.1f} % "
+              f"({refs.paced_us:.1f} µs/frame); bridge / paced = {bridge / refs.paced_pct:.2f}")
+    table.row("  senders (subtracted)", f"{cpu.pct(cpu.senders):.1f} %")
+
+
+def latency_rows(table: Table, m: Measured, duration: float) -> None:
+    """Latency from a frame's timestamp to a reader having the scene that contains it
+    (:func:`analyse`): a frame sent just after a tick waits for the next one, so it spans
+    0 ... one scene period + the delivery delay; the target is p99 < period + 5 ms. Then the
+    scene delivery delay (receive - tick: the newest frame a scene can contain), per stretch
+    of the run, the latency of each scene's oldest frame, and where the delay goes."""
+    period_ms = 1000 / SCENE_RATE
     target_ms = period_ms + LATENCY_MARGIN_MS
-    hist = analysis.frame_latency
-    row("latency frame → scene at client p50", f"{hist.quantile_ms(0.5):.1f} ms")
-    row("latency frame → scene at client p99", f"{hist.quantile_ms(0.99):.1f} ms",
-        f"< {target_ms:g} ms ({period_ms:g} + {LATENCY_MARGIN_MS:g})",
-        hist.quantile_ms(0.99) < target_ms)
-    row("latency frame → scene at client max", f"{hist.max_ns / MS:.1f} ms")
-    row("  scene delivery (receive - tick) p50 / p99 / max",
-        f"{percentile(analysis.delivery_ms, 0.5):.1f} / "
-        f"{percentile(analysis.delivery_ms, 0.99):.1f} / "
-        f"{max(analysis.delivery_ms, default=float('nan')):.1f} ms")
+    hist, analysis = m.analysis.frame_latency, m.analysis
+    table.row("latency frame → scene at client p50", f"{hist.quantile_ms(0.5):.1f} ms")
+    table.row("latency frame → scene at client p99", f"{hist.quantile_ms(0.99):.1f} ms",
+              f"< {target_ms:g} ms ({period_ms:g} + {LATENCY_MARGIN_MS:g})",
+              hist.quantile_ms(0.99) < target_ms)
+    table.row("latency frame → scene at client max", f"{hist.max_ns / MS:.1f} ms")
+    table.row("  scene delivery (receive - tick) p50 / p99 / max", spread(analysis.delivery_ms))
     segment_s = 10 if duration > 10 else 2
     segments: dict[int, list[float]] = {}
     for tick, ms in zip(analysis.delivery_at, analysis.delivery_ms, strict=True):
-        segments.setdefault((tick - send_start_ns) // (segment_s * NS), []).append(ms)
-    row(f"  scene delivery p99 per {segment_s} s of the run",
-        " ".join(f"{percentile(v, 0.99):.0f}" for _, v in sorted(segments.items())) + " ms")
-    row("  oldest frame of a scene p50 / p99 / max",
-        f"{percentile(analysis.oldest_ms, 0.5):.1f} / "
-        f"{percentile(analysis.oldest_ms, 0.99):.1f} / "
-        f"{max(analysis.oldest_ms, default=float('nan')):.1f} ms")
-    lo, hi = window
+        segments.setdefault((tick - m.send_start_ns) // (segment_s * NS), []).append(ms)
+    table.row(f"  scene delivery p99 per {segment_s} s of the run",
+              " ".join(f"{percentile(v, 0.99):.0f}" for _, v in sorted(segments.items()))
+              + " ms")
+    table.row("  oldest frame of a scene p50 / p99 / max", spread(analysis.oldest_ms))
+    labels = ("tick → the pipeline starts the scene", "the scene is computed (perception tick)",
+              "serialised, recorded, handed to the server",
+              "server thread → client has the whole scene")
+    for label, part in zip(labels, delivery_parts(m), strict=True):
+        table.row(f"    where: {label}", spread(part))
+
+
+def delivery_parts(m: Measured) -> list[list[float]]:
+    """Where each scene's delivery delay goes (ms, scenes in the window): the tick to the
+    pipeline starting it, computing it, serialising + recording + handing it to the server
+    (:func:`time_scene_stages`), then the server and the network to the reader."""
+    lo, hi = m.window
     parts: list[list[float]] = [[], [], [], []]
-    for received_at in analysis.complete:
-        for tick, (start, computed, emitted, _) in stages.items():
+    for received_at in m.analysis.complete:
+        for tick, (start, computed, emitted, _) in m.stages.items():
             at = received_at.get(tick)
             if at is None or not emitted or not lo <= tick < hi:
                 continue
-            for i, ms in enumerate((start - tick, computed - start, emitted - computed,
+            for i, ns in enumerate((start - tick, computed - start, emitted - computed,
                                     at - emitted)):
-                parts[i].append(ms / MS)
-    row("    where: tick → the pipeline starts the scene",
-        f"{percentile(parts[0], 0.5):.1f} / {percentile(parts[0], 0.99):.1f} / "
-        f"{max(parts[0], default=float('nan')):.1f} ms")
-    row("    where: the scene is computed (perception tick)",
-        f"{percentile(parts[1], 0.5):.1f} / {percentile(parts[1], 0.99):.1f} / "
-        f"{max(parts[1], default=float('nan')):.1f} ms")
-    row("    where: serialised, recorded, handed to the server",
-        f"{percentile(parts[2], 0.5):.1f} / {percentile(parts[2], 0.99):.1f} / "
-        f"{max(parts[2], default=float('nan')):.1f} ms")
-    row("    where: server thread → client has the whole scene",
-        f"{percentile(parts[3], 0.5):.1f} / {percentile(parts[3], 0.99):.1f} / "
-        f"{max(parts[3], default=float('nan')):.1f} ms")
-    row("pipeline lag (now - newest frame processed) p50 / p99 / max",
-        f"{percentile(lag_ms, 0.5):.1f} / {percentile(lag_ms, 0.99):.1f} / "
-        f"{max(lag_ms, default=float('nan')):.1f} ms")
-    row("backlog max: server inbox", f"{max(inbox, default=0):,} messages")
-    full = [d for g, d in gc_pauses if g == 2]
-    row("garbage collections: all / full (gen 2), longest pause",
-        f"{len(gc_pauses):,} / {len(full)}, {1e3 * max((d for _, d in gc_pauses), default=0):.1f}"
-        " ms")
-    longest_gc = 1e3 * max((d for _, d in gc_pauses), default=0)
-    row("GC pauses > 5 ms (wall) / longest in CPU time",
-        f"{sum(d > 0.005 for _, d in gc_pauses)} / {1e3 * max(gc_cpu, default=0):.1f} ms",
-        "none > 5 ms", longest_gc <= 5.0)
-    got = [len(r) for r in analysis.complete]
-    row("scenes received complete by each reader",
-        f"{analysis.scenes_in_window - max(analysis.scenes_missed, default=0):,} / "
-        f"{analysis.scenes_in_window:,} in window "
-        f"({', '.join(f'{n:,}' for n in got)} in all; {analysis.scenes:,} emitted)",
-        "all", not any(analysis.scenes_missed) and analysis.frames_without_scene == 0)
-    reader_addresses = addresses[:-1]
-    dropped_readers = sum(stats[a].dropped for a in reader_addresses if a in stats)
-    row("messages dropped, reading clients", f"{dropped_readers:,}", "0", dropped_readers == 0)
-    stalled = stats.get(stalled_address)
-    row("messages dropped, stalled client (its own)",
-        f"{stalled.dropped:,} (sent {stalled.sent:,})" if stalled else "?", "> 0",
-        (stalled is not None and stalled.dropped > 0) if args.stalled_topics == "all" else None)
-    row("peak RSS (ru_maxrss)", f"{peak_rss:.0f} MB (before bridge {rss_before:.0f} MB, "
-        f"at end {rss_end:.0f} MB)")
-    row("drive written", f"{drive_mb:.0f} MB in {len(files)} file(s), "
-        f"{drive_mb / wall:.1f} MB/s")
-    if not drained:
-        row("bridge caught up within 60 s", f"{live.pipeline.frames:,} of {sent_total:,} frames"
-            f", server inbox {len(server._inbox):,}", "all", False)
+                parts[i].append(ns / MS)
+    return parts
 
-    width = [max(len(r[i]) for r in [*rows, ("metric", "value", "target", "ok?")])
-             for i in range(4)]
-    print()
-    print(f"window {wall:.1f} s (senders started → every frame processed, the scenes passed on); "
-          f"latency over {hist.count:,} frame deliveries (frames x {len(readers)} readers, "
-          f"{WARMUP_S:g} s warm-up and {TAIL_S:g} s tail left out)")
-    header = ("metric", "value", "target", "ok?")
-    line = "  ".join(f"{h:<{w}}" for h, w in zip(header, width, strict=True))
-    print(line)
-    print("-" * len(line))
-    for r in rows:
-        print("  ".join(f"{c:<{w}}" for c, w in zip(r, width, strict=True)).rstrip())
+
+def health_rows(table: Table, m: Measured, stalled_topics: str, clients: Clients) -> None:
+    """How the bridge kept up: the pipeline's lag and the server's backlog (sampled while the
+    car drove), GC pauses (:class:`GcWatch`; the target: none > 5 ms), the scenes each reader
+    got, the messages dropped."""
+    table.row("pipeline lag (now - newest frame processed) p50 / p99 / max", spread(m.lag_ms))
+    table.row("backlog max: server inbox", f"{max(m.inbox, default=0):,} messages")
+    pauses = m.gc.pauses
+    full = [d for g, d in pauses if g == 2]
+    table.row("garbage collections: all / full (gen 2), longest pause",
+              f"{len(pauses):,} / {len(full)}, {m.gc.longest_ms:.1f} ms")
+    table.row("GC pauses > 5 ms (wall) / longest in CPU time",
+              f"{sum(d > 0.005 for _, d in pauses)} / {1e3 * max(m.gc.cpu, default=0):.1f} ms",
+              "none > 5 ms", m.gc.longest_ms <= 5.0)
+    a = m.analysis
+    table.row("scenes received complete by each reader",
+              f"{a.scenes_in_window - max(a.scenes_missed, default=0):,} / "
+              f"{a.scenes_in_window:,} in window "
+              f"({', '.join(f'{len(r):,}' for r in a.complete)} in all; {a.scenes:,} emitted)",
+              "all", not any(a.scenes_missed) and a.frames_without_scene == 0)
+    dropped = sum(m.stats[a].dropped for a in clients.addresses[:-1] if a in m.stats)
+    table.row("messages dropped, reading clients", f"{dropped:,}", "0", dropped == 0)
+    stalled = m.stats.get(clients.stalled)
+    table.row("messages dropped, stalled client (its own)",
+              f"{stalled.dropped:,} (sent {stalled.sent:,})" if stalled else "?", "> 0",
+              (stalled is not None and stalled.dropped > 0) if stalled_topics == "all" else None)
+
+
+def resource_rows(table: Table, m: Measured, bridge: Bridge) -> None:
+    """Memory (``ru_maxrss`` of this process: bridge, senders and the prepared traffic, taken
+    before the drive is read back), the drive written, and whether the bridge caught up."""
+    before, peak, end = m.rss
+    table.row("peak RSS (ru_maxrss)", f"{peak:.0f} MB (before bridge {before:.0f} MB, "
+              f"at end {end:.0f} MB)")
+    drive_mb = sum(p.stat().st_size for p in m.files) / 1e6
+    table.row("drive written", f"{drive_mb:.0f} MB in {len(m.files)} file(s), "
+              f"{drive_mb / m.cpu.wall:.1f} MB/s")
+    if not m.drained:
+        sent = sum(s.sent for s in m.senders)
+        table.row("bridge caught up within 60 s", f"{bridge.live.pipeline.frames:,} of "
+                  f"{sent:,} frames, server inbox {len(bridge.server._inbox):,}", "all", False)
+
+
+def print_cpu_by_thread(cpu: CpuUse) -> None:
     print()
     print("CPU by thread over the window (% of one core, /proc/self/task/*/stat):")
-    for name, seconds in sorted(by_thread.items(), key=lambda kv: -kv[1]):
+    for name, seconds in sorted(cpu.by_thread.items(), key=lambda kv: -kv[1]):
         if seconds > 0:
-            print(f"  {name:<32} {100 * seconds / wall:5.1f} %")
-    print(f"  (process total {100 * process_delta / wall:.1f} %; bridge = process - senders "
-          f"{100 * sender_cpu / wall:.1f} % - harness {100 * (main_after - main_before) / wall:.1f}"
+            print(f"  {name:<32} {cpu.pct(seconds):5.1f} %")
+    print(f"  (process total {cpu.pct(cpu.process):.1f} %; bridge = process - senders "
+          f"{cpu.pct(cpu.senders):.1f} % - harness {cpu.pct(cpu.harness):.1f}"
           " %; clients run in another process)")
-    others = sum(cpu - others_before[pid] for pid, cpu in others_after.items()
-                 if pid in others_before)
     print(f"machine: {os.cpu_count()} CPUs; during the window this process used "
-          f"{100 * process_delta / wall:.0f} % of one CPU, the clients' process "
-          f"{100 * (clients_after - clients_before) / wall:.0f} %, other processes "
-          f"{100 * others / wall:.0f} % (those alive at both ends); load average "
+          f"{cpu.pct(cpu.process):.0f} % of one CPU, the clients' process "
+          f"{cpu.pct(cpu.clients):.0f} %, other processes "
+          f"{cpu.pct(cpu.others):.0f} % (those alive at both ends); load average "
           f"{os.getloadavg()[0]:.2f}")
-    if said:
-        print("bridge said: " + "; ".join(said))
-    print(f"(drive read back in {analyse_s:.1f} s)")
-    if args.cprofile and "profile" in outcome:
+
+
+def report(args: argparse.Namespace, duration: float, refs: References, m: Measured,
+           bridge: Bridge, clients: Clients) -> None:
+    """The table, the CPU by thread, what the bridge said, the profile, the targets missed."""
+    table = Table()
+    sender_rows(table, m, args.rate)
+    cpu_rows(table, m.cpu, refs)
+    latency_rows(table, m, duration)
+    health_rows(table, m, args.stalled_topics, clients)
+    resource_rows(table, m, bridge)
+    table.print(f"window {m.cpu.wall:.1f} s (senders started → every frame processed, the scenes "
+                f"passed on); latency over {m.analysis.frame_latency.count:,} frame deliveries "
+                f"(frames x {len(m.analysis.complete)} readers, {WARMUP_S:g} s warm-up and "
+                f"{TAIL_S:g} s tail left out)")
+    print_cpu_by_thread(m.cpu)
+    if bridge.said:
+        print("bridge said: " + "; ".join(bridge.said))
+    print(f"(drive read back in {m.analyse_s:.1f} s)")
+    if args.cprofile and "profile" in bridge.outcome:
         import pstats
 
-        profiled = pstats.Stats(outcome["profile"])
+        profiled = pstats.Stats(bridge.outcome["profile"])
         print_profile_summary(profiled)
         print("\ncProfile of the pipeline thread (thread CPU time; the profiler inflates it; "
               "top 25 by own time):")
         profiled.sort_stats("tottime").print_stats(25)
-    for m in missed:
-        print(f"TARGET MISSED: {m}")
-    tmp.cleanup()
+    for missed in table.missed:
+        print(f"TARGET MISSED: {missed}")
 
 
-def _everyone_wants() -> Any:
+def run(args: argparse.Namespace) -> None:
+    """The benchmark: set up, drive, measure, report."""
+    duration = 10.0 if args.quick else args.duration
+    print(f"tankviz live benchmark: {len(BUSES)} virtual buses x {args.rate:,.0f} frames/s for "
+          f"{duration:g} s, scene at {SCENE_RATE:g} Hz, 4 WebSocket clients (1 stalled)")
+    messages = prepared_traffic(args.traffic_s)
+    refs = measure_references(args)
+    # The prepared traffic is the harness's, not the bridge's: keep it out of the collector's
+    # view, so that the bridge's full collections cost what they would cost without it.
+    gc.freeze()
+    with tempfile.TemporaryDirectory(prefix="tankviz-bench-live-") as tmp:
+        bridge = start_bridge(Path(args.drives) if args.drives else Path(tmp), args.cprofile)
+        clients = start_clients(bridge.server, Path(tmp), args.stalled_topics)
+        channels = {bus: spec.channel or "" for bus, spec in zip(BUSES, bridge.specs, strict=True)}
+        car = start_car(channels, messages,
+                        args.rate, duration, args.batch_ms / 1000,
+                        threading.Barrier(len(BUSES) + 1), threading.Event())
+        if args.switch_interval:
+            sys.setswitchinterval(args.switch_interval / 1000)
+        measured = measure(bridge, clients, car)
+        report(args, duration, refs, measured, bridge, clients)
+
+
+# --- the pipeline alone: the references and --stages ---------------------------------------
+
+def _everyone_wants() -> Sink:
     """A stand-in server for --stages: a sink whose every channel has a subscriber; messages
     are counted."""
     from bridge.sinks.base import Sink
@@ -899,8 +1150,8 @@ def _everyone_wants() -> Any:
     return EveryoneWants()
 
 
-def pipeline_frames(messages: dict[str, list[Any]], count: int,
-                    frames_per_s: float = 12_000) -> list[Any]:
+def pipeline_frames(messages: dict[str, list[can.Message]], count: int,
+                    frames_per_s: float = 12_000) -> list[Frame]:
     """``count`` frames of the traffic as the pipeline gets them: the buses in turn, at
     ``frames_per_s`` (all buses) of log time."""
     from bridge.frame import Frame
@@ -917,7 +1168,7 @@ def pipeline_frames(messages: dict[str, list[Any]], count: int,
     return frames
 
 
-def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True,
+def pipeline_cost(frames: list[Frame], *, record: bool = True, health: bool = True,
                   profile: bool = True, serve: bool = True, paced: bool = False) -> float:
     """µs per frame of the pipeline alone in this thread (thread CPU time): at once, or
     ``paced``: in real time, read as the live loop reads (:class:`bridge.io.buses.ReadSchedule`:
@@ -931,7 +1182,7 @@ def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True
 
     decoder, loaded = load_stages([], "ecocar")
     # The stages one by one (--stages), so by hand here: the apps use bridge.pipeline.drive.
-    sinks = [_everyone_wants()] if serve else []
+    sinks: list[Any] = [_everyone_wants()] if serve else []
     if record:
         sinks.append(Recorder(io.BytesIO()))
     pipeline = Pipeline(decoder, profile=loaded if profile else None, scene_rate=SCENE_RATE,
@@ -958,50 +1209,58 @@ def pipeline_cost(frames: list[Any], *, record: bool = True, health: bool = True
     return (time.thread_time() - start) / len(frames) * 1e6
 
 
-def bare_receive_pct(messages: dict[str, list[Any]], rate: float, seconds: float,
+def bare_receive_pct(messages: dict[str, list[can.Message]], rate: float, seconds: float,
                      batch_s: float) -> float:
     """The fixed reference of issue #15: bare python-can receive of the same traffic on the same
     virtual buses, as % of one core: one thread per bus calling ``bus.recv`` in a loop, while
     the benchmark's own senders send at ``rate`` for ``seconds``; the receivers' thread CPU
     time over the wall time."""
-    import can
-
     pid = os.getpid()
-    go, start_at = threading.Event(), [0.0]
+    channels = {bus: f"bench-bare-{pid}-{bus}" for bus in BUSES}
+    go, done = threading.Event(), threading.Event()
     opened = threading.Barrier(2 * len(BUSES) + 1)
-    done = threading.Event()
     cpu: list[float] = []
-
-    def receive(bus_name: str) -> None:
-        bus = can.Bus(interface="virtual", channel=f"bench-bare-{pid}-{bus_name}")
-        opened.wait()
-        go.wait()
-        start = time.thread_time()
-        recv = bus.recv
-        while not done.is_set():
-            recv(0.1)  # a frame, or None after 0.1 s without one
-        cpu.append(time.thread_time() - start)
-        bus.shutdown()
-
-    receivers = [threading.Thread(target=receive, args=(b,), daemon=True) for b in BUSES]
-    senders = [Sender(b, f"bench-bare-{pid}-{b}", messages[b], rate, seconds, batch_s)
-               for b in BUSES]
+    receivers = [threading.Thread(target=_receive, args=(channel, opened, go, done, cpu),
+                                  daemon=True) for channel in channels.values()]
     for thread in receivers:
         thread.start()
-    for sender in senders:
-        sender.start(go, start_at, opened)
-    opened.wait()
-    start_at[0] = time.monotonic()
-    go.set()
-    for sender in senders:
-        assert sender.thread is not None
-        sender.thread.join()
-    wall = time.monotonic() - start_at[0]
+    car = start_car(channels, messages, rate, seconds, batch_s, opened, go)
+    car.drive()
+    car.join()
+    wall = time.monotonic() - car.start_at[0]
     time.sleep(0.05)  # the last frames are received
     done.set()
     for thread in receivers:
         thread.join(timeout=5)
     return 100 * sum(cpu) / wall
+
+
+def _receive(channel: str, opened: threading.Barrier, go: threading.Event,
+             done: threading.Event, cpu: list[float]) -> None:
+    """Receive on ``channel`` from ``go`` until ``done``; the thread's CPU time goes to ``cpu``."""
+    bus = can.Bus(interface="virtual", channel=channel)
+    opened.wait()
+    go.wait()
+    start = time.thread_time()
+    recv = bus.recv
+    while not done.is_set():
+        recv(0.1)  # a frame, or None after 0.1 s without one
+    cpu.append(time.thread_time() - start)
+    bus.shutdown()
+
+
+def references(args: argparse.Namespace) -> None:
+    """``--reference FRAMES``: print the pipeline's µs per frame at once and paced, and bare
+    receive's % of one core (:func:`measure_references` reads them)."""
+    messages = traffic(args.traffic_s)
+    frames = pipeline_frames(messages, args.reference, len(BUSES) * args.rate)
+    gc.freeze()
+    best = best_of({
+        "pipeline": lambda: pipeline_cost(frames),
+        "paced": lambda: pipeline_cost(frames, paced=True),
+        "bare": lambda: bare_receive_pct(messages, args.rate, 5.0, args.batch_ms / 1e3),
+    }, 3)
+    print(best["pipeline"], best["paced"], best["bare"])
 
 
 def stage_costs(frames_count: int) -> None:
@@ -1021,7 +1280,7 @@ def stage_costs(frames_count: int) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split(":")[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds of traffic (60)")
     parser.add_argument("--quick", action="store_true", help="10 s of traffic")
     parser.add_argument("--rate", type=float, default=4000.0, help="frames/s per bus (4000)")
@@ -1059,13 +1318,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return car_main([float(r) for r in args.car_rates.split(",")], args.car_seconds,
                         args.car_readers.split(","))
     if args.reference:
-        messages = traffic(args.traffic_s)
-        frames = pipeline_frames(messages, args.reference, len(BUSES) * args.rate)
-        gc.freeze()
-        print(min(pipeline_cost(frames) for _ in range(3)),
-              min(pipeline_cost(frames, paced=True) for _ in range(3)),
-              min(bare_receive_pct(messages, args.rate, 5.0, args.batch_ms / 1e3)
-                  for _ in range(3)))
+        references(args)
         return 0
     if args.stages:
         stage_costs(args.stages)

@@ -1,12 +1,10 @@
-"""``tools/bench_live.py --car``: ``tankviz live`` measured the way a car runs it (a report).
+"""``tankviz live`` measured the way a car runs it: the car's frames from another process.
 
 The car is another process (``tools/car_sender.py``: the simulated ecocar drive at ``--rate``
 frames/s over three udp_multicast groups, ``radar``, ``camera`` and ``chassis``, each frame
 stamped with the wall clock when sent); ``tankviz live --profile ecocar`` runs as a command of
 its own, recording into a temporary folder, and one viewer (another process: bench_live's
 ``--client`` with one reading client, and one stalled client subscribed to the scene) watches.
-Each rate runs twice, in the same run, alternately: with the buses read in a process of their
-own (the split) and in the pipeline's process (``TANKVIZ_LIVE_READER=here``, as before).
 
 Per run it prints: the CPU of each process of the bridge (``/proc/<pid>/stat``, utime + stime,
 over the sending window, % of one core, and µs per frame sent: what a loaded machine, which
@@ -16,11 +14,12 @@ tick after t; the receipt of that tick's last ``/scene/*`` message minus t; the 
 left out), and the frames recorded in the drive's MCAP against those sent. Goal (issue #36
 item 6): at 12k frames/s no process above 35 % of one core, p99 < 50 ms, every frame recorded.
 
-    python tools/bench_live.py --car [--car-rates 12000,6000] [--car-seconds 20]
+    python tools/bench_live_car.py [--rates 12000,6000] [--seconds 20]
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import os
@@ -38,17 +37,6 @@ PERIOD_NS = 20_000_000  # the scene period at 50 Hz
 WARMUP_NS = 500_000_000
 CPU_GOAL = 35.0
 P99_GOAL_MS = 50.0
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (utime + stime) of a process, 0 once it is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return 0.0
-    fields = stat[stat.rindex(")") + 2:].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def family(pid: int) -> list[int]:
@@ -74,16 +62,16 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-def run_once(rate: float, seconds: float, reader: str, run: int) -> dict[str, Any]:
-    """One run of live with the car at ``rate``; ``reader``: ``process`` or ``here``."""
-    from bench_live import scene_receipts, summary_frame_counts
+def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
+    """One run of live with the car at ``rate``."""
+    from bench_live import child_cpu, scene_receipts, summary_frame_counts
 
     from bridge.io.drives import ArchiveSource
 
     groups = groups_for(run)
     with tempfile.TemporaryDirectory(prefix="tankviz-car-") as tmp:
         drives = Path(tmp) / "drives"
-        env = {**os.environ, "TANKVIZ_LIVE_READER": reader, "PYTHONPATH": str(ROOT)}
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
         live = subprocess.Popen(
             [sys.executable, "-m", "bridge", "live", "--profile", "ecocar", "--port", "0",
              "--min-free", "0", "--drives", str(drives),
@@ -113,7 +101,7 @@ def run_once(rate: float, seconds: float, reader: str, run: int) -> dict[str, An
         assert car.stdout is not None and car.stdin is not None
         car.stdout.readline()  # READY
         pids = family(live.pid)
-        before = {pid: cpu_s(pid) for pid in pids}
+        before = {pid: child_cpu(pid) for pid in pids}
         began = time.monotonic()
         car.stdin.write("go\n")
         car.stdin.flush()
@@ -121,7 +109,7 @@ def run_once(rate: float, seconds: float, reader: str, run: int) -> dict[str, An
         sender = json.loads(car.stdout.readline())
         time.sleep(1.0)
         wall = time.monotonic() - began
-        used = {pid: cpu_s(pid) - before.get(pid, 0.0) for pid in family(live.pid)}
+        used = {pid: child_cpu(pid) - before.get(pid, 0.0) for pid in family(live.pid)}
         car.wait()
         clients.stdin.write("stop\n")
         clients.stdin.flush()
@@ -145,11 +133,11 @@ def run_once(rate: float, seconds: float, reader: str, run: int) -> dict[str, An
                     unseen += 1
                 else:
                     latencies.append((got[0] - t) / 1e6)
-    names = {pid: ("live" if pid == live.pid else "reader") for pid in used if used[pid] > 0.05}
+    names = {pid: ("live" if pid == live.pid else "child") for pid in used if used[pid] > 0.05}
     cpu = {f"{names[pid]} {pid}": 100 * used[pid] / wall for pid in names}
     frames = sum(sender["sent"].values())
     per_frame = {f"{names[pid]} {pid}": 1e6 * used[pid] / frames for pid in names}
-    return {"rate": rate, "reader": reader, "cpu": cpu, "sent": sender["sent"],
+    return {"rate": rate, "cpu": cpu, "sent": sender["sent"],
             "us_per_frame": per_frame, "achieved": frames / sender["seconds"],
             "recorded": recorded, "p50_ms": percentile(latencies, 0.5),
             "p99_ms": percentile(latencies, 0.99), "unseen": unseen,
@@ -167,7 +155,7 @@ def report(result: dict[str, Any]) -> list[str]:
         misses += [f"p99 {result['p99_ms']:.0f} ms"] if result["p99_ms"] >= P99_GOAL_MS else []
     misses += [f"{sent - recorded} frames not recorded"] if recorded != sent else []
     return [
-        f"{result['rate']:>6.0f} frames/s  reader {result['reader']:<7}  "
+        f"{result['rate']:>6.0f} frames/s  "
         + "  ".join(f"{name} {pct:4.1f}% ({result['us_per_frame'][name]:.1f} µs/frame)"
                     for name, pct in sorted(cpu.items()))
         + f"  sent {result['achieved']:.0f}/s"
@@ -176,15 +164,20 @@ def report(result: dict[str, Any]) -> list[str]:
         f"exit {result['exit']})  " + ("GOAL MISSED: " + "; ".join(misses) if misses else "ok")]
 
 
-def main(rates: list[float], seconds: float, readers: list[str]) -> int:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--rates", default="12000,6000", help="frames/s of the car, all buses")
+    parser.add_argument("--seconds", type=float, default=20.0, help="the car's drive, per run")
+    args = parser.parse_args(argv)
     sys.path.insert(0, str(TOOLS))
     sys.path.insert(0, str(ROOT))
-    print(f"tankviz live, car in another process (udp_multicast), {seconds:g} s per run; "
+    print(f"tankviz live, car in another process (udp_multicast), {args.seconds:g} s per run; "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    run = 0
-    for rate in rates:
-        for reader in readers:
-            run += 1
-            for line in report(run_once(rate, seconds, reader, run)):
-                print(line, flush=True)
+    for run, rate in enumerate((float(r) for r in args.rates.split(",")), 1):
+        for line in report(run_once(rate, args.seconds, run)):
+            print(line, flush=True)
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -42,7 +42,6 @@ import gc
 import resource
 import signal
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from functools import partial
@@ -54,12 +53,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchlib import (
-    asc_copy,
+    add_workdir,
     best_of,
     cpu_seconds,
     ecocar_frames,
     ecocar_log,
     interleaved,
+    log_copy,
     modules_at,
 )
 
@@ -169,7 +169,7 @@ class Timing:
 def hand_over(args: argparse.Namespace) -> None:
     old = old_module(args.ref)
     blf, _ = ecocar_log(args.workdir, args.frames, args.seed)
-    asc = asc_copy(blf)
+    asc = log_copy(blf, ".asc")
     print(f"read-ahead hand-over: {args.frames} simulated frames, old = {args.ref}'s "
           f"readahead.py, best of {args.runs}, interleaved (BATCH {new_module.BATCH})")
     inputs: dict[str, Path | list[Frame]] = {"memory": list(LogSource(blf)), "BLF": blf,
@@ -250,9 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only these inputs (default: all three)")
     parser.add_argument("--groups", action="store_true",
                         help="also time grouping rows by (bus, key), stdlib against numpy")
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench",
-                        help="where bench_convert's logs are cached")
+    add_workdir(parser, "where bench_convert's logs are cached")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
     hand_over(args)

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Issues #15 and #26's table as Markdown: run the benchmarks, write one comparable report.
+"""Issues #15 and #26's table and #36's budgets as Markdown: run the benchmarks, write one
+comparable report.
 
 Runs ``tools/bench_convert.py`` (in a subprocess, with every argument this script does not know
 passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs) and, with
@@ -13,6 +14,14 @@ passed on, e.g. ``--quick`` or ``--frames 5000``; its output is shown as it runs
   raw + decoded vs the naive converter, vs bare reading, archive size / BLF size, the share of a
   short convert spent importing, RSS growth, one hour of driving) and, with ``--live``, every
   bench_live row that has a target plus its CPU references and garbage-collection pauses;
+- issue #36's budgets (unless ``--no-budgets``), before (the code at ``--budgets-before``,
+  default 304ae15, the revision #36 starts from) and now, each with its goal, met or not,
+  measured by the benches' own functions, and printed at the end too: the archive (raw and
+  full archive / the log, ``tools/bench_size.py``, on the simulated BLF, the highway car and a
+  Toyota candump), the reading process (LogSource's own CPU over python-can's reader,
+  ``tools/bench_reading.py``) and start-up (a short convert / its imports and ``tankviz
+  --help``, ``tools/bench_startup.py``); ``--quick`` or ``--budget-frames``,
+  ``--budget-seconds``, ``--budget-runs`` make them smaller;
 - bench_live's whole table (with ``--live``) and bench_convert's details, verbatim.
 
 With ``--before REV`` the same benchmarks also measure the code at git revision REV, checked out
@@ -49,7 +58,7 @@ from typing import Any
 
 TOOLS = Path(__file__).resolve().parent
 sys.path.insert(0, str(TOOLS))
-from benchlib import interleaved, revision_env, worktree  # noqa: E402
+from benchlib import ROOT, add_workdir, interleaved, revision_env, worktree  # noqa: E402
 
 #: bench_live rows that go into the main table even though they have no target.
 LIVE_EXTRA = ("reference: the pipeline alone", "garbage collections")
@@ -107,9 +116,11 @@ def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | No
              live_text: str | None, header: dict[str, str],
              before: dict[str, Any] | None = None,
              live_before: list[tuple[str, str, str, str]] | None = None,
-             scene: list[tuple[str, str, str, str, str]] | None = None) -> str:
+             scene: list[tuple[str, str, str, str, str]] | None = None,
+             budgets: list[str] | None = None) -> str:
     """The report: header, the table (with a ``before`` column when the code at ``--before``
-    was measured too), the live table and the details."""
+    was measured too), issue #36's budgets (``budgets``: :func:`budgets_markdown`), the live
+    table and the details."""
     out = ["# tankviz speed and size", ""]
     out += [f"- **{k}:** {v}" for k, v in header.items()]
     out += ["", "Every figure is a ratio against reference code run in the same run, "
@@ -144,6 +155,8 @@ def markdown(convert: dict[str, Any], live: list[tuple[str, str, str, str]] | No
         if cpu is not None:
             out.append(line("live bridge CPU, now / before", f"{cpu:.2f}x", "≤ 0.7x",
                             "ok" if cpu <= 0.7 else "**missed**"))
+    if budgets:
+        out += ["", *budgets]
     if live is not None:
         out += ["", "## Live: tools/bench_live.py --quick", "",
                 "| metric | value | target | ok? |", "|---|---|---|---|"]
@@ -265,6 +278,80 @@ def run_ab(old: Path, env: dict[str, str], seconds: float = 60.0,
                          f"{wall_old / wall_new:.2f}x wall faster)", "", ""))
     return rows
 
+#: The revision issue #36 starts from: the ``before`` of its budgets.
+BUDGETS_BEFORE = "304ae15"
+#: A row of the budgets' table: (budget, before, now, goal, met).
+Budget = tuple[str, str, str, str, str]
+
+
+def _met(value: float, goal: float, *, below: bool = False) -> str:
+    return "ok" if (value < goal if below else value <= goal) else "**missed**"
+
+
+def run_budgets(rev: str | None, workdir: Path, frames: int, seconds: float,
+                runs: int) -> list[Budget]:
+    """Issue #36's three budgets, before (the code at ``rev``, when given) and now, with the
+    benches' own measuring code: the archive (tools/bench_size.py: raw and full archive / the
+    log, on the simulated ecocar BLF of ``frames`` frames, ``seconds`` of the highway car and of
+    a Toyota candump), the reading process (tools/bench_reading.py: LogSource's own CPU over
+    python-can's reader, per format, ``frames`` frames, LogSource of ``rev`` interleaved in the
+    same process) and start-up (tools/bench_startup.py: a short convert / its imports, and
+    ``tankviz --help``, ``rev``'s in its worktree, interleaved); best of ``runs``."""
+    import bench_reading
+    import bench_size
+    import bench_startup
+
+    def was(value: float | None) -> str:
+        return "—" if value is None else f"{value:.2f}x"
+
+    old = worktree(rev) if rev else None
+    env = revision_env(rev) if rev else None
+    rows: list[Budget] = []
+    print("#36 budgets: archive size (tools/bench_size.py)", flush=True)
+    for name, log, full in bench_size.budget_drives(workdir, frames, seconds):
+        raw_now, full_now = bench_size.archive_ratios(log, full, workdir, cwd=ROOT)
+        raw_old, full_old = (bench_size.archive_ratios(log, full, workdir, env, old)
+                             if old is not None else (None, None))
+        rows.append((f"archive, full (raw + decoded + scene) / log: {name}", was(full_old),
+                     f"{full_now:.2f}x", "≤ 4.0x", _met(full_now, 4.0)))
+        rows.append((f"archive, raw / log: {name}", was(raw_old), f"{raw_now:.2f}x", "≤ 1.0x",
+                     _met(raw_now, 1.0)))
+    print("#36 budgets: the reading process (tools/bench_reading.py)", flush=True)
+    old_source = bench_reading.log_source_at(rev) if rev else None
+    labels = {"blf": "BLF", "asc": "ASC", "log": "candump"}
+    for fmt, path in bench_reading.logs(workdir, frames).items():
+        best, n = bench_reading.measure(path, runs, old_source, "before", packing=False)
+        now = bench_reading.overhead(best)
+        then = bench_reading.overhead(best, "before") if old_source is not None else None
+        rows.append((f"reading, LogSource's own CPU / python-can's reader: {labels[fmt]}, "
+                     f"{n:,} simulated frames", was(then), f"{now:.2f}x",
+                     f"≤ {bench_reading.GOAL}x", _met(now, bench_reading.GOAL)))
+    print("#36 budgets: start-up (tools/bench_startup.py)", flush=True)
+    cpu, wall, meta = bench_startup.measure(runs=runs, ref=rev, workdir=workdir)
+    ratio = cpu["convert"] / cpu["imports"]
+    rows.append((f"start, a short convert ({meta['frames']:,} frames, --dbc ecocar) / "
+                 "python -c 'import can, cantools, mcap_protobuf.writer' (CPU)",
+                 was(cpu[f"convert at {rev}"] / cpu["imports"] if rev else None),
+                 f"{ratio:.2f}x", f"≤ {bench_startup.RATIO_GOAL}x",
+                 _met(ratio, bench_startup.RATIO_GOAL)))
+    help_then = (f"{cpu[f'help at {rev}']:.3f} s ({wall[f'help at {rev}']:.3f} s wall)"
+                 if rev else "—")
+    rows.append(("start, tankviz --help (CPU seconds; wall)", help_then,
+                 f"{cpu['help']:.3f} s ({wall['help']:.3f} s wall)",
+                 f"< {bench_startup.HELP_GOAL_S} s",
+                 _met(cpu["help"], bench_startup.HELP_GOAL_S, below=True)))
+    return rows
+
+
+def budgets_markdown(rows: list[Budget], rev: str | None) -> list[str]:
+    """The budgets' table, under its heading."""
+    before = f"the code at {rev}" if rev else "not measured"
+    out = [f"## Issue #36's budgets: before ({before}) and now", "",
+           "| budget (same run, same machine) | before | now | goal | met |",
+           "|---|---|---|---|---|"]
+    out += ["| " + " | ".join(_cell(c) for c in row[:4]) + f" | {row[4]} |" for row in rows]
+    return out
+
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
@@ -282,7 +369,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --before: rounds of those converts, best of (3)")
     parser.add_argument("--scene", action="store_true",
                         help="with --before: tools/bench_scene.py --ref REV too")
+    parser.add_argument("--quick", action="store_true",
+                        help="smaller budgets (and bench_convert --quick, passed on)")
+    add_workdir(parser, "where logs are cached and outputs written (passed on too)")
+    parser.add_argument("--no-budgets", action="store_true", help="leave issue #36's budgets out")
+    parser.add_argument("--budgets-before", metavar="REV", default=BUDGETS_BEFORE,
+                        help=f"the budgets' before: git revision REV ({BUDGETS_BEFORE})")
+    parser.add_argument("--budget-frames", type=int, metavar="N",
+                        help="simulated frames of the archive and reading budgets "
+                        "(200,000; --quick 50,000)")
+    parser.add_argument("--budget-seconds", type=float, metavar="S",
+                        help="seconds of the highway car and the Toyota (60; --quick 20)")
+    parser.add_argument("--budget-runs", type=int, metavar="N",
+                        help="interleaved rounds of the budgets' timings, best of (5; --quick 3)")
     args, convert_args = parser.parse_known_args(argv)
+    convert_args += ["--workdir", str(args.workdir), *(["--quick"] if args.quick else [])]
     load_before = os.getloadavg()[0]
     started = datetime.datetime.now(datetime.timezone.utc)
     before: dict[str, Any] | None = None
@@ -313,6 +414,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.scene and args.before is not None:
         scene = (scene or []) + run_scene(args.before)
         commands.append(f"tools/bench_scene.py --ref {args.before} --clock cpu")
+    budgets: list[str] | None = None
+    if not args.no_budgets:
+        rev: str | None = args.budgets_before
+        try:
+            worktree(args.budgets_before)
+        except subprocess.CalledProcessError:
+            print(f"warning: no git revision {args.budgets_before} here (a shallow clone?): "
+                  "the budgets are measured now only", file=sys.stderr)
+            rev = None
+        frames = args.budget_frames or (50_000 if args.quick else 200_000)
+        seconds = args.budget_seconds or (20.0 if args.quick else 60.0)
+        runs = args.budget_runs or (3 if args.quick else 5)
+        budgets = budgets_markdown(run_budgets(rev, args.workdir, frames, seconds, runs), rev)
+        commands.append(f"issue #36's budgets: {frames:,} frames, {seconds:g} s, best of {runs}, "
+                        f"before {rev or '—'} (tools/bench_size.py, bench_reading.py, "
+                        "bench_startup.py)")
     lo, hi = convert["load"]
     header = {
         "date": started.strftime("%Y-%m-%d %H:%M UTC"),
@@ -330,7 +447,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"{convert['frames'][2]:,} (real-format log)",
         "commands": "; ".join(f"`{c.strip()}`" for c in commands),
     }
-    args.out.write_text(markdown(convert, live, live_text, header, before, live_before, scene))
+    args.out.write_text(markdown(convert, live, live_text, header, before, live_before, scene,
+                                 budgets))
+    if budgets:
+        print("", *budgets, sep="\n")
     print(f"wrote {args.out}")
     return 0
 

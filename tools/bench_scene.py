@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import gc
 import hashlib
-import subprocess
 import sys
 import tempfile
 import time
@@ -46,13 +45,10 @@ from bridge.pipeline.drive import load_stages  # noqa: E402
 from bridge.profile.model import Profile  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "tools"))
-from benchlib import interleaved, modules_at  # noqa: E402
+from benchlib import interleaved, modules_at, simulated_logs  # noqa: E402
 
 #: One recorded call: ("feed", message, values, time) or ("tick", time).
 Call = tuple[Any, ...]
-DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
-
-
 def reference_perception(ref: str) -> types.ModuleType:
     """``bridge/pipeline/perception.py`` of git revision ``ref``, with every module of its
     ``bridge/scene`` and ``bridge/world`` packages (:func:`benchlib.modules_at`)."""
@@ -119,11 +115,7 @@ def main() -> int:
     same = True
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        for car, profile_name, ext in DRIVES:
-            log = folder / f"{car}.{ext}"
-            subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", car,
-                            "-o", str(log), "--duration", f"{args.duration:g}"],
-                           cwd=ROOT, check=True, capture_output=True)
+        for car, profile_name, log in simulated_logs(folder, args.duration):
             calls = record(log, profile_name, folder)
             profile = load_stages([], profile_name).profile
             assert profile is not None

@@ -18,6 +18,7 @@ It converts ``bridge/sim``'s ecocar drive on three buses (``benchlib.ecocar_log`
 ``--levels`` also re-compresses each archive's chunk contents at other zstd levels and chunk
 sizes, and prints size and compression time as ratios to the level and chunk size tankviz uses
 (zstandard's default level 3, 4 MiB), measured in the same run, best of 3.
+``budget_drives`` and ``archive_ratios`` measure issue #36's archive budget (tools/bench_report.py).
 
     python tools/bench_size.py                  # 650 s of driving (1.44 M frames)
     python tools/bench_size.py --frames 200000  # about 90 s, to iterate
@@ -29,9 +30,9 @@ import argparse
 import struct
 import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import ECOCAR_DBC, ecocar_log
+from benchlib import ECOCAR_DBC, ROOT, add_workdir, ecocar_log
 
 KINDS = {"raw": [], "raw + decoded": ["--dbc", str(ECOCAR_DBC)],
          "with scene": ["--profile", "ecocar"]}
@@ -49,10 +50,56 @@ _RECORD = struct.Struct("<BQ")
 _NAMES = {int(op): op.name for op in Opcode}
 
 
-def convert(log: Path, output: Path, extra: list[str]) -> None:
+def convert(log: Path, output: Path, extra: list[str], env: Mapping[str, str] | None = None,
+            cwd: Path | None = None) -> None:
+    """``tankviz convert`` of ``log``; ``env`` and ``cwd``: those of the code run (``python -m
+    bridge`` takes the package of the working folder first, e.g. a revision's worktree)."""
     command = [sys.executable, "-m", "bridge", "convert", str(log), "-o", str(output),
                "--quiet", "--force", *extra]
-    subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
+    subprocess.run(command, check=True, stderr=subprocess.DEVNULL,
+                   env=dict(env) if env is not None else None, cwd=cwd)
+
+
+def budget_drives(workdir: Path, frames: int, seconds: float, seed: int = 1
+                  ) -> list[tuple[str, Path, list[str]]]:
+    """Issue #36's three drives for its archive budget, each with the options of its full
+    archive: the simulated ecocar BLF of ``frames`` frames (cached; ``--profile ecocar``), the
+    highway car (``seconds`` of ``bridge/sim/highway``, BLF; ``--profile highway``) and a Toyota
+    candump (``seconds`` of tests/toyota_log.py's drive; raw + decoded with
+    ../shared/data/dbc/toyota_2017_pt.dbc, no profile), left out when that DBC is missing. The
+    highway and Toyota logs are written anew in ``workdir``."""
+    from bridge.sim.highway import simulate_highway
+    from bridge.sinks.can_log_writer import write_log
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    import toyota_log
+
+    blf, meta = ecocar_log(workdir, frames, seed)
+    drives = [(f"simulated ecocar BLF, {meta['frames']:,} frames", blf,
+               ["--profile", "ecocar"])]
+    highway = workdir / f"budget-highway-{seconds:g}s.blf"
+    write_log(simulate_highway(duration_s=seconds, seed=0), highway, ".blf")
+    drives.append((f"highway car BLF, {seconds:g} s", highway, ["--profile", "highway"]))
+    if toyota_log.TOYOTA_DBC.is_file():
+        toyota = toyota_log.write_log(toyota_log.toyota_drive(seconds),
+                                      workdir / f"budget-toyota-{seconds:g}s.log")
+        drives.append((f"Toyota candump, {seconds:g} s (raw + decoded: no profile)", toyota,
+                       ["--dbc", str(toyota_log.TOYOTA_DBC)]))
+    return drives
+
+
+def archive_ratios(log: Path, full: list[str], workdir: Path,
+                   env: Mapping[str, str] | None = None, cwd: Path | None = None
+                   ) -> tuple[float, float]:
+    """Issue #36's archive figures of ``log``: (raw archive, full archive converted with
+    ``full``) / the log's size, in bytes; ``env`` and ``cwd`` as :func:`convert` takes them."""
+    size = log.stat().st_size
+    ratios = []
+    for kind, extra in (("raw", []), ("full", full)):
+        output = workdir / f"budget-{log.stem}-{kind}.mcap"
+        convert(log, output, extra, env, cwd)
+        ratios.append(output.stat().st_size / size)
+    return ratios[0], ratios[1]
 
 
 def record_bytes(path: Path) -> Counter[str]:
@@ -174,8 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=1_440_000,
                         help="frames of the simulated drive (default: about 650 s)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--workdir", type=Path,
-                        default=Path(tempfile.gettempdir()) / "tankviz-bench")
+    add_workdir(parser)
     parser.add_argument("--levels", action="store_true",
                         help="also measure zstd levels and chunk sizes")
     parser.add_argument("--kinds", default=",".join(KINDS),

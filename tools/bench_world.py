@@ -40,7 +40,6 @@ import os
 import pstats
 import subprocess
 import sys
-import tempfile
 import time
 import types
 from collections.abc import Callable
@@ -54,6 +53,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchlib import (  # noqa: E402
     ECOCAR_DBC,
+    WORKDIR,
     best_of,
     ecocar_frames,
     ecocar_log,
@@ -192,7 +192,7 @@ def convert_figures(frames: int, seed: int, ref: str, repeat: int) -> None:
     per run (import time excluded): the working tree against the same tree with observe.py and
     perception.py of ``ref``, interleaved, best of ``repeat``; then each under cProfile, for the
     share of ``observe_latest``."""
-    workdir = Path(tempfile.gettempdir()) / "tankviz-bench"
+    workdir = WORKDIR
     workdir.mkdir(exist_ok=True)
     path, _ = ecocar_log(workdir, frames, seed)
     trees = {"reference": str(worktree(ref)), "current": "-"}

@@ -217,6 +217,16 @@ def ecocar_frames(frames: int, seed: int = 1) -> Iterator[Frame]:
         yield frame._replace(bus=bus.get(frame.arbitration_id, "can2"))
 
 
+def ecocar_drive(duration_s: float, seed: int = 1) -> Iterator[Frame]:
+    """Every frame of ``duration_s`` seconds of ``bridge/sim``'s ecocar drive, on the three buses
+    of :func:`ecocar_frames` (a drive of a given length, not a given frame count)."""
+    from bridge.sim.ecocar import simulate
+
+    bus = _bus_of_id()
+    for frame in simulate(duration_s=duration_s, seed=seed):
+        yield frame._replace(bus=bus.get(frame.arbitration_id, "can2"))
+
+
 def _simulator_version() -> str:
     digest = hashlib.sha256(ECOCAR_DBC.read_bytes())
     for path in sorted((ROOT / "bridge" / "sim").glob("*.py")):
@@ -265,14 +275,41 @@ def ecocar_log(workdir: Path, frames: int, seed: int = 1) -> tuple[Path, dict[st
     return path, meta | {"cached": False}
 
 
-def asc_copy(blf: Path) -> Path:
-    """The same frames as ``blf`` in Vector ASC (python-can's ASCWriter), cached beside it."""
-    path = blf.with_suffix(".asc")
+def log_copy(blf: Path, suffix: str) -> Path:
+    """The same frames as ``blf`` in another format, cached beside it: ``.asc`` (python-can's
+    ASCWriter) or ``.log`` (candump, its CanutilsLogWriter, channels named ``can0``...)."""
+    path = blf.with_suffix(suffix)
     if path.is_file():
         return path
-    partial = blf.with_name(f".{blf.stem}.asc.partial")
-    with can.ASCWriter(str(partial)) as writer:
-        for msg in can.LogReader(str(blf)):
+    partial = blf.with_name(f".{blf.stem}{suffix}.partial")
+    candump = suffix == ".log"
+    with (can.CanutilsLogWriter if candump else can.ASCWriter)(str(partial)) as writer:
+        for msg in can.BLFReader(str(blf)):
+            if candump:
+                msg.channel = f"can{msg.channel}"
             writer.on_message_received(msg)
     os.replace(partial, path)
     return path
+
+
+#: Where the benchmarks cache their logs and write their outputs, unless told (``--workdir``).
+WORKDIR = Path(tempfile.gettempdir()) / "tankviz-bench"
+
+
+def add_workdir(parser: Any, what: str = "where logs are cached") -> None:
+    """The ``--workdir`` option of a benchmark's ``argparse`` parser (default :data:`WORKDIR`)."""
+    parser.add_argument("--workdir", type=Path, default=WORKDIR, help=what)
+
+
+#: The simulated cars the health and scene benchmarks drive: (car, profile, log format).
+SIMULATED_DRIVES = (("ecocar", "ecocar", "asc"), ("highway", "highway", "blf"))
+
+
+def simulated_logs(folder: Path, seconds: float) -> Iterator[tuple[str, str, Path]]:
+    """Each of :data:`SIMULATED_DRIVES` simulated for ``seconds`` into ``folder`` (``tankviz
+    simulate``): the car, its profile's name and its log."""
+    for car, profile_name, ext in SIMULATED_DRIVES:
+        log = folder / f"{car}.{ext}"
+        subprocess.run([sys.executable, "-m", "bridge", "simulate", "--car", car, "-o", str(log),
+                        "--duration", f"{seconds:g}"], cwd=ROOT, check=True, capture_output=True)
+        yield car, profile_name, log

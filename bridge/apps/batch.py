@@ -1,12 +1,9 @@
 """``tankviz batch``: the work of ``tankviz convert`` over many drives at once, on Dask.
 
-``tankviz batch convert INPUTS… --out DIR`` converts CAN logs, ``tankviz batch rederive DRIVES…
---out DIR`` tankviz drives again; each drive (grouped and named by :mod:`bridge.fleet.batch`) is
-one Dask task running :func:`bridge.pipeline.convert.convert`, on a local cluster
-(``--workers``) or at ``--scheduler``. It prints one line per drive (``wrote``, ``skipped``,
-``failed`` with its one-line error) and a summary naming every drive with input issues; on a
-terminal, one progress line. An output that is one of the inputs is refused before anything
-runs. Exit status 0 when every drive is written or skipped, else 1.
+``batch convert`` converts CAN logs and ``batch rederive`` re-derives drives, one Dask task per
+drive (grouped and named by :mod:`bridge.fleet.batch`), on a local cluster or at
+``--scheduler``; one line per drive, a summary, exit status 0 when every drive is written or
+skipped, else 1.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """``tankviz bits``: the bit-change map of one id, or the bits that switch between two windows
 of time across every id.
 
-The map counts, per bit, the frames of the id that differ in it from the id's frame before (in
-the window); it is printed as a grid, a row per byte and a column per bit (bit 7 on the left, as
-a byte is written), each cell the share of frames that flipped it, shaded (in colour on a
-terminal that has it), and for a known id a letter per bit naming the signal that covers it.
+The map is a grid, a row per byte and a column per bit (bit 7 on the left), each cell the share
+of the id's frames that flipped that bit, with a letter per bit naming a known id's signal.
 """
 
 from __future__ import annotations

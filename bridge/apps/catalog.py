@@ -1,10 +1,8 @@
 """``tankviz catalog``: index an archive of drives into a DuckDB file, and ask it questions.
 
-``tankviz catalog DRIVES... -o CATALOG`` (re)indexes them (:func:`bridge.fleet.catalog.index`),
-printing one line per drive not indexed and a summary; exit status 1 when a drive failed (one
-being recorded is no failure). ``tankviz catalog query CATALOG "SQL"`` (or a canned question)
-prints the answer as a table, with the ``tankviz replay`` command and Foxglove time that open
-each row's moment.
+``tankviz catalog DRIVES... -o CATALOG`` (re)indexes them (:func:`bridge.fleet.catalog.index`);
+``tankviz catalog query CATALOG "SQL"`` prints an answer as a table, with the ``tankviz
+replay`` command and Foxglove time that open each row's moment.
 """
 
 from __future__ import annotations

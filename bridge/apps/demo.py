@@ -1,10 +1,8 @@
 """``tankviz demo``: the simulated ecocar drive, live.
 
-The simulated car (:class:`bridge.sim.car.SimulatedCar`) plays its drive onto a python-can
-``virtual`` bus in real time, and ``tankviz live`` runs on that bus: it serves Foxglove and
-records to ./drives, exactly as in a car (marks too: the Mark button, Enter in its terminal). On
-stop, the car stops first, so that every frame it sent is read and recorded. SIGHUP stops it as
-SIGTERM does (the drive is finished).
+The simulated car plays its drive onto a python-can ``virtual`` bus in real time and ``tankviz
+live`` runs on that bus, exactly as in a car; on stop (SIGHUP as SIGTERM) the car stops first, so
+every frame it sent is read and recorded.
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """The layout to import, as live, demo and replay name it at start.
 
-:func:`layout_hint`: for the bundled ecocar profile (:func:`is_bundled`: its bytes, wherever it
-was read from, with its bundled database), the bundled Tank Viz layout; for another profile, the
-layouts made for it in a folder (written there first by live when it records, never over a file,
-a failure one warning), else the ``tankviz layouts`` command that writes them
-(:func:`layouts_command`, quoted for a shell); without a profile, the commands that draft one and
-make its layouts.
+For the bundled ecocar profile the bundled Tank Viz layout, for another profile the layouts made
+for it in a folder or else the command that writes them (:func:`layout_hint`), and the bring-up
+line at a bus's first unknown id (:class:`BringupHint`).
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """``tankviz inspect``: what a drive archive holds, readable in a terminal.
 
-It prints the drive's times, marks, topics, attachments and decode statistics, and what its
-``tankviz`` metadata says (inputs, databases, clock steps, bus gaps, recording pauses, warnings,
-alarms, each sensor's lateral sign verdict, input issues told briefly by
-:func:`bridge.io.issues.summarize_issues`); other metadata records one entry a line. Every list
-cut short ends with ``… and N more``. A file that cannot be read is an
-:class:`~bridge.errors.InputError` saying why (:func:`bridge.io.unreadable.why_unreadable`).
+It prints the drive's times, marks, topics, attachments, decode statistics and what its
+``tankviz`` metadata says; every list cut short ends with ``… and N more``. A file that cannot
+be read is an :class:`~bridge.errors.InputError` saying why.
 """
 
 from __future__ import annotations

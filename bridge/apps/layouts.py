@@ -1,13 +1,9 @@
-"""``tankviz layouts``: the bundled layouts (``layouts/*.json``) listed and copied out, layouts
-made for a profile (``--profile P``), and the bring-up layout of a car without one
-(``--dbc ...``: :mod:`bridge.view.bringup`).
+"""``tankviz layouts``: the bundled layouts listed and copied out, layouts made for a profile
+(``--profile P``), and the bring-up layout of a car without one (``--dbc ...``).
 
-:func:`bundled_layouts` lists the bundled ones with their previews and panels in words
-(:func:`summarize`), :func:`select_layouts` picks some by name (an unknown name is an error),
-:func:`export_layouts` copies them into a folder, overwriting nothing unless forced. Every
-layout is read with :func:`load_layout`, which refuses (:class:`~bridge.errors.FileError`) a
-file that is missing, not JSON or not in Foxglove's layout format
-(:func:`bridge.view.check.check_format`).
+Nothing is overwritten unless forced, and every layout is read with :func:`load_layout`, which
+refuses (:class:`~bridge.errors.FileError`) a file that is missing, not JSON or not in
+Foxglove's layout format.
 """
 
 from __future__ import annotations

@@ -18,7 +18,6 @@ import contextlib
 import os
 import select
 import shlex
-import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -216,13 +215,6 @@ class TerminalMarks:
                 self.ask(MarkAsked(text, "", "terminal", "terminal"))
 
 
-def install_hangup(stop: Callable[[], None]) -> None:
-    """SIGHUP (the terminal or SSH session went away) stops the run as SIGTERM does: the drive
-    is finished."""
-    if hasattr(signal, "SIGHUP"):
-        signal.signal(signal.SIGHUP, lambda signum, frame: stop())
-
-
 def add_parser(sub: Subparsers) -> None:
     parser = sub.add_parser(
         "live", help="CAN buses in, Foxglove live, every drive recorded",
@@ -290,7 +282,6 @@ def _run_live(args: argparse.Namespace, buses: list[BusSpec], *,
             live.stop()
 
         install_stop_signals(stop)
-        install_hangup(stop)
         if args.run_for:
             timer = threading.Timer(args.run_for, stop)
             timer.daemon = True  # an error at start ends the process at once

@@ -196,13 +196,18 @@ def _run_for(text: str) -> float:
     return seconds_above_zero("--for", text)
 
 
+#: The signals that stop a command writing a file: a service stopped, the terminal closed.
+STOP_SIGNALS = (signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else []))
+
+
 def install_stop_signals(stop: Callable[[], None]) -> None:
-    """SIGINT and SIGTERM stop the live loop cleanly (files are finished)."""
+    """SIGINT, SIGTERM and SIGHUP (the terminal or SSH session went away) stop a live or replay
+    loop cleanly: its files are finished."""
     def handler(signum: int, frame: object) -> None:
         stop()
 
-    signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGINT, handler)
+    for signum in (signal.SIGINT, *STOP_SIGNALS):
+        signal.signal(signum, handler)
 
 
 class Stopped(BaseException):
@@ -211,10 +216,6 @@ class Stopped(BaseException):
     def __init__(self, signum: int) -> None:
         self.signum = signum
         super().__init__(f"stopped by {signal.Signals(signum).name}")
-
-
-#: The signals that stop a command writing a file: a service stopped, the terminal closed.
-STOP_SIGNALS = (signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else []))
 
 
 @contextlib.contextmanager

@@ -1,14 +1,9 @@
 """``tankviz profile``: start a vehicle profile from the databases, and check one.
 
-``tankviz profile new --dbc [BUS=]PATH ... -o car.toml`` writes the commented starting profile
-:func:`bridge.profile.draft.draft_profile` drafts (never over a file unless ``--force``) and says
-whether it loads or which ``# TODO:`` line stops it. ``tankviz profile check car.toml [--dbc
-...] [LOG ...]`` loads it and prints what it maps (:func:`format_mapping`); given logs, it runs
-them through a :class:`~bridge.pipeline.drive.Drive` without recording and prints per object
-group what was seen, per sensor the lateral-sign verdict, and the marks made
-(:func:`format_stats`, :func:`format_marks`); last come the warnings ``tankviz convert`` prints,
-so check is the one place to see everything. Exit status 0 when the profile is usable, 1 with
-the error otherwise.
+``profile new`` writes the commented starting profile :mod:`bridge.profile.draft` drafts and says
+whether it loads; ``profile check`` loads one, prints what it maps and, given logs, what each
+object group, sensor and mark rule made of them, then the warnings ``convert`` prints. Exit
+status 0 when the profile is usable, 1 with the error otherwise.
 """
 
 from __future__ import annotations

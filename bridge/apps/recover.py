@@ -1,16 +1,9 @@
 """``tankviz recover``: salvage what a power cut or a killed recorder left of a drive.
 
-:func:`recover` reads a cut or damaged MCAP record by record and writes every schema, channel,
-message (unchanged, in file order), metadata record and attachment it can read into a complete
-new MCAP, with a ``tankviz.recover`` record saying what was recovered, what was skipped and where
-and why reading stopped. A cut file gives exactly a prefix of its messages; damage that is not a
-cut loses only the damaged record (a chunk whose CRC fails: that chunk's messages, counted), the
-file's own indexes repairing or bounding it where the summary survived. A file that does not
-start with the MCAP magic is an :class:`~bridge.errors.InputError`, and nothing is written. The
-input is only read; the output appears only complete
-(:func:`bridge.sinks.outputs.atomic_output`). :mod:`bridge.apps.recover_salvage` reads and copies
-the records, :mod:`bridge.apps.recover_records` has the report (:class:`RecoverReport`) and the
-checks of a record.
+:func:`recover` copies every record of a cut or damaged MCAP it can read into a complete new
+MCAP, with a ``tankviz.recover`` record saying what was recovered, skipped, and where and why
+reading stopped: a cut file gives exactly a prefix of its messages, other damage loses only the
+damaged record. The input is only read; the output appears only complete.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """``tankviz replay``: a recorded drive (MCAP) or any CAN log, served live in real time.
 
-An MCAP is served as recorded; a CAN log goes through the pipeline as if it came from the bus;
-a drive given ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live
-(:func:`bridge.pipeline.rederive.rederive_stages`). The server publishes its time, so viewers
-follow log time. The input is read in a thread (:func:`~bridge.io.readahead.read_in_thread`), so
-``--for`` and SIGTERM/SIGINT end a replay within a twentieth of a second whatever a read does.
-``--start`` past the end is a :class:`~bridge.errors.UsageError` naming the drive's length;
-``--start mark:N`` or ``mark:TEXT`` starts :data:`MARK_LEAD_S` before that mark
-(:func:`mark_start_s`), and a mark not there is one line naming the drive's marks. It names the
-layout to import (:func:`drive_layout_hint`) and, at a first unknown id, the bring-up layout.
+An MCAP is served as recorded, a CAN log goes through the pipeline as if from the bus, a drive
+given ``--profile``, ``--dbc`` or ``--rederive`` is re-derived live. The server publishes its
+time, so viewers follow log time; ``--for`` and SIGTERM, SIGINT or SIGHUP (a closed terminal)
+end a replay within a twentieth of a second whatever a read does.
 """
 
 from __future__ import annotations
@@ -33,6 +28,7 @@ from mcap.records import Attachment, Chunk, DataEnd, Footer, Message
 from mcap.stream_reader import StreamReader
 
 from bridge.apps import hints, options
+from bridge.apps.live import output_may_vanish
 from bridge.apps.options import (
     Subparsers,
     add_run_for,
@@ -544,6 +540,12 @@ def _attached(path: Path) -> ArchiveContents:
 
 def _serve(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
            hint: hints.LayoutHint | None, unknown: hints.BringupHint) -> int:
+    with output_may_vanish():  # (a closed terminal ends the replay as SIGTERM does, quietly)
+        return _serving(args, mcap, stages, hint, unknown)
+
+
+def _serving(args: argparse.Namespace, mcap: list[Path], stages: Stages | None,
+             hint: hints.LayoutHint | None, unknown: hints.BringupHint) -> int:
     _check(args.speed, args.start)  # before a word is printed or a port taken
     for path in mcap:  # a file that is no MCAP at all (a drive cut as it was created)
         with path.open("rb") as stream:

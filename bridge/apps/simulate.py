@@ -1,13 +1,9 @@
 """``tankviz simulate``: a simulated drive written as a file.
 
-``--car`` chooses the car (:data:`CARS`: ``ecocar``, one bus, or ``highway``, two buses, on the
-road ``--road`` names). ``.mcap`` is the drive converted as ``tankviz convert`` would, with the
-car's bundled profile; any suffix python-can writes is a CAN log that reads back exactly the
-frames written, on the same buses (CSV and SQLite: one bus and no CAN FD flags, with a warning).
-A format that cannot hold the drive (:data:`CANNOT_HOLD`, :data:`CANNOT_HOLD_FD`) is refused,
-and the output checked, before anything is simulated. The output appears only complete, two runs
-never mix their bytes (:func:`bridge.sinks.outputs.publish`), and a run stopped by Ctrl+C,
-SIGTERM or SIGHUP leaves nothing behind.
+An ``.mcap`` is the drive converted as ``tankviz convert`` would, any other suffix python-can
+writes a CAN log that reads back exactly the frames written; a format that cannot hold the drive
+(:data:`CANNOT_HOLD`) is refused before anything is simulated, and the output appears only
+complete, also when the run is stopped.
 """
 
 from __future__ import annotations

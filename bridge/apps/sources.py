@@ -1,11 +1,9 @@
 """The source of the bring-up commands (``ids``, ``bits``, ``find-signal``): what ``convert``
 reads, read as ``convert`` reads it.
 
-Logs of any format python-can reads, or one recorded drive (its raw frames, decoded with its
-attached databases unless ``--dbc`` names others); the frames come packed
-(:class:`~bridge.packed.PackedFrames`) from the read-ahead
-(:class:`~bridge.io.readahead.ReadAhead`), a progress line on a terminal. Times on the command
-line are seconds from the source's first frame, the seconds ``tankviz replay --start`` takes.
+Logs of any format python-can reads, or one recorded drive (decoded with its attached databases
+unless ``--dbc`` names others), as packed frames from the read-ahead; times on the command line
+are seconds from the source's first frame, as ``tankviz replay --start`` takes them.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """``/can/bits``: the bit-change map of every id of every bus as one PNG, and its labels.
 
-The image (``foxglove.CompressedImage``, ``png``) has a header (legend, byte numbers) and a row
-per (bus, id), sorted, named at its left in the image's own pixels (:mod:`bridge.bringup.font`),
-and a column per bit: byte 0's bits 7 to 0, then byte 1's, up to :data:`MAX_BYTES`. A cell's
-colour is the share of the id's frames in the last second that flipped the bit, from near black
-(none) to white (every frame); bits that never changed are dark blue. At most :data:`MAX_ROWS`
-ids are drawn, unknown ones first, so the image stays within 1200 x 2500 pixels.
-``/can/bits/labels`` (``foxglove.ImageAnnotations``) holds the same texts at their places.
+A row per (bus, id), sorted and named in the image's own pixels, and a column per bit (byte 0's
+bits 7 to 0, then byte 1's, up to :data:`MAX_BYTES`); a cell's shade is the share of the id's
+frames in the last second that flipped the bit, never-changed bits dark blue. At most
+:data:`MAX_ROWS` ids, unknown ones first; ``/can/bits/labels`` holds the same texts at their places.
 """
 
 from __future__ import annotations

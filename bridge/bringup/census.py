@@ -1,10 +1,7 @@
 """What each (bus, id) of a source sends: frames, periods, lengths and how often each bit flips.
 
-A :class:`Census` is fed data frames as columns (:mod:`bridge.bringup.columns`) in as many
-pieces as come, and keeps per id a :class:`Tally`; :meth:`Census.rows` tells each id as an
-:class:`IdRow`, with its database message (or none) and the changing bits no signal covers. Gaps
-are kept whole, or those of the latest ``history`` pieces or ``window_ns``; a short payload
-counts its missing bytes as zeros; a clock stepping back gives no gap.
+A :class:`Census` is fed data frames as columns in as many pieces as come, and tells each id as
+an :class:`IdRow`, with its database message (or none) and the changing bits no signal covers.
 """
 
 from __future__ import annotations
@@ -31,6 +28,14 @@ def flips_of(payload: Bytes, before: Bytes | None = None) -> Array:
     changed = np.bitwise_xor(rows[1:], rows[:-1])
     flips: Array = np.unpackbits(changed, axis=1, bitorder="little").sum(axis=0, dtype=np.int64)
     return flips
+
+
+def _zero_padded(counts: Array, size: int) -> Array:
+    """``counts`` followed by zeros up to ``size`` (``np.pad``'s result, for a tenth of its
+    time: an id's first piece makes two of them)."""
+    out = np.zeros(size, dtype=counts.dtype)
+    out[:len(counts)] = counts
+    return out
 
 
 def _widen(payload: Bytes, width: int) -> Bytes:
@@ -68,8 +73,8 @@ class Tally:
         width = max(payload.shape[1], len(self.flips) // 8)
         payload = _widen(payload, width)
         if len(self.flips) < width * 8:
-            self.flips = np.pad(self.flips, (0, width * 8 - len(self.flips)))
-            self.recent = np.pad(self.recent, (0, width * 8 - len(self.recent)))
+            self.flips = _zero_padded(self.flips, width * 8)
+            self.recent = _zero_padded(self.recent, width * 8)
         before = None if self.last is None else _widen(self.last[None, :], width)
         flips = flips_of(payload, before)
         self.flips += flips
@@ -176,7 +181,11 @@ def gap_figures(gaps: Array) -> tuple[float | None, float | None, float | None]:
 
 
 class Census:
-    """Every id's :class:`Tally` of the frames fed so far."""
+    """Every id's :class:`Tally` of the frames fed so far.
+
+    Gaps are kept whole, or those of the latest ``history`` pieces or ``window_ns``; a short payload
+    counts its missing bytes as zeros; a clock stepping back gives no gap.
+    """
 
     def __init__(self, *, history: int | None = None, window_ns: int | None = None) -> None:
         #: how many pieces of gaps an id keeps (None: all), and of how long before its latest
@@ -219,10 +228,12 @@ class Census:
                 before[s] = 0
                 before[s, :len(tally.last)] = tally.last
         changed = payload ^ before
+        # each id's rows unpacked and summed: a third of the time of eight add.reduceat calls
+        # over every row, which accumulating uint8 into int64 along the rows makes slow
         flips = np.zeros((len(starts), width * 8), dtype=np.int64)
-        for bit in range(8):
-            flips[:, bit::8] = np.add.reduceat((changed >> bit) & 1, starts, axis=0,
-                                               dtype=np.int64)
+        for i, (s, e) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            flips[i] = np.unpackbits(changed[s:e], axis=1, bitorder="little").sum(
+                axis=0, dtype=np.int64)
         t = columns.t[order]
         since = np.empty_like(t)
         since[1:] = t[:-1]
@@ -249,8 +260,8 @@ class Census:
                                               strict=True)):
             w = max(widest[i], len(tally.flips) // 8)
             if len(tally.flips) < w * 8:
-                tally.flips = np.pad(tally.flips, (0, w * 8 - len(tally.flips)))
-                tally.recent = np.pad(tally.recent, (0, w * 8 - len(tally.recent)))
+                tally.flips = _zero_padded(tally.flips, w * 8)
+                tally.recent = _zero_padded(tally.recent, w * 8)
             these_flips = flips[i, :w * 8]
             tally.flips += these_flips
             tally.recent += these_flips

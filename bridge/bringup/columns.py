@@ -1,10 +1,8 @@
 """Data frames as numpy columns, grouped per (bus, id).
 
-:func:`data_frames` takes the rows of a :class:`~bridge.packed.PackedFrames` (all, or a range) that
-carry data (error and remote frames carry none and are left out) as :class:`Columns`: times,
-bus names, frame keys, and the payloads as one ``uint8`` matrix, a row per frame, zero-padded to
-the longest payload. :func:`by_id` gives each (bus, key)'s rows of it, in their order;
-:func:`concat` makes one of several, in order.
+:func:`data_frames` gives the rows of a :class:`~bridge.packed.PackedFrames` that carry data as
+:class:`Columns` (times, buses, frame keys, payloads as one zero-padded ``uint8`` matrix);
+:func:`by_id` and :func:`concat` split and join them, in order.
 """
 
 from __future__ import annotations
@@ -63,12 +61,14 @@ def data_frames(pack: PackedFrames, i: int = 0, j: int | None = None) -> Columns
         t, bus, key, starts, length = t[keep], bus[keep], key[keep], starts[keep], length[keep]
     data = np.frombuffer(pack.data, dtype=np.uint8)
     width = int(length.max()) if len(length) else 0
-    if width == 0:
-        payload = np.zeros((len(t), 0), dtype=np.uint8)
-    else:
-        at = starts[:, None] + np.arange(width)
-        inside = np.arange(width) < length[:, None]
-        payload = np.where(inside, data[np.minimum(at, len(data) - 1)], 0).astype(np.uint8)
+    payload = np.zeros((len(t), width), dtype=np.uint8)
+    # the rows of each length at once: their own bytes, not the widest row's for every row (a
+    # few 64-byte FD frames among 8-byte ones made it 8 times the work)
+    # (the lengths present by a count of each: np.unique imports numpy.ma, 7 ms of a start)
+    for size in np.flatnonzero(np.bincount(length)).tolist():
+        if size:
+            rows = np.flatnonzero(length == size)
+            payload[rows, :size] = data[starts[rows, None] + np.arange(size)]
     return Columns(t, pack.buses, bus, key, payload, length)
 
 

@@ -1,10 +1,8 @@
 """Bits that switch between two moments: steady in one window of time, steady at the other
 value in another ("always 0 while I did not press the brake, always 1 while I did").
 
-A :class:`Steadiness` keeps per id and window the AND and the OR of its payloads: a bit is
-steady where they agree. An id needs :data:`MIN_FRAMES` frames in each window, and a bit that
-flips at a steady rhythm over the whole source (:data:`RHYTHM_FLIPS`, :data:`RHYTHM_SPREAD`) is a
-counter's, never a switch.
+An id needs :data:`MIN_FRAMES` frames in each window, and a bit that flips at a steady rhythm
+over the whole source is a counter's, never a switch.
 """
 
 from __future__ import annotations
@@ -113,7 +111,8 @@ class _Rhythm:
 
 class Steadiness:
     """Per id, the AND and OR of its payloads in each of two windows (log times, ns), and the
-    rhythm of its bits over the whole source."""
+    rhythm of its bits over the whole source; a bit is steady in a window where they agree.
+    """
 
     def __init__(self, first: tuple[int, int], second: tuple[int, int]) -> None:
         self.windows = (first, second)

@@ -1,11 +1,9 @@
 """Fields found as DBC text: ``BO_`` and ``SG_`` lines to paste, or a whole file that
 ``--dbc`` loads.
 
-A field becomes a signal of a message named for its id (``ID_2C4``; a 29-bit id ``ID_18FEF100``,
-with the DBC's extended bit set in its ``BO_`` number), with the fitted scale and offset
-rounded to six significant digits and the range its raw values can take. A file is for one bus
-(the best field's): one message per id, with every field of it that overlaps none before it,
-best first.
+A field becomes a signal of a message named for its id (``ID_2C4``, ``ID_18FEF100`` with the
+extended bit set in its ``BO_`` number), its fitted scale and offset rounded to six significant
+digits, its range the one its raw values can take.
 """
 
 from __future__ import annotations

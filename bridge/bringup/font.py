@@ -1,13 +1,14 @@
 """A 5 x 7 pixel font, to write labels into an image's own pixels (every viewer shows them, at
 any size the image is drawn).
 
-Digits (a zero as round as an O: read as one by people and OCR alike, in ``0x2C4``), capital
-letters, a small ``x`` (``0x2C4``) and ``_ - . / : # , ( )``; other small letters are
-written as capitals, anything else as a blank. A glyph is 5 pixels wide and 7 high; text
-advances 6 pixels a character (times ``scale``).
+Digits (a zero as round as an O, for people and OCR alike), capitals, a small ``x`` and
+``_ - . / : # , ( )``; other small letters are written as capitals, anything else as a blank.
+Text advances 6 pixels a character (times ``scale``).
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -81,20 +82,28 @@ def text_width(text: str, scale: int = 1) -> int:
     return max(0, len(text) * ADVANCE - 1) * scale
 
 
+@lru_cache(maxsize=4096)
+def text_mask(text: str, scale: int = 1) -> npt.NDArray[np.bool_]:
+    """The pixels ``text`` sets, :func:`text_width` across and ``GLYPH_HEIGHT * scale`` down
+    (read-only: a label drawn again and again is made once)."""
+    small = np.zeros((GLYPH_HEIGHT, max(0, len(text) * ADVANCE - 1)), dtype=bool)
+    for i, char in enumerate(text):
+        shape = glyph(char)
+        if shape is not None:
+            small[:, i * ADVANCE:i * ADVANCE + GLYPH_WIDTH] = shape
+    big = small.repeat(scale, axis=0).repeat(scale, axis=1)
+    big.setflags(write=False)
+    return big
+
+
 def draw_text(canvas: npt.NDArray[np.uint8], x: int, y: int, text: str, value: int, *,
               scale: int = 1) -> None:
     """Write ``text`` into ``canvas`` (a 2-D array of colour indices) with its top left corner
     at ``(x, y)``, its pixels set to ``value``; what falls outside the canvas is cut."""
     height, width = canvas.shape
-    for i, char in enumerate(text):
-        shape = glyph(char)
-        if shape is None:
-            continue
-        big = np.kron(shape, np.ones((scale, scale), dtype=bool))
-        left, top = x + i * ADVANCE * scale, y
-        right, bottom = min(width, left + big.shape[1]), min(height, top + big.shape[0])
-        if left >= width or top >= height or right <= max(left, 0) or bottom <= max(top, 0):
-            continue
-        part = big[max(0, -top):bottom - top, max(0, -left):right - left]
-        region = canvas[max(top, 0):bottom, max(left, 0):right]
-        region[part] = value
+    big = text_mask(text, scale)
+    right, bottom = min(width, x + big.shape[1]), min(height, y + big.shape[0])
+    if x >= width or y >= height or right <= max(x, 0) or bottom <= max(y, 0):
+        return
+    part = big[max(0, -y):bottom - y, max(0, -x):right - x]
+    canvas[max(y, 0):bottom, max(x, 0):right][part] = value

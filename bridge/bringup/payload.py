@@ -1,10 +1,8 @@
 """``/can/<bus>/unknown``'s messages, ``tankviz.CanPayload`` (schemas/bringup.proto), written in
-protobuf's wire format by hand: byte for byte what ``SerializeToString`` gives
-(tests/test_bringup_topics.py).
+protobuf's wire format by hand: byte for byte what ``SerializeToString`` gives.
 
-A message is its id field (made once per id), then the payload's bytes, its big-endian and its
-little-endian 16-bit words as packed fields of varints. Up to :data:`CACHE_SIZE` repeating
-payloads an id are remembered, then forgotten at once.
+A message is its id field, then the payload's bytes, its big-endian and its little-endian 16-bit
+words as packed fields of varints.
 """
 
 from __future__ import annotations
@@ -12,7 +10,7 @@ from __future__ import annotations
 import struct
 
 from bridge.bringup.columns import id_text
-from bridge.protowire import varint
+from bridge.protowire import ONE_BYTE, string, varint
 
 #: Payloads remembered per id (their messages), then forgotten all at once.
 CACHE_SIZE = 512
@@ -27,13 +25,12 @@ class _Varints(dict[int, bytes]):
         return made
 
 
-_VARINTS = _Varints((v, bytes((v,))) for v in range(0x80))
+_VARINTS = _Varints(enumerate(ONE_BYTE))
 
 
 def id_field(key: int) -> bytes:
     """The ``id`` field of a frame key's messages (``0x2C4``)."""
-    text = id_text(key).encode()
-    return b"\x0a" + varint(len(text)) + text
+    return string(b"\x0a", id_text(key))
 
 
 def encode(head: bytes, data: bytes) -> bytes:
@@ -72,7 +69,9 @@ def _words(n: int) -> tuple[struct.Struct, struct.Struct, struct.Struct, struct.
 
 
 class PayloadWriter:
-    """One id's messages: its id field, and the payloads it sent lately remembered."""
+    """One id's messages: its id field (made once), and the payloads it sent lately remembered
+    (up to :data:`CACHE_SIZE`, then all forgotten at once).
+    """
 
     __slots__ = ("_cache", "head")
 

@@ -1,13 +1,9 @@
 """Find the field of unknown ids that follows a known quantity: every start bit, length (1 to
 32 bits), byte order and sign of each id's payloads, fitted against a reference.
 
-The reference (a decoded signal, or a CSV of times and values) is interpolated to each frame's
-time; a field is fitted as ``reference ≈ scale * raw + offset`` by least squares and ranked by
-R². Constant fields, shifted or padded variants of a field, counters (:data:`COUNTER_SHARE`),
-checksums and other jumping fields (:data:`NOISE_STEP`), flags (unless the reference has two
-values) and fields that swallow a lower neighbour's bits (:data:`LOW_BIT_SHARE`) never win; of
-fields sharing a bit, only the best is told. An id with more than :data:`MAX_ROWS` frames in the
-reference's span is sampled evenly.
+Each field is fitted as ``reference ≈ scale * raw + offset`` by least squares and ranked by R²;
+counters, checksums, flags and shifted variants never win, and of fields sharing a bit only the
+best is told.
 """
 
 from __future__ import annotations
@@ -240,7 +236,15 @@ def _refusal(values: Array, length: int, signed: bool, ref_values: int) -> str |
 
 def search(samples: dict[tuple[str, int], tuple[Array, Bytes]], reference: Reference, *,
            top: int = 5) -> Search:
-    """Rank the fields of each id's ``(times, payloads)`` against ``reference``."""
+    """Rank the fields of each id's ``(times, payloads)`` against ``reference``.
+
+    The reference is interpolated to each frame's time. Constant fields, shifted or padded
+    variants of a field, counters (:data:`COUNTER_SHARE`), checksums and other jumping fields
+    (:data:`NOISE_STEP`), flags (unless the reference has two values) and fields that swallow a
+    lower neighbour's bits (:data:`LOW_BIT_SHARE`) never win; of fields sharing a bit, only the
+    best is told. An id with more than :data:`MAX_ROWS` frames in the reference's span is sampled
+    evenly.
+    """
     ref_values = len(np.unique(reference.value))
     found: list[Candidate] = []
     refused: dict[str, int] = {}

@@ -6,8 +6,9 @@ message, which a message whose payloads never repeat stops using for a while). A
 decoded by the message's precompiled decoder where it has one
 (:func:`bridge.decode.compiled.compile_decoder`: cantools' very result), else by cantools, and
 encoded by the message's precompiled encoder (:func:`bridge.decode.proto_schema.compile_encoder`),
-byte for byte protobuf's own encoding. A float signal that decodes to +inf, -inf or NaN is kept
-as it came and named in :attr:`Decoded.non_finite`.
+byte for byte protobuf's own encoding; a payload shorter than the message is the message of its
+:attr:`MessageCodec.short` codec (its own topic and type, every signal optional). A float signal
+that decodes to +inf, -inf or NaN is kept as it came and named in :attr:`Decoded.non_finite`.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from bridge.decode.compiled import DecodeColumn
 from bridge.decode.database import DatabaseFile
 from bridge.decode.j1939 import address_suffix
 from bridge.decode.proto_schema import MessageSchema
-from bridge.topics import message_topic
+from bridge.topics import message_topic, short_topic
 
 #: Distinct payloads remembered per message; real traffic repeats many (status, static objects).
 #: 256 holds every payload of a static message with an 8-bit rolling counter; more hit no more
@@ -70,7 +71,7 @@ class MessageCodec:
     """
 
     def __init__(self, message: DbcMessage, database: DatabaseFile,
-                 schema: Callable[[], MessageSchema], bus: str,
+                 schema: Callable[..., MessageSchema], bus: str,
                  decoder: Callable[[], Callable[[bytes], Any]],
                  column_decoder: Callable[[], DecodeColumn | None] | None = None, *,
                  j1939_id: int | None = None, derived: bool = False) -> None:
@@ -115,10 +116,21 @@ class MessageCodec:
         self._decode = self._decoder()
         return self._decode(data)
 
+    @cached_property
+    def short(self) -> MessageCodec:
+        """The codec of the message's frames shorter than it (which may lack any signal): its
+        own topic (:func:`bridge.topics.short_topic`) and type (every field ``optional``,
+        :class:`MessageSchema` ``short``); its frames are counted by this codec."""
+        codec = MessageCodec(self.message, self.database, partial(self._schema, short=True),
+                             self.bus, self._decoder, j1939_id=self.j1939_id, derived=True)
+        codec.topic = short_topic(self.topic)
+        return codec
+
     def _first_encode(self, signals: Mapping[str, Any]) -> bytes:
         encode = self.schema.encode
         if self.j1939_id is not None:
-            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses))
+            suffix = address_suffix(self.j1939_id, tuple(n for _, n in self.schema.addresses),
+                                    implicit=not self.schema.short)
             self._encode = lambda s: encode(s) + suffix
         else:
             self._encode = encode
@@ -126,9 +138,11 @@ class MessageCodec:
 
     def decode(self, data: bytes) -> Decoded:
         """Decode one payload; raises whatever cantools raises for a payload it cannot decode."""
+        into = self
         if len(data) != self.length:
             if len(data) < self.length:
                 self.truncated += 1
+                into = self.short
             else:
                 self.longer += 1
                 self.longest = max(self.longest, len(data))
@@ -143,7 +157,7 @@ class MessageCodec:
                if self.floats else ())
         if bad:
             self.non_finite.update(bad)
-        result = Decoded(self, signals, self._encode(signals), bad)
+        result = Decoded(into, signals, into._encode(signals), bad)
         self.decoded += 1
         if self.caching:
             if len(self._cache) >= _CACHE_SIZE:
@@ -209,7 +223,10 @@ class MessageCodec:
                     signals = cast("dict[str, Any]", decode(data))
                 bad = (tuple(n for n in floats if not math.isfinite(signals.get(n, 0.0)))
                        if floats else ())
-                result = _new_decoded((self, signals, encode(signals), bad))
+                if len(data) < length:
+                    result = _new_decoded((self.short, signals, self.short._encode(signals), bad))
+                else:
+                    result = _new_decoded((self, signals, encode(signals), bad))
             except Exception as exc:  # decode() raises it: the caller counts it
                 results[data] = exc
                 failed = True

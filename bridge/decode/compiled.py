@@ -1,25 +1,13 @@
 """A precompiled decoder per DBC message: cantools' own decoding, without its per-signal calls.
 
-cantools decodes a payload in two steps: its compiled bitstruct formats unpack every raw value
-(C, fast), then a Python loop calls each signal's conversion (``raw * scale + offset``) and fills
-a dict, about two thirds of its time. :func:`compile_decoder` writes that loop out once per
-message as one generated function: the same bitstruct formats of the message (cantools' own
-objects, taken from the message), and each signal's scale and offset (the very objects of its
-conversion, so an ``int`` scaling stays ``int`` arithmetic) in one dict literal in cantools'
-signal order. The result is equal to ``message.decode(data, decode_choices=False,
-allow_truncated=True)``, key order and value types included (tests/test_decode_compiled.py
-checks it on every message of the bundled and public DBCs, with random payloads).
-
-Only the plain case is compiled: a message that is not multiplexed and not a container, a
-payload of exactly the message's length, and conversions of the three kinds cantools uses for
-numbers (identity, linear, linear integer, also under a value table). Everything else (a
-multiplexed message, a short or long payload, a conversion of another kind, cantools' internals
-not as expected, a message whose formats cannot unpack a payload because its signals overlap) is
-cantools' own ``decode``: :func:`compile_decoder` returns None for a message
-it cannot compile, and the function it returns hands any payload of another length to cantools.
-
-:func:`compile_column_decoder` gives the same decoding for a column of payloads of the message's
-length in one call (:meth:`bridge.decode.decoder.MessageCodec.decode_many`).
+:func:`compile_decoder` returns a function equal to ``message.decode(data, decode_choices=False,
+allow_truncated=True)``, key order and value types included (tests/test_decode_compiled.py), or
+None for a message it cannot compile. Only the plain case is compiled: a message neither
+multiplexed nor a container, whose signals do not overlap, with conversions cantools uses for
+numbers (identity, linear, linear integer, also under a value table); the function hands a payload
+of another length than the message's to cantools. :func:`compile_column_decoder` decodes a column
+of payloads of the message's length in one call
+(:meth:`bridge.decode.decoder.MessageCodec.decode_many`).
 """
 
 from __future__ import annotations
@@ -34,6 +22,8 @@ from cantools.database.conversion import (
     LinearIntegerConversion,
     NamedSignalConversion,
 )
+
+from bridge.decode.cache import Compile, compile_source
 
 Decode = Callable[[bytes], dict[str, Any]]
 DecodeColumn = Callable[[Sequence[bytes]], list[dict[str, Any]]]
@@ -65,8 +55,10 @@ def compile_column_decoder(message: DbcMessage) -> DecodeColumn | None:
     return None if made is None else made[1]
 
 
-def compile_decoders(message: DbcMessage) -> tuple[Decode, DecodeColumn] | None:
-    """:func:`compile_decoder` and :func:`compile_column_decoder` of ``message``, made at once."""
+def compile_decoders(message: DbcMessage, code: Compile = compile_source
+                     ) -> tuple[Decode, DecodeColumn] | None:
+    """:func:`compile_decoder` and :func:`compile_column_decoder` of ``message``, made at once;
+    ``code`` compiles their source (:class:`bridge.decode.cache.CodeCache`: once for every run)."""
     codecs = getattr(message, "_codecs", None)
     if (message.is_container or message.is_multiplexed() or not isinstance(codecs, dict)
             or codecs.get("multiplexers") or "formats" not in codecs):
@@ -107,7 +99,7 @@ def compile_decoders(message: DbcMessage) -> tuple[Decode, DecodeColumn] | None:
          if unpack == "LE(data[::-1])" else
          f"    return [{result} for u in [{unpack} for data in datas]]"),
     ])
-    exec(source, names)
+    exec(code(source), names)
     decode: Decode = names["decode"]
     try:  # formats cantools built for signals that overlap cannot unpack any payload
         decode(bytes(message.length))

@@ -3,7 +3,8 @@ would silence, move or round a message's signals, said once at load as a warning
 
 A database is loaded with cantools (DBC, KCD, SYM, ARXML); cantools' own log lines while it loads
 become warnings of the file (none reaches the terminal by itself). One file that gives an id two
-different messages is an error naming both, their lines and the id.
+different messages is an error naming both, their lines and the id. A database parsed once is
+taken from the cache next time (:mod:`bridge.decode.cache`): the same database, the same warnings.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from cantools.database.can.database import Database
 from cantools.database.can.message import Message as DbcMessage
 from cantools.database.errors import Error as CantoolsError
 
+from bridge.decode.cache import CodeCache, cached, entry_key, store
 from bridge.decode.proto_schema import rounded_range
 from bridge.errors import DatabaseError, UsageError
 from bridge.frame import frame_key
@@ -44,6 +46,8 @@ class DatabaseFile:
     db: Database = field(repr=False, compare=False)
     #: what in it silences, moves or rounds a message (:func:`database_warnings`), one line each
     warnings: tuple[str, ...] = field(default=(), compare=False)
+    #: the compiled code of its messages' generated functions (kept with the parsed database)
+    code: CodeCache = field(default_factory=CodeCache, repr=False, compare=False)
 
 
 def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
@@ -52,6 +56,11 @@ def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
     message whose topic would be one of tankviz's own on every bus (it goes to
     ``/can/<bus>/msg/<Message>``); and for every integer signal stored as a double because its
     values fit no 64-bit integer (those beyond 2^53 are rounded)."""
+    return tuple(f"{path}: {text}" for text in database_notes(db))
+
+
+def database_notes(db: Database) -> tuple[str, ...]:
+    """:func:`database_warnings` without the path they begin with (what the cache keeps)."""
     warnings = []
     for message in db.messages:
         try:
@@ -68,17 +77,17 @@ def database_warnings(path: Path, db: Database) -> tuple[str, ...]:
                                    allow_truncated=True)
                 except Exception:  # cantools: DecodeError, bitstruct errors
                     text += "; cantools cannot decode any frame of it"
-            warnings.append(f"{path}: {text}")
+            warnings.append(text)
         what = BUS_LEAVES.get(message.name)
         if what is not None:
             moved = f"/can/<bus>/{MOVED_SEGMENT}/{message.name}"
-            warnings.append(f"{path}: message {message.name} (0x{message.frame_id:X}) would take "
+            warnings.append(f"message {message.name} (0x{message.frame_id:X}) would take "
                             f"{what} topic /can/<bus>/{message.name}: its signals go to {moved}")
         for signal in message.signals:
             ends = rounded_range(signal)
             if ends is not None:
                 warnings.append(
-                    f"{path}: signal {signal.name} of message {message.name} "
+                    f"signal {signal.name} of message {message.name} "
                     f"(0x{message.frame_id:X}) ranges over {ends[0]}..{ends[1]}, beyond any "
                     "64-bit integer: it is stored as a double, so values beyond 2^53 are "
                     "rounded (the raw frames keep them exact)")
@@ -127,7 +136,8 @@ def _check_ids(path: Path, content: bytes, db: Database) -> None:
 
 
 def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
-    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file, with its warnings."""
+    """Load a DBC (or KCD, SYM, ARXML: whatever cantools loads) file, with its warnings: as
+    parsed before, from the cache (:mod:`bridge.decode.cache`), where it holds the file."""
     path = Path(path)
     try:
         content = path.read_bytes()
@@ -135,6 +145,12 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
         raise DatabaseError(path, "no such file") from None
     except OSError as exc:
         raise DatabaseError(path, f"cannot read: {exc.strerror or exc}") from None
+    sha256 = hashlib.sha256(content).hexdigest()
+    found = cached(content, path.suffix)
+    if found is not None:
+        return DatabaseFile(path, name or path.stem, sha256, content, found[0],
+                            tuple(f"{path}: {text}" for text in found[1]),
+                            CodeCache(entry_key(content, path.suffix)))
     # a UTF-8 byte-order mark (editors on Windows write one): read as UTF-8 without it
     encoding = "utf-8-sig" if content.startswith(codecs.BOM_UTF8) else None
     with _cantools_lines() as said:
@@ -149,8 +165,12 @@ def load_database(path: Path | str, *, name: str | None = None) -> DatabaseFile:
     # cantools' "Overwriting message ..." is the id check's (an identical twin is harmless)
     told = tuple(f"{path}: cantools: {line}" for line in said
                  if not line.startswith("Overwriting message"))
-    return DatabaseFile(path, name or path.stem, hashlib.sha256(content).hexdigest(), content, db,
-                        database_warnings(path, db) + told)
+    notes = database_notes(db)
+    if not told:  # (what cantools says may name the file: such a database is parsed each time)
+        store(content, path.suffix, db, notes)
+    return DatabaseFile(path, name or path.stem, sha256, content, db,
+                        tuple(f"{path}: {text}" for text in notes) + told,
+                        CodeCache(entry_key(content, path.suffix)))
 
 
 def parse_dbc_option(text: str) -> tuple[str | None, Path]:

@@ -43,7 +43,7 @@ class Decoder:
     def __init__(self, databases: Mapping[str | None, Iterable[DatabaseFile]]) -> None:
         self._databases = {bus: list(files) for bus, files in databases.items()}
         self._pool = descriptor_pool.DescriptorPool()
-        self._schemas: dict[tuple[str, str], MessageSchema] = {}
+        self._schemas: dict[tuple[str, str, bool], MessageSchema] = {}
         #: per database's part of the types' names, its messages' type names
         self._type_names: dict[str, dict[str, str]] = {}
         #: compiled decoders by id of the DBC message (the databases keep the messages alive)
@@ -148,9 +148,10 @@ class Decoder:
             self._database_names[database.sha256] = name
         return name
 
-    def _schema(self, database: DatabaseFile, message: DbcMessage) -> MessageSchema:
+    def _schema(self, database: DatabaseFile, message: DbcMessage, *,
+                short: bool = False) -> MessageSchema:
         name = self._database_name(database)
-        key = (name, message.name)
+        key = (name, message.name, short)
         schema = self._schemas.get(key)
         if schema is None:
             addresses = address_fields(message) if is_j1939(message, database.db) else ()
@@ -158,27 +159,31 @@ class Decoder:
             if types is None:
                 types = self._type_names[name] = type_names(database.db.messages)
             schema = self._schemas[key] = MessageSchema(message, name, self._pool, addresses,
-                                                        types[message.name])
+                                                        types[message.name],
+                                                        database.code.compile, short=short)
         return schema
 
-    def _decoders_of(self, message: DbcMessage
+    def _decoders_of(self, database: DatabaseFile, message: DbcMessage
                      ) -> tuple[Callable[[bytes], Any], DecodeColumn | None]:
         made = self._decoders.get(id(message))
         if made is None:
-            made = self._decoders[id(message)] = compile_decoders(message) or (partial(
-                message.decode, decode_choices=False, allow_truncated=True), None)
+            made = self._decoders[id(message)] = compile_decoders(
+                message, database.code.compile) or (partial(
+                    message.decode, decode_choices=False, allow_truncated=True), None)
         return made
 
-    def _decoder(self, message: DbcMessage) -> Callable[[bytes], Any]:
-        return self._decoders_of(message)[0]
+    def _decoder(self, database: DatabaseFile, message: DbcMessage) -> Callable[[bytes], Any]:
+        return self._decoders_of(database, message)[0]
 
-    def _column_decoder(self, message: DbcMessage) -> DecodeColumn | None:
-        return self._decoders_of(message)[1]
+    def _column_decoder(self, database: DatabaseFile, message: DbcMessage
+                        ) -> DecodeColumn | None:
+        return self._decoders_of(database, message)[1]
 
     def _codec(self, bus: str, f: DatabaseFile, message: DbcMessage, j1939_id: int | None,
                derived: bool = False) -> MessageCodec:
         return MessageCodec(message, f, partial(self._schema, f, message), bus,
-                            partial(self._decoder, message), partial(self._column_decoder, message),
+                            partial(self._decoder, f, message),
+                            partial(self._column_decoder, f, message),
                             j1939_id=j1939_id, derived=derived)
 
     def _table(self, bus: str) -> dict[int, MessageCodec]:

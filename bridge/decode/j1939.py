@@ -53,9 +53,11 @@ def address_fields(message: DbcMessage) -> tuple[str, ...]:
     return (SOURCE, DESTINATION) if is_pdu1(message.frame_id) else (SOURCE,)
 
 
-def address_suffix(frame_id: int, numbers: tuple[int, ...]) -> bytes:
+def address_suffix(frame_id: int, numbers: tuple[int, ...], *, implicit: bool = True) -> bytes:
     """The protobuf bytes of a frame's addresses: field ``numbers[0]`` the source address and,
-    for a PDU1 group, ``numbers[1]`` the destination address (``uint32``, always present)."""
+    for a PDU1 group, ``numbers[1]`` the destination address (``uint32``, in every frame: of
+    implicit presence, so address 0 is not written, unless not ``implicit``)."""
     values = (frame_id & 0xFF, (frame_id >> 8) & 0xFF)
     return b"".join(varint(number << 3) + varint(value)
-                    for number, value in zip(numbers, values, strict=False))
+                    for number, value in zip(numbers, values, strict=False)
+                    if value or not implicit)

@@ -3,8 +3,12 @@
 One message type per DBC message, in its own ``.proto`` file so each MCAP schema carries only its
 own definition: ``tankviz.dbc.<database>.<Message>`` in ``tankviz/dbc/<database>/<Message>.proto``
 (the name made an identifier, unique in its database: :func:`type_names`).
-Signals become proto3 ``optional`` fields (field numbers in DBC order), so a multiplexed signal
-that its multiplexer does not select is simply absent:
+Signals become fields in DBC order. A signal in every whole frame of its message (not
+multiplexed: :func:`always_present`) has implicit presence, so a 0 is not written and reads back
+as 0; a multiplexed signal is a proto3 ``optional`` field, absent where its multiplexer does not
+select it. A frame shorter than its message may lack any signal, so its decoded message is of a
+second type (``short``: :class:`MessageSchema`), every field ``optional``, absent where cut off.
+Types:
 
 - a value table on an unscaled integer signal becomes an (open) enum: raw values without a name
   stay representable, and 0 is named ``<signal>_UNNAMED`` when the DBC gives it no name;
@@ -15,18 +19,21 @@ that its multiplexer does not select is simply absent:
   (:func:`rounded_range`; its database warns of it at load).
 
 A J1939 message also has its frame's addresses (``source_address``, and ``destination_address``
-for a PDU1 group) as ``uint32`` fields after the signals' (:mod:`bridge.decode.j1939`).
+for a PDU1 group) as ``uint32`` fields after the signals' (:mod:`bridge.decode.j1939`), of
+implicit presence (every frame has them).
 
 :func:`compile_encoder` turns a generated type into a function that writes the protobuf wire
 format of cantools' decoded signals directly (tag, varint or zigzag varint or little-endian
-double, fields in number order, every present field written even when zero), without building a
-message object: the bytes are exactly those of ``SerializeToString``. A value protobuf would
-refuse or convert (not an ``int`` for an integer field, out of range, a key the message does not
-have) goes through the message class instead, so it fails, or encodes, just as protobuf does.
+double, fields in number order, every present field written but an implicit field's zero),
+without building a message object: the bytes are exactly those of ``SerializeToString``. A
+value protobuf would refuse or convert (not an ``int`` for an integer field, out of range, a key
+the message does not have) goes through the message class instead, so it fails, or encodes,
+just as protobuf does.
 """
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 from collections.abc import Callable, Iterable, Mapping
@@ -39,7 +46,8 @@ from cantools.database.conversion import BaseConversion, IdentityConversion, Lin
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from bridge.protowire import varint
+from bridge.decode.cache import Compile, compile_source
+from bridge.protowire import DOUBLE, varint
 
 FieldType = descriptor_pb2.FieldDescriptorProto
 
@@ -79,6 +87,14 @@ class SignalField:
     signal: str
     field: str
     kind: str  # "enum", "int", "double"; "address": a J1939 message's, no signal
+    #: implicit presence (a zero is not written and reads back as 0), else proto3 ``optional``
+    implicit: bool = False
+
+
+def always_present(message: DbcMessage) -> frozenset[str]:
+    """The signals cantools decodes from every frame of the message's length: those no
+    multiplexer selects (cantools unpacks every signal of a whole frame, or fails)."""
+    return frozenset(s.name for s in message.signals if s.multiplexer_ids is None)
 
 
 def _integer_range(signal: Signal) -> tuple[int, int] | None:
@@ -133,11 +149,15 @@ def _enum_values(signal_field: str, choices: dict[int, Any]) -> list[tuple[str, 
 
 
 def describe_message(
-    message: DbcMessage, package: str, file_name: str, addresses: tuple[str, ...] = ()
+    message: DbcMessage, package: str, file_name: str, addresses: tuple[str, ...] = (),
+    *, short: bool = False,
 ) -> tuple[descriptor_pb2.FileDescriptorProto, list[SignalField]]:
     """The .proto file (as a descriptor) for one DBC message, and how each signal maps to it;
     ``addresses`` (a J1939 message's, :mod:`bridge.decode.j1939`) become ``uint32`` fields after
-    the signals, of kind ``address`` (a signal of the same name makes one ``<name>_<number>``)."""
+    the signals, of kind ``address`` (a signal of the same name makes one ``<name>_<number>``).
+    The signals of :func:`always_present` and the addresses have implicit presence, unless
+    ``short`` (the type of frames shorter than the message), where every field is optional."""
+    implicit = frozenset() if short else always_present(message)
     proto = descriptor_pb2.FileDescriptorProto(name=file_name, package=package, syntax="proto3")
     type_name = file_name.rsplit("/", 1)[-1].removesuffix(".proto")
     out = proto.message_type.add(name=type_name)
@@ -149,9 +169,11 @@ def describe_message(
             name = f"{name}_{number}"
         used.add(name)
         field = out.field.add(name=name, number=number, label=FieldType.LABEL_OPTIONAL)
-        field.proto3_optional = True
-        field.oneof_index = len(out.oneof_decl)
-        out.oneof_decl.add(name=f"_{name}")
+        bare = signal.name in implicit
+        if not bare:
+            field.proto3_optional = True
+            field.oneof_index = len(out.oneof_decl)
+            out.oneof_decl.add(name=f"_{name}")
         int_range = _integer_range(signal)
         choices: dict[int, Any] = dict(signal.choices or {})
         if (
@@ -169,23 +191,24 @@ def describe_message(
                 enum.options.allow_alias = True
             field.type = FieldType.TYPE_ENUM
             field.type_name = f".{package}.{type_name}.{enum.name}"
-            fields.append(SignalField(signal.name, name, "enum"))
+            fields.append(SignalField(signal.name, name, "enum", bare))
             continue
         int_type = _integer_type(*int_range) if int_range is not None else None
         if int_type is not None:
             field.type = int_type
-            fields.append(SignalField(signal.name, name, "int"))
+            fields.append(SignalField(signal.name, name, "int", bare))
         else:
             field.type = FieldType.TYPE_DOUBLE
-            fields.append(SignalField(signal.name, name, "double"))
+            fields.append(SignalField(signal.name, name, "double", bare))
     for number, address in enumerate(addresses, start=len(message.signals) + 1):
         name = address if address not in used else f"{address}_{number}"
         used.add(name)
         field = out.field.add(name=name, number=number, label=FieldType.LABEL_OPTIONAL,
-                              type=FieldType.TYPE_UINT32, proto3_optional=True,
-                              oneof_index=len(out.oneof_decl))
-        out.oneof_decl.add(name=f"_{name}")
-        fields.append(SignalField(address, name, "address"))
+                              type=FieldType.TYPE_UINT32)
+        if short:
+            field.proto3_optional, field.oneof_index = True, len(out.oneof_decl)
+            out.oneof_decl.add(name=f"_{name}")
+        fields.append(SignalField(address, name, "address", not short))
     return proto, fields
 
 
@@ -204,33 +227,41 @@ Encoder = Callable[[Mapping[str, Any]], bytes]
 
 
 
-def compile_encoder(schema: MessageSchema) -> Encoder:
+def compile_encoder(schema: MessageSchema, code: Compile = compile_source) -> Encoder:
     """A function from cantools' decoded signals (keyed by signal name, ``decode_choices=False``)
     to the serialized message, byte for byte what the message class's ``SerializeToString``
-    gives (see the module docstring); it falls back to the message class for anything else."""
+    gives (see the module docstring); it falls back to the message class for anything else.
+    ``code`` compiles its source (:class:`bridge.decode.cache.CodeCache`: once for every run)."""
     fallback = schema.serialize_with_protobuf
     field_of = {f.signal: f.field for f in schema.fields if f.kind != "address"}
     field_of.update(schema.renamed)  # a repeated signal name: the last one's field, as kwargs do
+    implicit = {f.field for f in schema.fields if f.implicit}
     source: dict[str, str] = {}
     for key, name in field_of.items():
         if name in source:  # two keys for one field: only protobuf itself knows the answer
             return fallback
         source[name] = key
-    names: dict[str, Any] = {"F": fallback, "V": varint,
-                             "D1": struct.Struct("<Bd").pack, "D2": struct.Struct("<BBd").pack}
+    names: dict[str, Any] = {"F": fallback, "V": varint, "M": math.copysign,
+                             "D1": DOUBLE.pack, "D2": struct.Struct("<BBd").pack}
     # Every signal present (a whole frame of a message without multiplexing) with every integer
-    # below 128 as a varint: one struct.pack of the tags and values.
+    # below 128 as a varint, none of them an implicit field's zero: one struct.pack of the tags
+    # and values.
     keys: list[str] = []
     tests: list[str] = []
     args: list[str] = []
     formats: list[str] = []
-    # Otherwise field by field.
+    # The same with an implicit field's zero among them: the pieces joined, a zero's empty.
+    loose: list[str] = []
+    pieces: list[str] = []
+    # Otherwise field by field; an implicit field's zero appends b"" (protobuf does not write it:
+    # 0, and 0.0 but not -0.0, whose bits are not zero), so that every key is counted.
     lines = ["    out = []", "    a = out.append"]
     for n, fd in enumerate(sorted(schema.message_class.DESCRIPTOR.fields,
                                   key=lambda fd: fd.number)):
         src = source.get(fd.name)
         if src is None:
             continue
+        bare = fd.name in implicit
         double = fd.type == FieldType.TYPE_DOUBLE
         tag = varint(fd.number << 3 | 1) if double else varint(fd.number << 3)
         if len(tag) > 2:
@@ -241,11 +272,16 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
         formats.append("B" * len(tag) + ("d" if double else "B"))
         lines += [f"    v = s.get({src!r})", "    if v is not None:"]
         if double:
-            tests.append(f"({v}.__class__ is float or {v}.__class__ is int)")
+            loose.append(f"({v}.__class__ is float or {v}.__class__ is int)")
+            tests.append(loose[-1] + (f" and {v} != 0" if bare else ""))
             args.append(v)
             pack = f"D{len(tag)}({', '.join(str(b) for b in tag)}, v)"
+            piece = pack.replace(", v)", f", {v})")
+            pieces.append(f"({piece} if {v} != 0 or M(1.0, {v}) < 0 else b'')" if bare
+                          else piece)
             lines += ["        c = v.__class__",
-                      f"        if c is float or c is int: a({pack})",
+                      f"        if c is float or c is int: a({pack}"
+                      + (" if v != 0 or M(1.0, v) < 0 else b'')" if bare else ")"),
                       "        else: return F(s)"]
             continue
         lo, hi, how = _VARINTS[fd.type]
@@ -253,23 +289,33 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
         if small is None:
             small = _SMALL[tag] = tuple(tag + bytes((i,)) for i in range(128))
         names[f"S{n}"], names[f"T{n}"] = small, tag
+        names[f"Z{n}"] = (b"", *small[1:]) if bare else small
+        first = 1 if bare else 0
         if how == "zigzag":
-            tests.append(f"{v}.__class__ is int and -64 <= {v} < 64")
+            loose.append(f"{v}.__class__ is int and -64 <= {v} < 64")
+            tests.append(loose[-1] + (f" and {v} != 0" if bare else ""))
             args.append(f"({v} << 1) ^ ({v} >> 63)")
+            pieces.append(f"Z{n}[({v} << 1) ^ ({v} >> 63)]")
             small_case = (f"if -64 <= v < 64: a(S{n}[(v << 1) ^ (v >> 63)])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V((v << 1) ^ (v >> 63)))")
         elif how == "int32":
-            tests.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            loose.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            tests.append(f"{v}.__class__ is int and {first} <= {v} < 128")
             args.append(v)
+            pieces.append(f"Z{n}[{v}]")
             small_case = (f"if 0 <= v < 128: a(S{n}[v])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V(v if v >= 0 else v + {2**64}))")
         else:
-            tests.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            loose.append(f"{v}.__class__ is int and 0 <= {v} < 128")
+            tests.append(f"{v}.__class__ is int and {first} <= {v} < 128")
             args.append(v)
+            pieces.append(f"Z{n}[{v}]")
             small_case = (f"if 0 <= v < 128: a(S{n}[v])",
                           f"elif {lo} <= v <= {hi}: a(T{n} + V(v))")
         lines += ["        if v.__class__ is not int: return F(s)",
-                  f"        {small_case[0]}", f"        {small_case[1]}",
+                  *(["        if v == 0: a(b'')", f"        el{small_case[0]}"] if bare
+                    else [f"        {small_case[0]}"]),
+                  f"        {small_case[1]}",
                   "        else: return F(s)"]
     names["P"] = struct.Struct("<" + "".join(formats)).pack
     lines = ["def encode(s):",
@@ -281,24 +327,33 @@ def compile_encoder(schema: MessageSchema) -> Encoder:
              "        else:",
              f"            if {' and '.join(tests) or 'True'}:",
              f"                return P({', '.join(args)})",
+             *([f"            if {' and '.join(loose)}:",
+                f"                return b''.join(({', '.join(pieces)},))"] if implicit and keys
+               else []),
              *lines,
              "    if len(out) != len(s): return F(s)",
              "    return b''.join(out)"]
-    exec("\n".join(lines), names)
+    exec(code("\n".join(lines)), names)
     encode: Encoder = names["encode"]
     return encode
 
 
 class MessageSchema:
-    """A DBC message's generated protobuf class and how to fill it from cantools' decoded dict."""
+    """A DBC message's generated protobuf class and how to fill it from cantools' decoded dict:
+    ``tankviz.dbc.<database>.<Message>``, or with ``short`` the type of frames shorter than the
+    message, ``tankviz.dbc.<database>.short.<Message>``, every field ``optional``."""
 
     def __init__(self, message: DbcMessage, database_name: str,
                  pool: descriptor_pool.DescriptorPool, addresses: tuple[str, ...] = (),
-                 type_name: str | None = None) -> None:
+                 type_name: str | None = None, code: Compile = compile_source, *,
+                 short: bool = False) -> None:
         type_name = type_name or identifier(message.name)  # (:func:`type_names`)
-        package = f"tankviz.dbc.{identifier(database_name)}"
-        file_name = f"tankviz/dbc/{identifier(database_name)}/{type_name}.proto"
-        proto, fields = describe_message(message, package, file_name, addresses)
+        folder = f"{identifier(database_name)}{'.short' if short else ''}"
+        package = f"tankviz.dbc.{folder}"
+        file_name = f"tankviz/dbc/{folder.replace('.', '/')}/{type_name}.proto"
+        proto, fields = describe_message(message, package, file_name, addresses, short=short)
+        #: the type of frames shorter than the message (every field optional)
+        self.short = short
         #: how each signal is stored
         self.fields = [f for f in fields if f.kind != "address"]
         #: a J1939 message's address fields (name, number), written after the signals' by the
@@ -313,7 +368,7 @@ class MessageSchema:
         #: signal name -> field name, only where they differ
         self.renamed = {f.signal: f.field for f in self.fields if f.signal != f.field}
         #: cantools' decoded signals to the serialized message (:func:`compile_encoder`)
-        self.encode = compile_encoder(self)
+        self.encode = compile_encoder(self, code)
 
     def file_descriptor_set(self) -> bytes:
         """The serialized FileDescriptorSet of this type, built as mcap_protobuf builds it."""
@@ -330,8 +385,13 @@ class MessageSchema:
         return bytes(self.message_class(**signals).SerializeToString())
 
     def parse(self, data: bytes) -> dict[str, Any]:
-        """The signals present in a serialized message, keyed by signal name (for tests, tools)."""
+        """The signals present in a serialized message, keyed by signal name (for tests, tools):
+        an implicit field always is (0 where it was not written)."""
         msg = self.message_class.FromString(data)
         by_field = {f.field: f.signal for f in self.fields}
         by_field.update((name, name) for name, _ in self.addresses)
-        return {by_field[d.name]: v for d, v in msg.ListFields()}
+        out = {by_field[d.name]: v for d, v in msg.ListFields()}
+        for d in msg.DESCRIPTOR.fields:
+            if not d.has_presence:
+                out.setdefault(by_field[d.name], getattr(msg, d.name))
+        return out

@@ -1,16 +1,10 @@
 """Many drives at once: which files make one drive, what each output is called, and the run of
 one conversion per drive on a Dask cluster (``tankviz batch``).
 
-:func:`find_inputs` takes files, folders and globs (local paths only: a URL is refused);
-:func:`group_drives` makes files in one folder with the same :func:`drive_stem` one drive where
-their times overlap or are within :data:`ADJACENT_NS` (``.mcap`` drives are never merged);
-:func:`plan_jobs` names each output ``OUT/<subfolder>/<stem>.mcap`` (with its UTC start when a
-stem is several drives) and refuses two drives with one output, or an output that is an input,
-before anything runs. :func:`run_batch` runs one Dask task per drive, without retries: a drive
-that fails gives a :class:`JobResult` with its one-line error and the others go on; finished
-outputs are skipped unless forced, so an interrupted batch resumes; progress comes back as Dask
-events (:func:`progress_line`). Dask is imported only to run (:func:`dask_client`); without it
-the error says what to install.
+Two drives with one output, or an output that is an input, are refused before anything runs; a
+drive that fails gives its one-line error and the others go on; finished outputs are skipped
+unless forced, so an interrupted batch resumes. Dask is imported only to run; without it the
+error says what to install.
 """
 
 from __future__ import annotations
@@ -75,8 +69,10 @@ def _refuse_url(text: str) -> None:
 
 
 def find_inputs(patterns: Sequence[str], suffixes: Sequence[str]) -> list[tuple[Path, Path]]:
-    """Every file that ``patterns`` (files, folders searched recursively, globs) name, with the
-    folder its output's subfolder is counted from; absolute, each once, in name order."""
+    """Every file that ``patterns`` (files, folders searched recursively, globs; local paths only,
+    a URL is refused) name, with the folder its output's subfolder is counted from; absolute,
+    each once, in name order.
+    """
     found: dict[Path, Path] = {}
     wanted = ", ".join(suffixes)
 

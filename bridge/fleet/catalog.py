@@ -1,11 +1,8 @@
 """The drive catalogue: what an archive of recorded drives holds, as one DuckDB file.
 
-:func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table
-(:class:`DriveRows`), from its summary, ``tankviz`` metadata record, perception topics and marks;
-nothing is decoded again. A drive without the metadata record (recovered) takes what it holds
-from the file instead (:mod:`bridge.fleet.held`). A file that is not a readable tankviz drive is
-an :class:`~bridge.errors.InputError` saying why; one being recorded is :class:`BeingRecorded`,
-indexed on a later run. A drive is keyed by its resolved path.
+:func:`read_drive` is a pure function from one tankviz MCAP drive to the rows of every table,
+from its summary, metadata, perception topics and marks (nothing is decoded again);
+:func:`index` (re)indexes a catalogue incrementally, this process alone writing it.
 
 Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since the epoch,
 ``*_s`` seconds since the drive's first message, which is ``tankviz replay --start``):
@@ -21,13 +18,6 @@ Tables (:data:`SCHEMA`; times are log times: ``*_ns`` integer nanoseconds since 
   a drive without that field, every change of the lead's id), with its distance; ``cut_in`` when
   it replaced a lead that was present a moment before and is closer;
 - ``marks``: every mark (``mark`` its number in the drive; ``marked_by`` the Mark's ``by``).
-
-:func:`index` (re)indexes a catalogue incrementally: a drive is read again only when it is new or
-its size or modification time changed; a drive whose file is gone is removed; a catalogue missing
-newer tables gets them. Drives are read here or by Dask workers; this process alone writes the
-DuckDB file, one transaction per drive. A drive that cannot be read is reported with its one-line
-error and the others are indexed. The questions asked of a catalogue are in
-:mod:`bridge.fleet.questions`.
 """
 
 from __future__ import annotations
@@ -219,8 +209,13 @@ class _Lead:
 
 
 def read_drive(path: Path | str) -> DriveRows:
-    """Every table's rows for one tankviz MCAP drive (:class:`~bridge.errors.InputError` if it
-    is none), keyed by its resolved path as shown (:func:`~bridge.errors.shown`)."""
+    """Every table's rows for one tankviz MCAP drive (:class:`~bridge.errors.InputError` saying why
+    if it is none), keyed by its resolved path as shown (:func:`~bridge.errors.shown`).
+
+    A drive without the metadata record (recovered) takes what it holds from the file instead
+    (:mod:`bridge.fleet.held`); one being recorded is :class:`BeingRecorded`, indexed on a later
+    run.
+    """
     if (why := not_a_file(path)) is not None and not os.path.isdir(path):
         raise InputError(path, why)
     path = Path(path).resolve()
@@ -516,7 +511,13 @@ def index(catalog: Path | str, inputs: Sequence[str], *, reader: Reader = read_h
           ) -> IndexReport:
     """(Re)index the drives ``inputs`` name into ``catalog``: only new or changed drives (size
     or modification time) are read; drives whose file is gone are removed (and those indexed
-    under a path that was not resolved, which are read again under their resolved path)."""
+    under a path that was not resolved, which are read again under their resolved path); a
+    catalogue missing newer tables gets them.
+
+    Drives are read by ``reader`` (here or on Dask workers); this process alone writes the DuckDB
+    file, one transaction per drive. A drive that cannot be read is reported with its one-line
+    error and the others are indexed.
+    """
     files = find_drives(inputs)
     con = connect(catalog, create=True)
     report = IndexReport()

@@ -1,10 +1,8 @@
 """Health alarms: the settings of the checks, what an alarm is about, and an alarm's hysteresis.
 
-:class:`HealthSettings` holds the thresholds and timing of every check, in seconds of log time
-(a value out of range is a :class:`~bridge.errors.UsageError`). :func:`alarm_id` makes every
-alarm id, its subject and its kind (:class:`AlarmKind`, ``tankviz.AlarmKind`` in ``/health``);
-this is the one table of them, and the health monitor (:mod:`bridge.health.monitor`) checks when
-each holds (live's last two: :mod:`bridge.health.receive`):
+:func:`alarm_id` makes every alarm id, its subject and its kind (``tankviz.AlarmKind`` in
+``/health``); this is the one table of them (:mod:`bridge.health.monitor` checks them; live's last
+two, :mod:`bridge.health.receive`):
 
 ============================  ==================  ================================================
 id                            kind                holds when
@@ -37,14 +35,6 @@ id                            kind                holds when
 ``bus.<bus>.bad_timestamps``  ``BAD_TIMESTAMPS``  live: frames stamped NaN (or another non-time)
                                                   came within the last window
 ============================  ==================  ================================================
-
-:class:`Alarm` is one alarm's hysteresis in log time: raised once its condition has held for its
-raise time (``raise_after_s``; ``lane_loss_s`` for ``lanes.lost``; at once for live's two),
-cleared once it has been gone for ``clear_after_s``, either wait starting again when the
-condition flips back; it keeps its latest reason and how often it was raised, and gives itself as
-``tankviz.Alarm`` (:meth:`Alarm.to_pb`) and to the overlay (:meth:`Alarm.info`). An alarm told
-outside the monitor's ``/log`` (``recorder.disk_full``) is a :class:`Notice`
-(:func:`alarm_notice`).
 """
 
 from __future__ import annotations
@@ -63,7 +53,9 @@ from bridge.pb import health_pb2
 
 @dataclass(frozen=True)
 class HealthSettings:
-    """Thresholds and timing of the health checks (every time in seconds of log time)."""
+    """Thresholds and timing of the health checks (every time in seconds of log time); a value out
+    of range is a :class:`~bridge.errors.UsageError`.
+    """
 
     #: Rates and counts are over this window.
     window_s: float = 1.0
@@ -187,7 +179,13 @@ class AlarmInfo:
 
 
 class Alarm:
-    """One alarm and its hysteresis."""
+    """One alarm and its hysteresis, in log time.
+
+    Raised once its condition has held for ``raise_after_s`` (``lane_loss_s`` for ``lanes.lost``; at
+    once for live's receive alarms), cleared once gone for ``clear_after_s``, either wait restarting
+    when the condition flips back; as ``tankviz.Alarm`` (:meth:`to_pb`) and for the overlay
+    (:meth:`info`). An alarm told outside the monitor's ``/log`` is a :class:`Notice`.
+    """
 
     def __init__(self, alarm_id: str, kind: AlarmKind, subject: str, sensors: Iterable[str],
                  raise_ns: int, clear_ns: int) -> None:

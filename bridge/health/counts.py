@@ -1,11 +1,9 @@
-"""What the health monitor (:mod:`bridge.health.monitor`) counts per bus and per message family,
-and the figures of ``/health`` it makes of those counts.
+"""What the health monitor counts per bus and per message family, and the figures of ``/health``
+it makes of those counts.
 
-:class:`BusCounts` (frames, bits, errors, unknown ids, gaps, frames per id) becomes
-``tankviz.BusHealth`` by :func:`bus_figures` and the bus alarms that hold by
-:func:`bus_conditions`; :class:`FamilyCounts` becomes ``tankviz.FamilyHealth`` by
-:func:`family_figures`; rates over a window are the counts now less a :class:`Snapshot`'s a
-window ago. Times are log time in integer nanoseconds (:data:`NEVER`, :data:`UNKNOWN`).
+:class:`BusCounts` becomes ``tankviz.BusHealth`` (:func:`bus_figures`) and the bus alarms that
+hold (:func:`bus_conditions`), :class:`FamilyCounts` ``tankviz.FamilyHealth``
+(:func:`family_figures`); rates over a window are the counts now less a :class:`Snapshot`'s.
 """
 
 from __future__ import annotations
@@ -16,7 +14,7 @@ from dataclasses import dataclass
 
 from bridge.frame import NEVER_NS, NS, key_id
 from bridge.health.alarms import AlarmKind, HealthSettings, alarm_id
-from bridge.health.wire import FrameKind, KindKey
+from bridge.health.bus_bits import FrameKind, KindKey
 from bridge.pb import health_pb2
 from bridge.profile.model import Profile, Sensor
 from bridge.world.observe import LEAD_GROUP
@@ -55,7 +53,7 @@ class BusCounts:
         self.ids: Counter[int] = Counter()  # frames per frame key (bridge.frame.frame_key)
         self.cycles: dict[int, float] = {}  # frame key -> database cycle time (s)
         self.families: set[str] = set()
-        #: the bits of each kind of frame (exact for a sample, else its mean: bridge.health.wire)
+        #: the bits of each kind of frame (exact for a sample, else its mean: health.bus_bits)
         self.kinds: dict[KindKey, FrameKind] = {}
 
 

@@ -1,62 +1,10 @@
 """The health monitor: sensor and CAN bus diagnostics, computed in log time for live, convert and
 replay alike.
 
-The seed's team found a radar knocked out of alignment only because the blue spheres were missing;
-:class:`HealthMonitor` says so itself. It watches
-
-- every bus: frames/s, estimated bus load (bits on the wire from the frame lengths, stuff bits
-  included, :func:`bridge.health.wire.frame_bits`, exact for the first 1024 frames of each kind
-  and a sample after them, the others the sample's mean: :class:`bridge.health.wire.FrameKind`;
-  over the bitrate, the data phase of CAN FD
-  frames with bit rate switch over the data bitrate; no bitrate, no load, nor with such frames
-  but no data bitrate), error frames, unknown ids, decode errors, non-finite float values
-  (+inf, -inf, NaN: :attr:`bridge.decode.codec.Decoded.non_finite`), gaps (no traffic for
-  longer than ``gap_factor`` x the bus's shortest cycle time), and the busiest id (babbling);
-- every message family of the profile (object groups such as radar, camera and tracks; the lead
-  vehicle; the lane lines; the ego signals): expected rate (from the databases' cycle times,
-  ``GenMsgCycleTime``, or learned over the first seconds), actual rate, age of the newest frame,
-  valid objects, and how often its validity rule could not be evaluated (a division by zero:
-  :attr:`bridge.world.model.World.rule_errors`; those objects are left out);
-
-and raises alarms with hysteresis (a condition must hold for ``raise_after_s`` to raise an alarm,
-and be gone for ``clear_after_s`` to clear it: :class:`bridge.health.alarms.Alarm`; thresholds
-and times are :class:`bridge.health.alarms.HealthSettings`). Every alarm, its id and when its
-condition holds are the table of :mod:`bridge.health.alarms`; the monitor checks them at each
-tick, one subject at a time (buses, sensors' families, sensor pairs, lanes), and is told the
-conditions it cannot see: ``recorder.disk_full`` (:meth:`HealthMonitor.hold`; raised and cleared
-at the next check, without waiting) and live's receive counts (:meth:`HealthMonitor.note_receive`:
-:mod:`bridge.health.receive`).
-
-A silent bus explains everything on it: while a bus is in a gap, the sensor alarms of families
-that only come on it are not raised. Likewise a silent lane family does not also raise
-``lanes.lost``, and a sensor is judged on its rate only after a full window of traffic. Without
-enough matched objects the misalignment check has no evidence either way: its alarm stays as it
-is.
-
-Time is log time (frame timestamps) throughout: :meth:`HealthMonitor.advance` evaluates on a grid
-of ``eval_hz`` ticks, catching up the ticks of a gap in the log (so a bus that went silent raises
-its alarm at the right log time even in a conversion, where nothing arrives during the gap). A
-clock step (:mod:`bridge.pipeline.clock`) is not a gap: :meth:`HealthMonitor.rebase` moves every
-time held with the clock at once. It returns ``/health`` (:data:`~bridge.topics.HEALTH_TOPIC`,
-``tankviz.Health``) at ``publish_hz`` and ``foxglove.Log`` messages on ``/log`` when an alarm is
-raised or cleared. A non-finite value of a signal and a validity rule that cannot be evaluated
-are warned about on ``/log`` too: the first time, then at most every ``_REPORT_S`` seconds of log
-time while they go on, with the count so far. A ``blind`` alarm of a group whose rule fails says so.
-A sensor whose stationary objects sweep with the ego's turn instead of against it (its profile's
-lateral sign looks wrong: :mod:`bridge.world.lateral`, fed at each scene tick) is warned about on
-``/log`` once, naming the fix; :meth:`HealthMonitor.lateral_sign_records` gives every sensor's
-verdict for the drive's metadata.
-
-What it counts per bus and per family, and the figures of ``/health`` made of the counts, are
-:mod:`bridge.health.counts`; fields of view and the matching of two sensors' objects,
-:mod:`bridge.health.sight`.
-
-Frames are counted as they come, one by one or a pack at a time (:mod:`bridge.health.traffic`).
-Object checks run at scene ticks (:meth:`HealthMonitor.on_world`): who sees a moving object in
-whose field of view is asked once per object and sensor while the object stays in the world
-(observations are values). :meth:`HealthMonitor.active_alarms` gives the active alarms to the scene
-overlay (:mod:`bridge.health.overlay`), made once per check (only a check or a clock step changes
-them).
+:class:`HealthMonitor` watches every bus and every message family of the profile, checks the
+alarms of :mod:`bridge.health.alarms` at ticks of log time (a gap's ticks caught up, so a
+conversion raises alarms when live would), and publishes ``/health`` and ``/log``. A silence
+explains everything under it: one fault raises one alarm, not a cascade.
 """
 
 from __future__ import annotations
@@ -64,7 +12,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from itertools import chain
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
@@ -89,7 +37,6 @@ from bridge.health.counts import (
 from bridge.health.receive import ReceiveWatch
 from bridge.health.sight import FieldOfView, associate, has_fov
 from bridge.health.traffic import TrafficCounting
-from bridge.io.buses import ReceiveCounts
 from bridge.pb import health_pb2
 from bridge.profile.model import ObjectClass, Profile
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
@@ -97,11 +44,25 @@ from bridge.world.lateral import LateralSignCheck
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import ObjectObservation
 
+if TYPE_CHECKING:  # (live's buses: a convert never needs them)
+    from bridge.io.buses import ReceiveCounts
+
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
 
 
 class HealthMonitor(TrafficCounting):
-    """Sensor and bus health of one drive (see the module documentation).
+    """Sensor and bus health of one drive.
+
+    Per bus: frames/s, load (:mod:`bridge.health.bus_bits`), error frames, unknown ids, decode
+    errors, non-finite values, gaps longer than ``gap_factor`` x the bus's shortest cycle time, the
+    busiest id. Per family: expected rate (``GenMsgCycleTime`` or learned), actual rate, age of the
+    newest frame, valid objects, validity rules that could not be evaluated. While a bus is in a
+    gap, the sensor alarms of families only on it are not raised, nor ``lanes.lost`` for a silent
+    lane family; a sensor's rate is judged only after a full window of traffic; without enough
+    matched objects the misalignment alarm stays as it is. ``/health`` (``tankviz.Health``) comes at
+    ``publish_hz``; ``foxglove.Log`` on ``/log`` when an alarm is raised or cleared, when a value is
+    non-finite or a rule cannot be evaluated (the first time, then at most every ``_REPORT_S`` s
+    with the count), and once per sensor whose lateral sign looks wrong.
 
     - ``profile``: the families and sensors to watch (None: buses only).
     - ``decoder``: the pipeline's decoder, for the databases' cycle times and which ids a bus

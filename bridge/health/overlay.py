@@ -1,18 +1,9 @@
-"""The health alarms in the scene, drawn with :mod:`bridge.scene.entities` in the vehicle frame.
+"""The health alarms in the scene, drawn in the vehicle frame from the active alarms
+(:class:`~bridge.health.alarms.AlarmInfo`), not the monitor.
 
-Both take the active alarms as :class:`~bridge.health.alarms.AlarmInfo` (what
-:meth:`bridge.health.monitor.HealthMonitor.active_alarms` returns), not the monitor:
-
-- :func:`alarm_entities`: a red text above the ego (entity ``health-alarms``) naming the active
-  alarms, ``HEALTH: <n> ALARM(S)`` and then their ids, in lines a laptop's panel holds; nothing
-  when there are none;
-- :func:`fov_entities`: each sensor's field of view from the profile (every sensor with both a
-  range and an azimuth) as an outline on the ground (entity ``fov-<sensor>``): thin and dim grey
-  when healthy, thick, red and labelled with the alarm ids when an active alarm concerns the
-  sensor (:attr:`~bridge.health.alarms.AlarmInfo.sensors`). An outline is made once per sensor,
-  state and number of arc points, and a profile's entities once per set of alarmed sensors
-  (with their alarm ids), lifetime and number of arc points: the scene draws them at every
-  tick, each a copy stamped with the tick's time.
+A red text above the ego names the active alarms (entity ``health-alarms``); each sensor's field
+of view is an outline on the ground (entity ``fov-<sensor>``), red and labelled while an alarm
+concerns it.
 """
 
 from __future__ import annotations

@@ -1,26 +1,25 @@
 """What a live bus's reading mended or lost before its frames reached the pipeline, and how the
-health monitor (:mod:`bridge.health.monitor`) says so.
+health monitor says so.
 
-:class:`~bridge.io.buses.ReceiveCounts` (kept by live's :class:`bridge.io.buses.BusLink`) counts
-per bus since the run began: ``bad_timestamps`` (stamps that are not a time: restamped with the
-receive time and recorded), ``unreadable`` (skipped), ``kernel_drops`` (the socket's own drop
-counter, where python-can exposes the socket) and ``missed_estimate`` (frames missed while the
-bus was down, an estimate). :class:`ReceiveWatch` says them in log time: a ``/log`` warning when
-a count first grows, then at most every ``REPORT_S`` seconds while it goes on, and the alarms
-``bus.<bus>.bad_timestamps`` and ``bus.<bus>.frames_lost``, raised at once and cleared after the
-clear time.
+:class:`ReceiveWatch` says live's receive counts (bad timestamps, unreadable frames, kernel
+drops, frames missed while a bus was down) in log time: a ``/log`` warning when a count first
+grows, then at most every ``REPORT_S`` seconds, and the alarms ``bus.<bus>.bad_timestamps`` and
+``bus.<bus>.frames_lost``, raised at once and cleared after the clear time.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from bridge.frame import NS, timestamp
 from bridge.health.alarms import AlarmKind, alarm_id
-from bridge.io.buses import ReceiveCounts
 from bridge.topics import LOG_TOPIC, TopicMessage
+
+if TYPE_CHECKING:  # (live's buses and python-can's interfaces: a convert never needs them)
+    from bridge.io.buses import ReceiveCounts
 
 #: seconds of log time between two /log warnings of the same count
 REPORT_S = 10.0

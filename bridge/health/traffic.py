@@ -1,12 +1,8 @@
-"""What the health monitor counts of every frame: per bus its frames, bits on the wire, ids,
-gaps, error frames, unknown ids, decode errors and non-finite values, per family its frames and
-when it last came or resumed (:mod:`bridge.health.counts` holds the counts).
+"""What the health monitor counts of every frame, per bus and per family.
 
-Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path: a few dict
-operations, a frame's bits counted exactly only for a sample) or a pack at a time, count for
-count the same (:meth:`TrafficCounting.count_packed`, then :meth:`TrafficCounting.count_rows` for
-each run of rows between two ticks); either way each frame is counted by the outcome the decoder
-gave it, never sorted again.
+Frames are counted one by one (:meth:`TrafficCounting.on_frame`, the hot path) or a pack at a
+time, count for count the same; either way each frame is counted by the outcome the decoder gave
+it, never sorted again. :mod:`bridge.health.counts` holds the counts.
 """
 
 from __future__ import annotations
@@ -25,8 +21,8 @@ from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome, Undecoded
 from bridge.frame import EXTENDED_KEY, NS, Frame, frame_key
 from bridge.health.alarms import HealthSettings
+from bridge.health.bus_bits import MAX_KINDS, FrameKind, KindKey
 from bridge.health.counts import NEVER, BusCounts, FamilyCounts
-from bridge.health.wire import MAX_KINDS, FrameKind, KindKey
 from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
 
 # why a frame did not decode (module globals: the per-frame path)

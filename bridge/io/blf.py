@@ -12,6 +12,7 @@ own reader instead (:class:`~bridge.io.can_logs.LogSource`).
 from __future__ import annotations
 
 import io
+import re
 import zlib
 from collections.abc import Callable, Generator, Iterator
 from typing import IO, Literal
@@ -76,7 +77,26 @@ def _object_size(data: bytes | bytearray, at: int, largest: int) -> int | None:
     return size
 
 
-def intact_objects(data: bytes | bytearray, lost: bool = False,
+#: The object headers (their first 16 bytes, which alone decide :func:`_object_size` inside a
+#: container) found intact, and their sizes: a header met again is known at one dict look-up.
+_INTACT: dict[bytes, int] = {}
+#: The most headers remembered (a log has a few kinds of objects; damaged data may make more).
+_MAX_INTACT = 4096
+#: The pattern of a run of objects of each header of :data:`_INTACT` met twice in a row.
+_KINDS: dict[bytes, re.Pattern[bytes]] = {}
+
+
+def _kind(header: bytes, size: int) -> re.Pattern[bytes]:
+    """The pattern of objects of ``size`` bytes beginning with ``header`` one after the other:
+    its match from an object on ends after the last of them that is whole."""
+    kind = _KINDS.get(header)
+    if kind is None:
+        kind = _KINDS[header] = re.compile(b"(?:%s(?s:.){%d})*" % (re.escape(header),
+                                                                   size - _OBJ.size))
+    return kind
+
+
+def intact_objects(data: bytes, lost: bool = False,
                    ) -> tuple[list[tuple[int, int]], int, int, bool]:
     """Where the intact objects are in the data of a BLF log container: ``(runs, rest, damaged,
     lost)``.
@@ -100,11 +120,29 @@ def intact_objects(data: bytes | bytearray, lost: bool = False,
             return [], max(0, n - 3), 0, True
         pos = start = first
         lost = False
-    while pos + _OBJ.size <= n:
+    intact, head = _INTACT.get, _OBJ.size
+    before = b""  # the header of the object before
+    while pos + head <= n:
+        header = data[pos:pos + head]
+        size = intact(header)
+        if size is not None:  # a header found intact before: the step below, in short
+            if pos + size > n:
+                break  # goes on in the next container
+            if header == before:  # objects of one kind in a row: up to the last at once
+                run = _kind(header, size).match(data, pos)  # (at least the one at pos)
+                pos = run.end() if run is not None else pos + size
+            else:
+                pos += size
+                before = header
+            continue
         at = data.find(b"LOBJ", pos, pos + 8)
         if 0 <= at <= n - _OBJ.size:
             size = _object_size(data, at, _MAX_OBJECT)
             if size is not None:
+                if len(_INTACT) >= _MAX_INTACT:
+                    _INTACT.clear()
+                    _KINDS.clear()
+                _INTACT[data[at:at + _OBJ.size]] = size
                 if at + size > n:
                     break  # goes on in the next container
                 pos = at + size
@@ -185,6 +223,13 @@ class BlfReader(can.BLFReader):
                 return skipped
 
     def __iter__(self) -> Generator[can.Message, None, None]:
+        for run in self.runs():
+            yield from self._parse_data(run)
+
+    def runs(self) -> Generator[bytes, None, None]:
+        """The runs of consecutive intact objects, in file order, for python-can's parser
+        (``_parse_data``): what :meth:`__iter__` parses. ``damaged`` is told of each damage
+        after the runs before it are taken."""
         damage_at: int | None = None  # where the damaged bytes being skipped began
         skipped = 0
         while True:
@@ -235,15 +280,15 @@ class BlfReader(can.BLFReader):
             if kind == blf.LOG_CONTAINER:
                 yield from self._container(obj, at)
             elif kind in _BODY_SIZES:  # a frame outside a container (python-can skips those)
-                yield from self._parse_data(obj)
+                yield obj
         if self._tail.find(b"LOBJ") >= 0:
             self._damaged(self._at, "the file ends in the middle of an object; frames in it "
                           "are lost", "stop", "file cut short")
         self.stop()
 
-    def _container(self, obj: bytes, at: int, cut: bool = False) -> Iterator[can.Message]:
-        """The frames of the log container ``obj`` found at byte ``at`` of the file (``cut``: its
-        start only, the file ends in it)."""
+    def _container(self, obj: bytes, at: int, cut: bool = False) -> Iterator[bytes]:
+        """The runs of intact objects of the log container ``obj`` found at byte ``at`` of the
+        file (``cut``: its start only, the file ends in it)."""
         method, _ = _CONTAINER.unpack_from(obj, _OBJ.size)
         packed = obj[_OBJ.size + _CONTAINER.size:]
         if method == blf.NO_COMPRESSION:
@@ -269,7 +314,7 @@ class BlfReader(can.BLFReader):
         data = self._tail + data
         runs, rest, damaged, self._lost = intact_objects(data, self._lost)
         for start, end in runs:
-            yield from self._parse_data(data[start:end])
+            yield data[start:end]
         if damaged:
             self._damaged(at, f"damaged objects in the log container here: {damaged} bytes "
                           "skipped to the next object; frames in them are lost", "damage",

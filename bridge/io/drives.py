@@ -1,14 +1,9 @@
 """Sources: the raw CAN frames of a recorded drive (an MCAP tankviz wrote), and what it holds.
 
-This module only reads. :func:`is_drive` tells a drive by its ``.mcap`` suffix; :func:`read_drive`
-gives its attachments (in file order), its ``tankviz`` metadata (empty for a file cut short), its
-marks, size and SHA-256, and a file that is not a drive is an :class:`~bridge.errors.InputError`
-saying what it lacks. :class:`ArchiveSource` gives every raw frame (``/can/<bus>/frames``, blocks
-or one frame a message) in the order it was recorded, so re-deriving reproduces the drive; a
-drive cut short gives every frame of its complete chunks and one issue pointing to ``tankviz
-recover``; a block or frame that cannot be read, or that no bus carries, is skipped and reported.
-:func:`raw_frame_counts` counts frames per bus; :func:`read_marks` and :func:`drive_marks` read
-``/marks`` in number order, through the indexes where the file has them.
+This module only reads. :class:`ArchiveSource` gives every raw frame in the order it was
+recorded, so re-deriving reproduces the drive; a drive cut short gives every frame of its
+complete chunks and one issue pointing to ``tankviz recover``; a file that is not a drive is an
+:class:`~bridge.errors.InputError` saying what it lacks.
 """
 
 from __future__ import annotations
@@ -20,13 +15,11 @@ import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
-from mcap.reader import McapReader, make_reader
 from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 
 from bridge.errors import InputError, check_input_path
 from bridge.frame import NEVER_NS, Frame
@@ -34,6 +27,12 @@ from bridge.io.can_logs import IssueKind, SourceIssue
 from bridge.pb.can_frame_pb2 import CanFrame, CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
 from bridge.topics import MARKS_TOPIC
+
+if TYPE_CHECKING:
+    from mcap.reader import McapReader
+
+# mcap's reader and its decompressors are imported where a drive is read: converting logs (every
+# convert asks is_drive) never needs them.
 
 #: The suffix of a recorded drive.
 DRIVE_SUFFIX = ".mcap"
@@ -99,7 +98,13 @@ def _open(path: Path) -> IO[bytes]:
 
 
 def read_drive(path: Path | str) -> ArchiveContents:
-    """The attachments and metadata of the drive at ``path``; refuses what is not a drive."""
+    """The attachments (in file order) and metadata (empty for a file cut short) of the drive at
+    ``path``, with its marks, size and SHA-256; a file that is not a drive is an
+    :class:`~bridge.errors.InputError` saying what it lacks.
+    """
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+
     path = Path(path)
     attachments: dict[str, bytes] = {}
     metadata: dict[str, Any] = {}
@@ -189,6 +194,8 @@ class ArchiveSource:
         self.issues.append(SourceIssue(str(self.path), where, reason, kind, group))
 
     def __iter__(self) -> Iterator[Frame]:
+        from mcap.stream_reader import StreamReader
+
         kinds: dict[int, str] = {}  # schema id -> name
         channels: dict[int, bool] = {}  # raw-frame channel id -> whether it carries blocks
         merged = BlockMerger()
@@ -429,6 +436,9 @@ def drive_marks(path: Path | str) -> DriveMarks:
     """The marks of the drive at ``path`` (:func:`read_marks`); a drive cut short (no summary)
     is read up to where it is cut. A file that cannot be opened or is not an MCAP is an
     :class:`~bridge.errors.InputError`."""
+    from mcap.reader import make_reader
+    from mcap.stream_reader import StreamReader
+
     path = Path(path)
     with _open(path) as stream:
         try:

@@ -1,11 +1,7 @@
 """What the inputs of a drive could not give, as a short list to print.
 
-:func:`summarize_issues` is a pure function from a drive's input issues (the
-:class:`~bridge.io.can_logs.SourceIssue` objects, or their texts as the ``input_issues``
-metadata keeps them) to at most ``limit`` lines: the gravest first (a stop, then damage skipped,
-then a line or frame skipped, then a note), the issues of one file, kind and family on one line
-with their count and first places (``log.asc: skipped a line …: … (120 times: line 3, …)``), and
-a cut list ending with ``… and N more``.
+:func:`summarize_issues` is a pure function from a drive's input issues (objects, or their texts
+as the ``input_issues`` metadata keeps them) to at most ``limit`` lines, the gravest first.
 """
 
 from __future__ import annotations
@@ -71,8 +67,15 @@ def _parts(issue: Issue | str) -> tuple[str, str, str, str, str]:
 
 def summarize_issues(issues: Iterable[Issue | str], *, total: int | None = None,
                      limit: int = 20) -> list[str]:
-    """The lines that tell ``issues`` (module docstring); ``total``: how many there were, when
-    ``issues`` holds only the first of them."""
+    """The lines that tell ``issues`` (:class:`~bridge.io.can_logs.SourceIssue` objects, or their
+    texts as the ``input_issues`` metadata keeps them); ``total``: how many there were, when
+    ``issues`` holds only the first of them.
+
+    At most ``limit`` lines: the gravest first (a stop, then damage skipped, then a line or frame
+    skipped, then a note), the issues of one file, kind and family on one line with their count and
+    first places (``log.asc: skipped a line …: … (120 times: line 3, …)``), and a cut list ending
+    with ``… and N more``.
+    """
     groups: dict[tuple[str, str, str], _Group] = {}
     given = 0
     for issue in issues:

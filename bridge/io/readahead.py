@@ -7,7 +7,7 @@ memory stays flat; :meth:`progress` tells the bytes read. The results are those 
 each source's ``issues``, ``frames`` and ``backwards`` come back from the child; an
 :class:`~bridge.errors.InputError` it meets is raised here after the frames before it; a bug in
 the child is a :class:`RuntimeError` with its traceback, a child that dies without a word a
-one-line :class:`~bridge.errors.BridgeError`. Stopped early, the child is ended with it (SIGTERM,
+one-line :class:`~bridge.errors.HelperDied`. Stopped early, the child is ended with it (SIGTERM,
 then SIGKILL). Where forking is not safe or not worth it (no ``fork``, other threads, a daemonic
 process, inputs under :data:`MIN_BYTES`), the sources are read here, in the same order.
 
@@ -29,7 +29,7 @@ from collections.abc import Generator, Iterable, Iterator, Sequence
 from itertools import islice
 from typing import Any, Protocol, TypeVar
 
-from bridge.errors import BridgeError, InputError
+from bridge.errors import HelperDied, InputError
 from bridge.frame import Frame
 from bridge.io.can_logs import SourceIssue, merge
 from bridge.packed import PackedFrames, packs
@@ -147,9 +147,8 @@ class ReadAhead:
                     code = child.exitcode or 0
                     how = (f"killed by {signal.Signals(-code).name}" if code < 0
                            else f"exit code {code}")
-                    raise BridgeError(f"the process reading the inputs ahead ended without a word "
-                                      f"({how}; out of memory?); --no-read-ahead reads them in "
-                                      "this process") from None
+                    raise HelperDied("reading the inputs ahead", f"{how}; out of memory?",
+                                     "--no-read-ahead reads them in this process") from None
                 if message[:1] == _BLOCK:
                     done = array("q")
                     done.frombytes(message[1:1 + 8 * sources])

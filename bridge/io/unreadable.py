@@ -1,10 +1,8 @@
 """Why an MCAP file cannot be read, in words a user can act on.
 
-:func:`why_unreadable` is what ``tankviz catalog``, ``inspect`` and ``replay`` say after the
-file's path when mcap cannot read a file: empty, not MCAP (what it starts with), cut at byte N
-of M, zero bytes or damage from byte N, each with the ``tankviz recover`` advice, or damaged
-inside (its summary or a chunk). It only reads the file, and walks its record headers only when
-the file does not end with a footer and the closing magic.
+:func:`why_unreadable` says what ``catalog``, ``inspect`` and ``replay`` print after the path of
+a file mcap cannot read (empty, not MCAP, cut at byte N, damaged from byte N or inside), with the
+``tankviz recover`` advice where it helps. It only reads the file.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """Clock steps: a car's clocks jump (an NTP correction at boot, an adapter reset, a logger with a
 wrong date), and log time comes from the frames.
 
-:class:`StepDetector`, the one detector of convert and live, calls a frame stamped more than
-``back_ns`` before log time, or more than ``forward_ns`` after it, a step (:class:`ClockStep`);
-in a log, a jump ahead is a step only beyond :data:`LOG_FORWARD_NS`, shorter ones are gaps.
-Everything on log time re-bases at a step by :attr:`ClockStep.shift_ns`, never waiting for the
-log to catch up; every frame keeps its own stamp, and the step is said on ``/log`` and listed in
-the drive's metadata.
+At a step everything on log time re-bases at once, never waiting for the log to catch up; every
+frame keeps its own stamp, and the step is said on ``/log`` and listed in the drive's metadata.
 """
 
 from __future__ import annotations
@@ -63,7 +59,13 @@ class ClockStep:
 
 
 class StepDetector:
-    """Tells clock steps from frame stamps (see the module documentation)."""
+    """Tells clock steps from frame stamps, the one detector of convert and live.
+
+    A frame stamped more than ``back_ns`` before log time, or more than ``forward_ns`` after it, is
+    a step (:class:`ClockStep`); in a log, a jump ahead is a step only beyond
+    :data:`LOG_FORWARD_NS`, shorter ones are gaps. Everything on log time re-bases by
+    :attr:`ClockStep.shift_ns`.
+    """
 
     def __init__(self, *, back_ns: int = BACK_NS, forward_ns: int = LOG_FORWARD_NS) -> None:
         self.back_ns = back_ns

@@ -1,11 +1,8 @@
 """The garbage collector's settings for a live process, a steady stream of short-lived objects.
 
-:func:`steady_stream` sets, for the time it runs: :func:`gc.freeze` of what start-up loaded;
-young and middle collections a little rarer than the defaults (:data:`LIVE_THRESHOLDS`); no
-automatic full collection, but one every :data:`FULL_EVERY_S` seconds from :meth:`Steady.quiet`,
-which the live loop calls where it would sleep, so cycles are still freed and memory stays flat.
-On the way out the process's own settings come back. Convert needs none of this
-(:meth:`bridge.pipeline.drive.Drive.run` turns the collector off for its loop).
+:func:`steady_stream` freezes what start-up loaded and leaves full collections to
+:meth:`Steady.quiet`, which the live loop calls where it would sleep, so cycles are still freed
+and memory stays flat; on the way out the process's own settings come back.
 """
 
 from __future__ import annotations

@@ -41,6 +41,7 @@ from bridge.pipeline.rederive import (
     unreadable_marks,
 )
 from bridge.profile.model import Profile
+from bridge.sinks.mcap import OFFLINE_LEVEL
 from bridge.sinks.outputs import atomic_output, check_output, refuse_inputs, same_file
 
 #: How many source issues are kept in the metadata (all are counted).
@@ -158,7 +159,7 @@ def record_drive(sources: Sequence[Source], decoder: Decoder, output: IO[bytes],
     started = time.perf_counter()
     drive = Drive(Stages(decoder, profile), scene_rate=scene_rate, extra=extra,
                   bring_up=bring_up)
-    recorder = drive.record(output, attachment_time_ns=attachment_time_ns)
+    recorder = drive.record(output, attachment_time_ns=attachment_time_ns, level=OFFLINE_LEVEL)
     reading = ReadAhead(sources, ahead=read_ahead)
 
     def report_progress(frames: int) -> None:

@@ -32,7 +32,7 @@ from bridge.profile.loader import load_profile, read_profile_databases, resolve_
 from bridge.profile.model import Profile
 from bridge.sinks.base import Sink
 from bridge.sinks.drives import PartsRecorder
-from bridge.sinks.mcap import Recorder
+from bridge.sinks.mcap import LIVE_LEVEL, Recorder
 
 if TYPE_CHECKING:
     from bridge.bringup.monitor import BringUpMonitor
@@ -126,11 +126,13 @@ class Drive:
         self.pipeline.add_sink(sink)
         return sink
 
-    def record(self, output: IO[bytes], *, attachment_time_ns: int | None = None) -> Recorder:
+    def record(self, output: IO[bytes], *, attachment_time_ns: int | None = None,
+               level: int = LIVE_LEVEL) -> Recorder:
         """Record the drive into the open binary ``output``, described when it is finished
-        (``attachment_time_ns``: a fixed create time of the attachments, for the same bytes)."""
+        (``attachment_time_ns``: a fixed create time of the attachments, for the same bytes;
+        ``level``: the chunks' zstd level, :data:`~bridge.sinks.mcap.OFFLINE_LEVEL` offline)."""
         recorder = Recorder(output, describe=self.describe, attach=self.attach,
-                            attachment_time_ns=attachment_time_ns)
+                            attachment_time_ns=attachment_time_ns, level=level)
         self.add(recorder)
         return recorder
 

@@ -1,10 +1,9 @@
 """Marks: moments somebody marked during a drive, made into the drive's messages.
 
-A mark is asked for from any thread (:meth:`Marks.ask`: a viewer, the terminal) and made in the
-pipeline's thread (:meth:`Marks.take`), stamped with the drive's clock, so it lands among the
-frames of that moment; a profile's ``[marks]`` rule (:class:`MarkWatch`) marks at the frame that
-makes it true. Each mark is numbered in the drive and becomes ``/marks`` (``tankviz.Mark``), a
-``/log`` line and a text in the scene for :data:`SHOWN_S` seconds.
+A mark is asked for from any thread (a viewer, the terminal) or by a profile's ``[marks]`` rule
+and made in the pipeline's thread, stamped with the drive's clock, so it lands among the frames
+of that moment. Each is numbered in the drive and becomes ``/marks`` (``tankviz.Mark``), a ``/log``
+line and a text in the scene for :data:`SHOWN_S` seconds.
 """
 
 from __future__ import annotations

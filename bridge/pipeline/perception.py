@@ -1,15 +1,8 @@
 """Perception: decoded messages → observations → world → scene and semantic topics, in log time.
 
 :class:`Perception` runs the profile, world and scene stages for convert, replay and live alike,
-driven by frame times: :meth:`advance` with each frame's time, :meth:`feed` with each decoded
-message. At each tick of the scene rate it emits the scene (``/scene/*``, labels per 3D view),
-the semantic topics and the sensor frames for that tick's log time, from everything observed
-before it; every tick is made, also a gap's (up to a minute of them), and a clock step is
-re-based at once (:meth:`rebase`). Between ticks only the newest message of each name is kept,
-and the world at a tick is the same as if every message had been observed on arrival (except an
-object renumbered twice between two ticks); a group without an index range and multiplexed
-object messages are observed frame by frame. Two groups that read the same fields of the same
-messages are observed once (:func:`bridge.world.observe.copies`).
+driven by frame times: at each tick of the scene rate it emits the scene, the semantic topics and
+the sensor frames for that tick's log time, from everything observed before it.
 """
 
 from __future__ import annotations
@@ -59,7 +52,16 @@ def check_scene_rate(rate: float) -> float:
 
 
 class Perception:
-    """The profile, world and scene stages for one drive."""
+    """The profile, world and scene stages for one drive: :meth:`advance` with each frame's time,
+    :meth:`feed` with each decoded message.
+
+    Every tick is made, also a gap's (up to a minute of them), and a clock step is re-based at once
+    (:meth:`rebase`). Between ticks only the newest message of each name is kept, and the world at a
+    tick is the same as if every message had been observed on arrival (except an object renumbered
+    twice between two ticks); a group without an index range and multiplexed object messages are
+    observed frame by frame. Two groups that read the same fields of the same messages are observed
+    once (:func:`bridge.world.observe.copies`).
+    """
 
     def __init__(self, profile: Profile, *, scene_rate: float = DEFAULT_SCENE_RATE) -> None:
         self.profile = profile

@@ -1,10 +1,9 @@
 """The data path of one drive (:class:`Pipeline`): frames → decode → perception, health and
-bring-up → sinks. Every frame, alone, in a read or packed, takes the same step: log time
-reaches it (a clock step re-bases every stage, the ticks due before it are made), then it goes
-into its raw block (:mod:`bridge.sinks.raw`), is counted by health and bring-up, and its decoded
-message goes to every sink, to perception and to the profile's ``[marks]`` rules. Every scene
-tick is recorded; a viewer (:meth:`Pipeline.add_viewer`) gets only the latest of a catch-up.
-Each message is serialized once for all sinks.
+bring-up → sinks.
+
+Every frame, alone, in a read or packed, takes the same step: log time reaches it, it goes into
+its raw block, is counted by health and bring-up, and its decoded message goes to every sink,
+perception and the ``[marks]`` rules. Each message is serialized once for all sinks.
 """
 
 from __future__ import annotations
@@ -55,7 +54,12 @@ Feed = Callable[[str, Mapping[str, Any], int], None]
 
 
 class Pipeline:
-    """Runs one drive's frames through decoding, perception and health into its sinks."""
+    """Runs one drive's frames through decoding, perception and health into its sinks.
+
+    When log time reaches a frame, a clock step re-bases every stage and the ticks due before it are
+    made. Every scene tick is recorded; a viewer (:meth:`add_viewer`) gets only the latest of a
+    catch-up.
+    """
 
     def __init__(self, decoder: Decoder, *, profile: Profile | None = None,
                  scene_rate: float = DEFAULT_SCENE_RATE, sinks: Iterable[Sink] = (),

@@ -1,14 +1,8 @@
 """Re-deriving a recorded drive: the stages that decode and draw its raw frames again.
 
-:func:`rederive_stages` gives the stages that run a recorded drive again (``tankviz convert
-DRIVE.mcap``, ``tankviz replay DRIVE.mcap --rederive``): the ``--dbc`` databases, else the
-attached ones on the buses recorded; the profile given, else the attached one, checked against
-those databases. An attachment that does not load is named ``DRIVE.mcap (attached NAME)``.
-:func:`source_record` is what the new drive's metadata says of its source, keeping its
-``created``, so the same drive with the same databases and profile gives the same bytes;
-:func:`recorded_scene_rate` is kept unless another is given. :class:`CarriedMarks` gives the
-drive's recorded marks back to the pipeline in time order, with their numbers and texts; the
-profile's ``[marks]`` rules then make none again, unless the drive has no marks.
+The ``--dbc`` databases, else the attached ones on the buses recorded; the profile given, else the
+attached one. The new drive's metadata keeps its source's ``created``, so the same drive with the
+same databases and profile gives the same bytes, and its recorded marks are carried over.
 """
 
 from __future__ import annotations
@@ -43,7 +37,7 @@ def _attached_database(drive: ArchiveContents, folder: Path, name: str, data: by
     except DatabaseError as exc:
         raise DatabaseError(where, f"(attached to {drive.path}) {exc.reason}") from None
     return DatabaseFile(where, loaded.name, loaded.sha256, loaded.content, loaded.db,
-                        database_warnings(where, loaded.db))
+                        database_warnings(where, loaded.db), loaded.code)
 
 
 def attached_decoder(drive: ArchiveContents, folder: Path) -> Decoder:
@@ -146,8 +140,11 @@ def unreadable_marks(drive: ArchiveContents) -> list[str]:
 
 
 class CarriedMarks:
-    """The marks of a drive re-derived by ``pipeline``, given back to it where its frames reach
-    them (the pipeline's :attr:`~bridge.pipeline.pipeline.Pipeline.marks` then lists them)."""
+    """The marks of a drive re-derived by ``pipeline``, given back to it in time order, with their
+    numbers and texts, where its frames reach them (the pipeline's
+    :attr:`~bridge.pipeline.pipeline.Pipeline.marks` then lists them); the profile's ``[marks]``
+    rules then make none again, unless the drive has no marks.
+    """
 
     def __init__(self, marks: Sequence[Mark], pipeline: Pipeline) -> None:
         self._pending = deque(marks)

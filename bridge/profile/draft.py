@@ -1,15 +1,9 @@
 """A starting profile drafted from the databases alone: what ``tankviz profile new`` writes.
 
-:func:`draft_profile` is a pure function, databases (as cantools loaded them, and the buses they
-are for) -> commented TOML text: ``[profile] databases`` (per bus when buses are given) and each
-bus's bitrate, ``[sensors]`` and ``[objects]`` per group of companion families, ``[lead]`` from
-the tracks, the sensors' placement and lateral sign (from the DBC's comment where it says, else
-``lateral = "left"`` marked unknown), a typical car's ``[vehicle]``, the ego signals converted to
-SI, and steering-only ``[lanes]``. Every guess says on its line why (``# guessed from the name
-LatDist and unit m``); what could not be found is a ``# TODO: …`` line when the profile needs it
-(:func:`bridge.profile.loader.load_profile` then names that line) and ``# TODO (optional): …``
-otherwise. The guessing is in :mod:`bridge.profile.families`, :mod:`bridge.profile.plan`,
-:mod:`bridge.profile.guess` and :mod:`bridge.profile.ego`.
+:func:`draft_profile` is a pure function from databases to commented TOML text; every guess says
+on its line why (``# guessed from the name LatDist and unit m``), and what could not be found is a
+``# TODO: …`` line when the profile needs it (the loader then names that line) and ``# TODO
+(optional): …`` otherwise.
 """
 
 from __future__ import annotations
@@ -93,9 +87,15 @@ def _bare(key: str) -> str:
 def draft_profile(databases: Sequence[tuple[str, Database]], *, name: str = "car",
                   buses: Mapping[str, Sequence[str]] | None = None) -> str:
     """A commented starting profile for the messages of ``databases`` ((path as written in the
-    profile's ``databases``, database) pairs), as TOML text. ``buses`` gives the buses the
-    databases are for (bus, or "*" for every bus -> paths): ``databases`` is then a table per bus
-    and every bus gets a bitrate; without it, ``databases`` is one list for every bus."""
+    profile's ``databases``, database) pairs), as TOML text. ``buses`` gives the buses the databases
+    are for (bus, or "*" for every bus -> paths): ``databases`` is then a table per bus and every
+    bus gets a bitrate; without it, ``databases`` is one list for every bus.
+
+    It has ``[sensors]`` and ``[objects]`` per group of companion families, ``[lead]`` from the
+    tracks, the sensors' placement and lateral sign (from the DBC's comment where it says, else
+    ``lateral = "left"`` marked unknown), a typical car's ``[vehicle]``, the ego signals converted
+    to SI, and steering-only ``[lanes]``.
+    """
     messages = [(source, m) for source, db in databases for m in db.messages]
     families = find_families(messages)
     in_family = {expand(f.template, i) for f in families for i in range(f.first, f.last + 1)}

@@ -1,10 +1,7 @@
 """The ego's motion, from the messages of no family: speed, yaw rate, steering angle, lanes.
 
-Each pick comes with the scale that converts it to SI (m/s, rad/s, rad) and says why: speed
-(:func:`pick_speed`: four wheels' mean, :func:`wheel_mean`, else a speed signal, else a wheel's
-angular speed), yaw rate (:func:`pick_yaw_rate`), steering wheel angle (:func:`pick_steering`,
-with its fine part where it comes in two: :func:`fraction`), and the lane messages
-(:func:`lane_messages`), which the draft names but does not map.
+Each pick comes with the scale that converts it to SI (m/s, rad/s, rad) and says why; the lane
+messages (:func:`lane_messages`) are named by the draft but not mapped.
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """Numbered message families and their companions: the object slots a database sends.
 
 A **family** (:func:`find_families`) is at least :data:`MIN_FAMILY` messages whose names differ
-only by one number, the longest run of consecutive numbers, whose signals have the same names
-(``RadarPoint{i}_A``, ``Object_{i:02d}``); where two claim a message, the wider span keeps it.
-Families with the same numbers whose names differ only after the number or in a one-letter part
-before it (:func:`stem`: ``TRACK_A_{i}``, ``TRACK_B_{i}``) are **companions**
-(:func:`group_families`): the messages of one index are one object.
+only by one number, the longest run of consecutive numbers, whose signals have the same names;
+where two claim a message, the wider span keeps it. **Companions** (:func:`group_families`) are
+families whose messages of one index are one object.
 """
 
 from __future__ import annotations

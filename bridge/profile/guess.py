@@ -1,12 +1,8 @@
 """Which signal of an object group means what, guessed from its name and unit.
 
-Names are split into lower-case words (:func:`tokens`) and units read by kind with their factor
-to SI (:func:`unit_of`); each pick scores the signals whose words and unit fit and takes the
-best, the first on a tie: position (:func:`position`: cartesian or polar), velocity
-(:func:`pick_velocity`, :func:`pick_unaxed_velocity`), existence probability, class (with
-:func:`classes_of` from its value table), id and validity. Every pick says why
-(:func:`guessed_from`); what could not be found is a :data:`TODO` line when the profile needs it,
-:data:`TODO_OPTIONAL` otherwise.
+Each pick scores the signals whose lower-case words and unit fit and takes the best, the first on
+a tie; every pick says why (:func:`guessed_from`), and what could not be found is a :data:`TODO`
+line when the profile needs it, :data:`TODO_OPTIONAL` otherwise.
 """
 
 from __future__ import annotations

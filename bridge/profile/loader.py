@@ -1,14 +1,9 @@
 """Reading and checking a vehicle profile: a TOML file that declares what the DBC signals of one
 car mean, read into a :class:`~bridge.profile.model.Profile` and checked on load.
 
-The format is documented in docs/profiles.md; bridge/data/ecocar.toml is a complete example.
-:func:`resolve_profile` takes a path or a bundled profile's name; :func:`read_profile_databases`
-reads only the databases the profile names, to load them first; :func:`load_profile` checks
-every key, type, value, message and signal name against them, and parses computed values and
-rules once (:mod:`bridge.profile.expr`). Whatever is wrong raises
-:class:`~bridge.profile.model.ProfileError` naming the file, the key, the bad name and the
-closest existing names; a draft (``tankviz profile new``) that fails while it still has ``#
-TODO:`` lines names the first of them instead.
+The format is documented in docs/profiles.md. Whatever is wrong raises
+:class:`~bridge.profile.model.ProfileError` naming the file, the key, the bad name and the closest
+existing names; a draft that fails while it still has ``# TODO:`` lines names the first of them.
 """
 
 from __future__ import annotations

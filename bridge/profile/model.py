@@ -1,14 +1,9 @@
 """Vehicle profiles: what the DBC signals of one car *mean*; this module is the model.
 
-A :class:`Profile` names the sensors, the object groups bound to families of DBC messages, the
-lead vehicle, the lane lines, the ego signals and the rules that mark the drive
-(:class:`MarkRule`). Its parts are frozen dataclasses that check nothing themselves: a profile
-comes from :func:`bridge.profile.loader.load_profile`, which has checked every name, and one that
-cannot be used is a :class:`ProfileError`. In a group, names are templates: ``{i}`` or
-``{i:0Nd}`` (:data:`INDEX_PLACEHOLDER`) stands for the object index (:func:`expand`,
-:meth:`SignalRef.at`). A mapped :data:`Field` is one signal (:class:`SignalRef`,
-value·scale + offset) or a value computed from several (:class:`Computed`); both give
-:meth:`~SignalRef.value` of the latest messages as a finite float or None.
+A :class:`Profile` names the sensors, object groups, lead vehicle, lane lines, ego signals and
+mark rules. Its parts are frozen dataclasses that check nothing themselves: a profile comes from
+:func:`bridge.profile.loader.load_profile`, which has checked every name, and one that cannot be
+used is a :class:`ProfileError`.
 """
 
 from __future__ import annotations

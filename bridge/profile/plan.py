@@ -1,10 +1,8 @@
 """What the drafted profile's sensors and object groups are, from the groups of companion families.
 
-:func:`object_groups` takes a group of companion families as objects when it has a position-like
-signal or its name says objects, and names it after its messages in snake case;
-:func:`plan_sensors` makes one sensor per group, its kind (camera, fusion, else radar) and role
-(``tracks`` where the names say so or an id signal is found, with a detections group beside a
-radar's tracks) from the names.
+A group is objects when it has a position-like signal or its name says so, named after its
+messages in snake case; each gets one sensor, its kind (camera, fusion, else radar) and role
+(tracks or detections) from the names.
 """
 
 from __future__ import annotations

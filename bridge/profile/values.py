@@ -1,12 +1,8 @@
 """Reading the values of a profile's TOML: each of the right type and within its range, or one
 line naming the file, the key and what is wrong.
 
-:class:`ValueReader` reads tables (only the allowed keys: an unknown one names the closest),
-sections, numbers (finite, of the sign asked, and within :data:`MAX_SECONDS`,
-:data:`MAX_METRES`, :data:`MAX_VEHICLE_METRES` or :data:`MAX_BITRATE` where the keyword
-:data:`SECONDS`, :data:`DISTANCE`, :data:`VEHICLE` or :data:`BITRATE` asks, so no value can
-overflow the drive's arithmetic) and strings (one of their choices); every problem is a
-:class:`~bridge.profile.model.ProfileError`.
+Every problem is a :class:`~bridge.profile.model.ProfileError`; no value read can overflow the
+drive's arithmetic.
 """
 
 from __future__ import annotations
@@ -50,7 +46,12 @@ def closest(word: str, choices: Iterable[str], *, or_all: bool = False) -> str:
 
 
 class ValueReader:
-    """Reads the values of one profile file, checking each (module documentation)."""
+    """Reads the values of one profile file, checking each: tables (only the allowed keys: an
+    unknown one names the closest), sections, numbers (finite, of the sign asked, and within
+    :data:`MAX_SECONDS`, :data:`MAX_METRES`, :data:`MAX_VEHICLE_METRES` or :data:`MAX_BITRATE` where
+    the keyword :data:`SECONDS`, :data:`DISTANCE`, :data:`VEHICLE` or :data:`BITRATE` asks) and
+    strings (one of their choices).
+    """
 
     def __init__(self, path: Path) -> None:
         self.path = path

@@ -1,25 +1,17 @@
 """The cameras a profile is viewed from, and how big a metre looks in each.
 
-The generated layouts have two 3D views (:data:`VIEWS`). The chase view (:func:`chase_camera`)
-follows the car from close behind: about 60 m of road, the rest squeezed into a band at the
-horizon. The range view (:func:`camera_for`) frames the road from :data:`BEHIND_M` behind the
-vehicle origin (the bottom edge) to just beyond the profile's farthest sensor range
-(:func:`view_range`), looking :data:`DEPRESSION_DEG` down from the horizon. The layouts
-(:mod:`bridge.view.generate`) use them as their panels' default cameras; the scene keeps every
-mark visible in the range view (:meth:`ViewCamera.scale`) and lays out each view's labels apart
-and on its panel (:mod:`bridge.scene.labels`).
+The generated layouts (:mod:`bridge.view.generate`) have two 3D views (:data:`VIEWS`): the chase
+view (:func:`chase_camera`), close behind the car, and the range view (:func:`camera_for`), from
+:data:`BEHIND_M` behind the vehicle origin to just beyond the profile's farthest sensor range
+(:func:`view_range`), looking :data:`DEPRESSION_DEG` down. Each is laid out for the smallest panel
+the layouts give it in a 1280 x 800 window (:data:`RANGE_PANEL`, :data:`CHASE_PANEL`): on a panel
+as tall or taller and as wide or wider for its height, labels apart and on the small panel stay so
+(:meth:`ViewCamera.holds`); the scene keeps every mark visible in the range view
+(:meth:`ViewCamera.scale`). These are defaults: the camera can still be moved in Foxglove.
 
-Labels have a fixed size in pixels, and a window can be any size, which the server cannot know.
-Each view is laid out for the smallest panel the generated layouts give it in a 1280 x 800
-window (:data:`RANGE_PANEL`, :data:`CHASE_PANEL`, as Foxglove Studio draws them). Foxglove keeps
-the vertical field of view, so on a panel as tall or taller and as wide or wider for its height
-every distance on screen grows and the labels do not: blocks apart and on the small panel stay
-apart and on it (:meth:`ViewCamera.holds`). Moving the camera in Foxglove is still possible;
-these are the defaults.
-
-Foxglove's camera state: ``distance`` from the eye to the target, ``phi`` the angle of the
-line of sight from straight down (degrees), ``targetOffset`` the target in the followed frame,
-``fovy`` the vertical field of view.
+Foxglove's camera state: ``distance`` from the eye to the target, ``phi`` the angle of the line of
+sight from straight down (degrees), ``targetOffset`` the target in the followed frame, ``fovy``
+the vertical field of view.
 """
 
 from __future__ import annotations

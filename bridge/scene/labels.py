@@ -1,31 +1,20 @@
 """Labels: one text block per place, and no block drawn over another.
 
-Every label the scene would draw is first a :class:`Label` request: where it stands, its full
-text, a one-line compact text and a priority (the MIO check first, then the lead vehicle, then
-tracks, then detections; nearer before farther). :func:`lay_out` turns the requests of one tick
-into the text blocks to draw:
+Every label the scene would draw is first a :class:`Label` request (anchor, full text, compact
+text, priority: the MIO check, the lead, tracks, detections; nearer first). :func:`lay_out` turns
+one tick's requests into :class:`Block` s, with two promises:
 
-1. **One block per place.** Requests whose anchors lie within :data:`PLACE_M` (2.5 m, in the
-   ground plane) of each other, directly or through a chain of such neighbours, are one place.
-   A place has one block, at its first request's anchor: that request's full text, then one line
-   per other request of the place (e.g. ``TrackID: 12 · 41 m``, ``radar: car``; a line once).
-   So no two blocks of a tick stand within 2.5 m of each other.
-2. **No block covers another on screen.** Seen from the range view's camera
-   (:mod:`bridge.scene.camera`), a label of fixed pixel size covers many metres far away, where
-   objects a lane apart lie a few pixels apart. Places are drawn in order of priority. A block
-   whose box on the panel (:func:`box`: its lines at :data:`CHAR_PX` x :data:`LINE_PX` each,
-   centred on its anchor, which stands high enough above the object's mark not to cover it:
-   :func:`lifted`) would overlap one already drawn, or leave the panel, is drawn compact (its
-   first request's compact text alone); where that does too, the compact block is moved off its
-   anchor: one block width aside (towards the middle of the view first), then up by one, two
-   and three block heights (:data:`MAX_RAISES`), to the first place where it covers no other
-   block, stays on the panel and stands :data:`PLACE_M` from every other block; a thin leader
-   line joins it to its object. Where none fits, it is not drawn: its objects keep their marks,
-   and their full details stay in each entity's metadata, which Foxglove shows when the object
-   is clicked.
-
-The result is a list of :class:`Block`: the text, where it stands, its leader line (when it
-was moved), and which request's entity carries it.
+1. **One block per place.** Requests within :data:`PLACE_M` of each other on the ground, directly
+   or through a chain, are one place and get one block at the first request's anchor: its full
+   text, then one line per other request (a line once). No two blocks stand within
+   :data:`PLACE_M`.
+2. **No block covers another on screen** (seen from the range view's camera,
+   :mod:`bridge.scene.camera`). Places go in priority order; a block whose box (:func:`box`,
+   :func:`lifted`) would overlap one drawn or leave the panel is drawn compact; if that does too,
+   it moves one block width aside (towards the middle first), then up by up to :data:`MAX_RAISES`
+   block heights, to the first spot that covers nothing, stays on the panel and keeps
+   :data:`PLACE_M`, with a leader line to its object. Where none fits it is not drawn; its objects
+   keep their marks and their details in the entity metadata.
 """
 
 from __future__ import annotations

@@ -1,22 +1,8 @@
 """The front camera: CamObstacle0..9 (A and B) and the four lane lines, every 66 ms.
 
 The camera reports y positive RIGHT (as its DBC comments say): every lateral position and every
-lane coefficient has the opposite sign of the world's (y positive left).
-
-- Obstacles: the 10 nearest actors the camera covers (:mod:`bridge.sim.sensors`), each keeping its
-  slot and obstacle id while it is visible; an unused slot is zeros (but its counter). An obstacle
-  has its actor's camera type and size, a status (oncoming, moving or stopped), its lane (ego lane,
-  next lane), its age, and for vehicles brake lights while it decelerates, the cut-in flag and the
-  left blinker for the ``cut_in`` car from a second before its lane change to its end.
-- Lanes (``CamLaneLeft``, ``CamLaneRight``, ``CamLaneNextLeft``, ``CamLaneNextRight``): the
-  least-squares cubic ``C0 + C1 x + C2 x^2 + C3 x^3`` of the road's ego lane centre 0..80 m ahead,
-  relative to the ego's lateral offset and heading, moved out to each line (half a lane width for
-  the ego lane's lines, one and a half for the neighbours'), with noise: ``C0`` about -1.8 m
-  (left) and +1.8 m (right), ``C2`` about half the path curvature; ``Source`` camera,
-  ``Quality`` high. Lane frames have their own rolling counter, modulo 4.
-- ``lane_dropout`` (``drive``'s episode, ``lane_loss``): every lane frame with a timestamp inside
-  the window reports no lanes (``Source`` none, ``Quality`` none, coefficients 0); the obstacles
-  carry on.
+lane coefficient has the opposite sign of the world's (y positive left). ``lane_dropout`` blanks
+the lanes, never the obstacles.
 """
 
 from __future__ import annotations
@@ -57,7 +43,24 @@ LANES = (("CamLaneLeft", LANE_WIDTH_M / 2, 0, 80),
 
 
 def camera(run: Run) -> Iterator[Frame]:
-    """CamObstacle0..9 A and B, then the four lane lines, every 66 ms."""
+    """CamObstacle0..9 A and B, then the four lane lines, every 66 ms.
+
+    - Obstacles: the 10 nearest actors the camera covers (:mod:`bridge.sim.sensors`), each keeping
+      its slot and obstacle id while it is visible; an unused slot is zeros (but its counter). An
+      obstacle has its actor's camera type and size, a status (oncoming, moving or stopped), its
+      lane (ego lane, next lane), its age, and for vehicles brake lights while it decelerates, the
+      cut-in flag and the left blinker for the ``cut_in`` car from a second before its lane change
+      to its end.
+    - Lanes (``CamLaneLeft``, ``CamLaneRight``, ``CamLaneNextLeft``, ``CamLaneNextRight``): the
+      least-squares cubic ``C0 + C1 x + C2 x^2 + C3 x^3`` of the road's ego lane centre 0..80 m
+      ahead, relative to the ego's lateral offset and heading, moved out to each line (half a lane
+      width for the ego lane's lines, one and a half for the neighbours'), with noise: ``C0`` about
+      -1.8 m (left) and +1.8 m (right), ``C2`` about half the path curvature; ``Source`` camera,
+      ``Quality`` high. Lane frames have their own rolling counter, modulo 4.
+    - ``lane_dropout`` (``drive``'s episode, ``lane_loss``): every lane frame with a timestamp
+      inside the window reports no lanes (``Source`` none, ``Quality`` none, coefficients 0); the
+      obstacles carry on.
+    """
     rng = run.rng("Camera")
     obstacles = [(run.codec(f"CamObstacle{i}_A"), run.codec(f"CamObstacle{i}_B"))
                  for i in range(10)]

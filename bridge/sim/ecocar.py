@@ -1,13 +1,8 @@
 """A deterministic scenario engine: realistic CAN traffic of the ecocar test vehicle.
 
-:func:`simulate` yields, in non-decreasing timestamp order, every frame the car's bus would carry
-on a gently S-curved road (radar, camera, fusion, lead vehicle, ego motion, steering, driver
-inputs, GNSS, diagnostics), each family at its DBC cycle time with phases, jitter, counters,
-checksums and noise, encoded with cantools against the bundled DBC; for ``bus_silent`` no frame
-inside the fault. The same ``seed`` gives byte-identical frames, and never changes the scenario
-(:mod:`bridge.sim.scenario`). The world is :mod:`bridge.sim.world`, what the sensors see
-:mod:`bridge.sim.sensors`, frames and timing :mod:`bridge.sim.frames`, and each family its module
-(:mod:`bridge.sim.ego`, ``radar``, ``camera``, ``fusion``, ``gateway``).
+:func:`simulate` yields, in non-decreasing timestamp order, every frame the car's bus would carry,
+each family at its DBC cycle time with phases, jitter, counters, checksums and noise. The same
+``seed`` gives byte-identical frames, and never changes the scenario (:mod:`bridge.sim.scenario`).
 """
 
 from __future__ import annotations

@@ -1,18 +1,7 @@
 """The ego car's own messages: EgoMotion, Steering, DriverInputs and EgoPosition.
 
-All follow the scripted ego (:class:`bridge.sim.world.Script`) at each message's measurement tick,
-with measurement noise:
-
-- ``EgoMotion`` every 10 ms, the run's first frame exactly at ``start_ns``: vehicle speed (km/h),
-  yaw rate (speed x path curvature), longitudinal and lateral acceleration, rolling counter and
-  checksum.
-- ``Steering`` every 10 ms: the steering wheel angle of the path curvature
-  (:func:`steering_wheel_angle_deg`: bicycle model with :data:`WHEELBASE_M` and
-  :data:`STEERING_RATIO`), its rate, the driver torque, rolling counter and checksum.
-- ``DriverInputs`` every 20 ms: in D, ACC on (set speed 90, gap setting 2), no pedal pressed;
-  the brake pressure follows the ego's deceleration while the ACC brakes.
-- ``EgoPosition`` every 100 ms: the GNSS latitude and longitude of the ego driving the road from
-  a start on a test track near Ann Arbor, MI (heading 30 degrees), with about 0.3 m of noise.
+All follow the scripted ego (:class:`bridge.sim.world.Script`) at each message's measurement
+tick, with measurement noise.
 """
 
 from __future__ import annotations
@@ -30,6 +19,10 @@ STEERING_RATIO = 15.0
 
 
 def ego_motion(run: Run) -> Iterator[Frame]:
+    """``EgoMotion`` every 10 ms, the run's first frame exactly at ``start_ns``: vehicle speed
+    (km/h), yaw rate (speed x path curvature), longitudinal and lateral acceleration, rolling
+    counter and checksum.
+    """
     rng = run.rng("EgoMotion")
     codec = run.codec("EgoMotion")
     counter = rng.randrange(codec.counter_mod)
@@ -58,6 +51,9 @@ def steering_wheel_angle_deg(curvature: float) -> float:
 
 
 def steering(run: Run) -> Iterator[Frame]:
+    """``Steering`` every 10 ms: the steering wheel angle of the path curvature
+    (:func:`steering_wheel_angle_deg`), its rate, the driver torque, rolling counter and checksum.
+    """
     rng = run.rng("Steering")
     codec = run.codec("Steering")
     counter = rng.randrange(codec.counter_mod)
@@ -82,6 +78,9 @@ def steering(run: Run) -> Iterator[Frame]:
 
 
 def driver_inputs(run: Run) -> Iterator[Frame]:
+    """``DriverInputs`` every 20 ms: in D, ACC on (set speed 90, gap setting 2), no pedal pressed;
+    the brake pressure follows the ego's deceleration while the ACC brakes.
+    """
     rng = run.rng("DriverInputs")
     codec = run.codec("DriverInputs")
     counter = rng.randrange(codec.counter_mod)
@@ -112,6 +111,9 @@ _ORIGIN_LAT, _ORIGIN_LON, _ORIGIN_HEADING = 42.2995, -83.6990, math.radians(30.0
 
 
 def ego_position(run: Run) -> Iterator[Frame]:
+    """``EgoPosition`` every 100 ms: the GNSS latitude and longitude of the ego driving the road
+    from a start on a test track near Ann Arbor, MI (heading 30 degrees), with about 0.3 m of noise.
+    """
     rng = run.rng("EgoPosition")
     codec = run.codec("EgoPosition")
     sc = run.world.scenario

@@ -1,26 +1,9 @@
 """Frames on the bus: the DBC encoding, counters and checksums, and the timing of every family.
 
-Every payload is encoded with cantools against the bundled DBC (:func:`load_ecocar`), or the
-database given to ``simulate``, which must have the ecocar messages: a :class:`Codec` for a
-message it lacks is a ``ValueError`` naming the message.
-
-- :class:`Codec`: one DBC message. Values are clamped to each signal's ``[minimum, maximum]``
-  before encoding (an out-of-range measurement saturates, it never fails); its rolling counter
-  wraps at ``2 ** length`` of its ``Counter`` signal (``counter_mod``, 1 without one).
-- :func:`checksum`: ``Checksum`` = (byte0 + ... + byte6) & 0xFF, as the DBC comments say.
-- :class:`Out`: the frames of one bus: standard (11-bit) ids, never error or remote frames; a
-  CAN-FD message of the DBC is sent as CAN-FD with bit rate switch; ``dlc`` is the payload length.
-- :class:`Slots`: stable slot assignment: an object keeps its slot (its message of a numbered
-  series, e.g. ``RadarObj7_A``) while it stays in the list. :class:`Ids`: track ids 1..255, stable
-  per object while it is tracked, reused only after a full turn.
-- :class:`Run`: what the message families of one run share. Timing: each message family sends at
-  its DBC cycle time (``ticks``: the nominal measurement tick ``k * cycle``, and the transmit time
-  = start + the family's small phase offset, drawn once + the tick + a little timing jitter), the
-  frames of one cycle back to back, 130 to 169 microseconds apart (``burst``). Offsets are whole
-  microseconds, so every timestamp is ``start_ns`` plus whole microseconds. Randomness:
-  ``rng(family)`` is seeded with the run's seed and the family's name, so the same seed gives
-  byte-identical frames, and the seed changes noise, jitter, phases, counter start values and the
-  spurious radar detections (family ``ghosts``), never the scenario itself.
+Each family sends at its DBC cycle time with a phase and jitter, every timestamp ``start_ns`` plus
+whole microseconds; ``rng(family)`` is seeded with the seed and the family's name, so the same
+seed gives byte-identical frames, and the seed changes noise, jitter, phases, counter starts and
+the ghosts, never the scenario.
 """
 
 from __future__ import annotations
@@ -63,7 +46,10 @@ def default_database() -> cantools.database.can.Database:
 
 
 class Codec:
-    """One DBC message: clamps values to the signal ranges, encodes, remembers its counter."""
+    """One DBC message: clamps values to the signal ranges (saturating, never failing), encodes,
+    remembers its counter (wrapping at ``2 ** length`` of the ``Counter`` signal). A message the
+    database lacks is a ``ValueError`` naming it.
+    """
 
     __slots__ = ("counter_mod", "fd", "frame_id", "limits", "message")
 
@@ -93,7 +79,9 @@ class Codec:
 
 
 class Out:
-    """Builds frames for one bus."""
+    """Builds frames for one bus: 11-bit ids, no error or remote frames, a CAN-FD message as CAN-FD
+    with BRS.
+    """
 
     def __init__(self, bus: str) -> None:
         self.bus = bus
@@ -182,9 +170,13 @@ def ticks(rng: random.Random, start_ns: int, end_ns: int, cycle_ms: int,
 
 @dataclass
 class Run:
-    """One run as its message families see it: the world's snapshots, the bus, the seed, the
-    run's time span, the codecs, the fault windows, and the object count of the radar's latest
-    cycle (for RadarStatus)."""
+    """One run as its message families see it: the world's snapshots, the bus, the seed, the run's
+    time span, the codecs, the fault windows, and the object count of the radar's latest cycle (for
+    RadarStatus).
+
+    Each family measures at ``k * cycle`` and sends at start + its phase + ``k * cycle`` + jitter, a
+    cycle's frames 130 to 169 us apart.
+    """
 
     world: Snapshots
     out: Out

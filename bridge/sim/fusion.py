@@ -1,15 +1,8 @@
 """Sensor fusion: FusionTrack0..19 then LeadVehicle, every 50 ms, y positive LEFT.
 
-- Tracks: every object the radar or the camera covers (:mod:`bridge.sim.sensors`; the radar only
-  while it sends valid objects: not during ``radar_dropout`` or ``radar_blind``; spurious radar
-  detections never), with a confidence by source (radar and camera, radar alone, camera alone),
-  status new for its first two cycles, then updated; an object no sensor covers any more is
-  coasted (predicted, status coasted) for up to three cycles, then dropped. Tracks are sent
-  nearest first, coasted ones last; a track keeps its slot and its track id while it is tracked;
-  an unused slot is zeros (but its counter).
-- ``LeadVehicle``: the closest track ahead in the ego lane (four-wheel or two-wheel): its track
-  id, position, relative speed, time gap and time to collision; ``Valid`` 0 without one. So the
-  ``cut_in`` car becomes the lead vehicle once inside the ego lane.
+Every object the radar or the camera covers is a track, coasted for up to three cycles once no
+sensor covers it; ``LeadVehicle`` is the closest track ahead in the ego lane, so the ``cut_in``
+car becomes the lead once inside the ego lane.
 """
 
 from __future__ import annotations
@@ -35,7 +28,18 @@ class _Track:
 
 
 def fusion(run: Run) -> Iterator[Frame]:
-    """FusionTrack0..19 then LeadVehicle every 50 ms (radar + camera fused, y positive left)."""
+    """FusionTrack0..19 then LeadVehicle every 50 ms (radar + camera fused, y positive left).
+
+    - Tracks: every object the radar or the camera covers (:mod:`bridge.sim.sensors`; the radar only
+      while it sends valid objects: not during ``radar_dropout`` or ``radar_blind``; spurious radar
+      detections never), with a confidence by source (radar and camera, radar alone, camera alone),
+      status new for its first two cycles, then updated; an object no sensor covers any more is
+      coasted (predicted, status coasted) for up to three cycles, then dropped. Tracks are sent
+      nearest first, coasted ones last; a track keeps its slot and its track id while it is tracked;
+      an unused slot is zeros (but its counter).
+    - ``LeadVehicle``: the closest track ahead in the ego lane (four-wheel or two-wheel): its track
+      id, position, relative speed, time gap and time to collision; ``Valid`` 0 without one.
+    """
     rng = run.rng("Fusion")
     tracks_codecs = [run.codec(f"FusionTrack{i}") for i in range(20)]
     lead_codec = run.codec("LeadVehicle")

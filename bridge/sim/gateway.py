@@ -1,12 +1,8 @@
 """The gateway: SensorDiag diagnostics, and the babbling gateway of the ``babbling`` scenario.
 
-- ``SensorDiag`` every second, cycling pages 0..3 (firmware, temperature, power, errors); the
-  source (radar, camera, fusion, gateway) changes after each full turn. While the radar
-  misalignment is reported (``misalignment_reported``: ``drive``'s episode), the radar's error
-  page has one active DTC.
-- ``babbling``: a stuck gateway repeats one ``SensorDiag`` frame (page 0) every
-  :data:`~bridge.sim.scenario.BABBLE_PERIOD_US` microseconds during the fault, on top of the
-  traffic (its own ``SensorDiag`` carries on once a second).
+``SensorDiag`` comes every second, cycling its pages; while the radar misalignment is reported
+(``misalignment_reported``) the radar's error page has one active DTC. ``babbling`` adds a stuck
+gateway's repeated frame on top of the traffic.
 """
 
 from __future__ import annotations
@@ -19,7 +15,9 @@ from bridge.sim.scenario import BABBLE_PERIOD_US
 
 
 def diagnostics(run: Run) -> Iterator[Frame]:
-    """SensorDiag every second, cycling pages 0..3; the source changes after each full turn."""
+    """SensorDiag every second, cycling pages 0..3 (firmware, temperature, power, errors); the
+    source (radar, camera, fusion, gateway) changes after each full turn.
+    """
     rng = run.rng("SensorDiag")
     codec = run.codec("SensorDiag")
     counter = rng.randrange(codec.counter_mod)
@@ -50,7 +48,9 @@ def diagnostics(run: Run) -> Iterator[Frame]:
 
 def babbler(run: Run) -> Iterator[Frame]:
     """``babbling``: a stuck gateway repeats one SensorDiag frame (page 0) every
-    :data:`BABBLE_PERIOD_US` microseconds during the fault."""
+    :data:`BABBLE_PERIOD_US` microseconds during the fault, on top of the traffic (its own
+    ``SensorDiag`` carries on once a second).
+    """
     codec = run.codec("SensorDiag")
     data = codec.encode({"DiagPage": 0, "DiagSource": 0, "Counter": 0, "FwVersionMajor": 2,
                          "FwVersionMinor": 4, "FwVersionPatch": 1, "HwRevision": 3,

@@ -1,85 +1,55 @@
 """The highway car: a production car at highway range, its factory radar and its chassis bus.
 
 :func:`simulate_highway` yields, in non-decreasing timestamp order, every frame of a simulated
-drive of a 2017 compact SUV (modelled on a Toyota RAV4 with its factory Denso radar) on two
-buses, encoded with cantools against the bundled databases:
+drive of a compact SUV with a factory radar on two buses, encoded against the bundled databases:
 
-- ``can1``, the radar bus (``highway_radar.dbc``): every 50 ms a cycle of the 16 track slots,
-  ``TRACK_A_0..15`` (ids 0x210..0x21F: LONG_DIST, LAT_DIST, REL_SPEED, VALID, NEW_TRACK) then
-  ``TRACK_B_0..15`` (0x220..0x22F: SCORE, REL_ACCEL), 32 frames back to back (250 to 289 us
-  apart), every slot every cycle: an empty slot, or one the radar drops for a cycle, sends
-  VALID = 0 and every other signal 0 but the cycle counter and the checksum. A cycle whose last
-  frame would fall at or after the end of the run is not sent (no cycle is cut short).
-- ``can0``, the car bus (``highway_car.dbc``): ``KINEMATICS`` (yaw rate, accelerations) and
-  ``STEER_ANGLE_SENSOR`` (STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION in 0.1 deg steps;
-  STEER_BUTTON, a button on the wheel, 1 while pressed: :data:`BUTTON_PRESSES`, 10.0 to
-  10.3 s and 40.0 to 40.3 s) every 10 ms, ``WHEEL_SPEEDS`` (four wheels, km/h) every 12 ms,
-  ``SPEED`` (the speedometer, km/h, 1.5 % high) every 20 ms.
-- ids the databases do not define, as a real car has (bring-up's work): 0x2C4 (brake switch,
-  speedometer, yaw rate), 0x3B7 and 0x4C8 on ``can0``, 0x2E0 on ``can1``; their layouts and
-  ground truth (the brake pressed at 14 to 17 s and 45 to 48 s) in :mod:`bridge.sim.highway_body`.
+- ``can1``, the radar (``highway_radar.dbc``): every 50 ms the 16 track slots ``TRACK_A_0..15``
+  (0x210..0x21F: LONG_DIST, LAT_DIST, REL_SPEED, VALID, NEW_TRACK) then ``TRACK_B_0..15``
+  (0x220..0x22F: SCORE, REL_ACCEL), 32 frames 250 to 289 us apart, every slot every cycle (an
+  empty or dropped slot: VALID = 0, every signal 0 but counter and checksum); a cycle whose last
+  frame would fall at or after the end of the run is not sent. Cycle k measures at ``k * 50 ms``
+  and is sent 2 to 6.3 ms later, its last frame within 15.3 ms of the measurement.
+- ``can0``, the car (``highway_car.dbc``): ``KINEMATICS`` and ``STEER_ANGLE_SENSOR`` every 10 ms
+  (STEER_BUTTON 1 while pressed: :data:`BUTTON_PRESSES`, 10.0-10.3 s and 40.0-40.3 s),
+  ``WHEEL_SPEEDS`` (km/h) every 12 ms, ``SPEED`` (km/h, 1.5 % high) every 20 ms.
+- ids the databases do not define: 0x2C4, 0x3B7, 0x4C8 on ``can0``, 0x2E0 on ``can1``
+  (:mod:`bridge.sim.highway_body`; brake pressed 14-17 s and 45-48 s).
 
-Each message family sends at its DBC cycle time: cycle k measures the world at ``k * cycle``
-after the start and is sent at the start + the family's phase (drawn once) + ``k * cycle`` + a
-little jitter; every timestamp is ``start_ns`` plus whole microseconds. Radar cycle k measures at
-``k * 50 ms`` and is sent 2 to 6.3 ms later, its last frame within 15.3 ms of the measurement.
-Checksums (TRACK_A/B, SPEED): ``(id & 0xFF) + (id >> 8) + length + every byte before it``, & 0xFF.
+Other families send at their DBC cycle time: cycle k measures at ``k * cycle`` and is sent at the
+start + the family's phase + ``k * cycle`` + jitter; every timestamp is ``start_ns`` plus whole
+microseconds. Checksums (TRACK_A/B, SPEED): ``(id & 0xFF) + (id >> 8) + length + every byte before
+it``, & 0xFF. LAT_DIST is positive to the RIGHT: vehicle y = ``-LAT_DIST`` (profile: ``lateral =
+"right"``).
 
-**The lateral sign.** LAT_DIST is written positive to the RIGHT (the radar's convention, which
-its DBC does not state): the vehicle frame's y (left) is ``-LAT_DIST``. The highway profile says
-so (``lateral = "right"``).
+The scenario (:data:`HIGHWAY`, :mod:`bridge.sim.highway_world`), in seconds since the start (after
+60 s the traffic drives on, twins and dropouts go on, nothing else happens):
 
-**The scenario** (:mod:`bridge.sim.highway_world`; its numbers in :data:`HIGHWAY`), at fixed
-seconds since the start (a shorter run stops early; after 60 s the traffic drives on as it is,
-the twins and dropouts go on, nothing else happens):
-
-- the ego drives at 30 m/s (+-0.25 m/s) in the middle lane of a three-lane highway (lanes
-  3.6 m), its rear axle within about 5 cm of the lane centre. Straight until 20 s; from 20 s a
-  left-hand curve: the curvature rises over 2 s of driving to 1/(800 m), holds, and falls over 2 s
-  to 0 at 40 s; straight again after. Yaw rate and steering wheel angle follow the path
-  curvature (bicycle model: steering wheel angle = 15.4 * atan(2.66 m * curvature), about
-  2.9 deg in the curve), so lanes extrapolated from the steering angle follow the road;
-- seven cars (gaps: metres ahead of the radar along the road): ``lead`` in the ego lane, 49 to
-  55 m; ``cut_in`` in the right lane, 10 m at the start, closing in at 0.55 m/s; ``left_near``
-  14 to 22 m in the left lane; ``right_80`` 75 to 85 m; ``left_120`` 114 to 126 m;
-  ``left_far`` 150 m at the start, pulling away at 1.2 m/s, out of range (200 m) at 41.7 s;
-  ``right_190`` 177 to 193 m: an object beyond 150 m is in view at every time;
-- the cut-in: from 36 s to 39 s ``cut_in`` changes into the ego lane (its centre crosses the
-  lane line at 37.5 s) and slows to the ego's speed by 42 s, about 31 m ahead: the lead from
-  37.5 s on, 17.5 to 24 m nearer than the old lead, which drives on in the ego lane. ``lead`` is
-  the lead for the first 37.5 s;
-- slots: at the first cycle the seven cars take slots 0 to 6 nearest first (``cut_in`` 0,
-  ``left_near`` 1, ``lead`` 2, ``right_80`` 3, ``left_120`` 4, ``left_far`` 5, ``right_190``
-  6); an object keeps its slot while it is in view; a new object takes the slot free for
-  longest; NEW_TRACK = 1 on a slot's first cycle with a new object;
-- twins: every car but ``left_far`` is at times reported in a second slot too (its twin), for
-  1 to 6 s, then not for 1 to 5 s, and so on (in steps of 0.5 s, a fixed sequence per car):
-  about half the time each; the lead's twin comes six times in its 37.5 s as the lead (and
-  goes five times). A twin is the same car 0.2 to 0.5 m ahead or behind and up to 0.25 m to
-  the side (the same offset during one episode), with a relative speed within 0.1 m/s, each
-  with its own measurement noise: the two lie within 1.5 m (nearly always within 1 m) and
-  0.3 m/s of each other. A twin has a lower score (58 to 85 %, the car's own slot 91 to 100 %);
-- dropouts: once in every 10 s, each car's own slot is sent invalid for 1 to 3 cycles (VALID =
-  0; the slot stays the car's: no NEW_TRACK after it);
-- measurement noise (standard deviations; position and speed cut at 2.5 of them): position
-  0.06 m + 0.05 % (longitudinal) or 0.07 % (lateral) of the range, relative speed 0.04 m/s,
-  relative acceleration 0.15 m/s^2; a new track's score starts at 40 % and rises by 15 % a
+- the ego at 30 m/s (+-0.25) in the middle of three 3.6 m lanes; a left curve from 20 s (curvature
+  rising over 2 s to 1/(800 m), falling over 2 s to 0 at 40 s); steering wheel angle = 15.4 *
+  atan(2.66 m * curvature);
+- seven cars (metres ahead of the radar): ``lead`` in the ego lane 49-55; ``cut_in`` right lane,
+  10 at the start, closing at 0.55 m/s; ``left_near`` 14-22; ``right_80`` 75-85; ``left_120``
+  114-126; ``left_far`` 150, pulling away at 1.2 m/s, out of range (200 m) at 41.7 s; ``right_190``
+  177-193;
+- the cut-in: 36 to 39 s into the ego lane (crossing the line at 37.5 s), slowing to the ego's speed
+  by 42 s, about 31 m ahead: the lead from 37.5 s (``lead`` before), 17.5 to 24 m nearer;
+- slots: at the first cycle ``cut_in`` 0, ``left_near`` 1, ``lead`` 2, ``right_80`` 3,
+  ``left_120`` 4, ``left_far`` 5, ``right_190`` 6; an object keeps its slot while in view; a new
+  one takes the slot free longest, with NEW_TRACK = 1 on its first cycle;
+- twins: every car but ``left_far`` is at times also in a second slot (1 to 6 s on, 1 to 5 s off,
+  0.5 s steps, fixed per car; the lead's comes six times as the lead), within 1.5 m (nearly always
+  1 m) and 0.3 m/s of the car, score 58-85 % (the car's own 91-100 %);
+- dropouts: once every 10 s each car's own slot is invalid for 1 to 3 cycles (no NEW_TRACK after);
+- noise (sd, cut at 2.5): position 0.06 m + 0.05 % (longitudinal) or 0.07 % (lateral) of range,
+  relative speed 0.04 m/s, acceleration 0.15 m/s^2; a new track's score starts at 40 %, +15 % a
   cycle.
 
-**Other roads** (``simulate_highway(road=...)``, :data:`ROADS`): the same drive, traffic and
-events on ``"winding"``, a highway of five curves, each with 2 s transitions like the one above:
-left 1000 m from 4 to 12 s, right 1600 m from 16 to 24 s, left 1600 m from 28 to 35 s, right
-900 m from 40 to 48 s, left 1200 m from 51 to 58 s (1.1 to 1.9 deg/s at 30 m/s; the lateral sign
-check's test drive, :mod:`bridge.world.lateral`), on ``"straight"``, a road without a curve, or
-on ``"weaving"``, the straight road where the ego changes lanes: left from 8 to 13 s, back from
-20 to 24 s, right from 32 to 37 s, back from 46 to 52 s (its lateral acceleration one sine
-period each; up to 2.7 deg/s of yaw rate).
-The ground truth functions take the road's :class:`Highway` (``highway=ROADS["winding"]``).
-
-Ground truth without simulating: :func:`slots_at`, :func:`twins_at`, :func:`lead_at`,
-:func:`objects_at`, :func:`ego_at` (:mod:`bridge.sim.highway_world`). The same seed gives
-byte-identical frames; the seed changes measurement noise, jitter, phases and counter start
-values, never the scenario (positions, slots, twins, dropouts).
+Other roads (``road=``, :data:`ROADS`), same traffic and events: ``"winding"`` (left 1000 m
+4-12 s, right 1600 m 16-24 s, left 1600 m 28-35 s, right 900 m 40-48 s, left 1200 m 51-58 s),
+``"straight"``, and ``"weaving"`` (straight; the ego changes lanes left 8-13 s, back 20-24 s,
+right 32-37 s, back 46-52 s). Ground truth: :func:`slots_at`, :func:`twins_at`, :func:`lead_at`,
+:func:`objects_at`, :func:`ego_at` (``highway=ROADS[...]``). The same seed gives byte-identical
+frames; the seed changes noise, jitter, phases and counter starts, never the scenario.
 """
 
 from __future__ import annotations

@@ -1,18 +1,13 @@
 """The highway car's unknown ids: frames its databases do not define, as a real car sends them.
 
-A real car's buses carry many ids its databases (here ``highway_car.dbc``, ``highway_radar.dbc``)
-do not define; bring-up finds the signals in them. :func:`body_families` adds four such ids to
-:func:`bridge.sim.highway.simulate_highway`, each a message family with its own randomness
-(``run.rng``), so the frames of the defined ids are the same with them as without them. Their
-ground truth is here: the ids, the layouts of the speed and yaw rate fields, the brake presses
-(:data:`BRAKE_PRESSES`, :func:`brake_at`).
-
-Bit i of a payload is bit ``i % 8`` of byte ``i // 8`` (least significant first); a big-endian
-field's start bit is its most significant bit, as in a DBC (``@0``); a little-endian one's its
-least significant (``@1``). Timing as the defined families': cycle k measures at ``k * cycle``
-after the start and is sent at the start + the family's phase (up to half a cycle, drawn once) +
-``k * cycle`` + up to 200 us of jitter, in whole microseconds; a frame at or after the end of the
-run is not sent.
+:func:`body_families` adds four such ids to :func:`bridge.sim.highway.simulate_highway`, each a
+family with its own randomness (``run.rng``), so the defined ids' frames are the same with them
+as without. Their ground truth is here (:data:`BRAKE_PRESSES`, :func:`brake_at`). Bit i is bit
+``i % 8`` of byte ``i // 8``; a big-endian field's start bit is its most significant (``@0``), a
+little-endian one's its least (``@1``), as in a DBC. Cycle k measures at ``k * cycle`` and is sent
+at start + phase (up to half a cycle) + ``k * cycle`` + up to 200 us, in whole microseconds; none at
+or after the end of the run. The seed changes noise, jitter, phases and counter starts, never the
+brake presses.
 
 =======  =====  =====  ===  =============================================================
 id       bus    cycle  len  payload
@@ -30,9 +25,6 @@ id       bus    cycle  len  payload
 0x2E0    can1   100 ms 8    byte 0: a rolling counter (0..255); bytes 1-7: 0x00 0x00 0x40
                             0x00 0x00 0x00 0x12
 =======  =====  =====  ===  =============================================================
-
-A counter's start value is drawn from its family's randomness; the seed changes noise, jitter,
-phases and counter start values, never the brake presses.
 """
 
 from __future__ import annotations

@@ -1,37 +1,9 @@
-"""The highway car's world and its ground truth: the road, the ego, the traffic, and what each
-radar slot holds at every radar cycle, as pure functions of time (seconds since the start of the
-run). The seed never enters here: the frames (:mod:`bridge.sim.highway`) add noise and jitter.
+"""The highway car's world and its ground truth, as pure functions of time (seconds since the start
+of the run; the seed never enters here: :mod:`bridge.sim.highway` adds noise and jitter).
 
-:data:`HIGHWAY` holds the scenario's numbers; the module docstring of :mod:`bridge.sim.highway`
-tells the timeline. The ground truth for tests:
-
-- :func:`ego_at` (:class:`EgoTruth`): speed, acceleration, path curvature, yaw rate and steering
-  wheel angle of the ego at a time;
-- :func:`objects_at` (:class:`ObjectTruth`): every road user in the vehicle frame (x forward,
-  y left, origin on the rear axle), true values, and whether the radar covers it;
-- :func:`slots_at` (:class:`SlotTruth` or ``None`` per slot) and :func:`twins_at` (pairs of
-  valid slots holding one car): what the radar cycle measured at ``floor(t / 0.05) * 0.05``
-  reports; :func:`twin_episode` (a car's twin and its offsets) and :func:`dropped` (a car's own
-  slot sent invalid);
-- :func:`lead_at`: which car is the lead (the nearest ahead in the ego lane).
-
-Geometry: the road is three lanes of :data:`LANE_WIDTH_M`; lateral offsets ``d`` are from the
-ego lane's (the middle lane's) centre, left positive (left lane +3.6, right lane -3.6). The
-ego's rear axle follows the ego lane centre (a few centimetres of wander; on the weaving road,
-its lane changes too), so its path curvature is the road's (plus the wander's and the lane
-changes'), its heading the road's (plus theirs), and its steering wheel angle is the
-bicycle model's, ``STEERING_RATIO * atan(WHEELBASE_M * curvature)``: lanes extrapolated from the
-steering angle follow the road. A road user's position is the middle of its rear (what the radar
-sees), at ``gap`` metres along the road ahead of the radar (:data:`RADAR_X_M` ahead of the rear
-axle) and ``d`` to the side. Relative velocities and accelerations are central differences of
-the vehicle-frame positions (+-50 ms), as a radar measures them in its own, turning, frame.
-
-The road: :data:`HIGHWAY`'s one left-hand curve, or another of :data:`ROADS` (the same traffic
-on a winding or a straight highway, or on the straight one with the ego changing lanes): every
-function of the ego or the traffic takes the ``highway`` to describe, by default :data:`HIGHWAY`.
-
-Radar coverage: radar x (vehicle x - :data:`RADAR_X_M`) above 1 m, range up to
-``HIGHWAY.radar_range_m``, azimuth within +-``HIGHWAY.radar_fov_deg``, on the true position.
+Every function takes the ``highway`` to describe (:data:`ROADS`, default :data:`HIGHWAY`); positions
+are in the vehicle frame (x forward, y left, origin on the rear axle), what the radar reports at a
+time is what its cycle measured at ``floor(t / 0.05) * 0.05``.
 """
 
 from __future__ import annotations
@@ -76,9 +48,18 @@ class Highway:
     """The scenario's numbers (seconds since the start of the run, metres, m/s).
 
     The world is made from :data:`HIGHWAY`'s speed, curve, cut-in window and radar coverage; the
-    slots, gaps and the time left_far leaves follow from it (the tests check that they do). The
-    one thing that may differ is the road's curves (``bends``: :data:`ROADS`); a ``Highway`` made
-    with other numbers describes nothing."""
+    slots, gaps and the time left_far leaves follow from it (the tests check that they do). The one
+    thing that may differ is the road's curves (``bends``: :data:`ROADS`); a ``Highway`` made with
+    other numbers describes nothing.
+
+    Geometry: three lanes of :data:`LANE_WIDTH_M`, offsets ``d`` from the middle lane's centre, left
+    positive. The ego's rear axle follows its lane centre (a few cm of wander, and the weaving
+    road's lane changes); its steering wheel angle is ``STEERING_RATIO * atan(WHEELBASE_M *
+    curvature)``. A road user's position is the middle of its rear, ``gap`` m along the road ahead
+    of the radar (:data:`RADAR_X_M` ahead of the rear axle) and ``d`` aside; relative velocities and
+    accelerations are central differences (+-50 ms) in the turning vehicle frame. Radar coverage:
+    radar x above 1 m, range up to ``radar_range_m``, azimuth within +-``radar_fov_deg``.
+    """
 
     #: the ego's mean speed; it varies by +-0.25 m/s over 14 s
     ego_speed_mps: float = 30.0

@@ -1,30 +1,8 @@
 """The front radar: RadarHeader, RadarObj0..31 (A and B) and RadarStatus, y positive LEFT.
 
-- Every 50 ms a cycle: ``RadarHeader`` (CAN-FD) then ``RadarObj0..31`` A and B, back to back. The
-  objects are every actor the radar covers (:mod:`bridge.sim.sensors`) and spurious detections
-  (:func:`_ghosts`, from the seed: short-lived, low existence probability, class unknown, ground
-  clutter that stays where it is while the ego passes, reported in about 60 % of the cycles), real
-  objects first, nearest first; an object keeps its slot while it is visible, an unused slot is
-  invalid, every signal 0 but the counter. Real objects have their actor's class, size and radar
-  cross-section, a moving state, existence probability above 80 % and ``Tracked`` from their third
-  cycle; positions and speeds have measurement noise growing with the range. The header carries the
-  object count and valid mask, a cycle counter, a microsecond timestamp since power-up, the ego
-  speed and yaw rate used and the latency.
-- ``RadarStatus`` every 100 ms: misalignment, state, temperature and the object count of the
-  radar's latest cycle.
-
-Faults (:class:`bridge.sim.scenario.Faults`), on the transmit times:
-
-- ``radar_dropout``: the radar sends nothing (no header, objects or status): no cycle with a frame
-  inside the window; after it the radar restarts its tracker (new slots) and ``RadarStatus``
-  reports ``RadarState`` init and no objects for 300 ms.
-- ``radar_misalignment`` (``drive``'s episode, ``radar_yaw``): the radar points
-  :data:`~bridge.sim.scenario.MISALIGNMENT_DEG` to the left: every radar detection (position and
-  velocity) is rotated by that angle clockwise (appears further right).
-  ``RadarStatus.HorizontMisalignment`` reports it only when the scenario says so
-  (``misalignment_reported``: ``drive``); for ``radar_yaw`` it stays 0.
-- ``radar_blind``: the radar sends every frame, but every slot says "no object".
-- ``radar_slow``: the radar sends one cycle in :data:`~bridge.sim.scenario.RADAR_SLOW_EVERY`.
+Every actor the radar covers plus spurious detections from the seed, nearest first, each keeping
+its slot while visible; the faults of :class:`bridge.sim.scenario.Faults` (dropout, misalignment,
+blindness, slowness) act on transmit times.
 """
 
 from __future__ import annotations
@@ -81,7 +59,21 @@ _MISALIGNED_SIN = math.sin(math.radians(-MISALIGNMENT_DEG))
 
 
 def radar(run: Run) -> Iterator[Frame]:
-    """RadarHeader (CAN-FD) then RadarObj0..31 A and B every 50 ms."""
+    """RadarHeader (CAN-FD) then RadarObj0..31 A and B every 50 ms, back to back.
+
+    Every actor the radar covers (:mod:`bridge.sim.sensors`), then spurious detections from the seed
+    (:func:`_ghosts`: short-lived, low existence probability, class unknown, stationary, in about 60
+    % of cycles), nearest first; an object keeps its slot while visible, an unused slot is invalid
+    (every signal 0 but the counter). Real objects have their actor's class, size and cross section,
+    existence probability above 80 % and ``Tracked`` from their third cycle, noise growing with
+    range. The header carries the object count and valid mask, a cycle counter, a microsecond
+    timestamp since power-up, the ego speed and yaw rate used, and the latency.
+
+    Faults (on transmit times): ``radar_dropout`` (nothing sent in the window; after it new slots);
+    ``radar_misalignment`` (detections rotated :data:`~bridge.sim.scenario.MISALIGNMENT_DEG`
+    clockwise); ``radar_blind`` (every slot "no object"); ``radar_slow`` (one cycle in
+    :data:`~bridge.sim.scenario.RADAR_SLOW_EVERY`).
+    """
     rng = run.rng("Radar")
     header = run.codec("RadarHeader")
     objs = [(run.codec(f"RadarObj{i}_A"), run.codec(f"RadarObj{i}_B")) for i in range(32)]
@@ -198,6 +190,10 @@ def radar(run: Run) -> Iterator[Frame]:
 
 
 def radar_status(run: Run) -> Iterator[Frame]:
+    """``RadarStatus`` every 100 ms: misalignment, state, temperature, the latest cycle's object
+    count. After ``radar_dropout`` it reports init and no objects for 300 ms;
+    ``HorizontMisalignment`` says the misalignment only if ``misalignment_reported``.
+    """
     rng = run.rng("RadarStatus")
     codec = run.codec("RadarStatus")
     counter = rng.randrange(codec.counter_mod)

@@ -1,44 +1,26 @@
 """The scenario of the simulated drive: what happens when, and which faults the bus carries.
 
 Scripted events happen at fixed fractions of the run (:data:`TIMELINE`), so a 10 s and a 60 s run
-both contain them:
+both contain them: ``lead_braking`` (the lead, 40 m ahead, brakes from 25 to 16 m/s at the window's
+start, the ego follows a second later, the gap shrinks to about 25 m and opens again from the
+window's end), ``cut_in`` (a car from the right lane changes in between ego and lead within the
+window and becomes the lead), ``lane_dropout`` (the camera reports no lanes), ``radar_dropout``
+(the radar sends nothing) and ``radar_misalignment`` (every radar detection rotated
+:data:`MISALIGNMENT_DEG` clockwise, reported in ``RadarStatus.HorizontMisalignment``). Episodes
+are judged on frame timestamps: no radar frame inside the radar dropout, every lane frame inside
+the lane dropout says "no lanes".
 
-- ``lead_braking``: the lead vehicle (40 m ahead in the ego lane) brakes hard from 25 to 16 m/s at
-  the start of the window, the ego (ACC) follows a second later and the gap shrinks to about 25 m;
-  from the end of the window the lead speeds up again and the gap opens.
-- ``cut_in``: a car from the right neighbour lane changes into the ego lane between ego and lead
-  (lane change starts at the window start, done before its end) and becomes the lead vehicle.
-- ``lane_dropout``: the camera reports no lanes (``Source`` none, ``Quality`` none, coefficients 0).
-- ``radar_dropout``: the radar sends nothing (no header, objects or status).
-- ``radar_misalignment``: the radar points :data:`MISALIGNMENT_DEG` to the left: every radar
-  detection is rotated by that angle clockwise (appears further right) and
-  ``RadarStatus.HorizontMisalignment`` reports it.
-
-Episodes are judged on frame timestamps (``Episode.window_ns``): no radar frame has a timestamp
-inside the radar dropout, every lane frame inside the lane dropout says "no lanes".
-
-Scenarios (``simulate(scenario=...)``, :data:`SCENARIOS`): ``drive`` (the default) is the drive
-above with its episodes. The others are the same traffic (lead braking, cut-in) with at most one
-sensor or bus fault, from :data:`FAULT_ONSET_S` to :data:`FAULT_RECOVERY_S` seconds after the
-start (timestamps ``onset <= t < recovery``, see :meth:`Scenario.window_ns`), for the health
-monitor to catch: ``clean`` has no fault at all (no lane dropout, no radar episode);
-``radar_dropout`` (the radar sends nothing), ``radar_yaw`` (the radar is knocked
-:data:`MISALIGNMENT_DEG` to the left and does not know it: ``HorizontMisalignment`` stays 0),
-``radar_blind`` (the radar sends every frame, but no valid object), ``radar_slow`` (the radar
-sends one cycle in :data:`RADAR_SLOW_EVERY`), ``lane_loss`` (the camera reports no lanes),
-``bus_silent`` (no frame at all on the bus) and ``babbling`` (a stuck gateway floods the bus with
-one ``SensorDiag`` frame every :data:`BABBLE_PERIOD_US` microseconds, on top of the traffic).
-
-The seed never changes any of this: every window is a function of the scenario, the duration and
-the start time alone. :func:`fault_windows` turns a scenario into the absolute fault windows of
-one run (:class:`Faults`, ``begin <= timestamp_ns < end``; a fault that does not happen has a
-window no timestamp is in), which the message families check their transmit times against:
-
-- ``drive``: the TIMELINE's lane dropout, radar dropout and radar misalignment, the misalignment
-  also reported (``misalignment_reported``: RadarStatus and SensorDiag say so);
-- ``clean``: none;
-- a fault scenario: its one fault from onset to recovery, under the name of the fault window it
-  is (``radar_yaw``: ``radar_misalignment``, not reported; ``lane_loss``: ``lane_dropout``).
+Scenarios (``simulate(scenario=...)``, :data:`SCENARIOS`): ``drive`` (the default) has the
+episodes above; the others have the same traffic and at most one fault, from
+:data:`FAULT_ONSET_S` to :data:`FAULT_RECOVERY_S` after the start (``onset <= t < recovery``):
+``clean`` (none), ``radar_dropout``, ``radar_yaw`` (misaligned, not reported: stays 0),
+``radar_blind`` (every frame, no valid object), ``radar_slow`` (one cycle in
+:data:`RADAR_SLOW_EVERY`), ``lane_loss``, ``bus_silent`` (no frame at all) and ``babbling`` (one
+``SensorDiag`` frame every :data:`BABBLE_PERIOD_US` us on top of the traffic). The seed never
+changes any of this. :func:`fault_windows` gives one run's absolute windows (:class:`Faults`,
+``begin <= timestamp_ns < end``; a fault that does not happen has an empty window), under the
+fault's name (``radar_yaw`` is ``radar_misalignment`` with ``misalignment_reported`` false,
+``lane_loss`` is ``lane_dropout``).
 """
 
 from __future__ import annotations

@@ -1,24 +1,8 @@
 """What the sensors see: the world at one measurement time, in the ego frame, with coverage.
 
-The moving scenario is evaluated at each family's nominal cycle tick (its measurement time), not
-at the jittered transmit time: :meth:`Snapshots.at` takes the tick (integer nanoseconds since the
-start of the run) and gives the :class:`Snapshot` of the scripted world
-(:mod:`bridge.sim.world`) at that instant, cached for the families that measure at the same tick
-(a snapshot is a pure function of the tick: the cache changes no value).
-
-A snapshot holds the ego and every actor as :class:`Seen`, with true values (no noise: the
-sensors add their own): position in the ego frame (x forward, y left, origin at the front bumper,
-where radar and camera are mounted: no mounting offsets), velocity and longitudinal acceleration
-relative to the ego (central differences, +-50 ms), the lateral offset from the ego lane centre,
-absolute speed and acceleration along the road, the range, and whether each sensor covers it:
-
-- radar: x > 0.5 m, azimuth within +-60 degrees, range up to 200 m (four-wheel), 120 m
-  (two-wheel, stationary, unknown) or 100 m (pedestrian);
-- camera: only objects it reports (camera type not ``CAM_NONE``: no guard-rail posts), x > 2 m,
-  azimuth within +-50 degrees, range up to 120 m (four-wheel) or 80 m (two-wheel, pedestrian).
-
-An actor is keyed ``(index, visit)``: an actor of a traffic stream that wraps around the ego is a
-new object on each visit.
+:meth:`Snapshots.at` takes a family's measurement tick (not the jittered transmit time) and gives
+the true values then (the sensors add noise), cached: a pure function of the tick. An actor is
+keyed ``(index, visit)``: a wrapping stream's actor is a new object on each visit.
 """
 
 from __future__ import annotations
@@ -50,7 +34,15 @@ _CAMERA_FOV = math.radians(50.0)
 
 
 class Seen:
-    """One actor at one instant, in the ego frame (true values, no noise)."""
+    """One actor at one instant, in the ego frame (true values, no noise): position, velocity and
+    acceleration relative to the ego (central differences, +-50 ms), lateral offset from the ego
+    lane, speed and acceleration along the road, range, and coverage:
+
+    - radar: x > 0.5 m, azimuth within +-60 deg, range up to 200 m (four-wheel), 120 m (two-wheel,
+      stationary, unknown) or 100 m (pedestrian);
+    - camera: reported types only (not ``CAM_NONE``), x > 2 m, azimuth within +-50 deg, range up to
+      120 m (four-wheel) or 80 m (two-wheel, pedestrian).
+    """
 
     __slots__ = ("a_abs", "actor", "ax", "camera", "d", "key", "radar", "range", "v_abs", "vx",
                  "vy", "x", "y")

@@ -1,39 +1,8 @@
 """The road, the ego car and the other road users: the scripted world as pure functions of time.
 
-Geometry: everything is placed in the ego vehicle frame (x forward, y left, origin at the front
-bumper, where radar and camera are mounted: no mounting offsets). Lanes are 3.6 m wide
-(:data:`LANE_WIDTH_M`): ego lane centre y=0, left neighbour +3.6, right neighbour -3.6, oncoming
-lane +7.2. The road is gently S-curved: its curvature is a sine of the distance along it
-(:data:`ROAD_CURVATURE`, :data:`ROAD_WAVELENGTH_M`, :data:`ROAD_PHASE_M`): a 10 s drive already
-has a left and a right bend.
-
-:class:`Script` is the scripted world as pure functions of time (seconds since the start of the
-run, for a run of ``duration_s``), placing the scripted events of the scenario's
-:data:`~bridge.sim.scenario.TIMELINE` at their fractions of the duration:
-
-- ``ego(t)`` (:class:`Ego`): the ego cruises at :data:`EGO_SPEED_MPS` (25 m/s) along the ego lane
-  with a little lane wander (about 0.1 m); its ACC slows down by :data:`LEAD_SPEED_DROP_MPS` a
-  second after the lead brakes (``lead_braking`` start) and follows it back up after the lead
-  speeds up again (``lead_braking`` end). Distance, speed and acceleration are exact integrals of
-  each other (smooth ramps with closed-form integrals); the path curvature is the road's plus the
-  lane wander's.
-- ``lead_gap(t)``: the lead vehicle, :data:`LEAD_GAP_M` (40 m) ahead in the ego lane, brakes hard
-  from 25 to 16 m/s at the start of the ``lead_braking`` window and the gap shrinks to about
-  25 m; from the end of the window the lead speeds up again and the gap opens (to about 37 m).
-- ``road_y`` / ``to_ego``: road coordinates (distance ahead along the road, lateral offset from
-  the ego lane centre) to the ego frame.
-
-:func:`make_actors` are the other road users, each placed in road coordinates as a function of
-time and the ego's position: the lead vehicle; the ``cut_in`` car, which starts in the right
-neighbour lane and changes into the ego lane between ego and lead (lane change starts at the
-``cut_in`` window start, done before its end, at most 3 s); a car and a truck in the left lane; an
-oncoming car and van; a cyclist and a pedestrian on the right-hand roadside; and four guard-rail
-posts beyond the oncoming lane. Streams of traffic wrap around the ego (``Actor.loop_m``), so a run
-of any length keeps meeting them. Every actor has its radar class (``CLASS_*``, the DBC value
-table), its camera type (``CAM_*``; :data:`CAM_NONE`: the camera does not report it), its size and
-its radar cross-section.
-
-No randomness: the world is the same for every seed.
+Positions are in the ego vehicle frame (x forward, y left, origin at the front bumper, where radar
+and camera are mounted), lanes :data:`LANE_WIDTH_M` apart (ego lane y=0, left +3.6, right -3.6,
+oncoming +7.2). No randomness: the world is the same for every seed.
 """
 
 from __future__ import annotations
@@ -97,7 +66,17 @@ class Ego:
 
 
 class Script:
-    """The scripted world as pure functions of time (seconds since the start of the run)."""
+    """The scripted world as pure functions of time (seconds since the start of the run).
+
+    The road's curvature is a sine of the distance along it (:data:`ROAD_CURVATURE`,
+    :data:`ROAD_WAVELENGTH_M`, :data:`ROAD_PHASE_M`): a 10 s drive has a left and a right bend. The
+    :data:`~bridge.sim.scenario.TIMELINE`'s events are placed at their fractions of ``duration_s``:
+    ``ego(t)`` (:class:`Ego`) cruises at :data:`EGO_SPEED_MPS` (25 m/s) with about 0.1 m of lane
+    wander, slows by :data:`LEAD_SPEED_DROP_MPS` a second after the lead brakes and follows it back
+    up (distance, speed and acceleration are exact integrals of each other); ``lead_gap(t)``:
+    :data:`LEAD_GAP_M` (40 m), shrinking to about 25 m while the lead brakes, opening to about 37 m
+    after; ``road_y`` / ``to_ego``: road coordinates to the ego frame.
+    """
 
     def __init__(self, duration_s: float) -> None:
         self.duration = duration_s
@@ -172,6 +151,12 @@ def _stream(s0: float, speed: float, d: float, wander: float = 0.0) -> Place:
 
 
 def make_actors(sc: Script) -> list[Actor]:
+    """The lead; ``cut_in`` (right lane into the ego lane within the ``cut_in`` window, at most 3
+    s); a car and a truck in the left lane; an oncoming car and van; a cyclist and a pedestrian on
+    the right roadside; four guard-rail posts beyond the oncoming lane. Streams of traffic wrap
+    around the ego (``Actor.loop_m``). Each actor has a radar class (``CLASS_*``), a camera type
+    (``CAM_*``; :data:`CAM_NONE`: not reported), a size and a radar cross-section.
+    """
     def lead(t: float, s_ego: float) -> tuple[float, float]:
         return sc.lead_gap(t), 0.08 * math.sin(2 * math.pi * t / 5.1)
 

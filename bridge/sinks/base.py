@@ -1,13 +1,9 @@
 """The one output interface of the pipeline: a :class:`Sink` (as python-can's ``Listener``: the
 pipeline calls each sink in turn; a sink never calls back, and must not block the pipeline).
 
-A drive's sinks get, in log time order: the raw frames in blocks (one
-:class:`~bridge.sinks.raw.RawBlock` per bus per closed window); every decoded message; the
-messages made at one log time (a scene tick, a health tick, a log line) as one batch of
-:class:`Serialized` messages; on live, before any frame, every :class:`Channel` the drive can
-carry; and at the end :meth:`Sink.finish`, after which a file is complete (a live server goes on
-serving). Everything is serialized once for all sinks. The recorders, the live server and test
-fakes implement it; :class:`Sink`'s own methods do nothing.
+A sink gets, in log time order, raw frame blocks, decoded messages and batches of serialized
+messages (each serialized once for all sinks), on live every channel first, and at the end
+:meth:`Sink.finish`, after which a file is complete. :class:`Sink`'s own methods do nothing.
 """
 
 from __future__ import annotations

@@ -1,17 +1,8 @@
-"""Frames written as a CAN log (:func:`write_log`), with python-can's writer for the log's
-suffix (.blf .asc .log .csv .db, the text formats also gzipped; .mf4 with ``tankviz[mf4]``).
+"""Frames written as a CAN log (:func:`write_log`), with python-can's writer for the log's suffix.
 
-Every frame given is written (python-can's SQLite writer would lose what is still queued when it
-stops: :class:`_CompleteSqliteWriter` waits for it), each on its bus's channel (a bus ``can<N>``
-is log channel N, which BLF, ASC and TRC number from 1: :func:`log_channel`), so that read back
-the log gives the frames written on the same buses. CSV and SQLite have no column for the channel
-nor for the CAN FD flags: their frames read back on ``can0``, without the flags.
-
-The log appears only complete: it is written under a hidden name of the run's own
-(``.NAME_partial_<pid>-<random>.SUFFIX``) and given its name when python-can has written every
-frame. Two runs writing one output never mix their bytes: with ``force`` the last to finish wins,
-without it the second keeps the first's file and fails saying so
-(:func:`bridge.sinks.outputs.publish`).
+Every frame given is written on its bus's channel, so that read back the log gives the frames
+written on the same buses (CSV and SQLite have no channel nor CAN FD flags: they read back on
+``can0``). The log appears only complete, and two runs writing one output never mix their bytes.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Per-drive files: one MCAP per drive in a folder, split into complete parts, flushed often.
 
-:class:`PartsRecorder` is ``tankviz live``'s recorder: a drive is named by its UTC start
-(:func:`drive_name`), parts after the first get ``_partNNN``, and every part starts with the
-drive's attachments and ends described, its decode statistics counting that part alone (they sum
-to the drive's). A full disk never stops the drive: a reserve file (``.tankviz-reserve``) is
-freed so the part finishes cleanly; recording stops below ``min_free`` (nothing is raised; the
-raw frames are kept in memory, at most ``backlog_limit``, the rest counted), resumes in a new
-part above ``min_free`` + the reserve + ``resume_margin`` (so it never flaps), and each part's
-metadata lists the pauses (``recording_gaps``: ``from_ns``, ``to_ns``, ``reason``,
-``resumed_in``, ``frames_kept``, ``frames_not_recorded``, ``messages_not_recorded``).
-:attr:`PartsRecorder.disk_full` says why, :meth:`PartsRecorder.take_notices` the lines to tell.
-A drives folder that cannot be written is an error at once, when the recorder is made.
+:class:`PartsRecorder` is ``tankviz live``'s recorder: every part starts with the drive's
+attachments and ends described. A full disk never stops the drive: recording pauses and resumes
+in a new part, and each part's metadata lists the pauses. A drives folder that cannot be written
+is an error at once, when the recorder is made.
 """
 
 from __future__ import annotations
@@ -158,15 +151,14 @@ class _PartMetadata:
 class PartsRecorder(Sink):
     """One MCAP per drive in ``folder``, split into complete parts by size or duration.
 
-    ``attach`` is called with each part's recorder as the part is opened, before its first
-    message; ``describe`` is called with each part's recorder and the part's own metadata entries
-    (``drive_start``, ``part``, ``bus_gaps``, ``recording_gaps``) just before the part is
-    finished (the decode statistics it writes are made the part's own).
-    :meth:`tick` (called often) flushes the current chunk to disk every ``flush_interval``
-    seconds, so a power cut loses about that much; a file cut that way is salvaged with
-    ``tankviz recover``. A due flush waits for the next scene to be written (at most
-    ``flush_wait_s`` more): writing a busy second's chunk takes ~10 ms, and just after a scene
-    it delays no scene.
+    ``attach`` is called with each part's recorder as the part is opened, before its first message;
+    ``describe`` is called with each part's recorder and the part's own metadata entries
+    (``drive_start``, ``part``, ``bus_gaps``, ``recording_gaps``) just before the part is finished
+    (the decode statistics it writes are made the part's own). :meth:`tick` (called often) flushes
+    the current chunk to disk every ``flush_interval`` seconds, so a power cut loses about that
+    much; a file cut that way is salvaged with ``tankviz recover``. A due flush waits for the next
+    scene to be written (at most ``flush_wait_s`` more): writing a busy second's chunk takes ~10 ms,
+    and just after a scene it delays no scene.
 
     A full disk, with the default reserve (``reserve``, 8 MiB, or half the free space above
     ``min_free`` when that is less than twice the reserve) and ``resume_margin`` (1 MiB):
@@ -174,23 +166,31 @@ class PartsRecorder(Sink):
     - a write that finds the disk full frees the reserve and is retried, so the part is finished
       cleanly (its summary fits in the reserve); so is it, now and then (every
       ``check_interval_s``), when the free space is below ``min_free``;
-    - recording starts when the free space is at least ``min_free`` (``--min-free``), however
-      little is above it (the reserve is then smaller);
-    - it stops when the free space is below ``min_free``, or when the disk is full; the raw
-      frames that come meanwhile are kept in memory in their blocks (at most ``backlog_limit``,
-      the oldest not recorded and counted);
-    - it resumes, in a new part, when the free space is above ``min_free`` + 9 MiB (the reserve
-      plus the margin). The reserve made again is then at least 4.5 MiB, and that much is
-      recorded before it could stop again: stopping frees the reserve, which never makes the
-      room to resume, so it never flaps. The new part starts with the frames kept; decoded
-      messages and scenes of the pause are not recorded (a ``convert`` of the frames makes them
-      again);
-    - when the drive ends while recording is stopped, the frames kept are written into a last
-      part if the free space is above ``min_free`` + ``resume_margin``; else they are not
-      recorded, and the notice says how many.
+    - recording starts when the free space is at least ``min_free`` (``--min-free``), however little
+      is above it (the reserve is then smaller);
+    - it stops when the free space is below ``min_free``, or when the disk is full; the raw frames
+      that come meanwhile are kept in memory in their blocks (at most ``backlog_limit``, the oldest
+      not recorded and counted);
+    - it resumes, in a new part, when the free space is above ``min_free`` + 9 MiB (the reserve plus
+      the margin). The reserve made again is then at least 4.5 MiB, and that much is recorded before
+      it could stop again: stopping frees the reserve, which never makes the room to resume, so it
+      never flaps. The new part starts with the frames kept; decoded messages and scenes of the
+      pause are not recorded (a ``convert`` of the frames makes them again);
+    - when the drive ends while recording is stopped, the frames kept are written into a last part
+      if the free space is above ``min_free`` + ``resume_margin``; else they are not recorded, and
+      the notice says how many.
 
-    In the part finished when a pause began, ``recording_gaps``' ``to_ns`` and counts are None
-    (not known yet); the parts before and after a pause say so on ``/log``.
+    In the part finished when a pause began, ``recording_gaps``' ``to_ns`` and counts are None (not
+    known yet); the parts before and after a pause say so on ``/log``.
+
+    A drive is named by its UTC start (:func:`drive_name`), parts after the first get ``_partNNN``,
+    and each part's decode statistics count that part alone (they sum to the drive's). On a full
+    disk a reserve file (``.tankviz-reserve``) is freed so the part finishes cleanly; recording
+    stops below ``min_free`` (nothing is raised; the raw frames are kept in memory, at most
+    ``backlog_limit``, the rest counted), resumes in a new part above ``min_free`` + the reserve +
+    ``resume_margin``, and each part's metadata lists the pauses (``recording_gaps``: ``from_ns``,
+    ``to_ns``, ``reason``, ``resumed_in``, ``frames_kept``, ``frames_not_recorded``,
+    ``messages_not_recorded``). :attr:`disk_full` says why, :meth:`take_notices` the lines to tell.
     """
 
     records: ClassVar[bool] = True

@@ -2,8 +2,9 @@
 
 It takes an already-open binary writer, so tests can record into ``BytesIO``. Channels are
 registered when their first message arrives; protobuf schemas are FileDescriptorSets built the
-way mcap_protobuf builds them. Chunks are zstd-compressed (zstandard's default level 3, 4 MiB
-chunks; a live drive closes its chunk every second).
+way mcap_protobuf builds them. Chunks are zstd-compressed, 4 MiB (a live drive closes its chunk
+every second), at zstandard's default level 3 (:data:`LIVE_LEVEL`) or, for offline conversion,
+:data:`OFFLINE_LEVEL`.
 
 Indexes: the summary (schemas, channels, statistics), a chunk index per chunk, attachment and
 metadata indexes, and after each chunk one MessageIndex record per channel (16 bytes a message,
@@ -21,11 +22,14 @@ import json
 import os
 import struct
 import sys
+import threading
 import time
 from array import array
 from collections.abc import Callable, Iterable, Sequence
 from typing import IO, Any, ClassVar
 
+import mcap.writer
+import zstandard
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -52,6 +56,26 @@ def media_type(file_name: str) -> str:
     """The attachment media type of a signal database file."""
     suffix = file_name[file_name.rfind("."):].lower() if "." in file_name else ""
     return _MEDIA_TYPES.get(suffix, "application/octet-stream")
+
+
+#: The zstd level of chunks recorded live (zstandard's default, which mcap's Writer uses).
+LIVE_LEVEL = 3
+#: The zstd level of chunks written offline (``convert``, ``batch``): the strongest whose
+#: compression adds at most 5 % to a whole conversion's CPU (DEVELOPING.md, "Why it is so").
+OFFLINE_LEVEL = 6
+#: held while mcap's Writer compresses a chunk at another level than its own
+_LEVEL_LOCK = threading.Lock()
+
+
+class _Leveled:
+    """Stands in for the ``zstandard`` module in :mod:`mcap.writer` while one chunk is written:
+    its ``compress`` at a chosen level."""
+
+    def __init__(self, level: int) -> None:
+        self.compress = zstandard.ZstdCompressor(level=level).compress
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(zstandard, name)
 
 
 _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, 2 times
@@ -96,7 +120,7 @@ class FastWriter(McapWriter):
     tests/test_recorder.py checks that both give byte-identical files.
     """
 
-    def __init__(self, output: IO[bytes], **kwargs: Any) -> None:
+    def __init__(self, output: IO[bytes], *, level: int = LIVE_LEVEL, **kwargs: Any) -> None:
         super().__init__(output, **kwargs)
         private = "_Writer__"  # mcap.writer.Writer's name-mangled attributes
         self._statistics: Any = getattr(self, private + "statistics", None)
@@ -116,6 +140,9 @@ class FastWriter(McapWriter):
             # Every way mcap finishes a chunk (by size, flush, finish, a new channel) calls this
             # attribute: the chunk's statistics are settled first.
             setattr(self, private + "finalize_chunk", self._settle_and_finalize)
+        #: the zstd level of the chunks: another than mcap's own only behind the fence
+        self.level = level if self._fast and hasattr(mcap.writer, "zstandard") else LIVE_LEVEL
+        self._leveled = _Leveled(self.level) if self.level != LIVE_LEVEL else None
 
     def _settle_and_finalize(self) -> None:
         """The chunk's and the file's statistics from the chunk's message indexes, then mcap
@@ -142,7 +169,16 @@ class FastWriter(McapWriter):
             counts[channel_id] += n
             chunk.num_messages += n
             stats.message_count += n
-        self._finalize_chunk()
+        if self._leveled is None:
+            self._finalize_chunk()
+            return
+        with _LEVEL_LOCK:  # mcap's Writer compresses with its module's zstandard.compress
+            own = mcap.writer.zstandard  # type: ignore[attr-defined]
+            mcap.writer.zstandard = self._leveled  # type: ignore[attr-defined,assignment]
+            try:
+                self._finalize_chunk()
+            finally:
+                mcap.writer.zstandard = own  # type: ignore[attr-defined]
 
     def flush(self) -> None:
         """Close the chunk being built and push everything written so far to the disk."""
@@ -246,9 +282,9 @@ class Recorder(Sink):
                  compression: CompressionType = CompressionType.ZSTD,
                  describe: Describe | None = None, attach: Describe | None = None,
                  attachment_time_ns: int | None = None,
-                 index_types: IndexType = IndexType.ALL) -> None:
+                 index_types: IndexType = IndexType.ALL, level: int = LIVE_LEVEL) -> None:
         self._writer = FastWriter(output, chunk_size=chunk_size, compression=compression,
-                                  index_types=index_types)
+                                  index_types=index_types, level=level)
         #: the create time of the attachments (ns); None: when each is added
         self.attachment_time_ns = attachment_time_ns
         self._writer.start(profile="", library=f"tankviz {__version__}")

@@ -1,13 +1,9 @@
 """Output files: every file a command writes appears only complete, and never over one of its
 inputs.
 
-:func:`check_output` refuses an output that is an input by any name (:func:`same_file`), even
-with ``--force``, one that exists unless ``--force``, and one that cannot be written.
-:func:`atomic_output` writes a locked partial file of the run's own
-(``.<name>.<pid>-<random>.partial``) and gives it its name only when complete (:func:`publish`):
-two runs never mix their bytes; with ``--force`` the last to finish wins, without it the second
-fails saying so. A killed run's partial files are removed by the next run
-(:func:`remove_stale_partials`).
+An output that is an input by any name is refused even with ``--force``, one that exists unless
+``--force``; two runs never mix their bytes (with ``--force`` the last to finish wins, without it
+the second fails saying so), and a killed run's partial files are removed by the next run.
 """
 
 from __future__ import annotations

@@ -3,13 +3,8 @@
 A drive's raw frames are archived as ``tankviz.CanFrameBlock`` messages (schemas/can_frame.proto):
 the frames of one bus in one window of at most :data:`WINDOW_NS` (20 ms), one row each (id,
 data, ``offset_ns`` after the block's first frame, flags, a DLC only where it is not the data's
-length), in the order they were seen. One message per frame (``tankviz.CanFrame``, drives made
-before blocks) cost 16 bytes of message index a frame and a record header each: 2.45x the BLF of
-the same frames; blocks cost about 0.5x (``tools/bench_size.py``).
-
-Rows, not packed columns: in Foxglove a row keeps its fields together, so the frames of one id
-are found with a message-path filter (``/can/can0/frames.frames[:]{id==528}``) in the Raw
-Messages panel; packed columns were measured 12 % smaller (0.45x the BLF) and would lose that.
+length), in the order they were seen. ``/can/can0/frames.frames[:]{id==528}`` finds one id's
+frames in Foxglove's Raw Messages panel.
 
 How blocks are cut (:class:`BlockCutter`, fed every frame the pipeline sees, in its order): a bus's
 block opens at its first frame that falls in no open block of the bus, whose time is the block's
@@ -17,22 +12,14 @@ log time, and holds the bus's frames stamped in ``[start, start + WINDOW_NS)``. 
 frame outside it (later, or earlier: a clock that stepped back) closes it, and so does the
 pipeline's time passing its end (any bus's frame; live, the clock: a quiet bus still has its
 frames sent within a window), a clock step, a part of a drive that ends, the end of the drive.
-Blocks closed together are written in the order of their starts. Starting at the bus's own first
-frame keeps a bus's bursts of frames together and its offsets alike from block to block: zstd
-packs that best (0.50x the BLF, against 0.64x for windows on a fixed 20 ms grid).
 
-So blocks are written in the order of their starts, and no frame is before its block's start
+Blocks are written in the order of their starts, and no frame is before its block's start
 (until a clock steps back): a reader gets the pipeline's order back
 (:class:`bridge.io.drives.BlockMerger`) by merging the frames of the blocks read so far by time,
-up to the start of the block just read. Each bus's frames come back exactly in their order, so
-every topic a drive makes from them does; across buses the order is exact unless frames of two
-buses came out of time order (merged logs of clocks a little apart: read back in time order) or
-have the same stamp (read back in the order their blocks were written).
-
-Rows are written straight in protobuf's wire format (:func:`encode_block`, when a block closes),
-byte for byte what ``CanFrameBlock.SerializeToString`` gives (tests/test_raw_blocks.py): what a
-row holds besides its data and offset is made once per kind of frame (id, flags, length), and
-an offset's field once per offset (stamps in microseconds repeat them).
+up to the start of the block just read. Each bus's frames come back exactly in their order; across
+buses the order is exact unless frames of two buses came out of time order or have the same stamp
+(read back in the order their blocks were written). Rows are written straight in protobuf's wire
+format (:func:`encode_block`), byte for byte what ``CanFrameBlock.SerializeToString`` gives.
 """
 
 from __future__ import annotations
@@ -42,7 +29,7 @@ from typing import Any, NamedTuple
 
 from bridge.frame import END_NS, EXTENDED_KEY, Frame
 from bridge.packed import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, PackedFrames
-from bridge.protowire import varint
+from bridge.protowire import string, varint
 
 #: The longest window of one block (20 ms: measured smallest with zstd, ``tools/bench_size.py``).
 WINDOW_NS = 20_000_000
@@ -99,8 +86,7 @@ def _offset(offset_ns: int) -> bytes:
 
 def _name(bus: str) -> bytes:
     """A block's ``bus`` field."""
-    name = bus.encode()
-    return b"\x0a" + varint(len(name)) + name if name else b""
+    return string(b"\x0a", bus) if bus else b""
 
 
 def _row(frame: Frame, t_ns: int) -> bytes:

@@ -1,12 +1,9 @@
 """The bring-up layout: a new car's ids, which of them no database knows, and their bits
 (what ``tankviz layouts --dbc ... --export DIR`` writes as ``bring-up.json``).
 
-:func:`bringup_layout` makes it for some buses from the bring-up topics every drive publishes: a
-Table of each bus's ids (``/can/<bus>/ids``), the bit-change map (``/can/bits``) and one unknown
-id followed (Plots of its bytes and 16-bit words, its latest payload). The id is the layout
-variable ``unknown_id`` (:data:`ID_VARIABLE`, set in Foxglove's Variables sidebar as ``"0x2C4"``
-or 708), the words' first byte the variable ``word`` (:data:`WORD_VARIABLE`, a slider);
-``plot_id=(bus, id)`` (``--plot can0/0x2C4``) sets them at first.
+A Table of each bus's ids, the bit-change map and one unknown id followed (plots of its bytes and
+16-bit words), the id the layout variable ``unknown_id`` (:data:`ID_VARIABLE`) and the words'
+first byte the variable ``word`` (:data:`WORD_VARIABLE`).
 """
 
 from __future__ import annotations

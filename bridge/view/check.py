@@ -1,15 +1,9 @@
 """A layout's format, and every topic, frame and message path it names, checked against what
 the bridge produces.
 
-A layout is Foxglove Studio's import/export JSON (``configById``, ``layout``,
-``globalVariables``, ``userNodes``, ``playbackConfig``). :func:`check_format` says what keeps
-data from being a layout Foxglove imports (keys, panel ids of :data:`PANEL_NAMES`, the mosaic
-tree, panels placed once). :func:`check_layout` resolves every topic, frame and message path a
-layout names against what the bridge produces for a profile (:mod:`bridge.view.produced`,
-:func:`~bridge.view.paths.resolve_path`), and checks each panel reads what it can show (3D panels
-:data:`DRAWABLE` topics, plots numbers, Indicators one value their rules can match) and every
-variable a path names is defined; paths on user scripts' topics are not checked.
-:func:`referenced_topics` is every produced topic a layout reads.
+:func:`check_format` says what keeps data from being a layout Foxglove Studio imports;
+:func:`check_layout` resolves every topic, frame, message path and variable a layout names against
+what the bridge produces for a profile, and checks each panel reads what it can show.
 """
 
 from __future__ import annotations

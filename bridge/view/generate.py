@@ -1,15 +1,9 @@
 """Foxglove layouts made for a profile: profile + databases -> the tank-viz, engineer,
 can-debug and bring-up layouts (what ``tankviz layouts --profile P --export DIR`` writes).
 
-:func:`generate_layouts` builds them from what the bridge produces for the profile on its buses
-(:func:`bridge.view.produced.produced`), never from a list of ecocar's names, so every panel
-reads a topic that exists and nothing the profile lacks is shown: ``tank-viz`` (the Tank Viz
-view, :func:`view_3d`: a chase view and a range view), ``engineer`` (the chase view, plots of the
-lead, the ego signals and the object groups, the alarm log and one Indicator per alarm the
-monitor checks, :func:`indicator`), ``can-debug`` (the decoded signals the profile reads and each
-bus's health and raw frames) and ``bring-up`` (:mod:`bridge.view.bringup`). Databases for every
-bus mean ``can0`` (:func:`database_buses`). :func:`layout_text` is a layout as written to a
-file; the bundled ``layouts/*.json`` are ecocar's, written so.
+They are built from what the bridge produces for the profile on its buses, never from a list of
+ecocar's names, so every panel reads a topic that exists and nothing the profile lacks is shown;
+the bundled ``layouts/*.json`` are ecocar's, written so.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """Foxglove message paths resolved against what the bridge produces.
 
-:func:`resolve_path` reads a path such as ``/perception/lead.object.x`` (indexes, slices,
-filters, a trailing modifier), takes the longest produced topic it starts with and walks its
-protobuf descriptor field by field; the :class:`Resolved` path says its topic, schema and last
-field, whether a plot can draw it and whether it gives several values. A path that cannot be
-read, names a field that does not exist, indexes wrongly or filters on a field of another type
-is a :class:`~bridge.errors.BridgeError`; on a topic with a sample message (``/health``) a filter
-on :data:`~bridge.view.produced.SAMPLE_KEYS` that matches nothing is one too.
+:func:`resolve_path` walks a path such as ``/perception/lead.object.x`` through its topic's
+protobuf descriptor and says its topic, schema and last field, whether a plot can draw it and
+whether it gives several values; a path that cannot be read or names what is not there is a
+:class:`~bridge.errors.BridgeError`.
 """
 
 from __future__ import annotations

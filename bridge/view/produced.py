@@ -1,11 +1,8 @@
 """What the bridge produces for a profile: its topics with their schemas, its frames, and samples.
 
-:func:`produced` assembles the drive (:class:`~bridge.pipeline.drive.Drive`) and keeps what the
-live pipeline advertises: every topic it records, with its protobuf descriptor
-(:func:`descriptor_of`), the vehicle frame and the sensors' frames, and sample messages to check
-message path filters against (``/health`` with every bus, family, sensor pair and alarm:
-:func:`health_sample`, :data:`SAMPLE_KEYS`). :func:`bundled_produced` is the bundled profile's,
-on bus can0.
+:func:`produced` assembles the drive and keeps what the live pipeline advertises: every topic it
+records with its protobuf descriptor, the vehicle and sensor frames, and sample messages
+(``/health``) to check message path filters against.
 """
 
 from __future__ import annotations

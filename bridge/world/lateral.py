@@ -1,20 +1,9 @@
 """Lateral sign, checked from the data: do a sensor's stationary objects sweep against the turn,
 do the vehicles ahead lean into the curves?
 
-A profile's ``lateral = "left" | "right"`` says which way a sensor's positive lateral distance
-points, and a wrong one mirrors the sensor's scene. :class:`LateralSignCheck` judges it from a
-drive, without a camera: turning at yaw rate ω (or the speed times the steering's curvature,
-:func:`bridge.world.model.steering_curvature`), an object standing still at (x, y) must move at
-dy/dt = -ω·x (against the turn), and a vehicle driving ahead in a curve of curvature κ sits at
-y = d + κ·x²/2 (leaning into it); a flipped sensor shows the opposite. Which objects stand
-still is decided from their own motion (and vx or class where mapped), so a wrong sign cannot
-hide its evidence. ``check.update(t_ns, world)`` at every scene tick (no per-frame work);
-``check.verdicts()`` gives each sensor's :class:`LateralVerdict`: ``"ok"`` or ``"flipped"``
-when ``agreement`` of at least ``min_samples`` stationary or ``min_lean_samples`` lean samples
-say so, else ``"unknown"``, always with a one-line message with the figures (what was missing
-when not judged). A straight road, lane changes and a standstill never give a verdict. The
-health monitor (:mod:`bridge.health.monitor`) runs one per drive; docs/profiles.md
-("Lateral sign") tells users the rest.
+:class:`LateralSignCheck` judges each sensor's ``lateral = "left" | "right"`` from a drive, without
+a camera, and gives a :class:`LateralVerdict` (``"ok"``, ``"flipped"`` or ``"unknown"``) with a
+one-line message; a straight road, lane changes and a standstill never give one.
 """
 
 from __future__ import annotations
@@ -158,8 +147,8 @@ class LateralSignCheck:
     one twice as fast); it also drops a slot that changed owner (the new object is elsewhere). Where
     the group has more, it must agree too, by the first of:
 
-    1. a relative velocity ``vx`` (mapped and observed): vx within the same tolerance of -v;
-    2. a class signal: the object's class is ``stationary``.
+    1. a relative velocity ``vx`` (mapped and observed): vx within the same tolerance of -v; 2. a
+    class signal: the object's class is ``stationary``.
 
     The lateral sign changes none of these, so a wrong sign cannot hide its own evidence.
 
@@ -213,6 +202,14 @@ class LateralSignCheck:
 
     What a verdict not given says of the turns is over the ticks at ``min_speed`` or more: the
     fastest yaw rate then, and their time.
+
+    Turning at yaw rate ω (or the speed times the steering's curvature,
+    :func:`bridge.world.model.steering_curvature`), an object standing still at (x, y) must move at
+    dy/dt = -ω·x (against the turn), and a vehicle driving ahead in a curve of curvature κ sits at y
+    = d + κ·x²/2 (leaning into it); a flipped sensor shows the opposite. ``update(t_ns, world)``
+    runs at every scene tick (no per-frame work); ``verdicts()`` says ``"ok"`` or ``"flipped"`` when
+    ``agreement`` of at least ``min_samples`` stationary or ``min_lean_samples`` lean samples say
+    so, else ``"unknown"``, always with the figures (what was missing when not judged).
     """
 
     def __init__(self, profile: Profile, settings: LateralSettings | None = None) -> None:

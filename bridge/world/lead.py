@@ -1,15 +1,9 @@
 """Twins and a steady lead: one object seen in two slots is one object, and the lead changes
 only when another object clearly is the lead.
 
-:func:`twin_sets` groups, transitively, the objects of one group at one tick that lie within
-:data:`TWIN_DISTANCE_M` of each other and, where both have one, differ in longitudinal velocity
-by at most :data:`TWIN_SPEED_MPS`; the world keeps every object, the scene draws a set as one.
-:class:`LeadKeeper` (``[lead] source = "tracks"``) keeps its lead, followed through its twins,
-until it leaves the ego lane (by :data:`LEAVE_MARGIN_M`), vanishes for more than
-:data:`GRACE_S`, or another in-lane object (not a twin) is nearer by :func:`nearer_margin` for
-:data:`NEARER_S`; the new lead is then the closest valid in-lane track, and its ``serial`` goes
-up by one: every change of ``serial`` is a real lead change (``/perception/lead``'s
-``lead_number``, the catalogue's ``lead_changes`` and cut-ins).
+:func:`twin_sets` groups the objects that lie within :data:`TWIN_DISTANCE_M` and
+:data:`TWIN_SPEED_MPS` of each other (the scene draws a set as one); :class:`LeadKeeper` keeps its
+lead until it clearly is not, and every change of its ``serial`` is a real lead change.
 """
 
 from __future__ import annotations
@@ -114,8 +108,15 @@ class SteadyLead:
 
 
 class LeadKeeper:
-    """The lead chosen from tracks, kept until another object clearly is the lead (see the
-    module's rules). Call :meth:`update` once per tick, in log time order."""
+    """The lead chosen from tracks, kept until another object clearly is the lead (see the module's
+    rules). Call :meth:`update` once per tick, in log time order.
+
+    The lead (``[lead] source = "tracks"``), followed through its twins, is kept until it leaves the
+    ego lane (by :data:`LEAVE_MARGIN_M`), vanishes for more than :data:`GRACE_S`, or another in-lane
+    object (not a twin) is nearer by :func:`nearer_margin` for :data:`NEARER_S`; the new lead is
+    then the closest valid in-lane track, and ``serial`` goes up by one (``/perception/lead``'s
+    ``lead_number``, the catalogue's ``lead_changes`` and cut-ins).
+    """
 
     def __init__(self) -> None:
         self.lead: ObjectObservation | None = None

@@ -1,13 +1,8 @@
 """World: the latest observations with their times, expiring in log time, and what follows.
 
-:class:`World` keeps the newest valid observation of each object (per group and id), the newest
-valid lane lines and the ego state; objects expire after their group's lifetime in log time, so
-convert, replay and live agree, and a clock step shifts every time held (:meth:`World.shift`).
-From it come the lane model (camera lanes while fresh, else lanes extrapolated from the steering
-angle), drawn within :data:`LANE_TOLERANCE_M` of their cubic with as few points as that needs
-(:func:`lane_xs`), and the MIO check. Nothing non-finite enters or leaves it: the scene never gets
-a non-finite coordinate. An observation whose rule could not be evaluated is applied as invalid
-and counted in :attr:`World.rule_errors`.
+:class:`World` keeps the newest valid observation of each object, lane line and ego state,
+expiring in log time so convert, replay and live agree; from it come the lane model and the MIO
+check. Nothing non-finite enters or leaves it.
 """
 
 from __future__ import annotations
@@ -213,7 +208,14 @@ class MioCheck:
 
 @dataclass
 class World:
-    """Everything known at the current log time."""
+    """Everything known at the current log time.
+
+    Objects expire after their group's lifetime in log time, and a clock step shifts every time held
+    (:meth:`shift`). The lane model is the camera lanes while fresh, else lanes extrapolated from
+    the steering angle, drawn within :data:`LANE_TOLERANCE_M` of their cubic (:func:`lane_xs`). An
+    observation whose rule could not be evaluated is applied as invalid and counted in
+    :attr:`rule_errors`.
+    """
 
     profile: Profile
     objects: dict[str, dict[int, ObjectObservation]] = field(default_factory=dict)

@@ -1,15 +1,8 @@
 """Observe: decoded DBC messages to observations in the vehicle frame, as the profile says.
 
-The profile stage of the data path. :class:`Observer` routes each decoded message to what it
-means (an object of a group, a lane line, the lead vehicle, ego motion) and converts positions
-from the sensor's conventions (polar or cartesian, lateral sign, units, mounting pose) into the
-vehicle frame: x forward, y left, z up. A field the profile does not map, or a value that is not
-finite, is left out of the observation (``None``), never read as 0; an object without a finite
-position, or whose computed value reads ``none``, makes no observation. An object is evaluated
-again only when a signal it reads changed (equal by ``==``); otherwise it repeats its last
-observation at the newest time. Multiplexed pages are merged per object and cycle first
-(:mod:`bridge.world.pages`). A validity rule that cannot be evaluated leaves the object out, as a
-rule that does not hold does, and says why in ``rule_error``.
+:class:`Observer` routes each decoded message to what it means (an object, a lane line, the lead,
+ego motion) and converts positions into the vehicle frame (x forward, y left, z up). A field not
+mapped or not finite is ``None``, never 0; an object without a finite position makes no observation.
 """
 
 from __future__ import annotations
@@ -560,9 +553,16 @@ def _reading(group: ObjectGroup) -> ObjectGroup:
 class Observer:
     """Routes decoded messages (by DBC message name) to observations, as the profile says.
 
-    Groups that read the same fields of the same messages (:func:`_reading`) are observed once:
-    each observation of the first is made again under the other's name, just after it (the
-    order in which observing them apart would make them)."""
+    Groups that read the same fields of the same messages (:func:`_reading`) are observed once: each
+    observation of the first is made again under the other's name, just after it (the order in which
+    observing them apart would make them).
+
+    An object whose computed value reads ``none`` makes no observation. An object is evaluated again
+    only when a signal it reads changed (equal by ``==``); otherwise it repeats its last observation
+    at the newest time. Multiplexed pages are merged per object and cycle first
+    (:mod:`bridge.world.pages`). A validity rule that cannot be evaluated leaves the object out, as
+    a rule that does not hold does, and says why in ``rule_error``.
+    """
 
     def __init__(self, profile: Profile) -> None:
         self.profile = profile

@@ -1,12 +1,8 @@
 """Pages: the frames of a multiplexed object message merged into one message per object and cycle.
 
-:class:`PageMerger` merges the pages of one object (by its id, or its slot) within one of the
-radar's cycles into one message, timed by the page that carried the position. Pages the group
-does not read are left out; a cycle is observed at once when complete; a cycle that ends short
-(a page repeats, the cycle's opening page comes, :data:`CYCLE_LIMIT_NS`) is observed with what
-it has if it has the position and every signal the validity rule reads, else not judged at all,
-so the world keeps the object's last observation rather than mixing cycles.
-:class:`PageStats` counts the cycles, those short of a page and those not judged.
+A cycle that ends short is observed with what it has only if it has the position and every signal
+the validity rule reads, else not judged at all, so the world keeps the object's last observation
+rather than mixing cycles.
 """
 
 from __future__ import annotations
@@ -64,9 +60,15 @@ class _Cycle:
 class PageMerger:
     """The pages of one multiplexed message merged per object (``key``) and cycle.
 
-    ``multiplexors``: the signals whose values say which page a frame is; ``needed``: the
-    signals the group reads that only some pages carry; ``position`` and ``rule``: those of
-    them the position and the validity rule read."""
+    ``multiplexors``: the signals whose values say which page a frame is; ``needed``: the signals
+    the group reads that only some pages carry; ``position`` and ``rule``: those of them the
+    position and the validity rule read.
+
+    Pages of one object (by its id, or its slot) within one radar cycle become one message, timed by
+    the page that carried the position; pages the group does not read are left out; a cycle is
+    observed at once when complete. A cycle ends short when a page repeats, the cycle's opening page
+    comes, or after :data:`CYCLE_LIMIT_NS`.
+    """
 
     def __init__(self, multiplexors: tuple[str, ...], needed: frozenset[str],
                  position: frozenset[str], rule: frozenset[str], stats: PageStats) -> None:

@@ -100,6 +100,12 @@ class LiveCar:
     def output(self) -> str:
         return "".join(line for _, line in self.lines)
 
+    @property
+    def late_s(self) -> float:
+        """How far behind its script the car sent a frame, at most (once it has ended)."""
+        return float(re.search(r"car: sent \d+ frames, at most ([\d.]+) s late",  # type: ignore[index]
+                               self.output)[1])
+
     def wait(self, timeout: float = 120.0) -> int:
         code = self.process.wait(timeout * timeout_scale())
         self._reader.join(5.0)

@@ -10,13 +10,16 @@ fault may stamp it as it likes), a string (printed as ``car: TEXT`` at that mome
 fault begins and ends), or a callable (called then: a fault that is not a frame). The car starts
 once live listens on the bus, and stops live with SIGTERM one second after its last step. Live
 runs as ``tankviz live --bus can0=virtual:NAME LIVE-ARGS...`` in the main thread, as the command
-runs in a car. At the end the script prints ``car: sent N frames`` and exits with live's status.
+runs in a car. At the end the script prints ``car: sent N frames, at most S s late`` (S: how far
+behind its script the car sent a frame: a car in a thread of a stalled process sends late, with
+the stamps it planned, which a kernel never does) and exits with live's status.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import itertools
 import os
 import signal
 import sys
@@ -45,17 +48,25 @@ def load(spec: str) -> Callable[[], Iterable[tuple[float, Any]]]:
     return func
 
 
-def drive(channel: str, script: Iterable[tuple[float, Any]], sent: list[int]) -> None:
+def drive(channel: str, script: Iterable[tuple[float, Any]], sent: list[int],
+          late: list[float]) -> None:
     bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True,
                   receive_own_messages=False)
     try:
-        while len(virtual.channels.get(channel, ())) < 2:  # live's bus is open too
-            time.sleep(0.01)
+        from waiting import timeout_scale, wait_for  # (tests/ is on the path: see load)
+
+        if not wait_for(lambda: len(virtual.channels.get(channel, ())) >= 2,  # live's bus too
+                        60 * timeout_scale()):
+            raise SystemExit(f"car: live never opened its bus {channel}")
+        steps = iter(script)
+        first = next(steps, None)  # (a script may take a while to make its frames: not late)
         start = time.monotonic()
-        for at, what in script:
+        for at, what in itertools.chain([first] if first is not None else [], steps):
             delay = start + at - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
+            else:  # the process stalled (a loaded machine): live's wall clock ran on meanwhile
+                late[0] = max(late[0], -delay)
             if isinstance(what, Frame):
                 bus.send(can.Message(
                     timestamp=what.timestamp_ns / 1e9, arbitration_id=what.arbitration_id,
@@ -79,11 +90,11 @@ if __name__ == "__main__":
     parser.add_argument("--channel", required=True)
     parser.add_argument("live", nargs=argparse.REMAINDER)
     args = parser.parse_args()
-    sent = [0]
-    car = threading.Thread(target=drive, args=(args.channel, load(args.inject)(), sent),
+    sent, late = [0], [0.0]
+    car = threading.Thread(target=drive, args=(args.channel, load(args.inject)(), sent, late),
                            daemon=True)
     car.start()
     live_args = [a for a in args.live if a != "--"]
     code = main(["live", "--bus", f"can0=virtual:{args.channel}", *live_args])
-    print(f"car: sent {sent[0]} frames", flush=True)
+    print(f"car: sent {sent[0]} frames, at most {late[0]:.3f} s late", flush=True)
     sys.exit(code)

@@ -62,6 +62,7 @@ def job(tmp_path: Path, name: str, *inputs: Path) -> ConvertJob:
 
 # --- damaged inputs -----------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_drive_converted_from_a_damaged_blf_says_how_much_was_skipped(
         broken: Path, tmp_path: Path) -> None:
     (tmp_path / "out").mkdir()

@@ -71,6 +71,7 @@ def test_a_file_that_is_not_mcap(tmp_path: Path) -> None:
         "not a readable MCAP file: only 4 bytes, the start of the MCAP magic")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [1, 4, 7])
 def test_a_file_cut_right_after_it_was_created(drive: Path, tmp_path: Path, size: int) -> None:
     """#33 item 10: a drive of 1 to 7 bytes (cut inside its magic) was a traceback (struct.error)
@@ -81,6 +82,7 @@ def test_a_file_cut_right_after_it_was_created(drive: Path, tmp_path: Path, size
     assert both(path) == (said, said)
 
 
+@pytest.mark.slow
 def test_replay_refuses_a_file_of_a_few_bytes_before_it_prints(
         drive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from bridge.cli import main

@@ -31,6 +31,7 @@ def live(tmp_path: Path, dbc: Path, *bus: str) -> subprocess.CompletedProcess[st
         capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
 
 
+@pytest.mark.slow
 def test_a_bus_named_without_python_can_configuration_is_an_error_at_start(
         tmp_path: Path, shared_dbc: Path) -> None:
     result = live(tmp_path, shared_dbc, "radar")
@@ -42,6 +43,7 @@ def test_a_bus_named_without_python_can_configuration_is_an_error_at_start(
     assert not list((tmp_path / "drives").glob("*.mcap"))
 
 
+@pytest.mark.slow
 def test_a_misspelt_interface_is_an_error_at_start(tmp_path: Path, shared_dbc: Path) -> None:
     result = live(tmp_path, shared_dbc, "radar=socketcn:vcan0")
     assert result.returncode == 1, result.stdout + result.stderr
@@ -51,6 +53,7 @@ def test_a_misspelt_interface_is_an_error_at_start(tmp_path: Path, shared_dbc: P
     assert not list((tmp_path / "drives").glob("*.mcap"))
 
 
+@pytest.mark.slow
 def test_one_bad_bus_among_good_ones_stops_the_start(tmp_path: Path, shared_dbc: Path) -> None:
     result = live(tmp_path, shared_dbc, f"front=virtual:ok-{os.getpid()}", "rear=nosuch:x")
     assert result.returncode == 1, result.stdout + result.stderr

@@ -43,6 +43,7 @@ def closed_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bus", ["can0=udp_multicast:notanaddress", "can0=socketcan:can9"])
 def test_a_bus_that_never_opens_is_one_error_line_and_exit_1_by_the_end_of_for(
         tmp_path: Path, bus: str) -> None:
@@ -61,6 +62,7 @@ def test_a_bus_that_never_opens_is_one_error_line_and_exit_1_by_the_end_of_for(
     assert len(python_can) <= 4, result.stderr  # one per cause, then a count
 
 
+@pytest.mark.slow
 def test_a_socketcand_server_that_is_down_is_one_line_per_cause_not_a_flood(
         tmp_path: Path) -> None:
     """python-can's socketcand tries to connect for 10 s in a busy loop, logging a warning for
@@ -76,6 +78,7 @@ def test_a_socketcand_server_that_is_down_is_one_line_per_cause_not_a_flood(
     assert any("Failed to connect to server" in line for line in lines), lines
 
 
+@pytest.mark.slow
 def test_a_bad_bus_prints_nothing_before_its_error(tmp_path: Path) -> None:
     """``--bus nosuch``: not "Foxglove: open connection" and "Ctrl+C stops" first."""
     result = live(tmp_path, "--bus", "nosuch", "--port", "0")
@@ -85,6 +88,7 @@ def test_a_bad_bus_prints_nothing_before_its_error(tmp_path: Path) -> None:
     assert line.startswith("error: --bus nosuch: python-can's configuration has no interface")
 
 
+@pytest.mark.slow
 def test_a_bus_that_never_opens_is_an_error_after_the_wait_and_no_gap() -> None:
     from bridge.pipeline.drive import load_stages
     from bridge.pipeline.live_engine import Live

@@ -30,6 +30,7 @@ def frames_per_part(path: Path) -> int:
     return len(list(ArchiveSource(path)))
 
 
+@pytest.mark.slow
 def test_each_part_of_a_split_drive_counts_its_own_frames(tmp_path: Path) -> None:
     drive = Drive(load_stages([], "ecocar"))
     recorder = drive.record_parts(tmp_path / "drives", split_duration_s=1.0)
@@ -103,6 +104,7 @@ def test_a_recovered_drive_with_its_tankviz_record_counts_the_frames_it_holds(
     assert row[12] == frames_per_part(tmp_path / "fixed.mcap")
 
 
+@pytest.mark.slow
 def test_one_drive_named_through_dotdot_or_a_link_is_indexed_once(tmp_path: Path) -> None:
     folder = tmp_path / "drives"
     folder.mkdir()

@@ -22,6 +22,7 @@ def catalogue(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder / "c.duckdb"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sql", [
     "COPY (SELECT 1) TO '{victim}'",
     "COPY drives TO '{victim}' (FORMAT csv)",

@@ -26,6 +26,7 @@ def one_error_line(result: subprocess.CompletedProcess[str]) -> str:
     return line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("duration", ["0", "-5", "nan", "inf"])
 def test_simulate_wants_a_duration_of_some_seconds(tmp_path: Path, duration: str) -> None:
     line = one_error_line(tankviz("simulate", "-o", "drive.blf", f"--duration={duration}",
@@ -45,12 +46,14 @@ def test_a_bad_run_time_in_the_environment_is_named(tmp_path: Path) -> None:
     assert line == "error: TANKVIZ_RUN_FOR='soon': expected a number of seconds > 0"
 
 
+@pytest.mark.slow
 def test_good_settings_in_the_environment_are_the_defaults(tmp_path: Path) -> None:
     result = tankviz("live", "--help", cwd=tmp_path,
                      env={"TANKVIZ_PORT": "9001", "TANKVIZ_RUN_FOR": "2.5"})
     assert result.returncode == 0, result.stderr
 
 
+@pytest.mark.slow
 def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
     (tmp_path / "drives").mkdir()
     line = one_error_line(tankviz("inspect", "drives", cwd=tmp_path))
@@ -58,6 +61,7 @@ def test_inspect_a_folder_says_it_is_one(tmp_path: Path) -> None:
     assert "drives/*.mcap" in line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rate", ["0", "-1", "100"])
 @pytest.mark.parametrize("command", ["convert", "batch"])
 def test_a_scene_rate_of_zero_is_refused_as_any_other_out_of_range(
@@ -70,6 +74,7 @@ def test_a_scene_rate_of_zero_is_refused_as_any_other_out_of_range(
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_simulate_and_replay_say_what_their_file_is(tmp_path: Path) -> None:
     simulate = tankviz("simulate", "--help", cwd=tmp_path).stdout
     assert "-o OUTPUT, --output OUTPUT\n" in simulate  # its help follows on the next line
@@ -92,6 +97,7 @@ def test_simulate_shows_its_progress_on_a_terminal() -> None:
     assert all(0.0 <= f <= 1.0 for f in fractions if f is not None)
 
 
+@pytest.mark.slow
 def test_the_highway_car_drives_the_road_asked_for(tmp_path: Path) -> None:
     """``--road winding`` is the drive the lateral-sign check judges on gentle curves."""
     done = tankviz("simulate", "--car", "highway", "--road", "winding", "--duration", "2",
@@ -104,6 +110,7 @@ def test_the_highway_car_drives_the_road_asked_for(tmp_path: Path) -> None:
     assert line == "error: --road winding: only the highway car has other roads (--car highway)"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", [["live", "--bus", "can0=virtual:tankviz-for-check"],
                                      ["demo"], ["replay", "drive.blf"]])
 @pytest.mark.parametrize("seconds", ["0", "-1", "nan", "inf", "soon"])

@@ -146,16 +146,30 @@ def one_frame_a_year_ahead() -> Iterator[tuple[float, Any]]:
 
 
 def check_live_step(tmp_path: Path, script: str, steps: int) -> None:
-    car = start(tmp_path, f"{__file__}:{script}")
-    viewer = Viewer(car.url)
-    stepped = car.when("car: clock step")
-    assert_survived(car, viewer, fault_ended=stepped, on_log="clock step")
-    after = [at for at, topic, _ in viewer.got if topic == HEALTH_TOPIC and at > stepped]
-    assert after, "no /health after the step"
-    times, metadata = log_times(car.drives)
-    assert_every_tick_in_each_timeline(times)
-    assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], metadata["alarms"]
-    assert len(metadata["clock_steps"]) == steps, metadata["clock_steps"]
+    """Live through the car's clock step: a /health after it, every scene tick, no bus alarm and
+    ``steps`` steps noted. Tried twice: the car is a thread of live's process (see
+    harness.LiveCar.late_s), so a stall of that process on a loaded machine can hold its frames
+    back for a second, a silence live rightly reports."""
+    failed: list[str] = []
+    for attempt in (1, 2):
+        folder = tmp_path / f"attempt-{attempt}"
+        folder.mkdir()
+        car = start(folder, f"{__file__}:{script}")
+        viewer = Viewer(car.url)
+        stepped = car.when("car: clock step")
+        assert_survived(car, viewer, fault_ended=stepped, on_log="clock step")
+        try:
+            after = [at for at, topic, _ in viewer.got if topic == HEALTH_TOPIC and at > stepped]
+            assert after, "no /health after the step"
+            times, metadata = log_times(car.drives)
+            assert_every_tick_in_each_timeline(times)
+            assert not [a for a in alarms_raised(metadata) if a.startswith("bus.")], (
+                metadata["alarms"])
+            assert len(metadata["clock_steps"]) == steps, metadata["clock_steps"]
+            return
+        except AssertionError as e:
+            failed.append(f"attempt {attempt} (the car sent up to {car.late_s:.2f} s late): {e}")
+    pytest.fail("\n".join(failed))
 
 
 @pytest.mark.slow
@@ -196,6 +210,7 @@ def bosch_drive(db: cantools.database.can.Database, starts: Iterable[float],
             yield message(db, "RadarPoint1_B", t + 0.001, Class=1)
 
 
+@pytest.mark.slow
 def test_convert_goes_on_with_the_scene_after_a_step_back(shared_dbc: Path,
                                                            tmp_path: Path) -> None:
     dbc = shared_dbc / "tesla_radar_bosch.dbc"

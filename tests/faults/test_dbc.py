@@ -125,6 +125,7 @@ def test_fd_frames_longer_than_their_message_decode_and_the_extra_bytes_are_note
             in format_summary(str(out), summarize_file(out)))
 
 
+@pytest.mark.slow
 def test_live_warns_at_start_about_a_database_and_a_bus_it_will_never_decode(
         tmp_path: Path) -> None:
     """Live says at once what would silence messages: a database cantools cannot decode all of,

@@ -73,6 +73,7 @@ def complete(path: Path) -> dict[str, int]:
             for i, n in summary.statistics.channel_message_counts.items()}
 
 
+@pytest.mark.slow
 def test_a_drives_folder_that_cannot_be_written_is_an_error_at_start(tmp_path: Path) -> None:
     with tmpfs(tmp_path / "ro", 1, "ro") as drives:
         result = subprocess.run(

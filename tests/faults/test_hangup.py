@@ -1,7 +1,8 @@
 """A hangup (the terminal or SSH session of ``live`` or ``demo`` goes away: SIGHUP) finishes the
 drive as SIGTERM does: exit 0, a complete MCAP (footer and summary: no ``tankviz recover``).
 Once the terminal is gone, writing to it fails (EIO on a hung-up terminal, EPIPE on a pipe whose
-reader left): the drive is finished all the same, and no traceback is attempted.
+reader left): the drive is finished all the same, and no traceback is attempted. A ``replay``
+ends the same way (it exited 129, killed by the signal).
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def kind(request: pytest.FixtureRequest) -> str:
     return group
 
 
+@pytest.mark.slow
 def test_closing_the_terminal_finishes_the_drive(tmp_path: Path, kind: str) -> None:
     master, slave = os.openpty()
     process = subprocess.Popen(command(kind, tmp_path), stdin=slave, stdout=slave,
@@ -118,6 +120,7 @@ def test_closing_the_terminal_finishes_the_drive(tmp_path: Path, kind: str) -> N
     assert_finished(tmp_path)
 
 
+@pytest.mark.slow
 def test_a_hangup_whose_output_pipes_are_gone_finishes_the_drive(tmp_path: Path) -> None:
     """An SSH session that ends: its pipes' reader is gone (EPIPE), then the hangup."""
     process = subprocess.Popen(command("demo", tmp_path), stdout=subprocess.PIPE,
@@ -131,6 +134,7 @@ def test_a_hangup_whose_output_pipes_are_gone_finishes_the_drive(tmp_path: Path)
     assert_finished(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGTERM])
 def test_a_hangup_ends_a_run_as_sigterm_does(tmp_path: Path, signum: int) -> None:
     """``kill -HUP`` with the terminal still there: the same end as SIGTERM's, summary too."""
@@ -147,3 +151,37 @@ def test_a_hangup_ends_a_run_as_sigterm_does(tmp_path: Path, signum: int) -> Non
     assert any(line.startswith("recorded ") for line in lines), lines
     assert lines[-1].startswith("the simulated car sent "), lines
     assert_finished(tmp_path)
+
+
+def replay_command(drive: Path) -> list[str]:
+    """``tankviz replay`` of a drive, looping, on a free port."""
+    return [sys.executable, "-m", "bridge", "replay", str(drive), "--port", "0", "--loop"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGTERM])
+def test_a_hangup_ends_a_replay_as_sigterm_does(tmp_path: Path, sample_drive: Path,
+                                                signum: int) -> None:
+    process = subprocess.Popen(replay_command(sample_drive), stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, cwd=tmp_path)
+    assert process.stdout is not None
+    seen = read_until(process.stdout.fileno(), b"Foxglove: open connection", process)
+    process.send_signal(signum)
+    out = (seen + process.communicate(timeout=LIMIT_S * timeout_scale())[0]).decode()
+    assert process.returncode == 0, out
+    assert "Traceback" not in out, out
+    assert out.splitlines()[-1].startswith("replayed "), out
+
+
+@pytest.mark.slow
+def test_closing_the_terminal_ends_a_replay(tmp_path: Path, sample_drive: Path) -> None:
+    master, slave = os.openpty()
+    process = subprocess.Popen(replay_command(sample_drive), stdin=slave, stdout=slave,
+                               stderr=slave, cwd=tmp_path, start_new_session=True,
+                               preexec_fn=become_controlled_by_the_terminal)
+    os.close(slave)
+    try:
+        read_until(master, b"Foxglove: open connection", process)
+    finally:
+        os.close(master)  # the terminal goes away: SIGHUP; writing to it now fails with EIO
+    assert ended(process) == 0

@@ -166,6 +166,7 @@ def test_convert_decodes_every_source_and_bring_up_calls_none_unknown(
     assert [row.message for row in rows if row.message not in ("EEC1", "CCVS1", "TSC1")] == []
 
 
+@pytest.mark.slow
 def test_a_frames_pgn_is_cantools_own() -> None:
     """pgn_key is cantools' pgn_from_frame_id (PDU1's destination masked) written as bit
     operations: it runs for every frame of an id no database names on a J1939 bus."""

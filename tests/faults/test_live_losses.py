@@ -146,6 +146,7 @@ def backlog_drops() -> int:
     return sum(int(line.split()[1], 16) for line in lines if line.strip())
 
 
+@pytest.mark.slow
 def test_a_udp_multicast_bus_counts_the_frames_the_kernel_dropped() -> None:
     group = f"239.74.{os.getpid() % 250}.{time.monotonic_ns() % 250}"
     try:
@@ -203,6 +204,7 @@ class SocketBus(can.BusABC):
         super().shutdown()
 
 
+@pytest.mark.slow
 def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
         tmp_path: Path) -> None:
     from bridge.pipeline.drive import load_stages
@@ -228,6 +230,10 @@ def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
     assert health is not None
     assert wait_for(lambda: "bus.can0.frames_lost" in {a.id for a in health.active_alarms()},
                     10 * timeout_scale())  # a health check raised it
+    # ... and a /health made since says so (it is made once a second: a drive stopped before
+    # then would record the /log line only)
+    next_health = (health.last_tick_ns // health.publish_ns + 1) * health.publish_ns
+    assert wait_for(lambda: health.last_tick_ns >= next_health, 10 * timeout_scale())
     live.stop()
     runner.join(20)
 
@@ -253,6 +259,7 @@ def test_frames_the_kernel_dropped_are_on_log_health_and_in_the_metadata(
 
 # --- the end of a run --------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_run_that_got_no_frame_says_so(tmp_path: Path) -> None:
     result = subprocess.run(
         [sys.executable, "-m", "bridge", "live", "--bus", f"can0=virtual:none-{os.getpid()}",

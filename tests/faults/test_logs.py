@@ -126,6 +126,7 @@ def test_strict_stops_at_the_first_damage_of_a_blf_with_its_byte(blf: Path) -> N
         read(blf, strict=True)
 
 
+@pytest.mark.slow
 def test_an_object_of_size_zero_inside_a_container_does_not_hang_the_reader(blf: Path) -> None:
     def zero_size(inner: bytearray) -> None:
         first = inner.find(b"LOBJ")  # a container may begin with the end of an object
@@ -142,6 +143,7 @@ def test_an_object_of_size_zero_inside_a_container_does_not_hang_the_reader(blf:
     assert "damaged object" in issue.reason
 
 
+@pytest.mark.slow
 def test_a_damaged_object_inside_a_container_loses_only_that_object(blf: Path) -> None:
     lost: list[int] = []
 
@@ -160,6 +162,7 @@ def test_a_damaged_object_inside_a_container_loses_only_that_object(blf: Path) -
     assert "damaged object" in issue.reason
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("part", [0.1, 0.5, 0.99])
 def test_a_blf_cut_inside_a_log_container_keeps_its_frames_before_the_cut(
         blf: Path, part: float) -> None:
@@ -180,6 +183,7 @@ def test_a_blf_cut_inside_a_log_container_keeps_its_frames_before_the_cut(
     assert issue.reason.startswith("the file ends in the middle of an object (a log container")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flags", [1, 2])
 def test_a_blf_frame_with_an_impossible_time_is_reported_and_the_rest_converts(
         blf: Path, tmp_path: Path, flags: int) -> None:
@@ -200,6 +204,7 @@ def test_a_blf_frame_with_an_impossible_time_is_reported_and_the_rest_converts(
     assert "cannot be recorded" in issue.reason
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(offset=st.floats(0.0, 1.0), length=st.integers(1, 400), seed=st.integers(0, 2**32))
 def test_any_damage_to_a_blf_is_read_past(tmp_path_factory: pytest.TempPathFactory,
@@ -320,6 +325,7 @@ def test_an_input_without_frames_is_an_error(tmp_path: Path, suffix: str, conten
         read(path)
 
 
+@pytest.mark.slow
 def test_an_empty_input_fails_the_conversion_with_one_line(tmp_path: Path) -> None:
     (tmp_path / "drive.log").write_text("")
     result = subprocess.run([sys.executable, "-m", "bridge", "convert", "drive.log", "-o",
@@ -331,6 +337,7 @@ def test_an_empty_input_fails_the_conversion_with_one_line(tmp_path: Path) -> No
     assert not (tmp_path / "out.mcap").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["logs", "logs.blf"])
 def test_a_folder_given_as_a_log_is_one_line(tmp_path: Path, name: str) -> None:
     (tmp_path / name).mkdir()
@@ -386,6 +393,7 @@ def test_a_damaged_sqlite_page_stops_the_reading_at_its_row_as_a_stop(
 # --- what each issue did to the reading: a summary tells a stop from a skip ---
 
 
+@pytest.mark.slow
 def test_each_issue_says_whether_the_reading_stopped_skipped_damage_or_lost_nothing(
         write_log: WriteLog, blf: Path) -> None:
     log = write_log("drive.log", drive(5))

@@ -89,6 +89,7 @@ def cut_formats() -> list[str]:
             if s != ".mf4" or importlib.util.find_spec("asammdf") is not None]
 
 
+@pytest.mark.slow
 def test_every_format_cut_at_every_byte_of_its_header_reads_to_an_end(tmp_path: Path) -> None:
     names = [simulated(tmp_path / f"drive{suffix}", 1.0, frames=40).name
              for suffix in cut_formats()]
@@ -141,6 +142,7 @@ def frame_lines(suffix: str, lines: list[tuple[int, bytes]]) -> list[int]:
     return [i for i, (_, text) in enumerate(lines) if not text.startswith(b";") and text.strip()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".csv", ".trc"])
 @pytest.mark.parametrize("where", ["mid-line", "at a line's start"])
 def test_4_kib_of_zeros_lose_only_the_lines_they_hit_and_each_is_reported(
@@ -212,6 +214,7 @@ def said(source: LogSource) -> list[tuple[str, str, str, str]]:
     return [(i.where, i.reason, i.kind, i.group) for i in source.issues]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", GZ_CUTS)
 @pytest.mark.parametrize("suffix", gzipped_formats())
 def test_a_gzipped_log_cut_keeps_every_frame_before_the_cut_and_says_it_is_cut(
@@ -279,6 +282,7 @@ def test_a_gz_that_is_no_gzip_or_fails_its_check_is_one_line(tmp_path: Path, suf
         list(LogSource(path))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".asc", ".log", ".trc", ".csv"])
 def test_a_text_log_cut_in_any_line_says_once_it_is_cut(tmp_path: Path, suffix: str) -> None:
     path = simulated(tmp_path / f"drive{suffix}", 1.0)

@@ -15,6 +15,7 @@ import sys
 import termios
 from pathlib import Path
 
+import pytest
 from conftest import timeout_scale
 from harness import recorded
 from test_marks_live import block_times
@@ -60,6 +61,7 @@ class Terminal:
         os.write(self.fd, text)
 
 
+@pytest.mark.slow
 def test_enter_in_the_terminal_marks_the_moment(tmp_path: Path) -> None:
     master, slave = os.openpty()
     process = subprocess.Popen(demo(tmp_path), stdin=slave, stdout=slave, stderr=slave,
@@ -99,6 +101,7 @@ def test_enter_in_the_terminal_marks_the_moment(tmp_path: Path) -> None:
     assert times == sorted(times) and blocks[0] <= times[0] and times[-1] <= blocks[-1] + NS // 10
 
 
+@pytest.mark.slow
 def test_without_a_terminal_nothing_is_read(tmp_path: Path) -> None:
     """Standard input a pipe (as under systemd, or in a script): what comes on it is not read,
     and nothing is said about marking."""

@@ -267,6 +267,7 @@ def test_without_a_rule_a_cycle_lacking_a_page_is_observed_without_its_values(
     assert all(o.probability == 90.0 for n, o in enumerate(sevens) if n != 3)  # type: ignore[union-attr]
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(order=st.sampled_from(ORDERS),

@@ -63,6 +63,7 @@ def drives(tmp_path: Path, write_log: WriteLog) -> Path:
 
 # --- names that are not UTF-8 ------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_a_batch_with_a_name_that_is_not_utf8_writes_every_drive(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     logs = tmp_path / "logs"
@@ -87,6 +88,7 @@ def test_a_batch_with_a_name_that_is_not_utf8_writes_every_drive(
     printable(captured.err)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [[], ["--workers", "1"]])
 def test_a_catalogue_indexes_a_drive_whose_name_is_not_utf8(
         drives: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -249,6 +251,7 @@ def test_a_fifo_is_named_as_one_in_every_command_that_reads_a_file(
             assert not any("Traceback" in line for line in lines), (argv, lines)
 
 
+@pytest.mark.slow
 def test_a_dangling_link_in_a_batch_folder_is_a_failed_drive(
         tmp_path: Path, write_log: WriteLog, capsys: pytest.CaptureFixture[str]) -> None:
     write_log("good.blf", frames(300))
@@ -277,6 +280,7 @@ def test_a_dangling_link_in_a_catalogued_folder_is_not_indexed_and_says_why(
 
 # --- a drive being recorded --------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_catalog_skips_a_drive_being_recorded_and_indexes_it_once_finished(
         drives: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     recorder = PartsRecorder(drives, lambda r, part: r.add_metadata(dict(part)))

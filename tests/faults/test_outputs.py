@@ -57,6 +57,7 @@ def key(frame: Frame, *, fd_flags: bool) -> tuple[object, ...]:
     return (frame.timestamp_ns, frame.arbitration_id, frame.is_extended, frame.data, *flags)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [*FD_FORMATS, *NO_FD_FLAG_FORMATS, MF4])
 def test_every_log_format_reads_back_exactly_the_frames_simulated(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], suffix: str) -> None:
@@ -82,6 +83,7 @@ def test_a_format_without_fd_flags_says_what_it_leaves_out(
     assert f"{fd} CAN FD frames" in err and "FD flag" in err
 
 
+@pytest.mark.slow
 def test_the_drive_as_mcap_holds_every_frame(tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     from conftest import summary_counts
@@ -95,6 +97,7 @@ def test_the_drive_as_mcap_holds_every_frame(tmp_path: Path,
     assert summary_counts(path)[frames_topic("can0")] < len(frames)  # in blocks
 
 
+@pytest.mark.slow
 def test_forcing_over_an_sqlite_log_replaces_it(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """SQLite appends to a table that exists: --force must give the new drive alone."""
@@ -105,6 +108,7 @@ def test_forcing_over_an_sqlite_log_replaces_it(tmp_path: Path,
     assert said == len(back) == len(list(simulate(duration_s=float(DURATION), seed=3)))
 
 
+@pytest.mark.slow
 def test_trc_cannot_hold_can_fd_and_is_refused_saying_why(tmp_path: Path) -> None:
     result = subprocess.run([sys.executable, "-m", "bridge", "simulate", "-o", "drive.trc",
                              "--duration", DURATION], capture_output=True, text=True,
@@ -124,6 +128,7 @@ BO_ 1056 DoorState: 8 Door
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signum: int) -> None:
     """As Ctrl+C already did: SIGTERM (systemd, docker stop) and SIGHUP (the terminal closed)
@@ -146,6 +151,7 @@ def test_convert_stopped_by_a_signal_leaves_nothing_behind(tmp_path: Path, signu
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "partial"), [("drive.mcap", ".drive.mcap.*.partial"),
                                                ("drive.blf", ".drive_partial_*.blf"),
                                                ("drive.db", ".drive_partial_*.db")])

@@ -249,6 +249,7 @@ def test_one_log_given_twice_is_refused(log: Path, tmp_path: Path,
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_one_log_in_two_formats_is_converted_with_a_warning_naming_both(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     blf, asc = sim_log(tmp_path / "trip.blf"), sim_log(tmp_path / "trip.asc")

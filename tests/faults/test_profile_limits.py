@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import io
 import re
+from functools import cache
 from pathlib import Path
 
 import pytest
 
+from bridge.frame import Frame
 from bridge.pipeline.drive import Drive, load_stages
 from bridge.profile.model import ProfileError
 from bridge.resources import data_dir
@@ -52,6 +54,13 @@ def test_the_profile_has_numbers_to_try() -> None:
     assert {"lifetime", "stale_after", "length", "wheelbase", "range", "bitrate"} <= keys
 
 
+@cache
+def one_second() -> tuple[Frame, ...]:
+    """The simulated ecocar's first second, made once for the many profiles driven on it."""
+    return tuple(simulate(duration_s=1.0))
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("value", EXTREMES)
 @pytest.mark.parametrize("line,key,column", numbers(),
                          ids=[f"line{n + 1}-{key}" for n, key, _ in numbers()])
@@ -66,7 +75,7 @@ def test_an_extreme_profile_number_is_refused_or_the_drive_converts(
         return
     drive = Drive(stages, scene_rate=20)
     drive.record(io.BytesIO())
-    drive.run(simulate(duration_s=1.0))
+    drive.run(one_second())
     drive.finish()
 
 

@@ -147,6 +147,7 @@ def frames(n: int) -> list[Frame]:
     return [Frame(T0 + i * 1_000_000, "radar", 0x300 + i % 4, bytes(8)) for i in range(n)]
 
 
+@pytest.mark.slow
 def test_a_drive_cut_before_its_end_keeps_its_databases_and_profile(
         tmp_path: Path, shared_dbc: Path) -> None:
     """A car that is not ecocar, recorded as ``tankviz live`` records: the file as a power cut

@@ -60,6 +60,7 @@ def close(opened: list[BusLink]) -> None:
         link.close()
 
 
+@pytest.mark.slow
 def test_a_datagram_python_can_cannot_unpack_is_skipped_and_counted() -> None:
     (link,), events = links(unique_group())
     try:
@@ -78,6 +79,7 @@ def test_a_datagram_python_can_cannot_unpack_is_skipped_and_counted() -> None:
     assert link.receive.kernel_drops == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("groups", "ipv6"), [(2, False), (3, False), (2, True)])
 def test_each_bus_gets_only_its_own_groups_frames(groups: int, ipv6: bool) -> None:
     multicast_or_skip(ipv6=ipv6)
@@ -95,6 +97,7 @@ def test_each_bus_gets_only_its_own_groups_frames(groups: int, ipv6: bool) -> No
     assert events.empty()
 
 
+@pytest.mark.slow
 def test_live_records_each_group_on_its_own_bus_and_skips_what_is_no_frame(
         tmp_path: Path) -> None:
     """``tankviz live`` with two udp_multicast buses: frames sent to the first group only are

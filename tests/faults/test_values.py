@@ -135,6 +135,7 @@ def assert_scene_finite(recording: dict[str, list[Any]]) -> None:
     assert checked
 
 
+@pytest.mark.slow
 def test_inf_and_nan_in_a_float_steering_angle_are_counted_and_kept_out_of_the_scene(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     simulated = list(simulate(duration_s=3.0, seed=1))

@@ -171,6 +171,7 @@ def busy_server() -> Iterator[tuple[ViewerServer, list[int]]]:
             publisher.join()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("leaving", ["close", "abort"])
 def test_a_viewer_that_leaves_without_reading_is_released_at_once(leaving: str) -> None:
     """It subscribed to everything, stopped reading (its buffers filled up) and left: with a
@@ -214,6 +215,7 @@ async def leave_without_reading(server: ViewerServer, channels: list[int], leavi
     return took
 
 
+@pytest.mark.slow
 def test_a_stalled_viewer_that_pings_stays_and_nothing_is_logged(
         caplog: pytest.LogCaptureFixture) -> None:
     """Python's websockets pings every 20 s: the pong to a viewer that has stopped reading used

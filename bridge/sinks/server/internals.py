@@ -1,44 +1,22 @@
 """The fence: every use of foxglove-websocket's and websockets' private internals, and only here.
 
 Written against the releases :data:`bridge.fences.FOXGLOVE_WEBSOCKET` and
-:data:`bridge.fences.WEBSOCKETS` name (foxglove-websocket 0.1.4, websockets' legacy server as
-websockets 12 to 17 ship it; pyproject allows those only). tests/test_server.py asserts that
-every private name below still exists with the signature used here, and tests/test_fences.py
-fails on another release: check those tests pass on it before widening the fence.
+:data:`bridge.fences.WEBSOCKETS` name; tests/test_server.py asserts that every private name used
+here still exists with the signature used, tests/test_fences.py fails on another release. Used:
+``FoxgloveServer._handle_raw_client_message``, ``_handle_client_text_message``, ``_send_status``,
+``_send_json``, ``_clients`` and ``_channels`` (:class:`Server`, :func:`clients`,
+:func:`add_channel`), and the legacy ``WebSocketServerProtocol``'s ``write_close_frame``,
+``close_rcvd``, ``pong``, ``write_frame_sync``, ``prepare_ctrl`` and transport
+(:class:`Connection`, :func:`write_frames`, :func:`write_serialized`, :func:`ensure_open`,
+:func:`drain`, :func:`binary_header`).
 
-What is used, and why:
-
-- :class:`Server` subclasses ``FoxgloveServer`` and overrides ``_handle_raw_client_message`` (to
-  check what a viewer sends with its :class:`~bridge.sinks.server.viewer_input.ViewerInput` before
-  foxglove-websocket sees it: it calls ``_handle_client_text_message`` with the subscriptions that
-  passed, handles a viewer's channels and marks itself, never through foxglove-websocket's, and
-  answers the rest with ``_send_status``) and ``_send_json`` (to write replies without waiting for
-  the viewer; at most :data:`REPLY_LIMIT_BYTES` behind; a server that publishes its time follows a
-  viewer's ``serverInfo`` with the latest time, :attr:`Server.latest_time_ns`, before
-  foxglove-websocket advertises the channels: Foxglove Studio takes the time it has when the first
-  channels come as the start of the timeline, zero without one, and a viewer joining a replay then
-  had plots reaching back to 1970); an ``advertise`` of no channel (what a viewer gets when it
-  connects before the first one) is not sent at all, for the same reason.
-- :func:`clients` reads ``FoxgloveServer._clients`` (the connected ``ClientState`` s; each has
-  ``connection`` and ``subscriptions_by_channel``, a new mapping at every (un)subscribe) and
-  :func:`add_channel` writes ``FoxgloveServer._channels`` (the channels a client may subscribe
-  to): the server sends advertisements itself, through each client's own queue.
-- :class:`Connection` subclasses websockets' legacy ``WebSocketServerProtocol``: it overrides
-  ``write_close_frame`` (reading ``close_rcvd``) and ``pong`` (with ``write_frame_sync`` and
-  ``prepare_ctrl``). :func:`write_frames`, :func:`write_serialized`, :func:`ensure_open` and
-  :func:`drain` write to a connection's transport and wait for it the way the legacy protocol
-  does itself. A binary message on a connection without extensions is framed here
-  (:func:`binary_header`: websockets' own bytes, which tests/test_server.py compares).
-
-Refusals: a viewer that sends what the server does not take gets the protocol's ``status``
-message (level error) saying what was wrong, the console one line (logger ``tankviz.server``,
-warning, no traceback), and nothing else happens; how many of each are told is
-:meth:`ViewerInput.refused`'s business (statuses and lines are limited per viewer). A mark that
-is taken goes to :attr:`Server.take_mark`, in the server's loop.
-
-A viewer that closes the connection while it still has not read what was sent to it (its socket
-buffers are full) is dropped at once: the echo of its close frame could only reach it behind all
-that, so the connection is aborted instead of waiting for websockets' close timeout.
+:class:`Server` checks what a viewer sends (:class:`~bridge.sinks.server.viewer_input.ViewerInput`)
+before foxglove-websocket sees it; a refusal gets the protocol's ``status`` (level error) and a
+console line (logger ``tankviz.server``, warning), and nothing else happens; a mark taken goes to
+:attr:`Server.take_mark`, in the server's loop. Replies never wait for the viewer (at most
+:data:`REPLY_LIMIT_BYTES` behind); a server that publishes its time sends the latest time
+(:attr:`Server.latest_time_ns`) before the channels, and never an ``advertise`` of no channel. A
+viewer that closes while its buffers are full is aborted at once, not after the close timeout.
 """
 
 from __future__ import annotations

@@ -1,23 +1,16 @@
-"""What the server takes from a viewer: ``subscribe`` and ``unsubscribe``; and, on a server that
-takes marks (``tankviz live``: capability ``clientPublish``), marks published on ``/marks``.
+"""What the server takes from a viewer: ``subscribe``, ``unsubscribe`` and, on a server that takes
+marks (``tankviz live``: capability ``clientPublish``), marks published on ``/marks``.
 
 A mark is a JSON object (encoding ``json``, any schema name) with an optional ``"text"``
 (:data:`UNNAMED` when empty or missing; at most :data:`TEXT_CHARS` characters) and an optional
-``"category"`` (at most :data:`CATEGORY_CHARS`); the other fields of ``tankviz.Mark`` (what the
-Publish panel's template holds: ``timestamp``, ``number``, ``source``, ``by``) are the server's
-to set and are ignored; any other field, a control character, a message over
-:data:`MARK_BYTES` is refused. One viewer's marks are taken :data:`MARKS_AT_ONCE` at once, then
-:data:`MARKS_PER_S` a second.
-
-Anything else — text that is not JSON, JSON that is not such a message, another op, a message
-on a channel of another topic or encoding, a binary message that is not a mark — is refused with a
-:class:`ViewerInputError` saying in one line what was wrong, before foxglove-websocket sees it
-(:mod:`bridge.sinks.server.internals` answers it with a status; :class:`ViewerInput` says which
-refusals are told: a status at most :data:`STATUSES_AT_ONCE` at once, then
-:data:`STATUSES_PER_S` a second; too many marks once per run of them; console lines at most
-:data:`REFUSALS_LOGGED`). A channel of another topic is taken in silence when advertised (Foxglove
-Studio's 3D panel advertises its click topics to every server that takes publishing); its first
-message is refused, the next ones are ignored without a word.
+``"category"`` (at most :data:`CATEGORY_CHARS`); ``timestamp``, ``number``, ``source`` and ``by``
+are the server's to set and are ignored; any other field, a control character or a message over
+:data:`MARK_BYTES` is refused. A viewer's marks are taken :data:`MARKS_AT_ONCE` at once, then
+:data:`MARKS_PER_S` a second. Anything else is refused with a one-line :class:`ViewerInputError`
+before foxglove-websocket sees it; :class:`ViewerInput` limits what is told (statuses
+:data:`STATUSES_AT_ONCE` at once then :data:`STATUSES_PER_S` a second; too many marks once per run
+of them; console lines :data:`REFUSALS_LOGGED`). A channel of another topic is taken in silence
+when advertised; its first message is refused, the next ones ignored.
 """
 
 from __future__ import annotations

@@ -1,33 +1,16 @@
 """The server itself: :class:`ViewerServer`, its thread and loop, channels, the inbox.
 
-The server runs its asyncio loop in its own thread. The pipeline hands it messages with
-:meth:`ViewerServer.publish`, which never blocks and costs next to nothing: it appends to an inbox
-that the loop empties at once after :meth:`ViewerServer.flush` (the pipeline flushes after each
-scene, replay before it waits), and at least every :data:`DRAIN_INTERVAL_S`. Live's raw frames
-and decoded signals go with the next scene: after each read of the buses live calls
-:meth:`ViewerServer.flush_batched`, which wakes the loop only if it was not woken in the last
-:data:`BATCH_S` (20 ms). Waking the loop for every message would cost a system call each and
-hand the GIL back and forth thousands of times a second; waking it on a short timer costs
-hundreds of idle wake-ups a second; waking it at each read of the buses (150 a second at 50 Hz)
-tripled the loop's turns (and the pipeline's hand-overs of the GIL) whenever a viewer subscribed
-to raw frames or signals.
-
-The inbox holds messages, plain ``(channel, time, payload)`` tuples, and control messages, each
-of a type of its own: :class:`AdvertiseChannel` and :class:`ServerTime`. Draining it hands each
-client (:class:`~bridge.sinks.server.client.ClientQueue`) its share at once.
-
-Channels carry protobuf (schemas as base64 FileDescriptorSets). A channel is advertised to every
-client but its messages go only to the clients that subscribed; :meth:`ViewerServer.wanted` tells
-the pipeline whether anyone subscribed, so it can skip work nobody looks at.
-
-A live server (``mode`` live, not publishing its time) takes marks from its viewers: it
-advertises ``clientPublish`` with ``json`` and hands each mark taken
-(:mod:`~bridge.sinks.server.viewer_input` says which are) to :attr:`ViewerServer.on_mark`, in the
-server's thread. A replay takes none.
-
-A viewer that left (:mod:`~bridge.sinks.server.internals` drops one that closes without reading
-at once, not after websockets' close timeout, :data:`CLOSE_TIMEOUT_S` here) is no longer counted
-(:meth:`ViewerServer.viewers`) and its subscriptions no longer keep channels wanted.
+The server runs its asyncio loop in its own thread. :meth:`ViewerServer.publish` never blocks: it
+appends a message (``(channel, time, payload)``) or a control message (:class:`AdvertiseChannel`,
+:class:`ServerTime`) to an inbox, which the loop hands to each client
+(:class:`~bridge.sinks.server.client.ClientQueue`) at once after :meth:`ViewerServer.flush` and at
+least every :data:`DRAIN_INTERVAL_S`; :meth:`ViewerServer.flush_batched` (live's raw frames and
+signals) wakes the loop at most once per :data:`BATCH_S`. Channels carry protobuf; a channel is
+advertised to every client, its messages go only to those that subscribed
+(:meth:`ViewerServer.wanted`). A live server (not publishing its time) takes marks
+(:mod:`~bridge.sinks.server.viewer_input`) and hands each to :attr:`ViewerServer.on_mark`, in the
+server's thread; a replay takes none. A viewer that left is no longer counted
+(:meth:`ViewerServer.viewers`) and no longer keeps channels wanted.
 """
 
 from __future__ import annotations

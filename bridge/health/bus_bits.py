@@ -1,35 +1,9 @@
 """Bits on the wire: how long each CAN frame takes on the bus, the measure of the bus load.
 
-:func:`frame_bits` counts a frame's bits from the frame alone (its id and format, its flags and
-its payload), every field from SOF to the end of the interframe space, stuff bits included:
-
-- exact for everything up to the end of the data field, and the expected 0.5 stuff bits for the
-  15-bit CRC of a classic frame (CAN FD's CRC field has fixed stuff bits: exact);
-- split into the arbitration phase, sent at the nominal bitrate, and the data phase, sent at the
-  data bitrate: from the bit rate switch (BRS) to the CRC delimiter of a CAN FD frame with BRS,
-  and 0 for every other frame;
-- a CAN FD payload between two lengths is padded to the next (with 0xCC); a remote frame has no
-  data field; an error frame counts :data:`ERROR_FRAME_BITS` (all in the arbitration phase).
-
-:func:`estimate_frame_bits` is one number in nominal bit times: given both bitrates, each
-data-phase bit counts ``bitrate / data_bitrate``; otherwise every bit counts 1. The bus load is
-these bits over the bitrate (:mod:`bridge.health.monitor` works it out per window; no bitrate,
-no load).
-
-:func:`frame_bits` is cheap: what comes before the data is worked out once per kind of frame
-(id, format, flags and length; beyond 65536 kinds, all are forgotten), the data field is stuffed
-a byte at a time from a table, and the bits of up to 256 recent payloads of each kind are
-remembered (counters and signals repeat), then forgotten all at once. A remembered count is the
-same as a new one.
-
-The monitor's per-frame hook counts even less, with a :class:`FrameKind` per kind of frame on a
-bus: the first :data:`EXACT_FIRST` (1024) frames of each kind exactly, then a sample (about one
-in 16, and any payload with a number of zero bytes the sample has not had), and every other
-frame the running mean of the sample's frames with as many zero bytes (zero bytes are what
-stuffs most). A drive with fewer frames of each kind is counted exactly; on real-like traffic
-(counters, checksums, noisy signals, radar slots that fill and empty, CAN FD) the load of every
-one-second window stays within 1 % of the exact one, and the same frames always count the same
-(tests/test_health_load.py).
+:func:`frame_bits` counts a frame's bits from SOF to the end of the interframe space, stuff bits
+included, split into arbitration and data phase; the load is these bits over the bitrate (no
+bitrate, no load). :class:`FrameKind` counts from a sample: the same frames always count the
+same, and every one-second window's load is within 1 % of the exact one.
 """
 
 from __future__ import annotations
