@@ -350,10 +350,19 @@ def test_bench_batch_prints_one_row_per_worker_count(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_bench_live_car_measures_live_with_the_car_in_another_process() -> None:
     run = subprocess.run([sys.executable, str(TOOLS / "bench_live_car.py"), "--rates", "2000",
-                          "--seconds", "2"], capture_output=True, text=True, timeout=300)
+                          "--seconds", "2", "--readers", "process,here"],
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
-    (line,) = [line for line in run.stdout.splitlines() if "frames/s " in line]
-    assert re.search(r"live \d+ +[\d.]+% \([\d.]+ µs/frame\)", line), line
-    assert re.search(r"p50 [\d.]+ ms  p99 [\d.]+ ms", line), line
-    recorded, sent = map(int, re.search(r"recorded (\d+)/(\d+)", line).groups())  # type: ignore[union-attr]
-    assert recorded == sent > 0, line
+    reference, split, here = [line for line in run.stdout.splitlines() if "frames/s " in line]
+    assert re.search(r"reference: .* [\d.]+% \([\d.]+ µs/frame\)  received \d+/\d+$",
+                     reference), reference
+    # the buses read in a process of their own, then in the pipeline's
+    assert re.search(r"live \d+ +[\d.]+% \([\d.]+ µs/frame\)  reader \d+ +[\d.]+%", split), split
+    assert "reader" not in here.split("read here")[1], here
+    for line in (split, here):
+        assert re.search(r"live \d+ +[\d.]+% \([\d.]+ µs/frame\)", line), line
+        assert re.search(r"p50 [\d.]+ ms  p99 [\d.]+ ms", line), line
+        recorded, sent = map(int, re.search(r"recorded (\d+)/(\d+)", line).groups())  # type: ignore[union-attr]
+        assert recorded == sent > 0, line
+    assert len(re.findall(r"busiest process / reference [\d.]+x, all of live [\d.]+x",
+                          run.stdout)) == 2, run.stdout

@@ -1304,19 +1304,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "stages are added (e.g. --stages 120000)")
     parser.add_argument("--reference", type=int, metavar="FRAMES", default=0,
                         help=argparse.SUPPRESS)  # (the reference, in its own process)
-    parser.add_argument("--car", action="store_true",
-                        help="instead: tankviz live as a command with the car in another "
-                        "process (udp_multicast), split and not (tools/bench_live_car.py)")
-    parser.add_argument("--car-rates", default="12000,6000", help="--car: frames/s, all buses")
-    parser.add_argument("--car-seconds", type=float, default=20.0, help="--car: per run")
-    parser.add_argument("--car-readers", default="process,here",
-                        help="--car: where the buses are read (process: their own; here)")
     args = parser.parse_args(argv)
-    if args.car:
-        from bench_live_car import main as car_main
-
-        return car_main([float(r) for r in args.car_rates.split(",")], args.car_seconds,
-                        args.car_readers.split(","))
     if args.reference:
         references(args)
         return 0

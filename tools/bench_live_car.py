@@ -13,8 +13,14 @@ scene latency p50/p99 at the reading viewer (a frame stamped t is in the scene o
 tick after t; the receipt of that tick's last ``/scene/*`` message minus t; the first 0.5 s are
 left out), and the frames recorded in the drive's MCAP against those sent. Goal (issue #36
 item 6): at 12k frames/s no process above 35 % of one core, p99 < 50 ms, every frame recorded.
+Each rate runs live once per ``--readers`` (``process``: the buses read in a process of their
+own, live's default; ``here``: in the pipeline's, ``TANKVIZ_LIVE_READER=here``), then the fixed
+reference on the same traffic: python-can alone receiving the three groups, a thread per bus
+blocking in ``recv`` (:func:`bare_receive`), as a program that only takes the frames in would.
+Its CPU per frame measures the machine; live's ratio to it compares runs on other days or
+computers.
 
-    python tools/bench_live_car.py [--rates 12000,6000] [--seconds 20]
+    python tools/bench_live_car.py [--rates 12000,6000] [--seconds 20] [--readers process,here]
 """
 
 from __future__ import annotations
@@ -62,8 +68,85 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
-def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
-    """One run of live with the car at ``rate``."""
+def bare_receive(groups: list[str]) -> None:
+    """The reference (a process of its own): python-can receives each group in a thread,
+    ``recv`` blocking, until standard input says stop; prints the frames received. Each socket
+    gets its own group only, as live's (else Linux gives each every group joined)."""
+    import threading
+
+    import can
+
+    from bridge.io.buses import own_group_only
+
+    buses = [can.Bus(interface="udp_multicast", channel=g, receive_own_messages=False)
+             for g in groups]
+    for bus in buses:
+        own_group_only(bus)
+    stop = threading.Event()
+    counts = [0] * len(buses)
+
+    def receive(i: int, bus: can.BusABC) -> None:
+        while not stop.is_set():
+            if bus.recv(0.2) is not None:
+                counts[i] += 1
+
+    threads = [threading.Thread(target=receive, args=(i, b)) for i, b in enumerate(buses)]
+    for thread in threads:
+        thread.start()
+    print("READY", flush=True)
+    sys.stdin.readline()
+    stop.set()
+    for thread in threads:
+        thread.join()
+    for bus in buses:
+        bus.shutdown()
+    print(sum(counts), flush=True)
+
+
+def car_process(rate: float, seconds: float, groups: dict[str, str],
+                env: dict[str, str]) -> subprocess.Popen[str]:
+    """The car, ready to send at ``go``."""
+    car = subprocess.Popen(
+        [sys.executable, str(TOOLS / "car_sender.py"), "--rate", str(rate), "--seconds",
+         str(seconds), *[a for bus, g in groups.items() for a in ("--group", f"{bus}={g}")]],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+    assert car.stdout is not None
+    car.stdout.readline()  # READY
+    return car
+
+
+def run_reference(rate: float, seconds: float, run: int) -> dict[str, Any]:
+    """The reference (:func:`bare_receive`) with the car at ``rate``."""
+    from bench_live import child_cpu
+
+    groups = groups_for(run)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    receiver = subprocess.Popen(
+        [sys.executable, str(Path(__file__).resolve()), "--bare-receive", *groups.values()],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+    assert receiver.stdout is not None and receiver.stdin is not None
+    receiver.stdout.readline()  # READY
+    car = car_process(rate, seconds, groups, env)
+    assert car.stdout is not None and car.stdin is not None
+    before = child_cpu(receiver.pid)
+    began = time.monotonic()
+    car.stdin.write("go\n")
+    car.stdin.flush()
+    sender = json.loads(car.stdout.readline())
+    time.sleep(1.0)
+    wall = time.monotonic() - began
+    used = child_cpu(receiver.pid) - before
+    car.wait()
+    receiver.stdin.write("stop\n")
+    receiver.stdin.flush()
+    received = int(receiver.communicate(timeout=60)[0].split()[-1])
+    frames = sum(sender["sent"].values())
+    return {"pct": 100 * used / wall, "us_per_frame": 1e6 * used / frames,
+            "received": received, "sent": frames}
+
+
+def run_once(rate: float, seconds: float, run: int, reader: str) -> dict[str, Any]:
+    """One run of live with the car at ``rate``, its buses read ``reader``."""
     from bench_live import child_cpu, scene_receipts, summary_frame_counts
 
     from bridge.io.drives import ArchiveSource
@@ -71,7 +154,7 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
     groups = groups_for(run)
     with tempfile.TemporaryDirectory(prefix="tankviz-car-") as tmp:
         drives = Path(tmp) / "drives"
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        env = {**os.environ, "PYTHONPATH": str(ROOT), "TANKVIZ_LIVE_READER": reader}
         live = subprocess.Popen(
             [sys.executable, "-m", "bridge", "live", "--profile", "ecocar", "--port", "0",
              "--min-free", "0", "--drives", str(drives),
@@ -94,12 +177,8 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         assert clients.stdout is not None and clients.stdin is not None
         clients.stdout.readline()  # READY
-        car = subprocess.Popen(
-            [sys.executable, str(TOOLS / "car_sender.py"), "--rate", str(rate), "--seconds",
-             str(seconds), *[a for bus, g in groups.items() for a in ("--group", f"{bus}={g}")]],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+        car = car_process(rate, seconds, groups, env)
         assert car.stdout is not None and car.stdin is not None
-        car.stdout.readline()  # READY
         pids = family(live.pid)
         before = {pid: child_cpu(pid) for pid in pids}
         began = time.monotonic()
@@ -133,11 +212,11 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
                     unseen += 1
                 else:
                     latencies.append((got[0] - t) / 1e6)
-    names = {pid: ("live" if pid == live.pid else "child") for pid in used if used[pid] > 0.05}
+    names = {pid: ("live" if pid == live.pid else "reader") for pid in used if used[pid] > 0.05}
     cpu = {f"{names[pid]} {pid}": 100 * used[pid] / wall for pid in names}
     frames = sum(sender["sent"].values())
     per_frame = {f"{names[pid]} {pid}": 1e6 * used[pid] / frames for pid in names}
-    return {"rate": rate, "cpu": cpu, "sent": sender["sent"],
+    return {"rate": rate, "reader": reader, "cpu": cpu, "sent": sender["sent"],
             "us_per_frame": per_frame, "achieved": frames / sender["seconds"],
             "recorded": recorded, "p50_ms": percentile(latencies, 0.5),
             "p99_ms": percentile(latencies, 0.99), "unseen": unseen,
@@ -145,7 +224,7 @@ def run_once(rate: float, seconds: float, run: int) -> dict[str, Any]:
             "tail": rest.strip().splitlines()[-3:]}
 
 
-def report(result: dict[str, Any]) -> list[str]:
+def report(result: dict[str, Any], reference: dict[str, Any]) -> list[str]:
     cpu = result["cpu"]
     top = max(cpu.values())
     sent, recorded = sum(result["sent"].values()), sum(result["recorded"].values())
@@ -155,27 +234,50 @@ def report(result: dict[str, Any]) -> list[str]:
         misses += [f"p99 {result['p99_ms']:.0f} ms"] if result["p99_ms"] >= P99_GOAL_MS else []
     misses += [f"{sent - recorded} frames not recorded"] if recorded != sent else []
     return [
-        f"{result['rate']:>6.0f} frames/s  "
+        f"{result['rate']:>6.0f} frames/s  read {result['reader']:<7}  "
         + "  ".join(f"{name} {pct:4.1f}% ({result['us_per_frame'][name]:.1f} µs/frame)"
                     for name, pct in sorted(cpu.items()))
         + f"  sent {result['achieved']:.0f}/s"
         + f"  p50 {result['p50_ms']:.1f} ms  p99 {result['p99_ms']:.1f} ms  "
         f"recorded {recorded}/{sent}  (car late ≤ {result['sender_late_ms']:.0f} ms, "
-        f"exit {result['exit']})  " + ("GOAL MISSED: " + "; ".join(misses) if misses else "ok")]
+        f"exit {result['exit']})  " + ("GOAL MISSED: " + "; ".join(misses) if misses else "ok"),
+        f"{'':>16}busiest process / reference {top / reference['pct']:.2f}x, all of live "
+        f"{sum(cpu.values()) / reference['pct']:.2f}x"]
+
+
+def reference_line(rate: float, reference: dict[str, Any]) -> str:
+    return (f"{rate:>6.0f} frames/s  reference: python-can alone receives the same traffic  "
+            f"{reference['pct']:4.1f}% ({reference['us_per_frame']:.1f} µs/frame)  "
+            f"received {reference['received']}/{reference['sent']}")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rates", default="12000,6000", help="frames/s of the car, all buses")
     parser.add_argument("--seconds", type=float, default=20.0, help="the car's drive, per run")
+    parser.add_argument("--readers", default="process",
+                        help="where live reads its buses, per run: process, here or both")
+    parser.add_argument("--bare-receive", nargs="+", metavar="GROUP", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.bare_receive:
+        bare_receive(args.bare_receive)
+        return 0
     sys.path.insert(0, str(TOOLS))
     sys.path.insert(0, str(ROOT))
     print(f"tankviz live, car in another process (udp_multicast), {args.seconds:g} s per run; "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    for run, rate in enumerate((float(r) for r in args.rates.split(",")), 1):
-        for line in report(run_once(rate, args.seconds, run)):
-            print(line, flush=True)
+    run = 0
+    for rate in (float(r) for r in args.rates.split(",")):
+        results = []
+        for reader in args.readers.split(","):
+            run += 1
+            results.append(run_once(rate, args.seconds, run, reader))
+        run += 1
+        reference = run_reference(rate, args.seconds, run)
+        print(reference_line(rate, reference), flush=True)
+        for result in results:
+            for line in report(result, reference):
+                print(line, flush=True)
     return 0
 
 
