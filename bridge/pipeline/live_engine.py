@@ -1,10 +1,12 @@
 """The live engine (:class:`Live`, run by ``tankviz live`` and ``tankviz demo``): CAN buses in,
 the pipeline thread's loop, the recorder and the Foxglove server.
 
-The pipeline thread reads every bus (python-can's own bus creation: any interface, several at
-once) a few times per scene period, just after each scene tick and between, and turns the frames
-into the recording (never dropping one) and the live scene (never waiting for a viewer). Each
-bus has a thread that opens it. Every bus is opened before the run starts (:meth:`Live.start`): a
+Every bus (python-can's own bus creation: any interface, several at once) is read a few times
+per scene period, just after each scene tick and between, in a process of its own
+(:mod:`bridge.io.bus_reader`; a ``virtual`` bus, or ``TANKVIZ_LIVE_READER=here``: in the
+pipeline thread), and the pipeline thread turns each read's frames into the recording (never
+dropping one) and the live scene (never waiting for a viewer). Each bus has a thread that opens
+it. Every bus is opened before the run starts (:meth:`Live.start`): a
 bus that cannot work at all (an unknown interface, a NAME without python-can configuration) is an
 error at once, never retried; a bus that does not open (a socketcand server that is down, an
 address that is not one, an interface that is not there) is retried for at most
