@@ -34,6 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -115,10 +116,28 @@ def car_process(rate: float, seconds: float, groups: dict[str, str],
     return car
 
 
-def run_reference(rate: float, seconds: float, run: int) -> dict[str, Any]:
-    """The reference (:func:`bare_receive`) with the car at ``rate``."""
+def drive_car(car: subprocess.Popen[str], pids: Callable[[], list[int]]
+              ) -> tuple[dict[str, Any], float, dict[int, float]]:
+    """The car sends its drive: its figures, the wall seconds from its start to a second after
+    its end (for the last scene and frames), and the CPU seconds each of ``pids()`` (asked
+    before and after: a process may start meanwhile) used in them."""
     from bench_live import child_cpu
 
+    assert car.stdout is not None and car.stdin is not None
+    before = {pid: child_cpu(pid) for pid in pids()}
+    began = time.monotonic()
+    car.stdin.write("go\n")
+    car.stdin.flush()
+    sender = json.loads(car.stdout.readline())
+    time.sleep(1.0)
+    wall = time.monotonic() - began
+    used = {pid: child_cpu(pid) - before.get(pid, 0.0) for pid in pids()}
+    car.wait()
+    return sender, wall, used
+
+
+def run_reference(rate: float, seconds: float, run: int) -> dict[str, Any]:
+    """The reference (:func:`bare_receive`) with the car at ``rate``."""
     groups = groups_for(run)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     receiver = subprocess.Popen(
@@ -127,27 +146,19 @@ def run_reference(rate: float, seconds: float, run: int) -> dict[str, Any]:
     assert receiver.stdout is not None and receiver.stdin is not None
     receiver.stdout.readline()  # READY
     car = car_process(rate, seconds, groups, env)
-    assert car.stdout is not None and car.stdin is not None
-    before = child_cpu(receiver.pid)
-    began = time.monotonic()
-    car.stdin.write("go\n")
-    car.stdin.flush()
-    sender = json.loads(car.stdout.readline())
-    time.sleep(1.0)
-    wall = time.monotonic() - began
-    used = child_cpu(receiver.pid) - before
-    car.wait()
+    sender, wall, used = drive_car(car, lambda: [receiver.pid])
     receiver.stdin.write("stop\n")
     receiver.stdin.flush()
     received = int(receiver.communicate(timeout=60)[0].split()[-1])
     frames = sum(sender["sent"].values())
-    return {"pct": 100 * used / wall, "us_per_frame": 1e6 * used / frames,
+    return {"pct": 100 * used[receiver.pid] / wall,
+            "us_per_frame": 1e6 * used[receiver.pid] / frames,
             "received": received, "sent": frames}
 
 
 def run_once(rate: float, seconds: float, run: int, reader: str) -> dict[str, Any]:
     """One run of live with the car at ``rate``, its buses read ``reader``."""
-    from bench_live import child_cpu, scene_receipts, summary_frame_counts
+    from bench_live import scene_receipts, summary_frame_counts
 
     from bridge.io.drives import ArchiveSource
 
@@ -178,18 +189,7 @@ def run_once(rate: float, seconds: float, run: int, reader: str) -> dict[str, An
         assert clients.stdout is not None and clients.stdin is not None
         clients.stdout.readline()  # READY
         car = car_process(rate, seconds, groups, env)
-        assert car.stdout is not None and car.stdin is not None
-        pids = family(live.pid)
-        before = {pid: child_cpu(pid) for pid in pids}
-        began = time.monotonic()
-        car.stdin.write("go\n")
-        car.stdin.flush()
-        # the car's figures, then a second for the last scene and the last frames
-        sender = json.loads(car.stdout.readline())
-        time.sleep(1.0)
-        wall = time.monotonic() - began
-        used = {pid: child_cpu(pid) - before.get(pid, 0.0) for pid in family(live.pid)}
-        car.wait()
+        sender, wall, used = drive_car(car, lambda: family(live.pid))
         clients.stdin.write("stop\n")
         clients.stdin.flush()
         clients.wait(60)
