@@ -47,9 +47,9 @@ from bridge.io.buses import (
 )
 from bridge.packed import PackedFrames
 
-#: A read's first bytes: the kind, the wall time of the read (ns); then its block, if any.
+#: A read's first bytes: the kind, the wall time of the read (ns); then its pack, if any.
 _READ = struct.Struct("<cq")
-_BLOCK, _EMPTY, _PICKLED = b"B", b"E", b"P"
+_PACK, _EMPTY, _PICKLED = b"F", b"E", b"P"
 #: Seconds the reading process reads what the interfaces still hold once asked to stop.
 DRAIN_S = 0.25
 #: How far back (ns) the frames' clock must go for the schedule to start again at once.
@@ -73,7 +73,7 @@ class Read:
     """One read of every bus: its frames in time order (None: none), at ``read_ns`` (wall)."""
 
     read_ns: int
-    block: PackedFrames | None
+    pack: PackedFrames | None
 
 
 @dataclass
@@ -122,11 +122,11 @@ class ReaderProcess:
                 out.append(self._died())
                 break
             kind = message[:1]
-            if kind in (_BLOCK, _EMPTY):
+            if kind in (_PACK, _EMPTY):
                 _, read_ns = _READ.unpack_from(message)
-                block = (PackedFrames.from_bytes(memoryview(message)[_READ.size:])
-                         if kind == _BLOCK else None)
-                out.append(Read(read_ns, block))
+                pack = (PackedFrames.from_bytes(memoryview(message)[_READ.size:])
+                        if kind == _PACK else None)
+                out.append(Read(read_ns, pack))
                 reads += 1
                 continue
             what, *body = pickle.loads(message[1:])
@@ -242,7 +242,7 @@ def _read_until_stopped(specs: list[BusSpec], period_ns: int,
 
     def hand(frames: list[Frame], read_ns: int) -> None:
         if frames:
-            put_bytes(_READ.pack(_BLOCK, read_ns) + PackedFrames.from_frames(frames).to_bytes())
+            put_bytes(_READ.pack(_PACK, read_ns) + PackedFrames.from_frames(frames).to_bytes())
         else:
             put_bytes(_READ.pack(_EMPTY, read_ns))
 

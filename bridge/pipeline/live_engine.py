@@ -366,13 +366,13 @@ class Live:
         died: Died | None = None
         for item in items:
             if isinstance(item, Read):
-                block = item.block
-                if block is not None:
-                    newest = block.t[-1]
+                pack = item.pack
+                if pack is not None:
+                    newest = pack.t[-1]
                     schedule.saw(newest, item.read_ns)
                     schedule.next_read_ns(item.read_ns)  # (a smaller offset, once a second)
                     steps = len(pipeline.steps)
-                    pipeline.process_many(block)
+                    pipeline.process_many(pack)
                     if len(pipeline.steps) != steps:  # the clock stepped: log time with it
                         schedule.restart(newest, item.read_ns)
                 read_ns = item.read_ns

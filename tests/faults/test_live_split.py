@@ -46,7 +46,7 @@ def test_every_frame_crosses_in_order() -> None:
         assert send(b, 100) == (100, 0)
 
         def frames() -> list[Frame]:
-            return [f for r in reads if r.block is not None for f in r.block]
+            return [f for r in reads if r.pack is not None for f in r.pack]
 
         def more() -> bool:
             items = reader.take(0.05)
@@ -63,8 +63,8 @@ def test_every_frame_crosses_in_order() -> None:
     for bus, n in (("a", 990), ("b", 100)):
         assert [int.from_bytes(f.data, "big") for f in got if f.bus == bus] == list(range(n))
     for r in reads:
-        if r.block is not None:
-            assert list(r.block.t) == sorted(r.block.t)
+        if r.pack is not None:
+            assert list(r.pack.t) == sorted(r.pack.t)
     assert [r.read_ns for r in reads] == sorted(r.read_ns for r in reads)
 
 
