@@ -5,19 +5,26 @@ another process on udp_multicast:
 - a stop sent to the whole process group (systemd's, a terminal's Ctrl+C) finishes the drive
   with every frame the car sent: the reading process waits for the pipeline's word;
 - the reading process killed is said, the drive is finished (a complete MCAP with the frames
-  before), live exits 1.
+  before), live exits 1;
+- an adapter unplugged in the reading process is said lost and back, its gap recorded, and no
+  frame it received is lost.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
 from conftest import summary_counts, timeout_scale
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 from multicast import multicast_or_skip, send, unique_group
 from waiting import wait_for
 
@@ -127,3 +134,47 @@ def test_the_reading_process_killed_is_said_and_the_drive_finished(tmp_path: Pat
     assert 0 < frames <= 500
     (drive,) = (tmp_path / "drives").glob("*.mcap")
     assert len([f for f in ArchiveSource(drive)]) == frames
+
+
+@pytest.mark.slow
+def test_an_adapter_unplugged_in_the_reading_process_is_said_and_its_gap_recorded(
+        tmp_path: Path) -> None:
+    """The adapter breaks where the buses are read, in the reading process: the pipeline's
+    process says it is lost and back, records the gap, and every frame the adapter received
+    before and after."""
+    from flaky_adapter import FlakyAdapter
+
+    from bridge.pipeline.drive import load_stages
+    from bridge.pipeline.live_engine import Live
+
+    drives = tmp_path / "drives"
+    adapter = FlakyAdapter(tmp_path)
+    said: list[str] = []
+    live = Live([BusSpec("chassis", "flaky", "x")], load_stages([], "ecocar"), drives=drives,
+                open_bus=adapter.open, say=said.append, reader="process")
+    runner = threading.Thread(target=live.run)
+    runner.start()
+    try:
+        assert wait_for(lambda: live.pipeline.frames > 500, LIMIT_S * timeout_scale())
+        (tmp_path / "unplugged").touch()
+        assert wait_for(lambda: any("lost" in line for line in said), LIMIT_S * timeout_scale())
+        before = live.pipeline.frames
+        time.sleep(1.0)  # the scenario: the adapter is away for a second
+        (tmp_path / "unplugged").unlink()
+        assert wait_for(lambda: live.pipeline.frames > before + 300, LIMIT_S * timeout_scale())
+    finally:
+        live.stop()
+        runner.join(LIMIT_S)
+    assert not runner.is_alive()
+    assert said[0] == "bus chassis lost: CanOperationError: adapter unplugged; retrying", said
+    assert said[1].startswith("bus chassis is back after "), said
+    (drive,) = drives.glob("*.mcap")
+    numbers = [int.from_bytes(f.data, "little") for f in ArchiveSource(drive)]
+    assert numbers == list(range(1, len(numbers) + 1))  # none lost before, during or after
+    with drive.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        logs = [m.message for _, c, _, m in reader.iter_decoded_messages() if c.topic == "/log"]
+        meta = next(m.metadata for m in reader.iter_metadata() if m.name == "tankviz")
+    assert [text for text in logs if text.startswith("bus chassis")] == said[:2]
+    (gap,) = json.loads(meta["bus_gaps"])
+    assert gap["bus"] == "chassis" and 0.8e9 < gap["to_ns"] - gap["from_ns"] < 3e9

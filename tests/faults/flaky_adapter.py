@@ -1,0 +1,50 @@
+"""A CAN adapter that can be unplugged from another process: live's reading process opens it
+(it is pickled into that process), and a test unplugs it by making a file.
+
+It receives a frame every millisecond, numbered from 1 in its payload across every opening, so
+a recording with all of them holds each number once, in order. While ``folder / "unplugged"``
+exists, a bus open breaks (``CanOperationError``) and opening fails (``CanInitializationError``).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import can
+
+from bridge.io.buses import BusSpec
+
+
+class FlakyAdapter:
+    def __init__(self, folder: Path) -> None:
+        self.unplugged = folder / "unplugged"
+        self.sent = 0
+
+    def open(self, spec: BusSpec) -> can.BusABC:
+        if self.unplugged.exists():
+            raise can.CanInitializationError("no such device")
+        return _Bus(self)
+
+
+class _Bus(can.BusABC):
+    def __init__(self, adapter: FlakyAdapter) -> None:
+        self.adapter = adapter
+        self.next_at = time.monotonic()
+        super().__init__(channel="flaky")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.adapter.unplugged.exists():
+            raise can.CanOperationError("adapter unplugged")
+        wait = self.next_at - time.monotonic()
+        if wait > (timeout or 0.0):
+            time.sleep(timeout or 0.0)
+            return None, False
+        time.sleep(max(wait, 0.0))
+        self.next_at += 0.001
+        self.adapter.sent += 1
+        return can.Message(timestamp=time.time(), arbitration_id=0x100,
+                           data=self.adapter.sent.to_bytes(8, "little")), False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise NotImplementedError
