@@ -4,6 +4,8 @@
 It receives a frame every millisecond, numbered from 1 in its payload across every opening, so
 a recording with all of them holds each number once, in order. While ``folder / "unplugged"``
 exists, a bus open breaks (``CanOperationError``) and opening fails (``CanInitializationError``).
+Its frames are stamped with the wall clock plus the seconds written in ``folder / "clock"``
+(none: 0), so writing that file steps its clock.
 """
 
 from __future__ import annotations
@@ -19,7 +21,14 @@ from bridge.io.buses import BusSpec
 class FlakyAdapter:
     def __init__(self, folder: Path) -> None:
         self.unplugged = folder / "unplugged"
+        self.clock = folder / "clock"
         self.sent = 0
+
+    def offset_s(self) -> float:
+        try:
+            return float(self.clock.read_text())
+        except (OSError, ValueError):  # (none yet, or being written)
+            return 0.0
 
     def open(self, spec: BusSpec) -> can.BusABC:
         if self.unplugged.exists():
@@ -43,7 +52,7 @@ class _Bus(can.BusABC):
         time.sleep(max(wait, 0.0))
         self.next_at += 0.001
         self.adapter.sent += 1
-        return can.Message(timestamp=time.time(), arbitration_id=0x100,
+        return can.Message(timestamp=time.time() + self.adapter.offset_s(), arbitration_id=0x100,
                            data=self.adapter.sent.to_bytes(8, "little")), False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
