@@ -2,7 +2,7 @@
 another process on udp_multicast:
 
 - every frame crosses, each bus's in the order sent, each read's frames in time order;
-- a stop sent to the whole process group (systemd's, a terminal's Ctrl+C) finishes the drive
+- a stop sent to the whole process group (systemd's, Ctrl+C, a closed terminal) finishes the drive
   with every frame the car sent: the reading process waits for the pipeline's word;
 - the reading process killed is said, the drive is finished (a complete MCAP with the frames
   before), live exits 1;
@@ -98,13 +98,17 @@ def reader_pid(pid: int) -> int:
     return child
 
 
-def test_a_stop_sent_to_the_whole_group_records_every_frame(tmp_path: Path) -> None:
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
+def test_a_stop_sent_to_the_whole_group_records_every_frame(tmp_path: Path,
+                                                            signum: signal.Signals) -> None:
+    """systemd's stop (KillMode=control-group), Ctrl+C and a closed terminal reach every
+    process of the group, the reading one too."""
     group = unique_group()
     live = start_live(tmp_path, group)
     try:
         assert send(group, 990) == (990, 0)
     finally:
-        os.killpg(live.pid, signal.SIGTERM)  # (systemd's KillMode=control-group)
+        os.killpg(live.pid, signum)
     out = live.communicate(timeout=LIMIT_S * timeout_scale())[0]
     assert live.returncode == 0, out
     assert "990 frames;" in out, out
