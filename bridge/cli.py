@@ -6,13 +6,16 @@ the ``TANKVIZ_*`` settings are checked (:func:`bridge.apps.options.check_environ
 user error (a :class:`~bridge.errors.BridgeError`, or an ``OSError`` naming a file) is one
 ``error: …`` line with exit status 1 (``--debug``: the traceback); a name that is not UTF-8 is
 shown with its bytes as ``\\xNN`` in every line (:func:`~bridge.errors.shown`). numpy's
-OpenBLAS runs on one thread unless ``OPENBLAS_NUM_THREADS`` says otherwise.
+OpenBLAS runs on one thread unless ``OPENBLAS_NUM_THREADS`` says otherwise. When tankviz is the
+program (``main()`` without arguments), the garbage collector waits until the command's modules
+are loaded, then leaves them out (``gc.freeze``).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import importlib
 import os
 import sys
@@ -94,12 +97,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     for stream in (sys.stdout, sys.stderr):  # a name that is not UTF-8 prints as \xNN
         with contextlib.suppress(AttributeError, ValueError):
             stream.reconfigure(errors=SHOWN_ERRORS)  # type: ignore[union-attr]
+    # When tankviz is the program (the console script, ``python -m bridge``): importing the
+    # command makes no garbage worth a collection (DEVELOPING.md).
+    program = argv is None
+    collecting = gc.isenabled()
+    if program:
+        gc.disable()
     try:
         check_environment()  # a TANKVIZ_* setting may make no sense
         parser = build_parser(chosen_command(arguments))
     except BridgeError as exc:
         print(f"error: {shown(str(exc))}", file=sys.stderr)
         return EXIT_ERROR
+    finally:
+        if program:
+            gc.freeze()  # (what start-up made lives as long as the process)
+            if collecting:
+                gc.enable()
     try:
         args = parser.parse_args(arguments)  # an option's value may be a one-line error
     except BridgeError as exc:

@@ -193,3 +193,43 @@ def test_a_command_starts_no_blas_threads_unless_told(tmp_path: Path, given: str
     assert setting == (given or "1")
     if given is None:
         assert threads == "1"
+
+
+def test_a_command_runs_with_its_start_up_frozen_and_the_collector_on(tmp_path: Path) -> None:
+    """Importing a command's libraries makes no garbage worth a collection, yet the collector
+    ran dozens of times over the growing heap (a tenth of a short convert's CPU): tankviz keeps
+    it off while it starts, then freezes what start-up made (it lives as long as the process)
+    and turns it back on for the command, unless it was off already. Only as the program: a
+    program that calls ``main(argv)`` keeps its collector as it is."""
+    probe = textwrap.dedent("""
+        import gc, json, sys
+        from bridge.cli import main
+        from bridge.apps import layouts
+        seen = []
+        run = layouts.run
+        layouts.run = lambda args: seen.append((gc.isenabled(), gc.get_freeze_count())) or run(args)
+        sys.argv = ["tankviz", "layouts"]  # (main() without arguments: tankviz is the program)
+        main()
+        gc.disable()
+        main()
+        print(json.dumps([*seen, gc.isenabled()]))
+    """)
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                            cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    (on, frozen_then), (off, _), after = json.loads(result.stdout.splitlines()[-1])
+    assert on and frozen_then > 10_000
+    assert not off and not after  # (a program that turned it off keeps it off)
+
+
+def test_main_called_with_arguments_leaves_the_collector_as_it_is(tmp_path: Path) -> None:
+    probe = textwrap.dedent("""
+        import gc
+        from bridge.cli import main
+        main(["layouts"])
+        print(gc.isenabled(), gc.get_freeze_count())
+    """)
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                            cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split()[-2:] == ["True", "0"]
