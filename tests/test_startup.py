@@ -233,3 +233,35 @@ def test_main_called_with_arguments_leaves_the_collector_as_it_is(tmp_path: Path
                             cwd=tmp_path, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split()[-2:] == ["True", "0"]
+
+
+#: What only a drive with a profile uses: its rules, the world, the scene, perception.
+PROFILE_STAGES = ("bridge.profile", "bridge.world", "bridge.scene", "bridge.pipeline.perception",
+                  "bridge.health.overlay")
+
+
+def loaded_stages(argv: list[str], cwd: Path) -> list[str]:
+    code = textwrap.dedent(f"""
+        import json, sys
+        from bridge.cli import main
+        assert main({argv!r}) == 0
+        print(json.dumps(sorted(m for m in sys.modules if m.startswith({PROFILE_STAGES!r}))))
+    """)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            cwd=cwd, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return list(json.loads(result.stdout.splitlines()[-1]))
+
+
+def test_a_drive_without_a_profile_never_loads_the_profile_stages(tmp_path: Path) -> None:
+    """A convert with databases alone (a new car's first drive, a fleet's raw logs) makes no
+    scene: loading the profile's rules, the world and the scene cost it 0.05 s of CPU."""
+    log = tmp_path / "short.asc"
+    assert subprocess.run([sys.executable, "-m", "bridge", "simulate", "-o", str(log),
+                           "--duration", "1"], capture_output=True, cwd=tmp_path,
+                          timeout=120).returncode == 0
+    assert loaded_stages(["convert", str(log), "--dbc", "ecocar", "-o",
+                          str(tmp_path / "a.mcap"), "--quiet"], tmp_path) == []
+    with_profile = loaded_stages(["convert", str(log), "--profile", "ecocar", "-o",
+                                  str(tmp_path / "b.mcap"), "--quiet"], tmp_path)
+    assert "bridge.pipeline.perception" in with_profile and "bridge.world.model" in with_profile

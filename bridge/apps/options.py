@@ -85,7 +85,7 @@ def dbc_option(text: str) -> str:
 
 
 def add_stage_options(parser: argparse.ArgumentParser, *, profile_default: str | None) -> None:
-    from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+    from bridge.pipeline import DEFAULT_SCENE_RATE
 
     parser.add_argument("--dbc", action="append", metavar="[BUS=]PATH",
                         help="signal database (DBC, KCD, SYM, ARXML) for BUS, or for every bus "
@@ -125,7 +125,7 @@ def _scene_rate(text: str) -> float:
 
 def scene_rate(args: argparse.Namespace) -> float:
     """``--scene-rate``, else the default."""
-    from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+    from bridge.pipeline import DEFAULT_SCENE_RATE
 
     return DEFAULT_SCENE_RATE if args.scene_rate is None else float(args.scene_rate)
 

@@ -51,10 +51,10 @@ from bridge.io.readahead import read_in_thread
 from bridge.io.unreadable import MAGIC, why_unreadable
 from bridge.pb.bringup_pb2 import CanPayload
 from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.convert import Source
 from bridge.pipeline.drive import PROFILE_PREFIX, Drive, Stages
 from bridge.pipeline.marks import describe
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import (
     CarriedMarks,
     describe_rederive,

@@ -11,13 +11,15 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from bridge.frame import NEVER_NS, NS, key_id
 from bridge.health.alarms import AlarmKind, HealthSettings, alarm_id
 from bridge.health.bus_bits import FrameKind, KindKey
 from bridge.pb import health_pb2
-from bridge.profile.model import Profile, Sensor
-from bridge.world.observe import LEAD_GROUP
+
+if TYPE_CHECKING:  # (a drive without a profile has no families: it never loads them)
+    from bridge.profile.model import Profile, Sensor
 
 NEVER = NEVER_NS  # a time before everything
 UNKNOWN = 1 << 62  # a gap threshold that is never exceeded
@@ -95,6 +97,8 @@ def make_families(profile: Profile, cycles: Mapping[str, float], settings: Healt
     """The profile's message families: each object group, the lead, the lane lines (not
     steering-only lanes) and the ego signals; a family whose every message has a cycle time
     (``cycles``: message name -> seconds, from the databases) expects its rate from them."""
+    from bridge.world.observe import LEAD_GROUP
+
     families = [FamilyCounts(name, "objects", g.sensor, g.members, name)
                 for name, g in profile.groups.items()]
     if profile.lead is not None and profile.lead.group is not None:

@@ -38,14 +38,15 @@ from bridge.health.receive import ReceiveWatch
 from bridge.health.sight import FieldOfView, associate, has_fov
 from bridge.health.traffic import TrafficCounting
 from bridge.pb import health_pb2
-from bridge.profile.model import ObjectClass, Profile
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
-from bridge.world.lateral import LateralSignCheck
-from bridge.world.model import LaneModel, World
-from bridge.world.observe import ObjectObservation
 
-if TYPE_CHECKING:  # (live's buses: a convert never needs them)
+if TYPE_CHECKING:  # (live's buses: a convert never needs them; a profile's stages: a drive
+    # without one never loads them)
     from bridge.io.buses import ReceiveCounts
+    from bridge.profile.model import Profile
+    from bridge.world.lateral import LateralSignCheck
+    from bridge.world.model import LaneModel, World
+    from bridge.world.observe import ObjectObservation
 
 _REPORT_S = 10.0  # seconds of log time between two /log warnings of the same bad value or rule
 
@@ -150,8 +151,11 @@ class HealthMonitor(TrafficCounting):
         #: conditions told from outside (:meth:`hold`): alarm id -> why
         self._held: dict[str, str] = {}
         #: the lateral sign check of the sensors with object groups (:mod:`bridge.world.lateral`)
-        self.lateral = (LateralSignCheck(profile) if profile is not None and profile.groups
-                        else None)
+        self.lateral: LateralSignCheck | None = None
+        if profile is not None and profile.groups:
+            from bridge.world.lateral import LateralSignCheck
+
+            self.lateral = LateralSignCheck(profile)
         #: sensors whose "flipped" verdict was said on /log
         self._lateral_said: set[str] = set()
         #: what live's buses mended or lost before their frames came (:meth:`note_receive`)
@@ -234,6 +238,8 @@ class HealthMonitor(TrafficCounting):
             for family in self.families:
                 if family.kind == "lanes":
                     family.valid_objects = count
+        from bridge.profile.model import ObjectClass
+
         stationary = ObjectClass.STATIONARY
         for family, view, groups, asked in self._witnesses:
             contains = view.contains

@@ -8,10 +8,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 from bridge.frame import NS
-from bridge.profile.model import Sensor
-from bridge.world.observe import ObjectObservation
+
+if TYPE_CHECKING:
+    from bridge.profile.model import Sensor
+    from bridge.world.observe import ObjectObservation
 
 
 class FieldOfView:

@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from bridge.decode.decoder import Decoder
 from bridge.errors import BridgeError, FileError, InputError
@@ -30,8 +30,8 @@ from bridge.io.can_logs import ISSUE_KINDS, LogSource, SourceIssue
 from bridge.io.drives import ArchiveSource, is_drive, read_drive
 from bridge.io.readahead import ReadAhead
 from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.drive import Drive, Stages, load_stages
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.rederive import (
     CarriedMarks,
     describe_rederive,
@@ -40,9 +40,11 @@ from bridge.pipeline.rederive import (
     source_record,
     unreadable_marks,
 )
-from bridge.profile.model import Profile
 from bridge.sinks.mcap import OFFLINE_LEVEL
 from bridge.sinks.outputs import atomic_output, check_output, refuse_inputs, same_file
+
+if TYPE_CHECKING:  # (a drive without a profile never loads its stages)
+    from bridge.profile.model import Profile
 
 #: How many source issues are kept in the metadata (all are counted).
 MAX_ISSUES_RECORDED = 1000

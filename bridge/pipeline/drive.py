@@ -26,16 +26,15 @@ from bridge.decode.decoder import Decoder
 from bridge.frame import Frame
 from bridge.health.monitor import HealthMonitor
 from bridge.packed import PackedFrames
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.pipeline import Pipeline
-from bridge.profile.loader import load_profile, read_profile_databases, resolve_profile
-from bridge.profile.model import Profile
 from bridge.sinks.base import Sink
 from bridge.sinks.drives import PartsRecorder
 from bridge.sinks.mcap import LIVE_LEVEL, Recorder
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # (bring-up brings numpy, a profile its stages: loaded when a drive has them)
     from bridge.bringup.monitor import BringUpMonitor
+    from bridge.profile.model import Profile
 
 
 class Stages(NamedTuple):
@@ -63,6 +62,8 @@ def load_stages(dbc_options: Sequence[str], profile: str | Path | None) -> Stage
     (with them, the profile's ``databases`` are set aside: they need not exist here)."""
     if profile is None:
         return Stages(build_decoder(dbc_options), None)
+    from bridge.profile.loader import load_profile, read_profile_databases, resolve_profile
+
     path = resolve_profile(profile)
     given = bool(dbc_options)
     if not given:

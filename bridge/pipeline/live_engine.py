@@ -73,11 +73,11 @@ from bridge.io.buses import (
     ReceiveCounts,
     merge_batches,
 )
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.clock import LIVE_FORWARD_NS, StepDetector
 from bridge.pipeline.collector import steady_stream
 from bridge.pipeline.drive import Drive, Stages
 from bridge.pipeline.marks import MarkAsked, Marks, describe
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.sinks.drives import Gap
 from bridge.sinks.server import ClientStats, ViewerMark, ViewerServer
 from bridge.topics import LOG_TOPIC, TopicMessage, bus_segment

@@ -11,16 +11,17 @@ from __future__ import annotations
 import queue
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from bridge.frame import timestamp
 from bridge.pb.marks_pb2 import Mark
-from bridge.profile.model import MarkRule
-from bridge.scene.entities import add_text, entity
 from bridge.topics import LOG_TOPIC, MARKS_CATEGORY, MARKS_TOPIC, TopicMessage, scene_topic
+
+if TYPE_CHECKING:
+    from bridge.profile.model import MarkRule
 
 #: How long a mark's text stays in the scene (s of log time).
 SHOWN_S = 5.0
@@ -121,6 +122,8 @@ def describe(mark: Mark) -> str:
 
 def mark_messages(mark: Mark, t_ns: int) -> list[TopicMessage]:
     """A mark's messages: itself on /marks, its line on /log, its text in the scene."""
+    from bridge.scene.entities import add_text, entity  # (a drive may have marks, no scene)
+
     line = describe(mark)
     shown = entity(t_ns, f"mark-{mark.number}", SHOWN_S)
     add_text(shown, *SHOWN_AT, line)

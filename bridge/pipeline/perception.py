@@ -17,6 +17,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from bridge.errors import UsageError
 from bridge.frame import NEVER_NS, NS
 from bridge.pb.perception_pb2 import EgoState, Lanes, LeadVehicle, PerceivedObjects
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.profile.model import Profile
 from bridge.scene import entities as scene
 from bridge.scene import semantic
@@ -34,7 +35,6 @@ from bridge.world.lead import same_twins, twin_sets
 from bridge.world.model import LaneModel, World
 from bridge.world.observe import Observer, copies
 
-DEFAULT_SCENE_RATE = 20.0
 MAX_SCENE_RATE = 50.0
 #: The ticks of a gap longer than this are not all made: its first minute, then the latest.
 MAX_FILL_NS = 60 * NS

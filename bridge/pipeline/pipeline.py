@@ -24,15 +24,12 @@ from bridge.decode.decoder import Decoder
 from bridge.decode.outcome import Outcome
 from bridge.frame import END_NS, NEVER_NS, Frame
 from bridge.health.monitor import HealthMonitor
-from bridge.health.overlay import alarm_entities, fov_entities
 from bridge.packed import PackedFrames
 from bridge.pb.can_frame_pb2 import CanFrameBlock
 from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.clock import ClockStep, StepDetector
 from bridge.pipeline.marks import Marks, MarkWatch
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE, Perception
-from bridge.profile.model import Profile
-from bridge.scene import entities as scene
 from bridge.sinks.base import Channel, Serialized, Sink
 from bridge.sinks.raw import BlockCutter, RawBlock
 from bridge.topics import (
@@ -45,8 +42,11 @@ from bridge.topics import (
     scene_topic,
 )
 
-if TYPE_CHECKING:  # (bring-up brings numpy: a drive without it does not import it)
+if TYPE_CHECKING:  # (bring-up brings numpy, a profile its stages: a drive without them does
+    # not import them)
     from bridge.bringup.monitor import BringUpMonitor
+    from bridge.pipeline.perception import Perception
+    from bridge.profile.model import Profile
 
 #: What a codec's decoded messages are fed to (message name, signals, time): perception, the
 #: mark watch, or both.
@@ -70,8 +70,11 @@ class Pipeline:
         self.profile = profile
         self.scene_rate = scene_rate
         self.sinks: list[Sink] = []
-        self.perception = (Perception(profile, scene_rate=scene_rate)
-                           if profile is not None else None)
+        self.perception: Perception | None = None
+        if profile is not None:
+            from bridge.pipeline.perception import Perception
+
+            self.perception = Perception(profile, scene_rate=scene_rate)
         self.health = health
         #: the bring-up topics' stage (None: none of them)
         self.bringup = bringup
@@ -374,6 +377,9 @@ class Pipeline:
                       t_ns: int) -> TopicMessage:
         """The health checks look at the world of this scene tick; the scene shows the alarms
         beside the ego and each sensor's field of view (red when alarmed)."""
+        from bridge.health.overlay import alarm_entities, fov_entities
+        from bridge.scene import entities as scene
+
         assert self.profile is not None
         health.on_world(t_ns, perception.world, perception.lanes)
         alarms = health.active_alarms()

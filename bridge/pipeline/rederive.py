@@ -18,12 +18,10 @@ from bridge.errors import DatabaseError, InputError
 from bridge.io.drives import ArchiveContents, mark_time
 from bridge.packed import PackedFrames
 from bridge.pb.marks_pb2 import Mark
+from bridge.pipeline import DEFAULT_SCENE_RATE
 from bridge.pipeline.drive import PROFILE_PREFIX, Stages, build_decoder
 from bridge.pipeline.marks import Marks, mark_messages
-from bridge.pipeline.perception import DEFAULT_SCENE_RATE
 from bridge.pipeline.pipeline import Pipeline
-from bridge.profile.loader import load_profile, resolve_profile
-from bridge.profile.model import ProfileError
 
 
 def _attached_database(drive: ArchiveContents, folder: Path, name: str, data: bytes,
@@ -85,6 +83,9 @@ def rederive_stages(drive: ArchiveContents, dbc_options: Sequence[str],
     """The stages that re-derive ``drive``: the databases of ``dbc_options``, else the attached
     ones; the ``profile``, else the attached one (if any). Attachments are written into
     ``folder``, which must last as long as the drive is recorded (its profile is attached)."""
+    from bridge.profile.loader import load_profile, resolve_profile
+    from bridge.profile.model import ProfileError
+
     databases, profiles = folder / "databases", folder / "profile"
     databases.mkdir(exist_ok=True)
     profiles.mkdir(exist_ok=True)
