@@ -23,6 +23,7 @@ import can
 import pytest
 import websockets
 from conftest import ECOCAR_DBC, summary_counts, timeout_scale
+from flaky_adapter import FlakyAdapter
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -180,74 +181,34 @@ def test_sigkill_loses_at_most_about_the_last_second(tmp_path: Path) -> None:
                                                                        "profile-ecocar.toml"}
 
 
-class FlakyBus(can.BusABC):
-    """A bus that receives a numbered frame every millisecond and breaks when told."""
-
-    def __init__(self, source: FlakySource) -> None:
-        self.source = source
-        self.next_at = time.monotonic()
-        super().__init__(channel="flaky")
-
-    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        if self.source.broken.is_set():
-            raise can.CanOperationError("adapter unplugged")
-        wait = self.next_at - time.monotonic()
-        if wait > (timeout or 0.0):
-            time.sleep(timeout or 0.0)
-            return None, False
-        time.sleep(max(wait, 0.0))
-        self.next_at += 0.001
-        self.source.sent += 1
-        return can.Message(timestamp=time.time() + self.source.clock_offset_s,
-                           arbitration_id=0x100,
-                           data=self.source.sent.to_bytes(8, "little")), False
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        raise NotImplementedError
-
-
-class FlakySource:
-    def __init__(self, clock_offset_s: float = 0.0) -> None:
-        self.clock_offset_s = clock_offset_s  # an adapter that stamps with a clock of its own
-        self.broken = threading.Event()
-        self.sent = 0
-        self.opens = 0
-
-    def open(self, spec: BusSpec) -> can.BusABC:
-        self.opens += 1
-        if self.broken.is_set():
-            raise can.CanInitializationError("no such device")
-        return FlakyBus(self)
-
-
-def unplug_for_a_second(live: Live, source: FlakySource) -> None:
-    """Run live on the flaky source, unplug its adapter for a second, plug it back, stop."""
+def unplug_for_a_second(live: Live, adapter: FlakyAdapter) -> None:
+    """Run live on the adapter, unplug it for a second, plug it back, stop."""
     runner = threading.Thread(target=live.run)
     runner.start()
     # frames for half a second first (a loaded machine starts live slower): the bus's clock is
     # known before it is lost
-    assert wait_for(lambda: source.sent > 500, 10 * timeout_scale())
-    source.broken.set()
+    assert wait_for(lambda: adapter.sent > 500, 10 * timeout_scale())
+    adapter.unplug()
     time.sleep(1.0)  # the scenario: the adapter is away for a second...
-    assert wait_for(lambda: source.opens >= 3, 10 * timeout_scale())  # ...and tried again
-    before_gap = source.sent
-    source.broken.clear()
-    assert wait_for(lambda: source.sent > before_gap + 300, 10 * timeout_scale())
+    assert wait_for(lambda: adapter.opens >= 3, 10 * timeout_scale())  # ...and tried again
+    before_gap = adapter.sent
+    adapter.plug_in()
+    assert wait_for(lambda: adapter.sent > before_gap + 300, 10 * timeout_scale())
     live.stop()
     runner.join(10)
 
 
 @pytest.mark.slow
 def test_a_lost_bus_is_retried_the_gap_marked_and_recording_goes_on(tmp_path: Path) -> None:
-    source = FlakySource()
+    adapter = FlakyAdapter(tmp_path / "adapter")
     said: list[str] = []
     live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
-                drives=tmp_path, open_bus=source.open, say=said.append)
-    unplug_for_a_second(live, source)
+                drives=tmp_path, open_bus=adapter.open, say=said.append)
+    unplug_for_a_second(live, adapter)
 
     (drive,) = tmp_path.glob("*.mcap")
-    assert frames_recorded(drive) == source.sent  # nothing lost before, during or after
-    assert source.opens >= 3  # retried while the adapter was away
+    assert frames_recorded(drive) == adapter.sent  # nothing lost before, during or after
+    assert adapter.opens >= 3  # retried while the adapter was away
     assert said[0] == "bus chassis lost: CanOperationError: adapter unplugged; retrying"
     # (up half a second or more before: the frames missed are estimated from a second of it)
     assert re.fullmatch(r"bus chassis is back after \d\.\d s: (about [\d,]+ frames missed \(an "
@@ -268,10 +229,11 @@ def test_a_lost_bus_is_noted_in_the_log_time_of_its_frames(tmp_path: Path) -> No
     """An adapter that stamps with its own clock (an hour behind the wall clock here): the bus
     lost and back lines on /log and the gap in the metadata are in the frames' log time, beside
     the frames, not an hour after them."""
-    source = FlakySource(clock_offset_s=-3600.0)
+    adapter = FlakyAdapter(tmp_path / "adapter")
+    adapter.step_clock(-3600.0)  # an adapter that stamps with a clock of its own
     live = Live([BusSpec("chassis", "flaky", "x")], load_stages([str(ECOCAR_DBC)], "ecocar"),
-                drives=tmp_path, open_bus=source.open, say=lambda text: None)
-    unplug_for_a_second(live, source)
+                drives=tmp_path, open_bus=adapter.open, say=lambda text: None)
+    unplug_for_a_second(live, adapter)
 
     (drive,) = tmp_path.glob("*.mcap")
     with drive.open("rb") as f:

@@ -160,11 +160,11 @@ def test_an_adapter_unplugged_in_the_reading_process_is_said_and_its_gap_recorde
     runner.start()
     try:
         assert wait_for(lambda: live.pipeline.frames > 500, LIMIT_S * timeout_scale())
-        (tmp_path / "unplugged").touch()
+        adapter.unplug()
         assert wait_for(lambda: any("lost" in line for line in said), LIMIT_S * timeout_scale())
         before = live.pipeline.frames
         time.sleep(1.0)  # the scenario: the adapter is away for a second
-        (tmp_path / "unplugged").unlink()
+        adapter.plug_in()
         assert wait_for(lambda: live.pipeline.frames > before + 300, LIMIT_S * timeout_scale())
     finally:
         live.stop()
@@ -204,7 +204,7 @@ def test_the_car_clock_stepping_in_the_reading_process_is_followed(tmp_path: Pat
     runner.start()
     try:
         assert wait_for(lambda: live.pipeline.frames > 1000, LIMIT_S * timeout_scale())
-        (tmp_path / "clock").write_text(str(step_s))
+        adapter.step_clock(step_s)
         assert wait_for(lambda: bool(live.pipeline.steps), LIMIT_S * timeout_scale())
         stepped_at = live.pipeline.frames
         assert wait_for(lambda: live.pipeline.frames > stepped_at + 2000,

@@ -1,11 +1,11 @@
-"""A CAN adapter that can be unplugged from another process: live's reading process opens it
-(it is pickled into that process), and a test unplugs it by making a file.
+"""A CAN adapter a test unplugs and whose clock it steps, through files in a folder, so that it
+works the same in live's own process and in its reading process (it is pickled into that one).
 
 It receives a frame every millisecond, numbered from 1 in its payload across every opening, so
-a recording with all of them holds each number once, in order. While ``folder / "unplugged"``
-exists, a bus open breaks (``CanOperationError``) and opening fails (``CanInitializationError``).
-Its frames are stamped with the wall clock plus the seconds written in ``folder / "clock"``
-(none: 0), so writing that file steps its clock.
+a recording with all of them holds each number once, in order. Unplugged (:meth:`unplug`), a bus
+open breaks (``CanOperationError``) and opening fails (``CanInitializationError``). Its frames
+are stamped with the wall clock plus the offset of :meth:`step_clock`. ``sent`` and ``opens``
+count in the process that opens it.
 """
 
 from __future__ import annotations
@@ -20,9 +20,21 @@ from bridge.io.buses import BusSpec
 
 class FlakyAdapter:
     def __init__(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
         self.unplugged = folder / "unplugged"
         self.clock = folder / "clock"
         self.sent = 0
+        self.opens = 0
+
+    def unplug(self) -> None:
+        self.unplugged.touch()
+
+    def plug_in(self) -> None:
+        self.unplugged.unlink()
+
+    def step_clock(self, offset_s: float) -> None:
+        """From now on its frames are stamped ``offset_s`` from the wall clock."""
+        self.clock.write_text(str(offset_s))
 
     def offset_s(self) -> float:
         try:
@@ -31,6 +43,7 @@ class FlakyAdapter:
             return 0.0
 
     def open(self, spec: BusSpec) -> can.BusABC:
+        self.opens += 1
         if self.unplugged.exists():
             raise can.CanInitializationError("no such device")
         return _Bus(self)
