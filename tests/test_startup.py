@@ -235,9 +235,11 @@ def test_main_called_with_arguments_leaves_the_collector_as_it_is(tmp_path: Path
     assert result.stdout.split()[-2:] == ["True", "0"]
 
 
-#: What only a drive with a profile uses: its rules, the world, the scene, perception.
-PROFILE_STAGES = ("bridge.profile", "bridge.world", "bridge.scene", "bridge.pipeline.perception",
-                  "bridge.health.overlay")
+#: What only a drive with a profile uses: its rules, the world, the scene, perception (the
+#: health monitor imports the lateral sign check's module, which loads none of them itself).
+PROFILE_STAGES = ("bridge.profile", "bridge.world.model", "bridge.world.observe",
+                  "bridge.world.lead", "bridge.world.pages", "bridge.scene",
+                  "bridge.pipeline.perception", "bridge.health.overlay")
 
 
 def loaded_stages(argv: list[str], cwd: Path) -> list[str]:

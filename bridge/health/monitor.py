@@ -39,12 +39,12 @@ from bridge.health.sight import FieldOfView, associate, has_fov
 from bridge.health.traffic import TrafficCounting
 from bridge.pb import health_pb2
 from bridge.topics import HEALTH_TOPIC, LOG_TOPIC, TopicMessage
+from bridge.world.lateral import LateralSignCheck
 
 if TYPE_CHECKING:  # (live's buses: a convert never needs them; a profile's stages: a drive
     # without one never loads them)
     from bridge.io.buses import ReceiveCounts
     from bridge.profile.model import Profile
-    from bridge.world.lateral import LateralSignCheck
     from bridge.world.model import LaneModel, World
     from bridge.world.observe import ObjectObservation
 
@@ -151,11 +151,8 @@ class HealthMonitor(TrafficCounting):
         #: conditions told from outside (:meth:`hold`): alarm id -> why
         self._held: dict[str, str] = {}
         #: the lateral sign check of the sensors with object groups (:mod:`bridge.world.lateral`)
-        self.lateral: LateralSignCheck | None = None
-        if profile is not None and profile.groups:
-            from bridge.world.lateral import LateralSignCheck
-
-            self.lateral = LateralSignCheck(profile)
+        self.lateral = (LateralSignCheck(profile) if profile is not None and profile.groups
+                        else None)
         #: sensors whose "flipped" verdict was said on /log
         self._lateral_said: set[str] = set()
         #: what live's buses mended or lost before their frames came (:meth:`note_receive`)

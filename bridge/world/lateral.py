@@ -11,11 +11,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge.frame import NS
-from bridge.profile.model import ObjectClass, Profile
-from bridge.world.model import World, steering_curvature
+
+if TYPE_CHECKING:  # (made only with a profile: the health monitor of a drive without one imports
+    # this module but never loads the profile's model or the world for it)
+    from bridge.profile.model import Profile
+    from bridge.world.model import World
 
 #: where an object's baseline starts (t_ns, x, y), and the time of its latest observation
 _Held = tuple[int, float, float, int]
@@ -213,6 +216,11 @@ class LateralSignCheck:
     """
 
     def __init__(self, profile: Profile, settings: LateralSettings | None = None) -> None:
+        from bridge.profile.model import ObjectClass
+        from bridge.world.model import steering_curvature
+
+        self._stationary = ObjectClass.STATIONARY
+        self._curvature = steering_curvature
         self.profile = profile
         self.settings = settings or LateralSettings()
         #: group name -> its sensor's name, for every object group
@@ -251,8 +259,8 @@ class LateralSignCheck:
             return ego.yaw_rate
         if ego.steering_wheel_angle is None or ego.speed is None:
             return None
-        return ego.speed * steering_curvature(ego.steering_wheel_angle, self._wheelbase,
-                                              self._ratio)
+        return ego.speed * self._curvature(ego.steering_wheel_angle, self._wheelbase,
+                                           self._ratio)
 
     def update(self, t_ns: int, world: World) -> None:
         """Look at the world of one scene tick (``t_ns`` is the tick's log time; the objects'
@@ -307,7 +315,7 @@ class LateralSignCheck:
                 if obs.vx is not None:
                     stationary = stationary and abs(obs.vx + speed) <= tolerance
                 elif classified:
-                    stationary = stationary and obs.object_class is ObjectClass.STATIONARY
+                    stationary = stationary and obs.object_class is self._stationary
                 expected = -omega * (obs.x + anchor_x) / 2
                 if not stationary or abs(expected) < s.min_sweep:
                     continue
