@@ -65,9 +65,10 @@ CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/b
 LIVE_VIEW = ["ego", "greenLanes", "radar", "camera", "tracks", "lead"]
 #: What must be read in the Tank Viz labels: the lead's title and the seed's track label format
 #: "TrackID: n / x: … / y: …". OCR may misread a letter or add a stray mark beside a colon
-#: ("TrackID;: 33", "TrackIB: 35"), and a label that another one overlaps is not readable at all:
-#: the driver reads screenshot after screenshot until every pattern was matched once.
-LABEL_PATTERNS = [r"Lead\s*Vehicle", r"TrackI[D0OB][:;.,]{0,2}\s*\d+", r"x[:;]\s*-?\d+[.,]\d\d"]
+#: ("TrackID;: 33", "TrackIB: 35"), read the colon after a lone x as an i ("xi 25.19": a CI run
+#: read every x so), and a label that another one overlaps is not readable at all: the driver
+#: reads screenshot after screenshot until every pattern was matched once.
+LABEL_PATTERNS = [r"Lead\s*Vehicle", r"TrackI[D0OB][:;.,]{0,2}\s*\d+", r"x[:;i]\s*-?\d+[.,]\d\d"]
 #: The highway car (`tankviz simulate --car highway`, profile highway: a 16-slot radar with twins,
 #: no lane camera) 15 s into its drive: objects from 10 to 190 m, twins on most of them.
 HIGHWAY_S = 15.0
