@@ -518,6 +518,13 @@ def test_live_refuses_nonsense(tmp_path: Path) -> None:
                                      "NAME=INTERFACE:CHANNEL[@BITRATE]")
     nothing = run_cli("live", "--bus", "a=virtual:x", "--no-record", "--no-server", cwd=tmp_path)
     assert nothing.stderr.strip() == "error: --no-record and --no-server: nothing would be done"
+    wrong = subprocess.run([sys.executable, "-m", "bridge", "live", "--bus", "a=virtual:x",
+                            "--no-server", "--drives", str(tmp_path)], capture_output=True,
+                           text=True, cwd=tmp_path, timeout=60,
+                           env={**os.environ, "TANKVIZ_LIVE_READER": "thread"})
+    assert wrong.returncode == 1
+    assert wrong.stderr.strip() == "error: TANKVIZ_LIVE_READER=thread: must be process or here"
+    assert not list(tmp_path.glob("*.mcap"))
 
 
 def test_a_due_flush_waits_for_the_next_scene_but_not_long(tmp_path: Path) -> None:
