@@ -5,10 +5,10 @@ Only the chosen command's module is imported (``--help`` imports none: :data:`SU
 the ``TANKVIZ_*`` settings are checked (:func:`bridge.apps.options.check_environment`). Every
 user error (a :class:`~bridge.errors.BridgeError`, or an ``OSError`` naming a file) is one
 ``error: …`` line with exit status 1 (``--debug``: the traceback); a name that is not UTF-8 is
-shown with its bytes as ``\\xNN`` in every line (:func:`~bridge.errors.shown`). numpy's
-OpenBLAS runs on one thread unless ``OPENBLAS_NUM_THREADS`` says otherwise. When tankviz is the
-program (``main()`` without arguments), the garbage collector waits until the command's modules
-are loaded, then leaves them out (``gc.freeze``).
+shown with its bytes as ``\\xNN`` in every line (:func:`~bridge.errors.shown`). When tankviz is
+the program (``main()`` without arguments), numpy's OpenBLAS runs on one thread unless
+``OPENBLAS_NUM_THREADS`` says otherwise, and the garbage collector waits until the command's
+modules are loaded, then leaves them out (``gc.freeze``).
 """
 
 from __future__ import annotations
@@ -91,17 +91,17 @@ def build_parser(command: str | None = None, *, every: bool = False) -> argparse
 
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = list(argv) if argv is not None else sys.argv[1:]
-    # numpy's OpenBLAS would start a thread per core at import, for linear algebra tankviz
-    # does not do (DEVELOPING.md: start-up); read-ahead and Dask workers inherit it
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     for stream in (sys.stdout, sys.stderr):  # a name that is not UTF-8 prints as \xNN
         with contextlib.suppress(AttributeError, ValueError):
             stream.reconfigure(errors=SHOWN_ERRORS)  # type: ignore[union-attr]
-    # When tankviz is the program (the console script, ``python -m bridge``): importing the
-    # command makes no garbage worth a collection (DEVELOPING.md).
+    # When tankviz is the program (the console script, ``python -m bridge``; DEVELOPING.md):
+    # numpy's OpenBLAS would start a thread per core at import, for linear algebra tankviz does
+    # not do (read-ahead and Dask workers inherit the setting), and importing the command makes
+    # no garbage worth a collection.
     program = argv is None
     collecting = gc.isenabled()
     if program:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         gc.disable()
     try:
         check_environment()  # a TANKVIZ_* setting may make no sense

@@ -180,9 +180,10 @@ def test_a_command_starts_no_blas_threads_unless_told(tmp_path: Path, given: str
     if given is not None:
         env["OPENBLAS_NUM_THREADS"] = given
     probe = textwrap.dedent("""
-        import os
+        import os, sys
         from bridge.cli import main
-        main(["layouts"])
+        sys.argv = ["tankviz", "layouts"]  # (main() without arguments: tankviz is the program)
+        main()
         import numpy
         print(os.environ.get("OPENBLAS_NUM_THREADS"), len(os.listdir("/proc/self/task")))
     """)
@@ -222,17 +223,20 @@ def test_a_command_runs_with_its_start_up_frozen_and_the_collector_on(tmp_path: 
     assert not off and not after  # (a program that turned it off keeps it off)
 
 
-def test_main_called_with_arguments_leaves_the_collector_as_it_is(tmp_path: Path) -> None:
+def test_main_called_with_arguments_leaves_the_collector_and_blas_as_they_are(
+        tmp_path: Path) -> None:
+    """A program that calls ``main(argv)`` keeps its own process settings."""
     probe = textwrap.dedent("""
-        import gc
+        import gc, os
         from bridge.cli import main
         main(["layouts"])
-        print(gc.isenabled(), gc.get_freeze_count())
+        print(gc.isenabled(), gc.get_freeze_count(), os.environ.get("OPENBLAS_NUM_THREADS"))
     """)
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                            cwd=tmp_path, timeout=120)
+                            cwd=tmp_path, env=env, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split()[-2:] == ["True", "0"]
+    assert result.stdout.split()[-3:] == ["True", "0", "None"]
 
 
 #: What only a drive with a profile uses: its rules, the world, the scene, perception (the
